@@ -1,0 +1,276 @@
+"""The ``firmtool`` command line: parse, call the library, print, exit.
+
+Exit codes: 0 success, 1 a run that failed on its own terms (unreachable goal, numerical failure),
+2 bad input (scenario, roadmap file or option). Errors are one line on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import numpy as np
+import typer
+
+from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
+
+DEFAULT_SCENARIO = "scenarios/point_lightdark.toml"
+
+app = typer.Typer(
+    name="firmtool",
+    help=("FIRM: graph-based stochastic control with constraints, in state space (perfect measurements) "
+          "and belief space (imperfect measurements).\n\n"
+          "Typical use:\n\n"
+          "  firmtool build scenarios/point_lightdark.toml\n\n"
+          "  firmtool solve artifacts/point_lightdark.h5\n\n"
+          "  firmtool execute artifacts/point_lightdark.h5 --episodes 200 --json"),
+    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+)
+
+JsonOpt = typer.Option(False, "--json", help="Print machine-readable results on stdout.")
+WorkersOpt = typer.Option(None, "--workers", "-w", min=1, help="Worker processes (default: all cores).")
+ExecutorOpt = typer.Option("process", "--executor", help="'process' (local) or 'dask' (dask.distributed).")
+SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
+                            "without it --executor dask starts a LocalCluster.")
+
+
+def _fail(message: str, code: int) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Map library exceptions to one-line messages and exit codes."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except InputError as exc:
+            _fail(str(exc), 2)
+        except (RunFailure, NumericalError) as exc:
+            _fail(str(exc), 1)
+        except FirmtoolError as exc:  # pragma: no cover - every subclass is mapped above
+            _fail(str(exc), 1)
+        except KeyboardInterrupt:
+            _fail("interrupted; the roadmap file is unchanged by the stage that was running", 130)
+
+    return wrapper
+
+
+def _emit(report: dict, as_json: bool, human: Callable[[dict], str]) -> None:
+    public = {k: v for k, v in report.items() if not k.startswith("_")}
+    if as_json:
+        typer.echo(json.dumps(public, indent=2, default=_json_default))
+    else:
+        typer.echo(human(public))
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+def _progress_factory(label: str) -> Callable[[int], Callable[[int], None]] | None:
+    """A rich progress bar on a terminal; nothing in CI or when stderr is not a TTY."""
+    if not sys.stderr.isatty() or os.environ.get("CI"):
+        return None
+
+    def factory(total: int) -> Callable[[int], None]:
+        from rich.progress import Progress
+        progress = Progress(transient=True, console=None)
+        progress.start()
+        task = progress.add_task(label, total=total)
+        state = {"done": 0}
+
+        def advance(n: int) -> None:
+            state["done"] += n
+            progress.update(task, advance=n)
+            if state["done"] >= total:
+                progress.stop()
+
+        return advance
+
+    return factory
+
+
+def _check_exists(path: Path, what: str) -> None:
+    if not path.exists():
+        raise InputError(f"{path}: no such {what}")
+
+
+@app.command()
+@handles_errors
+def sample(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
+           output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
+           as_json: bool = JsonOpt) -> None:
+    """Sample the nodes (start, goal, valid configurations at rest) into a new roadmap file.
+
+    Example: firmtool sample scenarios/smoke.toml -o artifacts/smoke.h5
+    """
+    from firmtool.pipeline import sample_stage
+    _emit(sample_stage(scenario, output), as_json, lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
+
+
+@app.command()
+@handles_errors
+def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled nodes."),
+           as_json: bool = JsonOpt) -> None:
+    """Design node stabilisers (SLQR/SLQG), node regions and edges (nominal trajectories).
+
+    Example: firmtool design artifacts/smoke.h5
+    """
+    from firmtool.pipeline import design_stage
+    _check_exists(roadmap, "roadmap file")
+    _emit(design_stage(roadmap), as_json, lambda r: f"designed {r['nodes']} node stabilisers and {r['edges']} edges")
+
+
+@app.command()
+@handles_errors
+def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designed controllers."),
+             workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
+             scheduler: Optional[str] = SchedulerOpt, as_json: bool = JsonOpt) -> None:
+    """Estimate every edge by Monte Carlo (landing, failure, timeout counts; cost), in parallel.
+
+    Example: firmtool estimate artifacts/smoke.h5 --workers 2
+    """
+    from firmtool.pipeline import estimate_stage
+    _check_exists(roadmap, "roadmap file")
+    report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
+                            progress_factory=_progress_factory("estimating edges"))
+    _emit(report, as_json, lambda r: (f"estimated {r['edges']} edges x {r['particles_per_edge']} particles "
+                                      f"({r['particle_steps']:,} particle-steps, {r['seconds']:.1f} s, "
+                                      f"{r['workers']} workers)"))
+
+
+def _build_human(r: dict) -> str:
+    s = r["seconds"]
+    return (f"built {r['roadmap']}: {r['nodes']} nodes, {r['edges']} edges, {r['particles_per_edge']} particles/edge, "
+            f"{r['particle_steps']:,} particle-steps; sample {s['sample']:.1f} s, design {s['design']:.1f} s, "
+            f"estimate {s['estimate']:.1f} s on {r['workers']} workers")
+
+
+@app.command()
+@handles_errors
+def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
+          output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
+          workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
+          scheduler: Optional[str] = SchedulerOpt, as_json: bool = JsonOpt) -> None:
+    """Run the offline stages: sample, design, estimate.
+
+    Example: firmtool build scenarios/point_lightdark.toml --workers 2
+    """
+    from firmtool.pipeline import build as build_roadmap
+    report = build_roadmap(scenario, output, workers=workers, executor=executor, scheduler=scheduler,
+                           progress_factory=_progress_factory("estimating edges"))
+    _emit(report, as_json, _build_human)
+
+
+def _solve_human(r: dict) -> str:
+    p = r["start_success_probability"]
+    lines = [f"solve: {r['status']} after {r['iterations']} iterations (residual {r['residual']:.2e})",
+             f"start: cost-to-go {r['start_cost_to_go']}, success probability {p:.4f}",
+             f"most likely path: {' -> '.join(map(str, r['path']))}"]
+    if r["unreachable_nodes"]:
+        lines.append(f"{len(r['unreachable_nodes'])} nodes cannot reach the goal: {r['unreachable_nodes'][:20]}")
+    return "\n".join(lines)
+
+
+@app.command()
+@handles_errors
+def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated edges."),
+          failure_cost: Optional[float] = typer.Option(None, "--failure-cost", help="Override the scenario's J_F."),
+          method: str = typer.Option("value", "--method", help="'value' (value iteration) or 'policy'."),
+          as_json: bool = JsonOpt) -> None:
+    """Solve the constrained graph DP (eq. 12) and the success probability of every node.
+
+    Example: firmtool solve artifacts/smoke.h5 --failure-cost 500
+    """
+    from firmtool.pipeline import solve_stage
+    _check_exists(roadmap, "roadmap file")
+    if method not in ("value", "policy"):
+        raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
+    if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
+        raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
+    report = solve_stage(roadmap, failure_cost=failure_cost, method=method)
+    _emit(report, as_json, _solve_human)
+
+
+def _execute_human(r: dict) -> str:
+    lo, hi = r["success_rate_ci95"]
+    pred = r["predicted_success_probability"]
+    return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
+            f"{r['timeouts']} timeouts\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
+            f"predicted {pred if pred is None else round(pred, 4)}\n"
+            f"mean steps {r['mean_steps']:.1f}, mean cost {r['mean_cost']:.2f}, replans {r['replans']}")
+
+
+@app.command()
+@handles_errors
+def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
+            episodes: int = typer.Option(100, "--episodes", "-n", min=1, help="Closed-loop episodes to run."),
+            seed: int = typer.Option(0, "--seed", min=0, help="Seed of the simulated true system."),
+            as_json: bool = JsonOpt) -> None:
+    """Run closed-loop episodes of the policy on a simulated true system.
+
+    Example: firmtool execute artifacts/smoke.h5 --episodes 200 --seed 1 --json
+    """
+    from firmtool.execute import execute as run_episodes
+    from firmtool.pipeline import design_of, problem_of
+    from firmtool.nodes import START_INDEX
+    from firmtool.roadmap import Roadmap
+    _check_exists(roadmap, "roadmap file")
+    rm = Roadmap(roadmap)
+    policy = rm.require("policy", "edge", "success_probability")
+    report = run_episodes(problem_of(rm), design_of(rm), policy["edge"].astype(np.int64), episodes, seed,
+                          predicted=float(policy["success_probability"][START_INDEX]))
+    _emit(report, as_json, _execute_human)
+
+
+@app.command()
+@handles_errors
+def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: bool = JsonOpt) -> None:
+    """Summarise a roadmap file: stages done, nodes, edges, particles, solve status.
+
+    Example: firmtool inspect artifacts/smoke.h5 --json
+    """
+    from firmtool.inspect import summarize
+    _check_exists(roadmap, "roadmap file")
+    _emit(summarize(roadmap), as_json, lambda r: "\n".join(f"{k}: {v}" for k, v in r.items()))
+
+
+@app.command()
+@handles_errors
+def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario TOML file."),
+        output: Optional[Path] = typer.Option(None, "--output", "-o"),
+        episodes: int = typer.Option(200, "--episodes", "-n", min=1),
+        seed: int = typer.Option(0, "--seed", min=0),
+        workers: Optional[int] = WorkersOpt, as_json: bool = JsonOpt) -> None:
+    """Build, solve and execute a scenario in one go (default: the shipped point light-dark scenario).
+
+    Example: firmtool run scenarios/smoke.toml --episodes 50
+    """
+    from firmtool.execute import execute as run_episodes
+    from firmtool.nodes import START_INDEX
+    from firmtool.pipeline import build as build_roadmap, design_of, problem_of, solve_stage
+    from firmtool.roadmap import Roadmap
+    b = build_roadmap(scenario, output, workers=workers, progress_factory=_progress_factory("estimating edges"))
+    s = solve_stage(b["roadmap"])
+    rm = Roadmap(b["roadmap"])
+    policy = rm.require("policy", "edge", "success_probability")
+    e = run_episodes(problem_of(rm), design_of(rm), policy["edge"].astype(np.int64), episodes, seed,
+                     predicted=float(policy["success_probability"][START_INDEX]))
+    report = {"build": b, "solve": s, "execute": {k: v for k, v in e.items() if not k.startswith("_")}}
+    _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
+                                                  _execute_human(r["execute"])]))
+
+
+def main() -> None:  # pragma: no cover - console entry point
+    app()

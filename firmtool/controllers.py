@@ -1,0 +1,245 @@
+"""Stabilisers (SLQR / SLQG) and time-varying LQG edge controllers.
+
+All gains and covariances of one local controller (edge controller, then the target's
+stabiliser) are computed once, by :func:`plan_local_controller`, and are the same for every
+particle. With perfect measurements the estimator is the identity (``P = 0``): the same code
+path, with no Kalman gains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from firmtool.errors import NumericalError
+from firmtool.models.linear import LinearGaussianModel
+
+
+def lqr_gain(A: np.ndarray, B: np.ndarray, Wx: np.ndarray, Wu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stationary discrete LQR: ``u = -K x`` minimising ``sum x'Wx x + u'Wu u``.
+
+    Solves ``S = A'SA - A'SB (Wu + B'SB)^-1 B'SA + Wx`` and returns ``K = (Wu + B'SB)^-1 B'SA``.
+
+    Parameters
+    ----------
+    A : (n, n), B : (n, m), Wx : (n, n) PSD, Wu : (m, m) PD.
+
+    Returns
+    -------
+    K : (m, n) gain; S : (n, n) Riccati solution.
+
+    Raises
+    ------
+    NumericalError
+        If ``(A, B)`` is not stabilisable (no stabilising Riccati solution).
+    """
+    try:
+        S = scipy.linalg.solve_discrete_are(A, B, Wx, Wu)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise NumericalError(f"LQR Riccati equation has no stabilising solution ((A, B) not stabilisable?): {exc}") from None
+    K = np.linalg.solve(Wu + B.T @ S @ B, B.T @ S @ A)
+    if not np.all(np.isfinite(K)) or np.max(np.abs(np.linalg.eigvals(A - B @ K))) >= 1.0:
+        raise NumericalError("LQR gain does not stabilise the system ((A, B) not stabilisable?)")
+    return K, S
+
+
+def kalman_update(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman measurement update of a covariance.
+
+    Returns the update gain ``L = P H' (H P H' + R)^-1`` (n, nz) and the a-posteriori covariance
+    ``(I - L H) P (I - L H)' + L R L'`` (Joseph form, symmetric by construction).
+    """
+    S = H @ P_prior @ H.T + R
+    L = np.linalg.solve(S, H @ P_prior).T
+    IL = np.eye(P_prior.shape[0]) - L @ H
+    P = IL @ P_prior @ IL.T + L @ R @ L.T
+    return L, 0.5 * (P + P.T)
+
+
+def stationary_kalman(A: np.ndarray, Qd: np.ndarray, H: np.ndarray, R: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stationary Kalman filter in update form (not python-control's predictor form).
+
+    The predicted covariance solves ``P- = A P- A' - A P- H'(H P- H' + R)^-1 H P- A' + Qd``.
+
+    Returns
+    -------
+    L : (n, nz) update gain ``P- H'(H P- H' + R)^-1``.
+    P_post : (n, n) a-posteriori covariance ``(I - L H) P-``.
+    P_prior : (n, n) predicted covariance.
+
+    Raises
+    ------
+    NumericalError
+        If ``(A, H)`` is not detectable.
+    """
+    try:
+        P_prior = scipy.linalg.solve_discrete_are(A.T, H.T, Qd, R)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise NumericalError(f"Kalman Riccati equation has no stabilising solution ((A, H) not detectable?): {exc}") from None
+    P_prior = 0.5 * (P_prior + P_prior.T)
+    L, P_post = kalman_update(P_prior, H, R)
+    return L, P_post, P_prior
+
+
+def estimate_spread(A: np.ndarray, B: np.ndarray, K: np.ndarray, Qd: np.ndarray,
+                    H: np.ndarray | None = None, L: np.ndarray | None = None,
+                    P_prior: np.ndarray | None = None, R: np.ndarray | None = None) -> np.ndarray:
+    """Stationary covariance of the decision state around the node under its stabiliser.
+
+    Perfect measurements: ``x - v`` follows ``(A - BK)`` driven by process noise, so
+    ``Sigma = (A-BK) Sigma (A-BK)' + Qd``. Imperfect: the estimate is driven by the innovations
+    (white, covariance ``S = H P- H' + R``) through ``L``: ``Sigma = (A-BK) Sigma (A-BK)' + L S L'``.
+    """
+    Acl = A - B @ K
+    drive = Qd if L is None else L @ (H @ P_prior @ H.T + R) @ L.T
+    Sigma = scipy.linalg.solve_discrete_lyapunov(Acl, drive)
+    return 0.5 * (Sigma + Sigma.T)
+
+
+def equilibrium_input(A: np.ndarray, B: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The input ``u`` that holds state ``v`` still (``A v + B u = v``); NumericalError if none does."""
+    u, *_ = np.linalg.lstsq(B, v - A @ v, rcond=None)
+    if np.linalg.norm(A @ v + B @ u - v) > 1e-9 * max(1.0, np.linalg.norm(v)):
+        raise NumericalError(f"node state {np.array2string(v, precision=3)} is not an equilibrium of the model")
+    return u
+
+
+def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.ndarray,
+                          steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum-energy open-loop trajectory from ``x0`` to ``xf`` in exactly ``steps`` steps.
+
+    ``u_k = B' A'^(steps-1-k) W^-1 (xf - A^steps x0)`` with ``W`` the reachability Gramian.
+    For a double integrator this is the smooth cubic rest-to-rest profile; for a single
+    integrator a constant velocity.
+
+    Returns
+    -------
+    x : (steps + 1, n) states, ``x[0] = x0`` and ``x[-1] = xf``.
+    u : (steps, m) inputs.
+    """
+    n = A.shape[0]
+    powers = [np.eye(n)]
+    for _ in range(steps):
+        powers.append(A @ powers[-1])
+    blocks = np.stack([powers[steps - 1 - k] @ B for k in range(steps)])  # (steps, n, m)
+    W = np.einsum("kim,kjm->ij", blocks, blocks)
+    try:
+        lam = np.linalg.solve(W, xf - powers[steps] @ x0)
+    except np.linalg.LinAlgError:
+        raise NumericalError(f"no trajectory in {steps} steps: the pair (A, B) is not controllable") from None
+    u = np.einsum("kim,i->km", blocks, lam)
+    x = np.empty((steps + 1, n))
+    x[0] = x0
+    for k in range(steps):
+        x[k + 1] = A @ x[k] + B @ u[k]
+    if np.linalg.norm(x[-1] - xf) > 1e-6 * max(1.0, np.linalg.norm(xf)):
+        raise NumericalError("nominal trajectory misses its target: the pair (A, B) is not controllable")
+    return x, u
+
+
+@dataclass(frozen=True)
+class NodeController:
+    """The stabiliser of one node and the node's region parameters."""
+
+    center: np.ndarray  # (n,)
+    u_eq: np.ndarray  # (m,)
+    K: np.ndarray  # (m, n) stationary LQR gain
+    S: np.ndarray  # (n, n) LQR Riccati solution (terminal cost of edge controllers)
+    L: np.ndarray  # (n, nz) stationary Kalman update gain (zeros with perfect measurements)
+    P: np.ndarray  # (n, n) stationary a-posteriori covariance P_s (zeros with perfect measurements)
+    Sigma: np.ndarray  # (n, n) stationary covariance of the decision state around the centre
+
+
+def weights(model: LinearGaussianModel, state_weight: float, velocity_weight: float,
+            control_weight: float, config_dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal LQR weights: ``state_weight`` on configuration coordinates, ``velocity_weight`` on the rest."""
+    wx = np.full(model.n, velocity_weight)
+    wx[:config_dim] = state_weight
+    return np.diag(wx), control_weight * np.eye(model.m)
+
+
+def design_node(model: LinearGaussianModel, center: np.ndarray, Wx: np.ndarray, Wu: np.ndarray,
+                perfect: bool) -> NodeController:
+    """SLQR (perfect) or SLQG (imperfect) stabiliser for ``center``; R evaluated at the centre."""
+    u_eq = equilibrium_input(model.A, model.B, center)
+    K, S = lqr_gain(model.A, model.B, Wx, Wu)
+    Qd = model.process_cov
+    if perfect:
+        zeros_L = np.zeros((model.n, model.nz))
+        Sigma = estimate_spread(model.A, model.B, K, Qd)
+        return NodeController(center, u_eq, K, S, zeros_L, np.zeros((model.n, model.n)), Sigma)
+    R = model.R(center)
+    L, P, P_prior = stationary_kalman(model.A, Qd, model.H, R)
+    Sigma = estimate_spread(model.A, model.B, K, Qd, model.H, L, P_prior, R)
+    return NodeController(center, u_eq, K, S, L, P, Sigma)
+
+
+@dataclass(frozen=True)
+class LocalController:
+    """Edge controller followed by the target's stabiliser, unrolled over ``steps`` steps.
+
+    Step ``k`` (0-based) applies ``u = u_ref[k] - K[k] (xhat - x_ref[k])``; the filter update
+    after it uses ``L[k]`` and yields covariance ``P[k + 1]`` (``P[0]`` is the start covariance).
+    Node membership is tested only from step ``edge_steps`` on (the stabiliser's phase).
+    """
+
+    x_ref: np.ndarray  # (T, n)
+    u_ref: np.ndarray  # (T, m)
+    K: np.ndarray  # (T, m, n)
+    L: np.ndarray  # (T, n, nz)
+    P: np.ndarray  # (T + 1, n, n)
+    edge_steps: int
+
+    @property
+    def steps(self) -> int:
+        return self.x_ref.shape[0]
+
+
+def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_nominal: np.ndarray,
+                          P0: np.ndarray, target: NodeController, Wx: np.ndarray, Wu: np.ndarray,
+                          stabiliser_steps: int, perfect: bool) -> LocalController:
+    """Time-varying LQG along a nominal trajectory, then the target's stabiliser.
+
+    LQR gains come from the backward Riccati recursion with terminal cost ``target.S`` (for a
+    time-invariant model this reproduces the stationary gain; for linearised models it does not).
+    Kalman gains come from the forward covariance recursion with R at the NOMINAL states; during
+    the stabiliser phase R is evaluated at the target's centre, so ``P`` converges to ``target.P``.
+
+    Parameters
+    ----------
+    x_nominal : (iota + 1, n) nominal states, ``x_nominal[-1]`` the target centre.
+    u_nominal : (iota, m) nominal inputs.
+    P0 : (n, n) covariance at the start (the start node's P_s).
+    stabiliser_steps : steps the stabiliser may run before the controller times out.
+    """
+    A, B, H, n = model.A, model.B, model.H, model.n
+    iota = u_nominal.shape[0]
+    T = iota + stabiliser_steps
+    x_ref = np.empty((T, n))
+    u_ref = np.empty((T, model.m))
+    x_ref[:iota], u_ref[:iota] = x_nominal[:-1], u_nominal
+    x_ref[iota:], u_ref[iota:] = target.center, target.u_eq
+
+    K = np.empty((T, model.m, n))
+    K[iota:] = target.K
+    S = target.S
+    for k in range(iota - 1, -1, -1):  # backward Riccati along the edge
+        BS = B.T @ S
+        K[k] = np.linalg.solve(Wu + BS @ B, BS @ A)
+        S = Wx + A.T @ S @ (A - B @ K[k])
+        S = 0.5 * (S + S.T)
+
+    L = np.zeros((T, n, model.nz))
+    P = np.zeros((T + 1, n, n))
+    if not perfect:
+        Qd = model.process_cov
+        # R at the state the step lands on: the nominal during the edge, the centre after it.
+        landing_states = np.concatenate([x_nominal[1:], np.repeat(target.center[None], T - iota, axis=0)])
+        variances = model.measurement_variance(landing_states)
+        P[0] = P0
+        for k in range(T):
+            L[k], P[k + 1] = kalman_update(A @ P[k] @ A.T + Qd, H, np.diag(variances[k]))
+    return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota)

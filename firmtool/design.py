@@ -1,0 +1,160 @@
+"""The design stage: node stabilisers, node regions, edges and their nominal trajectories.
+
+What is stored in the roadmap is the small part (per-node gains and covariances, per-edge
+nominal length); the time-varying gains of an edge are recomputed from them on demand by
+:func:`local_controller`, once per edge, identically in estimation and in execution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from firmtool.controllers import (LocalController, NodeController, design_node, min_energy_trajectory,
+                                  plan_local_controller, weights)
+from firmtool.errors import NumericalError
+from firmtool.nodes import GOAL_INDEX, NodeRegions
+from firmtool.problem import Problem
+
+NOMINAL_CHECK_SPACING = 0.5  # validity checks per unit of robot radius along a nominal path
+
+
+@dataclass(frozen=True)
+class Design:
+    """Node stabilisers and the edges of the roadmap (arrays, one row per node / edge)."""
+
+    centers: np.ndarray  # (N, n)
+    u_eq: np.ndarray  # (N, m)
+    K: np.ndarray  # (N, m, n)
+    S: np.ndarray  # (N, n, n)
+    L: np.ndarray  # (N, n, nz)
+    P: np.ndarray  # (N, n, n)
+    Sigma: np.ndarray  # (N, n, n)
+    scale: np.ndarray  # (N, n) per-node spread of the estimate (node region size)
+    edge_source: np.ndarray  # (E,) int64
+    edge_target: np.ndarray  # (E,) int64
+    edge_steps: np.ndarray  # (E,) int64 nominal length iota
+
+    def node(self, j: int) -> NodeController:
+        return NodeController(self.centers[j], self.u_eq[j], self.K[j], self.S[j], self.L[j], self.P[j], self.Sigma[j])
+
+    def regions(self, problem: Problem) -> NodeRegions:
+        c = problem.scenario.controller
+        return NodeRegions(self.centers, self.P, self.scale, c.node_radius, c.covariance_tolerance, problem.perfect)
+
+
+def lqr_weights(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    c = problem.scenario.controller
+    return weights(problem.model, c.state_weight, c.velocity_weight, c.control_weight, problem.config_dim)
+
+
+def design_nodes(problem: Problem, centers: np.ndarray) -> list[NodeController]:
+    """Stabiliser of every node (R at the node's centre)."""
+    Wx, Wu = lqr_weights(problem)
+    out = []
+    for j, v in enumerate(centers):
+        try:
+            out.append(design_node(problem.model, v, Wx, Wu, problem.perfect))
+        except NumericalError as exc:
+            raise NumericalError(f"node {j}: {exc}") from None
+    return out
+
+
+def region_scale(Sigmas: np.ndarray) -> np.ndarray:
+    """Per-node, per-coordinate stationary std of the estimate (N, n), floored away from zero."""
+    std = np.sqrt(np.diagonal(Sigmas, axis1=1, axis2=2))
+    return np.maximum(std, 1e-9 * max(1.0, float(std.max())))
+
+
+def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rest-to-rest minimum-energy trajectory whose length respects the speed and input limits.
+
+    The step count starts from the analytic bound of the integrator profiles (peak speed 1.5 D/T
+    and peak acceleration 6 D/T^2 for the cubic) and grows by 10% until both limits hold.
+    """
+    model, c = problem.model, problem.scenario.controller
+    dt, d = model.dt, problem.config_dim
+    dist = float(np.max(np.abs(xf[:d] - x0[:d])))
+    if problem.velocity_dim:
+        T = max(1.5 * dist / c.max_speed, np.sqrt(6.0 * dist / c.max_accel))
+    else:
+        T = dist / c.max_speed
+    min_steps = max(2, -(-model.n // model.m))
+    steps = max(min_steps, int(np.ceil(T / dt - 1e-9)))
+    for _ in range(60):
+        x, u = min_energy_trajectory(model.A, model.B, x0, xf, steps)
+        speed = np.max(np.abs(np.diff(x[:, :d], axis=0))) / dt if steps else 0.0
+        if speed <= c.max_speed * (1 + 1e-9) and np.max(np.abs(u)) <= problem.max_input() * (1 + 1e-9):
+            return x, u
+        steps = int(np.ceil(steps * 1.1)) + 1
+    raise NumericalError(f"no nominal trajectory within the speed/input limits from {x0} to {xf}")
+
+
+def _path_is_valid(problem: Problem, x: np.ndarray) -> bool:
+    """Nominal states, densified so that consecutive checks are closer than half a robot radius."""
+    d = problem.config_dim
+    step = np.max(np.linalg.norm(np.diff(x[:, :d], axis=0), axis=1), initial=0.0)
+    spacing = NOMINAL_CHECK_SPACING * problem.scenario.world.robot_radius
+    sub = max(1, int(np.ceil(step / spacing)))
+    t = np.linspace(0.0, 1.0, sub, endpoint=False)
+    dense = (x[:-1, None, :] * (1 - t)[None, :, None] + x[1:, None, :] * t[None, :, None]).reshape(-1, x.shape[1])
+    dense = np.vstack([dense, x[-1:]])
+    return bool(np.all(problem.is_valid(dense)))
+
+
+def connect(problem: Problem, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
+
+    No edge leaves the goal node (it is absorbing).
+
+    Returns
+    -------
+    source, target, steps : (E,) int64 arrays sorted by (source, target).
+    """
+    spec = problem.scenario.roadmap
+    d = problem.config_dim
+    N = centers.shape[0]
+    k = min(spec.neighbors + 1, N)
+    dist, idx = cKDTree(centers[:, :d]).query(centers[:, :d], k=k)
+    pairs = set()
+    for i in range(N):  # loop over nodes, not particles
+        for dij, j in zip(np.atleast_1d(dist[i]), np.atleast_1d(idx[i])):
+            if j != i and j < N and dij <= spec.max_edge_length:
+                pairs.add((i, int(j)))
+                pairs.add((int(j), i))
+    pairs = sorted(p for p in pairs if p[0] != GOAL_INDEX)
+    src, dst, steps = [], [], []
+    for i, j in pairs:
+        x, u = nominal_trajectory(problem, centers[i], centers[j])
+        if _path_is_valid(problem, x):
+            src.append(i)
+            dst.append(j)
+            steps.append(u.shape[0])
+    return (np.array(src, dtype=np.int64), np.array(dst, dtype=np.int64), np.array(steps, dtype=np.int64))
+
+
+def design(problem: Problem, centers: np.ndarray) -> Design:
+    """Run the whole design stage for the given node centres."""
+    nodes = design_nodes(problem, centers)
+    stack = lambda name: np.stack([getattr(nc, name) for nc in nodes])  # noqa: E731
+    Sigma = stack("Sigma")
+    src, dst, steps = connect(problem, centers)
+    return Design(centers=centers, u_eq=stack("u_eq"), K=stack("K"), S=stack("S"), L=stack("L"), P=stack("P"),
+                  Sigma=Sigma, scale=region_scale(Sigma), edge_source=src, edge_target=dst, edge_steps=steps)
+
+
+def local_controller(problem: Problem, design_: Design, source: int, target: int,
+                     start_state: np.ndarray | None = None, start_P: np.ndarray | None = None) -> LocalController:
+    """Edge controller from ``source`` (or from an arbitrary belief) to ``target``, then its stabiliser.
+
+    With ``start_state``/``start_P`` given (execution: initial controller, replanning), the nominal
+    runs from that state instead of the source node's centre.
+    """
+    x0 = design_.centers[source] if start_state is None else start_state
+    P0 = design_.P[source] if start_P is None else start_P
+    x, u = nominal_trajectory(problem, x0, design_.centers[target])
+    Wx, Wu = lqr_weights(problem)
+    return plan_local_controller(problem.model, x, u, P0, design_.node(target), Wx, Wu,
+                                 problem.scenario.controller.max_steps, problem.perfect)

@@ -1,0 +1,39 @@
+"""Exception types. Each subclasses the matching built-in so callers can catch either.
+
+The CLI maps :class:`InputError` to exit code 2 and :class:`RunFailure` to exit code 1;
+the library never prints or exits.
+"""
+
+from __future__ import annotations
+
+
+class FirmtoolError(Exception):
+    """Base class of every error firmtool raises on purpose."""
+
+
+class InputError(FirmtoolError, ValueError):
+    """Bad input: a scenario or roadmap file, a command-line value (exit code 2)."""
+
+
+class ScenarioError(InputError):
+    """A scenario file that is missing, unreadable or invalid.
+
+    The message names the file, the field and what was expected.
+    """
+
+    def __init__(self, path: str, field: str, expected: str) -> None:
+        self.path, self.field, self.expected = str(path), field, expected
+        where = f"{self.path}: {field}" if field else self.path
+        super().__init__(f"{where}: {expected}")
+
+
+class RoadmapError(InputError):
+    """A roadmap file that is missing, unreadable, of an unknown schema or lacks a stage."""
+
+
+class NumericalError(FirmtoolError, ArithmeticError):
+    """A numerical failure (uncontrollable pair, Riccati without a stabilising solution...)."""
+
+
+class RunFailure(FirmtoolError, RuntimeError):
+    """A run that failed on its own terms, e.g. a goal unreachable from the start (exit code 1)."""

@@ -1,0 +1,38 @@
+"""A summary of what a roadmap file holds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from firmtool.nodes import START_INDEX
+from firmtool.roadmap import STAGES, Roadmap
+from firmtool.scenario import parse_scenario
+
+
+def summarize(path: str | Path) -> dict:
+    """Stages present, sizes, and the solve status of a roadmap file."""
+    rm = Roadmap(path)
+    scenario = parse_scenario(rm.scenario_text, f"{path}:scenario_toml")
+    out: dict = {"roadmap": str(path), "schema_version": rm.schema_version, "scenario": scenario.name,
+                 "measurement": scenario.measurement.kind, "seed": rm.seed, "created": rm.created,
+                 "stages": [s for s in STAGES if rm.has(s)]}
+    if rm.has("nodes"):
+        c = rm.require("nodes", "centers")["centers"]
+        out["nodes"], out["state_dim"] = int(c.shape[0]), int(c.shape[1])
+    if rm.has("controllers"):
+        out["edges"] = int(rm.require("controllers", "edge_source")["edge_source"].size)
+    if rm.has("edges"):
+        e = rm.require("edges", "particles", "particle_steps")
+        out["particles_per_edge"] = int(np.median(e["particles"])) if e["particles"].size else 0
+        out["particle_steps"] = int(e["particle_steps"].sum())
+    if rm.has("policy"):
+        a = rm.attrs("policy")
+        p = rm.require("policy", "success_probability", "cost_to_go")
+        out["solve_status"] = str(a.get("status"))
+        out["solve_iterations"] = int(a.get("iterations", 0))
+        out["start_success_probability"] = float(p["success_probability"][START_INDEX])
+        j = float(p["cost_to_go"][START_INDEX])
+        out["start_cost_to_go"] = j if np.isfinite(j) else None
+    return out

@@ -1,0 +1,1 @@
+"""Robot and system models: linear dynamics, observation noise, kinematics."""

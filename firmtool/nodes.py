@@ -1,0 +1,150 @@
+"""Node sampling and node regions (paper eq. 15) with a vectorised membership test.
+
+A node ``j`` is the set of beliefs ``(xhat, P)`` with
+
+    rms((xhat - v_j) / s_j) < radius     and     ||P - P_s^j||_F <= tol * ||P_s^j||_F
+
+where ``s_j`` (n,) is the per-coordinate stationary spread of the estimate under node j's
+stabiliser (so that a node is hit in a few steps even in 16 dimensions, and a node in the light is
+smaller than one in the dark) and ``rms`` is the root mean square over coordinates. With perfect
+measurements ``P = 0`` and the covariance test always passes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from firmtool.errors import RunFailure
+from firmtool.problem import Problem
+
+REGULAR, START, GOAL = 0, 1, 2
+START_INDEX, GOAL_INDEX = 0, 1  # the start and goal nodes are always nodes 0 and 1
+
+
+def sample_nodes(problem: Problem, count: int, rng: np.random.Generator, *,
+                 min_separation: float = 0.0, existing: np.ndarray | None = None,
+                 max_attempts: int | None = None) -> np.ndarray:
+    """Sample ``count`` valid configurations at rest, uniformly within the bounds.
+
+    Candidates closer than ``min_separation`` (configuration space, Euclidean) to an accepted node
+    or to ``existing`` centres are rejected.
+
+    Returns
+    -------
+    centers : (k, n) states at rest, ``k <= count`` (fewer if the attempts run out).
+    """
+    lo, hi, d = problem.config_lo, problem.config_hi, problem.config_dim
+    accepted: list[np.ndarray] = [] if existing is None else [c[:d] for c in existing]
+    first_new = len(accepted)
+    attempts = 0
+    max_attempts = max_attempts or 200 * count + 10_000
+    while len(accepted) - first_new < count and attempts < max_attempts:
+        batch = rng.uniform(lo, hi, size=(256, d))
+        attempts += batch.shape[0]
+        batch = batch[problem.is_valid(problem.state_of(batch))]
+        for q in batch:  # greedy separation over accepted nodes (not particles)
+            if min_separation > 0 and accepted:
+                if np.min(np.linalg.norm(np.asarray(accepted) - q, axis=1)) < min_separation:
+                    continue
+            accepted.append(q)
+            if len(accepted) - first_new == count:
+                break
+    return problem.state_of(np.asarray(accepted[first_new:]).reshape(-1, d))
+
+
+def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Start node, goal node, then sampled regular nodes.
+
+    Returns
+    -------
+    centers : (N, n); kinds : (N,) int8 codes REGULAR / START / GOAL.
+
+    Raises
+    ------
+    RunFailure
+        If no valid configuration can be found (empty free space).
+    """
+    spec = problem.scenario.roadmap
+    fixed = np.stack([problem.start, problem.goal])
+    sampled = sample_nodes(problem, spec.nodes, rng, min_separation=spec.min_separation, existing=fixed)
+    if sampled.shape[0] == 0 and spec.nodes > 0:
+        raise RunFailure("no collision-free configuration found: the free space is empty or tiny")
+    centers = np.concatenate([fixed, sampled])
+    kinds = np.full(centers.shape[0], REGULAR, dtype=np.int8)
+    kinds[START_INDEX], kinds[GOAL_INDEX] = START, GOAL
+    return centers, kinds
+
+
+@dataclass(frozen=True)
+class NodeRegions:
+    """The union of node regions Psi, with the membership test of the Monte Carlo and execution."""
+
+    centers: np.ndarray  # (N, n)
+    P: np.ndarray  # (N, n, n) stationary covariances (zeros with perfect measurements)
+    scale: np.ndarray  # (N, n) per-node, per-coordinate spread s_j
+    radius: float
+    cov_tol: float
+    perfect: bool
+
+    def __post_init__(self) -> None:
+        # Prefilter in one metric that no node region exceeds: the largest spread per coordinate.
+        object.__setattr__(self, "_outer", self.scale.max(axis=0))
+        object.__setattr__(self, "_tree", cKDTree(self.centers / self._outer))
+        flat = self.P.reshape(self.P.shape[0], -1)
+        object.__setattr__(self, "_P_flat", flat)
+        object.__setattr__(self, "_P_norm2", np.einsum("ij,ij->i", flat, flat))
+
+    @property
+    def count(self) -> int:
+        return self.centers.shape[0]
+
+    def covariance_candidates(self, P_steps: np.ndarray) -> np.ndarray:
+        """Which nodes' covariance test each covariance passes: (T, n, n) -> bool (T, N)."""
+        T = P_steps.shape[0]
+        if self.perfect:
+            return np.ones((T, self.count), dtype=bool)
+        flat = P_steps.reshape(T, -1)
+        own = np.einsum("ij,ij->i", flat, flat)
+        dist2 = own[:, None] + self._P_norm2[None, :] - 2.0 * flat @ self._P_flat.T
+        return dist2 <= (self.cov_tol**2) * self._P_norm2[None, :]
+
+    def locate(self, xhat: np.ndarray, candidates: np.ndarray, k: int = 8) -> np.ndarray:
+        """Node whose region holds each estimate, or -1.
+
+        A k-d tree in the outer metric (largest spread) finds the ``k`` nearest nodes within the
+        outer radius (a superset of the nodes that can hold the estimate); the exact per-node test
+        then runs on those only.
+
+        Parameters
+        ----------
+        xhat : (M, n) estimates.
+        candidates : (N,) bool, nodes whose covariance test passes at this step.
+
+        Returns
+        -------
+        (M,) int64 node index (the nearest qualifying node) or -1.
+        """
+        k = min(k, self.count)
+        bound = self.radius * np.sqrt(self.centers.shape[1])
+        M = len(xhat)
+        dist, idx = self._tree.query(xhat / self._outer, k=k, distance_upper_bound=bound)
+        dist, idx = dist.reshape(M, k), idx.reshape(M, k)
+        ok = np.isfinite(dist) & np.append(candidates, False)[idx]
+        safe = np.where(ok, idx, 0)
+        z = (xhat[:, None, :] - self.centers[safe]) / self.scale[safe]
+        ok &= np.mean(z * z, axis=2) < self.radius**2
+        first = np.argmax(ok, axis=1)
+        hit = ok[np.arange(len(xhat)), first]
+        return np.where(hit, idx[np.arange(len(xhat)), first], -1)
+
+    def contains(self, node: int, xhat: np.ndarray, P: np.ndarray | None) -> bool:
+        """Whether one belief lies in the region of ``node``."""
+        d = np.sqrt(np.mean(((xhat - self.centers[node]) / self.scale[node]) ** 2))
+        if d >= self.radius:
+            return False
+        if self.perfect or P is None:
+            return True
+        return bool(np.linalg.norm(P - self.P[node]) <= self.cov_tol * np.linalg.norm(self.P[node]))

@@ -1,0 +1,150 @@
+"""The problem bundle: model + validity + bounds, built from a scenario.
+
+Nodes, edges and execution see only a :class:`Problem`; they know nothing of which robot it is.
+A new robot is a new ``_build_<robot>`` function here and a model module, nothing else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from firmtool.errors import ScenarioError
+from firmtool.geometry import make_backend
+from firmtool.models.linear import LightDarkNoise, LinearGaussianModel, discretize, noise_factor
+from firmtool.scenario import Scenario
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Everything the planner needs to know about the system.
+
+    Attributes
+    ----------
+    scenario : the validated scenario.
+    model : discrete linear Gaussian model.
+    perfect : True for perfect measurements (state space, identity estimator).
+    config_dim : the first ``config_dim`` state coordinates are the configuration (positions);
+        the rest (velocities) are zero at nodes.
+    config_lo, config_hi : sampling bounds of the configuration.
+    is_valid : maps states (M, n) to a bool (M,) that is False on a constraint violation.
+    start, goal : (n,) start and goal states.
+    """
+
+    scenario: Scenario
+    model: LinearGaussianModel
+    perfect: bool
+    config_dim: int
+    config_lo: np.ndarray
+    config_hi: np.ndarray
+    is_valid: Callable[[np.ndarray], np.ndarray]
+    start: np.ndarray
+    goal: np.ndarray
+
+    @property
+    def velocity_dim(self) -> int:
+        return self.model.n - self.config_dim
+
+    def state_of(self, config: np.ndarray) -> np.ndarray:
+        """Configurations (..., config_dim) -> states at rest (..., n)."""
+        config = np.asarray(config, dtype=float)
+        pad = np.zeros(config.shape[:-1] + (self.velocity_dim,))
+        return np.concatenate([config, pad], axis=-1)
+
+    def max_input(self) -> float:
+        """Bound on |u| used to size nominal trajectories (acceleration or speed)."""
+        c = self.scenario.controller
+        return c.max_accel if self.velocity_dim else c.max_speed
+
+
+def build_problem(scenario: Scenario) -> Problem:
+    """Turn a validated scenario into a :class:`Problem`.
+
+    Raises
+    ------
+    ScenarioError
+        For inconsistencies between sections (dimensions, a start or goal in collision).
+    """
+    builders = {"point": _build_point}
+    return builders[scenario.model.robot](scenario)
+
+
+def _linear_dynamics(sc: Scenario, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Continuous (A, B, G, Q) -> discrete (A, B, F) and the configuration dimension."""
+    spec = sc.model
+    if spec.dynamics == "single_integrator":
+        Ac, Bc, Gc = np.zeros((d, d)), np.eye(d), np.eye(d)
+        Qc, config_dim = spec.process_noise_std**2 * np.eye(d), d
+    elif spec.dynamics == "double_integrator":
+        Ac = np.block([[np.zeros((d, d)), np.eye(d)], [np.zeros((d, d)), np.zeros((d, d))]])
+        Bc = Gc = np.vstack([np.zeros((d, d)), np.eye(d)])
+        Qc, config_dim = spec.process_noise_std**2 * np.eye(d), d
+    else:
+        Ac, Bc, Gc, Qc = spec.A, spec.B, spec.G, spec.Q
+        config_dim = d
+        if Ac.shape[0] < d:
+            raise ScenarioError(sc.path, "model.A", f"expected at least {d} states for a planar robot")
+    A, B, Qd = discretize(Ac, Bc, Gc, Qc, spec.dt)
+    return A, B, noise_factor(Qd), config_dim
+
+
+def _noise(sc: Scenario) -> LightDarkNoise:
+    m = sc.measurement
+    return LightDarkNoise(form=m.noise, light_x=m.light_x, eta=m.eta, sigma_b=m.sigma_b, a=m.a, c=m.c, std=m.std)
+
+
+def _build_point(sc: Scenario) -> Problem:
+    d = 2
+    A, B, F, config_dim = _linear_dynamics(sc, d)
+    n = A.shape[0]
+    H = sc.measurement.H
+    if H is None:
+        H = np.hstack([np.eye(d), np.zeros((d, n - d))])
+    elif H.shape[1] != n:
+        raise ScenarioError(sc.path, "measurement.H", f"expected shape (nz, {n}) but found {H.shape}")
+    model = LinearGaussianModel(A=A, B=B, F=F, H=np.asarray(H, dtype=float), noise=_noise(sc),
+                                sensing_x=lambda X, nz=H.shape[0]: np.repeat(X[:, :1], nz, axis=1), dt=sc.model.dt)
+
+    w = sc.world
+    backend = make_backend(
+        w.collision_backend,
+        np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2),
+        np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2),
+        np.array(w.lo), np.array(w.hi), self_collision=False,
+    )
+    radius = w.robot_radius
+
+    def is_valid(X: np.ndarray) -> np.ndarray:
+        p = np.asarray(X)[:, None, :2]
+        return ~backend.capsules_collide(p, p, radius)
+
+    start, goal = _task_states(sc, n, config_dim)
+    problem = Problem(scenario=sc, model=model, perfect=sc.perfect, config_dim=config_dim,
+                      config_lo=np.array(w.lo), config_hi=np.array(w.hi), is_valid=is_valid,
+                      start=start, goal=goal)
+    _check_task(problem)
+    return problem
+
+
+def _task_states(sc: Scenario, n: int, config_dim: int) -> tuple[np.ndarray, np.ndarray]:
+    states = []
+    for name, value in (("task.start", sc.task.start), ("task.goal", sc.task.goal)):
+        if value.shape[0] == config_dim:
+            value = np.concatenate([value, np.zeros(n - config_dim)])
+        elif value.shape[0] != n:
+            raise ScenarioError(sc.path, name, f"expected {config_dim} configuration or {n} state values, found {value.shape[0]}")
+        states.append(np.asarray(value, dtype=float))
+    return states[0], states[1]
+
+
+def _check_task(problem: Problem) -> None:
+    sc = problem.scenario
+    for name, state in (("task.start", problem.start), ("task.goal", problem.goal)):
+        if not problem.is_valid(state[None])[0]:
+            raise ScenarioError(sc.path, name, "expected a collision-free state inside world.bounds (it is in collision)")
+        if np.any(state[problem.config_dim:] != 0):
+            raise ScenarioError(sc.path, name, "expected zero velocity (nodes are states at rest)")
+    if not sc.perfect and problem.model.H.shape[0] == 0:
+        raise ScenarioError(sc.path, "measurement.H", "expected at least one measurement row")

@@ -1,0 +1,199 @@
+"""The versioned HDF5 roadmap artifact: atomic writes, validated reads.
+
+Layout (schema version 1)::
+
+    /                 attrs: schema_version, encoding-type, firmtool_version, scenario_toml,
+                             scenario_sha256, seed, created
+    /nodes            centers (N, n), kind (N,)                           attrs: inputs_sha256
+    /controllers      u_eq, K, S, L, P, Sigma (per node), scale (n,),
+                      edge_source, edge_target, edge_steps (per edge)      attrs: inputs_sha256
+    /edges            source, target, particles, cost_mean, cost_std, steps_mean, particle_steps (E,),
+                      outcome_edge, outcome_code, outcome_count (sparse counts; code = node id,
+                      -1 failure, -2 timeout)                               attrs: inputs_sha256, seed
+    /policy           cost_to_go, edge, success_probability (N,)          attrs: status, iterations, ...
+
+Every stage group carries ``encoding-type`` / ``encoding-version`` and the hash of the inputs it was
+computed from, so a reader can tell a stale stage. Every write copies the file to a temporary file
+in the same folder, changes the copy and renames it into place: a crash never leaves a half-written
+roadmap.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import h5py
+import numpy as np
+
+from firmtool import __version__
+from firmtool.errors import RoadmapError
+
+SCHEMA_VERSION = 1
+ENCODING_TYPE = "firmtool.roadmap"
+STAGES = ("nodes", "controllers", "edges", "policy")
+STAGE_COMMANDS = {"nodes": "firmtool sample", "controllers": "firmtool design",
+                  "edges": "firmtool estimate", "policy": "firmtool solve"}
+
+
+def inputs_hash(*parts: Any) -> str:
+    """sha256 over strings and arrays: the identity of a stage's inputs."""
+    h = hashlib.sha256()
+    for part in parts:
+        if isinstance(part, np.ndarray):
+            h.update(str(part.dtype).encode() + str(part.shape).encode())
+            h.update(np.ascontiguousarray(part).tobytes())
+        else:
+            h.update(repr(part).encode())
+        h.update(b"\x00")
+    return h.hexdigest()
+
+
+@contextmanager
+def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
+    """Open a temporary copy of ``path`` (a new file if ``fresh``) for writing; rename it into place on success."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        if path.exists() and not fresh:
+            shutil.copyfile(path, tmp)
+            f = h5py.File(tmp, "r+")
+        else:
+            f = h5py.File(tmp, "w")
+        with f:
+            yield f
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def create_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int) -> None:
+    """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over)."""
+    with _atomic_copy(Path(path), fresh=True) as f:
+        _write_root(f, scenario_text, scenario_sha256, seed)
+
+
+def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
+    f.attrs["schema_version"] = SCHEMA_VERSION
+    f.attrs["encoding-type"] = ENCODING_TYPE
+    f.attrs["firmtool_version"] = __version__
+    f.attrs["scenario_toml"] = text
+    f.attrs["scenario_sha256"] = sha
+    f.attrs["seed"] = seed
+    f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
+                drop_later: bool = True) -> None:
+    """Replace one stage group atomically. Later stages are dropped: they depend on this one.
+
+    Parameters
+    ----------
+    stage : one of STAGES.
+    arrays : datasets of the group.
+    attrs : attributes of the group (must include ``inputs_sha256``).
+    drop_later : remove the groups of the stages after ``stage`` (they are stale now).
+    """
+    if stage not in STAGES:
+        raise ValueError(f"unknown stage {stage!r}")
+    p = Path(path)
+    if not p.exists():
+        raise RoadmapError(f"{p}: no such roadmap file")
+    with _atomic_copy(p) as f:
+        later = STAGES[STAGES.index(stage):] if drop_later else (stage,)
+        for name in later:
+            if name in f:
+                del f[name]
+        g = f.create_group(stage)
+        g.attrs["encoding-type"] = f"firmtool.{stage}"
+        g.attrs["encoding-version"] = SCHEMA_VERSION
+        for k, v in attrs.items():
+            g.attrs[k] = v
+        for k, v in arrays.items():
+            g.create_dataset(k, data=np.asarray(v))
+
+
+class Roadmap:
+    """A roadmap file read into memory and validated.
+
+    Attributes
+    ----------
+    path, schema_version, scenario_text, scenario_sha256, seed, created, firmtool_version
+    stages : dict of stage name -> (arrays dict, attrs dict) for the stages present.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        p = Path(path)
+        self.path = p
+        if not p.exists():
+            raise RoadmapError(f"{p}: no such roadmap file")
+        try:
+            f = h5py.File(p, "r")
+        except (OSError, ValueError) as exc:
+            raise RoadmapError(f"{p}: not a readable HDF5 roadmap file ({_short(exc)})") from None
+        with f:
+            self._read(f)
+
+    def _read(self, f: h5py.File) -> None:
+        p = self.path
+        attrs = f.attrs
+        if attrs.get("encoding-type") != ENCODING_TYPE or "schema_version" not in attrs:
+            raise RoadmapError(f"{p}: an HDF5 file but not a firmtool roadmap (no encoding-type '{ENCODING_TYPE}')")
+        version = int(attrs["schema_version"])
+        if version != SCHEMA_VERSION:
+            raise RoadmapError(
+                f"{p}: roadmap schema version {version} is not supported by firmtool {__version__} "
+                f"(reads version {SCHEMA_VERSION}); rebuild it with 'firmtool build' from its scenario")
+        self.schema_version = version
+        try:
+            self.scenario_text = str(attrs["scenario_toml"])
+            self.scenario_sha256 = str(attrs["scenario_sha256"])
+            self.seed = int(attrs["seed"])
+            self.created = str(attrs.get("created", ""))
+            self.firmtool_version = str(attrs.get("firmtool_version", ""))
+        except KeyError as exc:
+            raise RoadmapError(f"{p}: root attribute {exc} is missing") from None
+        if hashlib.sha256(self.scenario_text.encode()).hexdigest() != self.scenario_sha256:
+            raise RoadmapError(f"{p}: the stored scenario text does not match its sha256 (file altered?)")
+        self.stages: dict[str, tuple[dict[str, np.ndarray], dict[str, Any]]] = {}
+        for name in STAGES:
+            if name in f:
+                g = f[name]
+                if not isinstance(g, h5py.Group):
+                    raise RoadmapError(f"{p}: '/{name}' is not a group")
+                try:
+                    arrays = {k: g[k][()] for k in g.keys()}
+                except (OSError, KeyError) as exc:
+                    raise RoadmapError(f"{p}: group '/{name}' is unreadable ({_short(exc)})") from None
+                self.stages[name] = (arrays, dict(g.attrs))
+
+    def has(self, stage: str) -> bool:
+        return stage in self.stages
+
+    def require(self, stage: str, *fields: str) -> dict[str, np.ndarray]:
+        """Arrays of a stage; a clear error naming the command to run if it is missing."""
+        if stage not in self.stages:
+            raise RoadmapError(f"{self.path}: stage '{stage}' is missing; run '{STAGE_COMMANDS[stage]}' first")
+        arrays = self.stages[stage][0]
+        for name in fields:
+            if name not in arrays:
+                raise RoadmapError(f"{self.path}: '/{stage}/{name}' is missing (file damaged or from another tool)")
+        return arrays
+
+    def attrs(self, stage: str) -> dict[str, Any]:
+        self.require(stage)
+        return self.stages[stage][1]
+
+
+def _short(exc: BaseException) -> str:
+    return str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__

@@ -1,0 +1,132 @@
+"""Controllers and filters against independent solutions (scipy, python-control, closed forms)."""
+
+import control
+import numpy as np
+import pytest
+import scipy.linalg
+
+from firmtool.controllers import (equilibrium_input, estimate_spread, kalman_update, lqr_gain,
+                                  min_energy_trajectory, plan_local_controller, stationary_kalman, design_node)
+from firmtool.errors import NumericalError
+from firmtool.models.linear import LightDarkNoise, LinearGaussianModel, discretize, noise_factor
+
+DT = 0.1
+
+
+def double_integrator(d=2, q=0.04):
+    Ac = np.block([[np.zeros((d, d)), np.eye(d)], [np.zeros((d, d)), np.zeros((d, d))]])
+    Bc = np.vstack([np.zeros((d, d)), np.eye(d)])
+    return discretize(Ac, Bc, Bc, q * np.eye(d), DT)
+
+
+def test_discretize_double_integrator_matches_closed_form():
+    q = 0.3
+    A, B, Qd = double_integrator(d=1, q=q)
+    np.testing.assert_allclose(A, [[1, DT], [0, 1]], atol=1e-14)
+    np.testing.assert_allclose(B, [[DT**2 / 2], [DT]], atol=1e-14)
+    np.testing.assert_allclose(Qd, q * np.array([[DT**3 / 3, DT**2 / 2], [DT**2 / 2, DT]]), rtol=1e-10)
+
+
+def test_noise_factor_reproduces_covariance_and_drops_null_space():
+    A, B, Qd = double_integrator()
+    F = noise_factor(Qd)
+    np.testing.assert_allclose(F @ F.T, Qd, atol=1e-15)
+    F2 = noise_factor(np.diag([1.0, 0.0]))
+    assert F2.shape == (2, 1)
+
+
+def test_lqr_gain_matches_python_control():
+    A, B, _ = double_integrator()
+    Wx, Wu = np.diag([1.0, 2.0, 0.1, 0.1]), 0.3 * np.eye(2)
+    K, S = lqr_gain(A, B, Wx, Wu)
+    K_ref, S_ref, _ = control.dlqr(A, B, Wx, Wu)
+    np.testing.assert_allclose(K, K_ref, rtol=1e-8)
+    np.testing.assert_allclose(S, S_ref, rtol=1e-8)
+
+
+def test_lqr_gain_rejects_uncontrollable_unstable_pair():
+    A = np.diag([1.2, 0.5])
+    B = np.array([[0.0], [1.0]])  # the unstable mode is not reachable
+    with pytest.raises(NumericalError, match="stabilis"):
+        lqr_gain(A, B, np.eye(2), np.eye(1))
+
+
+def test_stationary_kalman_is_update_form_of_the_riccati_solution():
+    A, B, Qd = double_integrator()
+    H = np.hstack([np.eye(2), np.zeros((2, 2))])
+    R = np.diag([0.05, 0.2])
+    L, P_post, P_prior = stationary_kalman(A, Qd, H, R)
+    P_ref = scipy.linalg.solve_discrete_are(A.T, H.T, Qd, R)
+    np.testing.assert_allclose(P_prior, P_ref, rtol=1e-9)
+    S = H @ P_ref @ H.T + R
+    np.testing.assert_allclose(P_post, P_ref - P_ref @ H.T @ np.linalg.solve(S, H @ P_ref), rtol=1e-8, atol=1e-14)
+    # P_post is a fixed point of predict + update.
+    _, P_next = kalman_update(A @ P_post @ A.T + Qd, H, R)
+    np.testing.assert_allclose(P_next, P_post, rtol=1e-8, atol=1e-14)
+    # python-control's dlqe is the predictor form: its gain is A L, its covariance the prior (the trap).
+    L_pred, P_dlqe, _ = control.dlqe(A, np.eye(4), H, Qd, R)
+    np.testing.assert_allclose(P_dlqe, P_prior, rtol=1e-7)
+    np.testing.assert_allclose(L_pred, A @ L, rtol=1e-7)
+    assert not np.allclose(L_pred, L)
+
+
+def test_stationary_kalman_rejects_undetectable_pair():
+    A = np.diag([1.1, 1.0])
+    H = np.array([[0.0, 1.0]])  # the unstable first state is never seen
+    with pytest.raises(NumericalError, match="detectable"):
+        stationary_kalman(A, 0.01 * np.eye(2), H, np.eye(1))
+
+
+def test_estimate_spread_solves_its_lyapunov_equation_and_matches_simulation():
+    A, B, Qd = double_integrator(d=1, q=0.5)
+    K, _ = lqr_gain(A, B, np.eye(2), np.eye(1))
+    Sigma = estimate_spread(A, B, K, Qd)
+    Acl = A - B @ K
+    np.testing.assert_allclose(Acl @ Sigma @ Acl.T + Qd, Sigma, rtol=1e-10)
+    rng = np.random.default_rng(0)
+    F = noise_factor(Qd)
+    x = np.zeros((20000, 2))
+    for _ in range(300):
+        x = x @ Acl.T + rng.standard_normal((20000, F.shape[1])) @ F.T
+    # sampling error of a covariance entry ~ Sigma * sqrt(2 / 20000) ~ 0.0017: 6 standard errors
+    np.testing.assert_allclose(np.cov(x.T), Sigma, atol=0.01)
+
+
+def test_min_energy_trajectory_is_exact_and_rest_to_rest():
+    A, B, _ = double_integrator()
+    x0, xf = np.array([0.0, 0.0, 0, 0]), np.array([1.0, -2.0, 0, 0])
+    x, u = min_energy_trajectory(A, B, x0, xf, 40)
+    np.testing.assert_allclose(x[-1], xf, atol=1e-9)
+    assert u.shape == (40, 2)
+    # Single integrator: constant velocity.
+    x, u = min_energy_trajectory(np.eye(2), DT * np.eye(2), np.zeros(2), np.array([1.0, 2.0]), 10)
+    np.testing.assert_allclose(u, np.tile([1.0, 2.0], (10, 1)), rtol=1e-9)
+
+
+def test_equilibrium_input_refuses_moving_state():
+    A, B, _ = double_integrator(d=1)
+    np.testing.assert_allclose(equilibrium_input(A, B, np.array([3.0, 0.0])), [0.0], atol=1e-12)
+    with pytest.raises(NumericalError, match="equilibrium"):
+        equilibrium_input(A, B, np.array([3.0, 1.0]))
+
+
+def _model(noise):
+    A, B, Qd = double_integrator()
+    H = np.hstack([np.eye(2), np.zeros((2, 2))])
+    return LinearGaussianModel(A=A, B=B, F=noise_factor(Qd), H=H, noise=noise,
+                               sensing_x=lambda X: np.repeat(X[:, :1], 2, axis=1), dt=DT)
+
+
+def test_local_controller_converges_to_target_node_and_reproduces_stationary_gain():
+    model = _model(LightDarkNoise("lightdark_variance", light_x=5.0, a=0.05, c=1e-3))
+    Wx, Wu = np.diag([1.0, 1.0, 0.1, 0.1]), 0.1 * np.eye(2)
+    src = design_node(model, np.array([0.0, 0.0, 0, 0]), Wx, Wu, perfect=False)
+    dst = design_node(model, np.array([4.0, 1.0, 0, 0]), Wx, Wu, perfect=False)
+    x, u = min_energy_trajectory(model.A, model.B, src.center, dst.center, 50)
+    lc = plan_local_controller(model, x, u, src.P, dst, Wx, Wu, 400, perfect=False)
+    assert lc.steps == 450 and lc.edge_steps == 50
+    np.testing.assert_allclose(lc.P[0], src.P)
+    np.testing.assert_allclose(lc.P[-1], dst.P, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(lc.K, np.broadcast_to(dst.K, lc.K.shape), rtol=1e-6)  # LTI: TV-LQR = SLQR
+    # Light-dark design: the node near the light (x=4) is better localised than the one at x=0.
+    assert np.trace(dst.P) < np.trace(src.P)
