@@ -1,0 +1,62 @@
+"""Shared fixtures: small scenario texts and a built smoke roadmap."""
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+OPEN_WORLD = """
+[scenario]
+name = "open"
+seed = 5
+
+[model]
+robot = "point"
+dynamics = "{dynamics}"
+dt = 0.1
+process_noise_std = {q}
+
+[measurement]
+{measurement}
+
+[world]
+bounds = [[0.0, 0.0], [6.0, 6.0]]
+robot_radius = 0.05
+obstacles = {obstacles}
+
+[task]
+start = [1.0, 1.0]
+goal = [4.0, 3.0]
+
+[roadmap]
+nodes = 4
+neighbors = 5
+min_separation = 1.0
+
+[controller]
+node_radius = 1.5
+covariance_tolerance = 0.3
+max_steps = 300
+
+[estimation]
+particles = 200
+"""
+
+IMPERFECT = 'kind = "imperfect"\nnoise = "constant"\nstd = {std}'
+PERFECT = 'kind = "perfect"'
+
+
+def open_world(dynamics="double_integrator", q=0.05, measurement=None, std=0.05, obstacles="[]") -> str:
+    m = measurement if measurement is not None else IMPERFECT.format(std=std)
+    return OPEN_WORLD.format(dynamics=dynamics, q=q, measurement=m, obstacles=obstacles)
+
+
+@pytest.fixture(scope="session")
+def smoke_roadmap(tmp_path_factory):
+    """The smoke scenario built, solved (one worker), as a path; tests must not modify it."""
+    from firmtool.pipeline import build, solve_stage
+    out = tmp_path_factory.mktemp("smoke") / "smoke.h5"
+    report = build(ROOT / "scenarios" / "smoke.toml", out, workers=1)
+    solve_stage(out)
+    return out, report

@@ -1,0 +1,69 @@
+"""Edge Monte Carlo: exact landing without noise, determinism, and agreement with the design."""
+
+import numpy as np
+import pytest
+
+from firmtool.design import design
+from firmtool.edges import FAILURE, estimate_edge, simulate, initial_ensemble
+from firmtool.design import local_controller
+from firmtool.nodes import roadmap_nodes
+from firmtool.problem import build_problem
+from firmtool.scenario import parse_scenario
+from conftest import PERFECT, open_world
+
+
+def _setup(text):
+    problem = build_problem(parse_scenario(text, "test.toml"))
+    centers, _ = roadmap_nodes(problem, np.random.default_rng(0))
+    d = design(problem, centers)
+    return problem, d, d.regions(problem)
+
+
+@pytest.mark.parametrize("measurement", [None, PERFECT])
+@pytest.mark.parametrize("dynamics", ["single_integrator", "double_integrator"])
+def test_noise_free_obstacle_free_edges_land_in_their_target(dynamics, measurement):
+    problem, d, regions = _setup(open_world(dynamics=dynamics, q=1e-6, std=1e-4, measurement=measurement))
+    assert d.edge_source.size >= 6
+    for e in range(d.edge_source.size):
+        r = estimate_edge(problem, d, regions, int(d.edge_source[e]), int(d.edge_target[e]), 50, 1, 1000)
+        assert r.outcomes.tolist() == [int(d.edge_target[e])], (e, r.outcomes, r.counts)
+        assert r.counts.tolist() == [50]
+
+
+def test_estimates_are_reproducible_and_depend_on_the_seed():
+    problem, d, regions = _setup(open_world(q=0.3, std=0.3))
+    a = estimate_edge(problem, d, regions, int(d.edge_source[0]), int(d.edge_target[0]), 300, 7, 128)
+    b = estimate_edge(problem, d, regions, int(d.edge_source[0]), int(d.edge_target[0]), 300, 7, 128)
+    c = estimate_edge(problem, d, regions, int(d.edge_source[0]), int(d.edge_target[0]), 300, 8, 128)
+    assert np.array_equal(a.outcomes, b.outcomes) and np.array_equal(a.counts, b.counts)
+    assert a.cost_mean == b.cost_mean and a.particle_steps == b.particle_steps
+    assert a.cost_mean != c.cost_mean
+
+
+def test_particle_estimates_follow_the_designed_covariance():
+    """The spread of (true - estimate) after a long stabiliser run matches the filter's P."""
+    problem, d, regions = _setup(open_world(q=0.2, std=0.1))
+    lc = local_controller(problem, d, int(d.edge_source[0]), int(d.edge_target[0]))
+    rng = np.random.default_rng(3)
+    M = 4000
+    x, xhat = initial_ensemble(problem, d, int(d.edge_source[0]), M, rng)
+    from firmtool.edges import belief_step
+    model = problem.model
+    r = model.F.shape[1]
+    for k in range(lc.steps):
+        noise = rng.standard_normal((M, r + model.nz))
+        x, xhat, _ = belief_step(model, lc, k, x, xhat, noise[:, :r], noise[:, r:], False)
+    err = x - xhat
+    # sampling error of a covariance entry is ~ P * sqrt(2 / M) ~ 2%; allow 4 standard errors
+    np.testing.assert_allclose(np.cov(err.T), lc.P[-1], rtol=0.1, atol=0.1 * np.abs(lc.P[-1]).max())
+
+
+def test_an_obstacle_across_the_edge_fails_particles():
+    # A wall that the nominal clears by a robot radius: collisions happen, and are counted as failures.
+    problem, d, regions = _setup(open_world(q=0.5, std=0.2, obstacles="[ { center = [2.5, 5.0], half_size = [0.1, 1.0] } ]"))
+    fails = 0
+    for e in range(d.edge_source.size):
+        r = estimate_edge(problem, d, regions, int(d.edge_source[e]), int(d.edge_target[e]), 200, 1, 1000)
+        assert r.counts.sum() == 200
+        fails += int(r.counts[r.outcomes == FAILURE].sum())
+    assert fails > 0
