@@ -96,7 +96,7 @@ def _path_is_valid(problem: Problem, x: np.ndarray) -> bool:
     """Nominal states, densified so that consecutive checks are closer than half a robot radius."""
     d = problem.config_dim
     step = np.max(np.linalg.norm(np.diff(x[:, :d], axis=0), axis=1), initial=0.0)
-    spacing = NOMINAL_CHECK_SPACING * problem.scenario.world.robot_radius
+    spacing = NOMINAL_CHECK_SPACING * problem.scenario.world.robot_radius / problem.workspace_gain
     sub = max(1, int(np.ceil(step / spacing)))
     t = np.linspace(0.0, 1.0, sub, endpoint=False)
     dense = (x[:-1, None, :] * (1 - t)[None, :, None] + x[1:, None, :] * t[None, :, None]).reshape(-1, x.shape[1])

@@ -33,6 +33,10 @@ class Episode:
     nodes: list[int] = field(default_factory=list)
     edges: list[int] = field(default_factory=list)
     replans: int = 0
+    # Filled when recording: (T+1, n) true states and estimates, (T+1, n, n) covariances.
+    states: np.ndarray | None = None
+    estimates: np.ndarray | None = None
+    covariances: np.ndarray | None = None
 
 
 def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -64,7 +68,7 @@ class Executor:
             self._cache[edge] = (lc, cand, trP)
         return self._cache[edge]
 
-    def run_episode(self, rng: np.random.Generator) -> Episode:
+    def run_episode(self, rng: np.random.Generator, record: bool = False) -> Episode:
         problem, model, perfect = self.problem, self.problem.model, self.problem.perfect
         cost_spec, max_steps = problem.scenario.cost, problem.scenario.execution.max_steps
         d = self.design
@@ -77,6 +81,8 @@ class Executor:
         node, total, cost = START_INDEX, 0, 0.0
         ep = Episode(outcome=TIMEOUT, steps=0, cost=0.0, nodes=[START_INDEX])
         r, nz = model.F.shape[1], model.nz
+        P0 = np.zeros((model.n, model.n)) if perfect else d.P[START_INDEX]
+        trace: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = [(x[0], xhat[0], P0)] if record else []
         while True:
             if node == GOAL_INDEX:
                 ep.outcome = SUCCESS
@@ -92,6 +98,8 @@ class Executor:
                 noise = rng.standard_normal((1, r + nz))
                 x, xhat, u = belief_step(model, lc, k, x, xhat, noise[:, :r], noise[:, r:], perfect)
                 total += 1
+                if record:
+                    trace.append((x[0], xhat[0], lc.P[k + 1]))
                 cost += cost_spec.alpha_covariance * trP[k] + cost_spec.alpha_time
                 cost += cost_spec.alpha_control * float(u[0] @ u[0])
                 if not problem.is_valid(x)[0]:
@@ -110,6 +118,8 @@ class Executor:
             node = landed
             ep.nodes.append(node)
         ep.steps, ep.cost = total, cost
+        if record:
+            ep.states, ep.estimates, ep.covariances = (np.array(a) for a in zip(*trace))
         return ep
 
 

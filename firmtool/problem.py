@@ -31,6 +31,11 @@ class Problem:
     config_lo, config_hi : sampling bounds of the configuration.
     is_valid : maps states (M, n) to a bool (M,) that is False on a constraint violation.
     start, goal : (n,) start and goal states.
+    points : maps states (M, n) to the robot's key points in the plane (M, P, 2); the last one is
+        the point a user follows (the point robot itself, the arm's tip). For plots and reports.
+    workspace_gain : bound on how far any robot point moves per unit of configuration change
+        (1 for a point robot, the arm's total length), to space collision checks along paths.
+    goal_disc : (center (2,), radius) when the goal is a region for the robot's last point.
     """
 
     scenario: Scenario
@@ -42,6 +47,9 @@ class Problem:
     is_valid: Callable[[np.ndarray], np.ndarray]
     start: np.ndarray
     goal: np.ndarray
+    points: Callable[[np.ndarray], np.ndarray]
+    workspace_gain: float = 1.0
+    goal_disc: tuple[np.ndarray, float] | None = None
 
     @property
     def velocity_dim(self) -> int:
@@ -67,7 +75,7 @@ def build_problem(scenario: Scenario) -> Problem:
     ScenarioError
         For inconsistencies between sections (dimensions, a start or goal in collision).
     """
-    builders = {"point": _build_point}
+    builders = {"point": _build_point, "arm": _build_arm}
     return builders[scenario.model.robot](scenario)
 
 
@@ -123,20 +131,97 @@ def _build_point(sc: Scenario) -> Problem:
     start, goal = _task_states(sc, n, config_dim)
     problem = Problem(scenario=sc, model=model, perfect=sc.perfect, config_dim=config_dim,
                       config_lo=np.array(w.lo), config_hi=np.array(w.hi), is_valid=is_valid,
-                      start=start, goal=goal)
+                      start=start, goal=goal, points=lambda X: np.asarray(X)[:, None, :2])
     _check_task(problem)
     return problem
 
 
-def _task_states(sc: Scenario, n: int, config_dim: int) -> tuple[np.ndarray, np.ndarray]:
+def _build_arm(sc: Scenario) -> Problem:
+    """Planar arm (paper IV-A/B): joint angles + velocities, accelerations as inputs; each angle is
+    measured with light-dark noise set by the x-coordinate of the END of its link (so that every
+    joint's noise depends on the configuration; the base never moves)."""
+    from firmtool.models import planar_arm
+
+    spec = sc.model
+    lengths = np.asarray(spec.link_lengths, dtype=float)
+    L = lengths.size
+    A, B, F, config_dim = _linear_dynamics(sc, L)
+    n = A.shape[0]
+    H = sc.measurement.H
+    if H is None:
+        H = np.hstack([np.eye(L), np.zeros((L, n - L))])
+    elif H.shape != (L, n):
+        raise ScenarioError(sc.path, "measurement.H", f"expected shape ({L}, {n}) (one row per joint) but found {H.shape}")
+
+    def sensing_x(X: np.ndarray) -> np.ndarray:
+        return planar_arm.joint_positions(X[:, :L], lengths)[:, 1:, 0]
+
+    model = LinearGaussianModel(A=A, B=B, F=F, H=np.asarray(H, dtype=float), noise=_noise(sc),
+                                sensing_x=sensing_x, dt=spec.dt)
+    w = sc.world
+    backend = make_backend(
+        w.collision_backend,
+        np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2),
+        np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2),
+        np.array(w.lo), np.array(w.hi), self_collision=True,
+    )
+
+    def is_valid(X: np.ndarray) -> np.ndarray:
+        P = planar_arm.joint_positions(np.asarray(X)[:, :L], lengths)
+        return ~backend.capsules_collide(P[:, :-1], P[:, 1:], w.robot_radius)
+
+    lo = np.full(L, -spec.joint_range)
+    hi = np.full(L, spec.joint_range)
+    lo[0], hi[0] = spec.first_joint_range
+    points = lambda X: planar_arm.joint_positions(np.asarray(X)[:, :L], lengths)  # noqa: E731
+    task = sc.task
+    if task.goal is None:
+        start, _ = _task_states(sc, n, config_dim, goal_required=False)
+        goal = _arm_goal(sc, lengths, start[:L], is_valid, lo, hi, n)
+        disc = (np.asarray(task.goal_center, dtype=float), float(task.goal_radius))
+    else:
+        start, goal = _task_states(sc, n, config_dim)
+        disc = None
+    problem = Problem(scenario=sc, model=model, perfect=sc.perfect, config_dim=config_dim, config_lo=lo,
+                      config_hi=hi, is_valid=is_valid, start=start, goal=goal, points=points,
+                      workspace_gain=float(lengths.sum()), goal_disc=disc)
+    _check_task(problem)
+    return problem
+
+
+def _arm_goal(sc: Scenario, lengths: np.ndarray, theta_start: np.ndarray, is_valid: Callable,
+              lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
+    """A valid configuration at rest whose tip is at the goal disc's centre (inverse kinematics)."""
+    from firmtool.models import planar_arm
+
+    L = lengths.size
+    pad = lambda th: np.hstack([th, np.zeros((th.shape[0], n - L))])  # noqa: E731
+
+    def validity(theta: np.ndarray) -> np.ndarray:
+        theta = np.atleast_2d(theta)
+        inside = np.all((theta >= lo) & (theta <= hi), axis=1)
+        return inside & is_valid(pad(theta))
+
+    rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x60A1]))
+    theta = planar_arm.inverse_kinematics_tip(np.asarray(sc.task.goal_center, dtype=float), lengths, theta_start,
+                                              validity=validity, rng=rng, max_restarts=200)
+    if theta is None:
+        raise ScenarioError(sc.path, "task.goal_center",
+                            "expected a tip position the arm can reach without collision (inverse kinematics found none)")
+    return pad(theta[None])[0]
+
+
+def _task_states(sc: Scenario, n: int, config_dim: int,
+                 goal_required: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     states = []
-    for name, value in (("task.start", sc.task.start), ("task.goal", sc.task.goal)):
+    pairs = [("task.start", sc.task.start)] + ([("task.goal", sc.task.goal)] if goal_required else [])
+    for name, value in pairs:
         if value.shape[0] == config_dim:
             value = np.concatenate([value, np.zeros(n - config_dim)])
         elif value.shape[0] != n:
             raise ScenarioError(sc.path, name, f"expected {config_dim} configuration or {n} state values, found {value.shape[0]}")
         states.append(np.asarray(value, dtype=float))
-    return states[0], states[1]
+    return states[0], (states[1] if goal_required else None)
 
 
 def _check_task(problem: Problem) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 
 from firmtool.errors import ScenarioError
 
-ROBOTS = ("point",)
+ROBOTS = ("point", "arm")
 DYNAMICS = ("single_integrator", "double_integrator", "matrices")
 NOISE_FORMS = ("lightdark_std", "lightdark_variance", "constant")
 MEASUREMENT_KINDS = ("perfect", "imperfect")
@@ -42,6 +42,10 @@ class ModelSpec:
     B: np.ndarray | None = None
     G: np.ndarray | None = None
     Q: np.ndarray | None = None
+    # Only for robot = "arm": link lengths, range of the first (absolute) joint, range of the others.
+    link_lengths: np.ndarray | None = None
+    first_joint_range: tuple[float, float] = (-math.pi, math.pi)
+    joint_range: float = math.pi
 
 
 @dataclass(frozen=True)
@@ -68,8 +72,12 @@ class WorldSpec:
 
 @dataclass(frozen=True)
 class TaskSpec:
+    """Start and goal. The goal is a state/configuration, or (arm) a disc the tip must reach."""
+
     start: np.ndarray
-    goal: np.ndarray
+    goal: np.ndarray | None
+    goal_center: np.ndarray | None = None
+    goal_radius: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -298,8 +306,27 @@ def _read_model(t: _Table) -> ModelSpec:
         G = t.array("G", _REQUIRED, shape=(n, None))
         Q = t.array("Q", _REQUIRED, shape=(G.shape[1], G.shape[1]))
         _check_psd(t.path, "model.Q", Q, strict=False)
+    arm: dict[str, Any] = {}
+    if robot == "arm":
+        if dynamics != "double_integrator":
+            raise ScenarioError(t.path, "model.dynamics", "expected 'double_integrator' for robot = 'arm'")
+        links = t.number("links", None, integer=True, positive=True)
+        lengths = t.array("link_lengths", None, shape=(None,))
+        if lengths is None:
+            if links is None:
+                raise ScenarioError(t.path, "model.link_lengths", "missing: give link_lengths, or links and link_length")
+            lengths = np.full(links, t.number("link_length", _REQUIRED, positive=True))
+        elif links is not None and links != lengths.size:
+            raise ScenarioError(t.path, "model.links", f"expected {lengths.size} (the size of link_lengths), found {links}")
+        if np.any(lengths <= 0):
+            raise ScenarioError(t.path, "model.link_lengths", "expected positive lengths")
+        first = t.array("first_joint_range", np.array([-math.pi, math.pi]), shape=(2,))
+        if first[1] <= first[0]:
+            raise ScenarioError(t.path, "model.first_joint_range", "expected [low, high] with high > low")
+        arm = dict(link_lengths=lengths, first_joint_range=(float(first[0]), float(first[1])),
+                   joint_range=t.number("joint_range", math.pi, positive=True))
     t.finish()
-    return ModelSpec(robot=robot, dynamics=dynamics, dt=dt, process_noise_std=std, A=A, B=B, G=G, Q=Q)
+    return ModelSpec(robot=robot, dynamics=dynamics, dt=dt, process_noise_std=std, A=A, B=B, G=G, Q=Q, **arm)
 
 
 def _check_psd(path: str, name: str, M: np.ndarray, strict: bool) -> None:
@@ -339,7 +366,7 @@ def _read_world(t: _Table) -> WorldSpec:
     if np.any(hi <= lo):
         raise ScenarioError(t.path, "world.bounds", "expected [[xmin, ymin], [xmax, ymax]] with max > min")
     radius = t.number("robot_radius", 0.05, positive=True)
-    backend = t.string("collision_backend", "numpy", choices=("numpy", "fcl"))
+    backend = t.string("collision_backend", "numpy", choices=("numpy", "numba", "fcl"))
     raw = t._raw("obstacles", [])
     if not isinstance(raw, list):
         raise ScenarioError(t.path, "world.obstacles", "expected an array of tables {center, half_size}")
@@ -359,6 +386,11 @@ def _read_world(t: _Table) -> WorldSpec:
 
 def _read_task(t: _Table, model: ModelSpec) -> TaskSpec:
     start = t.array("start", _REQUIRED, shape=(None,))
+    if model.robot == "arm" and "goal" not in t.data:
+        center = t.array("goal_center", _REQUIRED, shape=(2,))
+        radius = t.number("goal_radius", _REQUIRED, positive=True)
+        t.finish()
+        return TaskSpec(start=start, goal=None, goal_center=center, goal_radius=radius)
     goal = t.array("goal", _REQUIRED, shape=(start.shape[0],))
     t.finish()
     return TaskSpec(start=start, goal=goal)
