@@ -181,9 +181,10 @@ class Roadmap:
         return stage in self.stages
 
     def require(self, stage: str, *fields: str) -> dict[str, np.ndarray]:
-        """Arrays of a stage; a clear error naming the command to run if it is missing."""
-        if stage not in self.stages:
-            raise RoadmapError(f"{self.path}: stage '{stage}' is missing; run '{STAGE_COMMANDS[stage]}' first")
+        """Arrays of a stage; a clear error naming the command to run for the first missing stage."""
+        for needed in STAGES[:STAGES.index(stage) + 1]:
+            if needed not in self.stages:
+                raise RoadmapError(f"{self.path}: stage '{needed}' is missing; run '{STAGE_COMMANDS[needed]}' first")
         arrays = self.stages[stage][0]
         for name in fields:
             if name not in arrays:

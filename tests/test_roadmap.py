@@ -29,7 +29,8 @@ def test_round_trip(roadmap):
 
 
 def test_missing_stage_names_the_command(roadmap):
-    with pytest.raises(RoadmapError, match="stage 'policy' is missing; run 'firmtool solve' first"):
+    # the first missing stage is named, with the command that makes it
+    with pytest.raises(RoadmapError, match="stage 'controllers' is missing; run 'firmtool design' first"):
         Roadmap(roadmap).require("policy")
 
 

@@ -1,0 +1,299 @@
+"""The graph DP with constraints (paper eq. 12) and success probabilities (Sec. III-E).
+
+The graph knows nothing of robots: N nodes, E edges, each edge with a source node, an expected
+cost, a failure probability and a sparse row of landing probabilities.
+
+    J(i) = min_{e from i} [ C_e + J_F P_F(e) + sum_l P(l | e) J(l) ],   J(goal) = 0.
+
+Nodes that cannot reach the goal at all (no chain of edges with positive landing probability)
+keep ``J = inf`` and policy ``-1`` and are reported. Inside the Bellman update of the other nodes,
+landing in such a node counts as a failure (``J_F``): the robot is stuck there and never succeeds,
+which keeps every value finite and free of ``inf * 0`` traps.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
+import scipy.sparse.linalg
+
+from firmtool.errors import InputError, NumericalError
+
+PROB_TOL = 1e-6
+
+
+class SolveStatus(enum.Enum):
+    """How a DP solve ended."""
+
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max_iterations"
+
+
+@dataclass(frozen=True)
+class DPResult:
+    """Result of :func:`solve_dp`.
+
+    Attributes
+    ----------
+    cost_to_go : (N,) optimal J; ``inf`` for nodes that cannot reach the goal.
+    policy : (N,) chosen edge per node; -1 for the goal and for nodes that cannot reach it.
+    iterations : sweeps (value iteration) or policy improvements (policy iteration).
+    residual : max |J_new - J| at the last sweep (value iteration) or Bellman residual of the
+        final J (policy iteration).
+    status : CONVERGED or MAX_ITERATIONS.
+    unreachable : node ids (goal excluded) from which the goal cannot be reached.
+    """
+
+    cost_to_go: np.ndarray
+    policy: np.ndarray
+    iterations: int
+    residual: float
+    status: SolveStatus
+    unreachable: np.ndarray
+
+
+def _check(n_nodes: int, goal: int, edge_source: np.ndarray, landing: scipy.sparse.spmatrix,
+           failure_prob: np.ndarray, edge_cost: np.ndarray) -> scipy.sparse.csr_matrix:
+    E = edge_source.shape[0]
+    if not 0 <= goal < n_nodes:
+        raise InputError(f"goal node {goal} is not in 0..{n_nodes - 1}")
+    landing = scipy.sparse.csr_matrix(landing, dtype=float)
+    if landing.shape != (E, n_nodes):
+        raise InputError(f"landing: expected shape ({E}, {n_nodes}) but found {landing.shape}")
+    if failure_prob.shape != (E,) or edge_cost.shape != (E,):
+        raise InputError(f"failure_prob and edge_cost: expected shape ({E},)")
+    if E and (edge_source.min() < 0 or edge_source.max() >= n_nodes):
+        raise InputError("edge_source: node ids out of range")
+    if not (np.all(np.isfinite(edge_cost)) and np.all(edge_cost >= 0)):
+        bad = int(np.flatnonzero(~(np.isfinite(edge_cost) & (edge_cost >= 0)))[0])
+        raise NumericalError(f"edge {bad}: cost {edge_cost[bad]} is not a finite non-negative number")
+    if landing.nnz and (landing.data.min() < 0 or not np.all(np.isfinite(landing.data))):
+        raise NumericalError("landing probabilities must be finite and non-negative")
+    total = np.asarray(landing.sum(axis=1)).ravel() + failure_prob
+    off = np.abs(total - 1.0) > PROB_TOL
+    if np.any(off):
+        e = int(np.flatnonzero(off)[0])
+        raise NumericalError(f"edge {e}: outcome probabilities sum to {total[e]:.9g}, not 1")
+    return landing
+
+
+def can_reach(n_nodes: int, goal: int, edge_source: np.ndarray, landing: scipy.sparse.csr_matrix) -> np.ndarray:
+    """Boolean (N,): nodes from which some chain of edges reaches the goal with positive probability."""
+    coo = landing.tocoo()
+    positive = coo.data > 0
+    # node graph i -> l, reversed so that a search from the goal finds the nodes that reach it
+    rev = scipy.sparse.csr_matrix((np.ones(positive.sum()), (coo.col[positive], edge_source[coo.row[positive]])),
+                                  shape=(n_nodes, n_nodes))
+    order = scipy.sparse.csgraph.breadth_first_order(rev, goal, directed=True, return_predecessors=False)
+    ok = np.zeros(n_nodes, dtype=bool)
+    ok[order] = True
+    return ok
+
+
+class _Segments:
+    """Per-node minimum over that node's edges, vectorised (edges sorted by source once)."""
+
+    def __init__(self, edge_source: np.ndarray, usable: np.ndarray) -> None:
+        idx = np.flatnonzero(usable)
+        order = idx[np.argsort(edge_source[idx], kind="stable")]
+        src = edge_source[order]
+        self.order = order
+        self.starts = np.flatnonzero(np.r_[True, src[1:] != src[:-1]]) if src.size else np.zeros(0, dtype=np.int64)
+        self.nodes = src[self.starts] if src.size else np.zeros(0, dtype=np.int64)
+
+    def argmin(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(min value, edge achieving it) for each node in ``self.nodes``."""
+        qs = q[self.order]
+        mins = np.minimum.reduceat(qs, self.starts) if qs.size else qs
+        # first edge of each segment equal to its minimum
+        seg = np.repeat(np.arange(self.starts.size), np.diff(np.r_[self.starts, qs.size]))
+        hit = qs <= mins[seg]
+        first = np.full(self.starts.size, qs.size)
+        np.minimum.at(first, seg[hit], np.flatnonzero(hit))
+        return mins, self.order[first]
+
+
+def _bellman(c: np.ndarray, landing: scipy.sparse.csr_matrix, J_eff: np.ndarray) -> np.ndarray:
+    return c + landing @ J_eff
+
+
+def solve_dp(n_nodes: int, goal: int, edge_source: np.ndarray, edge_cost: np.ndarray,
+             landing: scipy.sparse.spmatrix, failure_prob: np.ndarray, failure_cost: float, *,
+             method: str = "value", tol: float = 1e-9, max_iterations: int = 100_000) -> DPResult:
+    """Solve eq. 12 by value iteration or policy iteration on sparse matrices.
+
+    Parameters
+    ----------
+    n_nodes : N.
+    goal : the goal node (absorbing, J = 0).
+    edge_source : (E,) int, source node of each edge.
+    edge_cost : (E,) expected cost of each edge (>= 0).
+    landing : (E, N) sparse, landing probabilities.
+    failure_prob : (E,) failure probability (collision + timeout) of each edge.
+    failure_cost : J_F > 0.
+    method : "value" (value iteration, the paper's) or "policy" (policy iteration).
+    tol : convergence when max |J_new - J| < tol * max(1, max J).
+    max_iterations : budget of sweeps / improvements.
+
+    Returns
+    -------
+    DPResult
+
+    Raises
+    ------
+    NumericalError
+        If an edge's probabilities do not sum to one within 1e-6, or a cost is negative.
+    """
+    edge_source = np.asarray(edge_source, dtype=np.int64)
+    edge_cost = np.asarray(edge_cost, dtype=float)
+    failure_prob = np.asarray(failure_prob, dtype=float)
+    if not (np.isfinite(failure_cost) and failure_cost > 0):
+        raise InputError(f"failure cost: expected a finite number > 0, found {failure_cost}")
+    landing = _check(n_nodes, goal, edge_source, landing, failure_prob, edge_cost)
+    reach = can_reach(n_nodes, goal, edge_source, landing)
+    usable = reach[edge_source] & (edge_source != goal)
+    seg = _Segments(edge_source, usable)
+    c = edge_cost + failure_cost * failure_prob
+    dead = ~reach  # landing in a node that cannot reach the goal costs J_F
+
+    def effective(J: np.ndarray) -> np.ndarray:
+        return np.where(dead, failure_cost, J)
+
+    J = np.where(reach, 0.0, np.inf)
+    J[goal] = 0.0
+    status, residual, it = SolveStatus.MAX_ITERATIONS, np.inf, 0
+    if method == "value":
+        for it in range(1, max_iterations + 1):
+            mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
+            J_new = J.copy()
+            J_new[seg.nodes] = mins
+            finite = np.isfinite(J_new)
+            residual = float(np.max(np.abs(J_new[finite] - J[finite]), initial=0.0))
+            J = J_new
+            if residual < tol * max(1.0, float(np.max(J[finite], initial=0.0))):
+                status = SolveStatus.CONVERGED
+                break
+    elif method == "policy":
+        J, it, residual, status = _policy_iteration(n_nodes, goal, c, landing, seg, reach, effective,
+                                                    failure_cost, tol, max_iterations)
+    else:
+        raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
+    _, chosen = seg.argmin(_bellman(c, landing, effective(J)))
+    policy = np.full(n_nodes, -1, dtype=np.int64)
+    policy[seg.nodes] = chosen
+    policy[goal] = -1
+    unreachable = np.flatnonzero(dead & (np.arange(n_nodes) != goal)).astype(np.int64)
+    return DPResult(cost_to_go=J, policy=policy, iterations=it, residual=residual, status=status,
+                    unreachable=unreachable)
+
+
+def _evaluate(n_nodes: int, goal: int, policy: np.ndarray, c: np.ndarray, landing: scipy.sparse.csr_matrix,
+              reach: np.ndarray, failure_cost: float) -> np.ndarray | None:
+    """J of a fixed policy: (I - Q) J = c_pi + J_F * P(land in a dead node). None if singular."""
+    act = np.flatnonzero(policy >= 0)
+    rows = landing[policy[act]]
+    live = reach.copy()
+    live[goal] = False
+    pos = -np.ones(n_nodes, dtype=np.int64)
+    pos[act] = np.arange(act.size)
+    Q = rows[:, act]
+    dead_mass = np.asarray(rows[:, np.flatnonzero(~reach)].sum(axis=1)).ravel()
+    rhs = c[policy[act]] + failure_cost * dead_mass
+    A = (scipy.sparse.identity(act.size, format="csc") - Q.tocsc())
+    try:
+        with np.errstate(all="raise"):
+            sol = scipy.sparse.linalg.spsolve(A, rhs)
+    except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+        return None
+    sol = np.atleast_1d(sol)
+    if not np.all(np.isfinite(sol)) or np.any(sol < -1e-9):
+        return None
+    J = np.where(reach, 0.0, np.inf)
+    J[act] = sol
+    J[goal] = 0.0
+    return J
+
+
+def _policy_iteration(n_nodes, goal, c, landing, seg, reach, effective, failure_cost, tol, max_iterations):
+    # A proper starting policy: the greedy one after value-iteration sweeps from J = 0 (every node
+    # that can reach the goal then picks an edge that moves probability towards it).
+    J = np.where(reach, 0.0, np.inf)
+    J[goal] = 0.0
+    for _ in range(min(50, max_iterations)):
+        mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
+        J[seg.nodes] = mins
+    policy = np.full(n_nodes, -1, dtype=np.int64)
+    _, policy[seg.nodes] = seg.argmin(_bellman(c, landing, effective(J)))
+    status, it = SolveStatus.MAX_ITERATIONS, 0
+    for it in range(1, max_iterations + 1):
+        J_pi = _evaluate(n_nodes, goal, policy, c, landing, reach, failure_cost)
+        if J_pi is None:  # a closed loop with no exit: fall back to more value iteration sweeps
+            for _ in range(1000):
+                mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
+                J[seg.nodes] = mins
+            _, policy[seg.nodes] = seg.argmin(_bellman(c, landing, effective(J)))
+            continue
+        J = J_pi
+        q = _bellman(c, landing, effective(J))
+        mins, best = seg.argmin(q)
+        current = q[policy[seg.nodes]]
+        improve = mins < current - tol * np.maximum(1.0, np.abs(current))
+        if not np.any(improve):
+            status = SolveStatus.CONVERGED
+            break
+        policy[seg.nodes[improve]] = best[improve]
+    mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
+    finite = J[seg.nodes]
+    residual = float(np.max(np.abs(mins - finite), initial=0.0))
+    return J, it, residual, status
+
+
+def policy_transition_matrix(n_nodes: int, goal: int, policy: np.ndarray,
+                             landing: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
+    """(N, N) landing probabilities of the chosen edges; rows of the goal and of nodes without an edge are zero."""
+    landing = scipy.sparse.csr_matrix(landing)
+    act = np.flatnonzero((np.asarray(policy) >= 0) & (np.arange(n_nodes) != goal))
+    rows = landing[np.asarray(policy)[act]].tocoo()
+    return scipy.sparse.csr_matrix((rows.data, (act[rows.row], rows.col)), shape=(n_nodes, n_nodes))
+
+
+def success_probability(n_nodes: int, goal: int, policy: np.ndarray, landing: scipy.sparse.spmatrix) -> np.ndarray:
+    """Probability of reaching the goal from every node under ``policy`` (absorbing Markov chain).
+
+    Goal and failure are absorbing; with ``Q`` the transitions among nodes that have an edge and
+    ``r`` the one-step goal probabilities, ``p`` solves ``(I - Q) p = r``. Nodes without an edge
+    (policy -1, goal excepted) have ``p = 0``.
+
+    Raises
+    ------
+    NumericalError
+        If the solution leaves [0, 1] by more than 1e-9 (inconsistent inputs).
+    """
+    policy = np.asarray(policy, dtype=np.int64)
+    T = policy_transition_matrix(n_nodes, goal, policy, landing)
+    act = np.flatnonzero((policy >= 0) & (np.arange(n_nodes) != goal))
+    p = np.zeros(n_nodes)
+    p[goal] = 1.0
+    if act.size:
+        Q = T[act][:, act]
+        r = np.asarray(T[act][:, [goal]].todense()).ravel()
+        A = scipy.sparse.identity(act.size, format="csc") - Q.tocsc()
+        with np.errstate(all="ignore"):
+            sol = np.atleast_1d(scipy.sparse.linalg.spsolve(A, r))
+        if not np.all(np.isfinite(sol)):
+            # a closed loop with no exit: those nodes never reach the goal; solve by iteration instead
+            sol = np.zeros(act.size)
+            for _ in range(100_000):
+                new = Q @ sol + r
+                if np.max(np.abs(new - sol)) < 1e-13:
+                    sol = new
+                    break
+                sol = new
+        if sol.min(initial=0.0) < -1e-9 or sol.max(initial=0.0) > 1 + 1e-9:
+            raise NumericalError(f"success probabilities outside [0, 1] (min {sol.min():.3g}, max {sol.max():.3g})")
+        p[act] = np.clip(sol, 0.0, 1.0)
+    return p
