@@ -217,6 +217,9 @@ def _execute_human(r: dict) -> str:
 def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
             episodes: int = typer.Option(100, "--episodes", "-n", min=1, help="Closed-loop episodes to run."),
             seed: int = typer.Option(0, "--seed", min=0, help="Seed of the simulated true system."),
+            policy_name: str = typer.Option("firm", "--policy",
+                                            help="'firm' (the DP's policy) or 'shortest-path' (the baseline "
+                                                 "that ignores uncertainty: shortest configuration-space path)."),
             as_json: bool = JsonOpt) -> None:
     """Run closed-loop episodes of the policy on a simulated true system.
 
@@ -228,10 +231,21 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     from firmtool.roadmap import Roadmap
     _check_exists(roadmap, "roadmap file")
     rm = Roadmap(roadmap)
-    policy = rm.require("policy", "edge", "success_probability")
-    report = run_episodes(problem_of(rm), design_of(rm), policy["edge"].astype(np.int64), episodes, seed,
-                          predicted=float(policy["success_probability"][START_INDEX]))
+    edge_key, prob_key = _policy_keys(policy_name)
+    policy = rm.require("policy", edge_key, prob_key)
+    report = run_episodes(problem_of(rm), design_of(rm), policy[edge_key].astype(np.int64), episodes, seed,
+                          predicted=float(policy[prob_key][START_INDEX]))
+    report["policy"] = policy_name
     _emit(report, as_json, _execute_human)
+
+
+def _policy_keys(name: str) -> tuple[str, str]:
+    """Datasets of /policy holding the chosen edges and success probabilities of a named policy."""
+    keys = {"firm": ("edge", "success_probability"),
+            "shortest-path": ("shortest_path_edge", "shortest_path_success_probability")}
+    if name not in keys:
+        raise InputError(f"--policy: expected 'firm' or 'shortest-path', found {name!r}")
+    return keys[name]
 
 
 @app.command()

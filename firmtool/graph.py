@@ -297,3 +297,35 @@ def success_probability(n_nodes: int, goal: int, policy: np.ndarray, landing: sc
             raise NumericalError(f"success probabilities outside [0, 1] (min {sol.min():.3g}, max {sol.max():.3g})")
         p[act] = np.clip(sol, 0.0, 1.0)
     return p
+
+
+def shortest_path_policy(n_nodes: int, goal: int, edge_source: np.ndarray, edge_target: np.ndarray,
+                         edge_length: np.ndarray) -> np.ndarray:
+    """The baseline that ignores uncertainty: at each node, the edge on a shortest path to the goal.
+
+    Edge weights are geometric lengths (e.g. joint-space distance between node centres); Dijkstra
+    runs once on the reversed graph from the goal. Nodes with no path get -1, as does the goal.
+    """
+    edge_source = np.asarray(edge_source, dtype=np.int64)
+    edge_target = np.asarray(edge_target, dtype=np.int64)
+    w = np.asarray(edge_length, dtype=float)
+    # reversed graph (target -> source), shortest of parallel edges kept
+    dist = scipy.sparse.csgraph.dijkstra(_min_duplicates(edge_target, edge_source, w, n_nodes), directed=True,
+                                         indices=goal)
+    policy = np.full(n_nodes, -1, dtype=np.int64)
+    through = w + dist[edge_target]
+    usable = np.isfinite(through) & (edge_source != goal)
+    seg = _Segments(edge_source, usable)
+    if seg.nodes.size:
+        _, best = seg.argmin(through)
+        policy[seg.nodes] = best
+    return policy
+
+
+def _min_duplicates(rows: np.ndarray, cols: np.ndarray, w: np.ndarray, n: int) -> scipy.sparse.csr_matrix:
+    """Sparse (n, n) weights keeping the smallest of duplicate entries (csr would sum them); zeros
+    are lifted to a tiny positive weight because csgraph reads explicit zeros as missing edges."""
+    order = np.lexsort((w, cols, rows))
+    r, c, v = rows[order], cols[order], w[order]
+    first = np.r_[True, (r[1:] != r[:-1]) | (c[1:] != c[:-1])]
+    return scipy.sparse.csr_matrix((np.maximum(v[first], 1e-300), (r[first], c[first])), shape=(n, n))

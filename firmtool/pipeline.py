@@ -14,7 +14,7 @@ import scipy.sparse
 from firmtool.design import Design, design
 from firmtool.edges import FAILURE, TIMEOUT
 from firmtool.errors import RoadmapError, RunFailure
-from firmtool.graph import solve_dp, success_probability
+from firmtool.graph import shortest_path_policy, solve_dp, success_probability
 from firmtool.nodes import GOAL_INDEX, START_INDEX, roadmap_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
@@ -148,9 +148,15 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
                    fail + timeout, JF, method=method)
     p = success_probability(N, GOAL_INDEX, res.policy, landing)
     next_node = np.where(res.policy >= 0, edges["target"][np.maximum(res.policy, 0)], -1)
+    # The baseline that ignores uncertainty: shortest configuration-space path on the same roadmap.
+    centers = roadmap.require("nodes", "centers")["centers"][:, :problem.config_dim]
+    length = np.linalg.norm(centers[edges["target"]] - centers[edges["source"]], axis=1)
+    sp = shortest_path_policy(N, GOAL_INDEX, edges["source"], edges["target"], length)
+    p_sp = success_probability(N, GOAL_INDEX, sp, landing)
     write_stage(path, "policy",
                 {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
-                 "success_probability": p, "unreachable": res.unreachable},
+                 "success_probability": p, "unreachable": res.unreachable,
+                 "shortest_path_edge": sp, "shortest_path_success_probability": p_sp},
                 {"inputs_sha256": inputs_hash(roadmap.attrs("edges")["inputs_sha256"], JF, method),
                  "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
                  "failure_cost": JF, "method": method})
@@ -158,6 +164,7 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
               "residual": float(res.residual), "failure_cost": JF, "method": method,
               "start_cost_to_go": _finite_or_none(res.cost_to_go[START_INDEX]),
               "start_success_probability": float(p[START_INDEX]),
+              "shortest_path_start_success_probability": float(p_sp[START_INDEX]),
               "unreachable_nodes": [int(i) for i in res.unreachable],
               "path": policy_path(res.policy, edges["target"], START_INDEX, GOAL_INDEX),
               "seconds": time.perf_counter() - t0}

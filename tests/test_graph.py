@@ -126,3 +126,16 @@ def test_iteration_budget_is_reported():
     src, cost, landing, fail = graph(2, [(0, 1.0, {0: 0.9, 1: 0.1}, 0.0)])
     r = solve_dp(2, 1, src, cost, landing, fail, 10.0, max_iterations=3)
     assert r.status == SolveStatus.MAX_ITERATIONS and r.residual > 0 and r.iterations == 3
+
+
+def test_shortest_path_policy_ignores_risk():
+    from firmtool.graph import shortest_path_policy
+    # Same two routes: the direct edge is shorter (length 1) than the detour (2 + 2).
+    src = np.array([0, 0, 2])
+    dst = np.array([1, 2, 1])
+    policy = shortest_path_policy(3, 1, src, dst, np.array([1.0, 2.0, 2.0]))
+    assert policy.tolist() == [0, -1, 2]
+    policy = shortest_path_policy(3, 1, src, dst, np.array([5.0, 2.0, 2.0]))
+    assert policy.tolist() == [1, -1, 2]
+    # a node with no path to the goal gets -1
+    assert shortest_path_policy(4, 1, src, dst, np.ones(3))[3] == -1
