@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from firmtool.controllers import (LocalController, NodeController, design_node, min_energy_trajectory,
                                   plan_local_controller, weights)
 from firmtool.errors import NumericalError
-from firmtool.nodes import GOAL_INDEX, NodeRegions
+from firmtool.nodes import GOAL, NodeRegions
 from firmtool.problem import Problem
 
 NOMINAL_CHECK_SPACING = 0.5  # validity checks per unit of robot radius along a nominal path
@@ -26,6 +26,7 @@ class Design:
     """Node stabilisers and the edges of the roadmap (arrays, one row per node / edge)."""
 
     centers: np.ndarray  # (N, n)
+    kinds: np.ndarray  # (N,) REGULAR / START / GOAL
     u_eq: np.ndarray  # (N, m)
     K: np.ndarray  # (N, m, n)
     S: np.ndarray  # (N, n, n)
@@ -104,10 +105,10 @@ def _path_is_valid(problem: Problem, x: np.ndarray) -> bool:
     return bool(np.all(problem.is_valid(dense)))
 
 
-def connect(problem: Problem, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
 
-    No edge leaves the goal node (it is absorbing).
+    No edge leaves a goal node (goals are absorbing).
 
     Returns
     -------
@@ -124,7 +125,7 @@ def connect(problem: Problem, centers: np.ndarray) -> tuple[np.ndarray, np.ndarr
             if j != i and j < N and dij <= spec.max_edge_length:
                 pairs.add((i, int(j)))
                 pairs.add((int(j), i))
-    pairs = sorted(p for p in pairs if p[0] != GOAL_INDEX)
+    pairs = sorted(p for p in pairs if kinds[p[0]] != GOAL)
     src, dst, steps = [], [], []
     for i, j in pairs:
         x, u = nominal_trajectory(problem, centers[i], centers[j])
@@ -135,13 +136,13 @@ def connect(problem: Problem, centers: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return (np.array(src, dtype=np.int64), np.array(dst, dtype=np.int64), np.array(steps, dtype=np.int64))
 
 
-def design(problem: Problem, centers: np.ndarray) -> Design:
-    """Run the whole design stage for the given node centres."""
+def design(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> Design:
+    """Run the whole design stage for the given node centres and kinds."""
     nodes = design_nodes(problem, centers)
     stack = lambda name: np.stack([getattr(nc, name) for nc in nodes])  # noqa: E731
     Sigma = stack("Sigma")
-    src, dst, steps = connect(problem, centers)
-    return Design(centers=centers, u_eq=stack("u_eq"), K=stack("K"), S=stack("S"), L=stack("L"), P=stack("P"),
+    src, dst, steps = connect(problem, centers, kinds)
+    return Design(centers=centers, kinds=np.asarray(kinds), u_eq=stack("u_eq"), K=stack("K"), S=stack("S"), L=stack("L"), P=stack("P"),
                   Sigma=Sigma, scale=region_scale(Sigma), edge_source=src, edge_target=dst, edge_steps=steps)
 
 

@@ -56,11 +56,20 @@ class DPResult:
     unreachable: np.ndarray
 
 
-def _check(n_nodes: int, goal: int, edge_source: np.ndarray, landing: scipy.sparse.spmatrix,
+def goal_mask(n_nodes: int, goal: int | np.ndarray) -> np.ndarray:
+    """Boolean (N,) of the goal nodes; ``goal`` is one node id or several (any of them is the goal)."""
+    goals = np.atleast_1d(np.asarray(goal, dtype=np.int64))
+    if goals.size == 0 or goals.min() < 0 or goals.max() >= n_nodes:
+        raise InputError(f"goal nodes {goals.tolist()} are not in 0..{n_nodes - 1}")
+    mask = np.zeros(n_nodes, dtype=bool)
+    mask[goals] = True
+    return mask
+
+
+def _check(n_nodes: int, goal: int | np.ndarray, edge_source: np.ndarray, landing: scipy.sparse.spmatrix,
            failure_prob: np.ndarray, edge_cost: np.ndarray) -> scipy.sparse.csr_matrix:
     E = edge_source.shape[0]
-    if not 0 <= goal < n_nodes:
-        raise InputError(f"goal node {goal} is not in 0..{n_nodes - 1}")
+    goal_mask(n_nodes, goal)
     landing = scipy.sparse.csr_matrix(landing, dtype=float)
     if landing.shape != (E, n_nodes):
         raise InputError(f"landing: expected shape ({E}, {n_nodes}) but found {landing.shape}")
@@ -81,17 +90,20 @@ def _check(n_nodes: int, goal: int, edge_source: np.ndarray, landing: scipy.spar
     return landing
 
 
-def can_reach(n_nodes: int, goal: int, edge_source: np.ndarray, landing: scipy.sparse.csr_matrix) -> np.ndarray:
-    """Boolean (N,): nodes from which some chain of edges reaches the goal with positive probability."""
+def can_reach(n_nodes: int, goal: int | np.ndarray, edge_source: np.ndarray,
+              landing: scipy.sparse.csr_matrix) -> np.ndarray:
+    """Boolean (N,): nodes from which some chain of edges reaches a goal with positive probability."""
     coo = landing.tocoo()
     positive = coo.data > 0
-    # node graph i -> l, reversed so that a search from the goal finds the nodes that reach it
-    rev = scipy.sparse.csr_matrix((np.ones(positive.sum()), (coo.col[positive], edge_source[coo.row[positive]])),
-                                  shape=(n_nodes, n_nodes))
-    order = scipy.sparse.csgraph.breadth_first_order(rev, goal, directed=True, return_predecessors=False)
-    ok = np.zeros(n_nodes, dtype=bool)
+    goals = np.flatnonzero(goal_mask(n_nodes, goal))
+    # node graph i -> l reversed, plus a super-source (index N) pointing at every goal
+    rows = np.concatenate([coo.col[positive], np.full(goals.size, n_nodes)])
+    cols = np.concatenate([edge_source[coo.row[positive]], goals])
+    rev = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n_nodes + 1, n_nodes + 1))
+    order = scipy.sparse.csgraph.breadth_first_order(rev, n_nodes, directed=True, return_predecessors=False)
+    ok = np.zeros(n_nodes + 1, dtype=bool)
     ok[order] = True
-    return ok
+    return ok[:n_nodes]
 
 
 class _Segments:
@@ -129,7 +141,7 @@ def solve_dp(n_nodes: int, goal: int, edge_source: np.ndarray, edge_cost: np.nda
     Parameters
     ----------
     n_nodes : N.
-    goal : the goal node (absorbing, J = 0).
+    goal : the goal node, or an array of goal nodes (absorbing, J = 0).
     edge_source : (E,) int, source node of each edge.
     edge_cost : (E,) expected cost of each edge (>= 0).
     landing : (E, N) sparse, landing probabilities.
@@ -154,8 +166,9 @@ def solve_dp(n_nodes: int, goal: int, edge_source: np.ndarray, edge_cost: np.nda
     if not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"failure cost: expected a finite number > 0, found {failure_cost}")
     landing = _check(n_nodes, goal, edge_source, landing, failure_prob, edge_cost)
+    is_goal = goal_mask(n_nodes, goal)
     reach = can_reach(n_nodes, goal, edge_source, landing)
-    usable = reach[edge_source] & (edge_source != goal)
+    usable = reach[edge_source] & ~is_goal[edge_source]
     seg = _Segments(edge_source, usable)
     c = edge_cost + failure_cost * failure_prob
     dead = ~reach  # landing in a node that cannot reach the goal costs J_F
@@ -164,7 +177,7 @@ def solve_dp(n_nodes: int, goal: int, edge_source: np.ndarray, edge_cost: np.nda
         return np.where(dead, failure_cost, J)
 
     J = np.where(reach, 0.0, np.inf)
-    J[goal] = 0.0
+    J[is_goal] = 0.0
     status, residual, it = SolveStatus.MAX_ITERATIONS, np.inf, 0
     if method == "value":
         for it in range(1, max_iterations + 1):
@@ -178,28 +191,24 @@ def solve_dp(n_nodes: int, goal: int, edge_source: np.ndarray, edge_cost: np.nda
                 status = SolveStatus.CONVERGED
                 break
     elif method == "policy":
-        J, it, residual, status = _policy_iteration(n_nodes, goal, c, landing, seg, reach, effective,
+        J, it, residual, status = _policy_iteration(n_nodes, is_goal, c, landing, seg, reach, effective,
                                                     failure_cost, tol, max_iterations)
     else:
         raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
     _, chosen = seg.argmin(_bellman(c, landing, effective(J)))
     policy = np.full(n_nodes, -1, dtype=np.int64)
     policy[seg.nodes] = chosen
-    policy[goal] = -1
-    unreachable = np.flatnonzero(dead & (np.arange(n_nodes) != goal)).astype(np.int64)
+    policy[is_goal] = -1
+    unreachable = np.flatnonzero(dead & ~is_goal).astype(np.int64)
     return DPResult(cost_to_go=J, policy=policy, iterations=it, residual=residual, status=status,
                     unreachable=unreachable)
 
 
-def _evaluate(n_nodes: int, goal: int, policy: np.ndarray, c: np.ndarray, landing: scipy.sparse.csr_matrix,
+def _evaluate(n_nodes: int, is_goal: np.ndarray, policy: np.ndarray, c: np.ndarray, landing: scipy.sparse.csr_matrix,
               reach: np.ndarray, failure_cost: float) -> np.ndarray | None:
     """J of a fixed policy: (I - Q) J = c_pi + J_F * P(land in a dead node). None if singular."""
     act = np.flatnonzero(policy >= 0)
     rows = landing[policy[act]]
-    live = reach.copy()
-    live[goal] = False
-    pos = -np.ones(n_nodes, dtype=np.int64)
-    pos[act] = np.arange(act.size)
     Q = rows[:, act]
     dead_mass = np.asarray(rows[:, np.flatnonzero(~reach)].sum(axis=1)).ravel()
     rhs = c[policy[act]] + failure_cost * dead_mass
@@ -214,15 +223,15 @@ def _evaluate(n_nodes: int, goal: int, policy: np.ndarray, c: np.ndarray, landin
         return None
     J = np.where(reach, 0.0, np.inf)
     J[act] = sol
-    J[goal] = 0.0
+    J[is_goal] = 0.0
     return J
 
 
-def _policy_iteration(n_nodes, goal, c, landing, seg, reach, effective, failure_cost, tol, max_iterations):
+def _policy_iteration(n_nodes, is_goal, c, landing, seg, reach, effective, failure_cost, tol, max_iterations):
     # A proper starting policy: the greedy one after value-iteration sweeps from J = 0 (every node
     # that can reach the goal then picks an edge that moves probability towards it).
     J = np.where(reach, 0.0, np.inf)
-    J[goal] = 0.0
+    J[is_goal] = 0.0
     for _ in range(min(50, max_iterations)):
         mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
         J[seg.nodes] = mins
@@ -230,7 +239,7 @@ def _policy_iteration(n_nodes, goal, c, landing, seg, reach, effective, failure_
     _, policy[seg.nodes] = seg.argmin(_bellman(c, landing, effective(J)))
     status, it = SolveStatus.MAX_ITERATIONS, 0
     for it in range(1, max_iterations + 1):
-        J_pi = _evaluate(n_nodes, goal, policy, c, landing, reach, failure_cost)
+        J_pi = _evaluate(n_nodes, is_goal, policy, c, landing, reach, failure_cost)
         if J_pi is None:  # a closed loop with no exit: fall back to more value iteration sweeps
             for _ in range(1000):
                 mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
@@ -252,16 +261,16 @@ def _policy_iteration(n_nodes, goal, c, landing, seg, reach, effective, failure_
     return J, it, residual, status
 
 
-def policy_transition_matrix(n_nodes: int, goal: int, policy: np.ndarray,
+def policy_transition_matrix(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray,
                              landing: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
-    """(N, N) landing probabilities of the chosen edges; rows of the goal and of nodes without an edge are zero."""
+    """(N, N) landing probabilities of the chosen edges; rows of goals and of nodes without an edge are zero."""
     landing = scipy.sparse.csr_matrix(landing)
-    act = np.flatnonzero((np.asarray(policy) >= 0) & (np.arange(n_nodes) != goal))
+    act = np.flatnonzero((np.asarray(policy) >= 0) & ~goal_mask(n_nodes, goal))
     rows = landing[np.asarray(policy)[act]].tocoo()
     return scipy.sparse.csr_matrix((rows.data, (act[rows.row], rows.col)), shape=(n_nodes, n_nodes))
 
 
-def success_probability(n_nodes: int, goal: int, policy: np.ndarray, landing: scipy.sparse.spmatrix) -> np.ndarray:
+def success_probability(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray, landing: scipy.sparse.spmatrix) -> np.ndarray:
     """Probability of reaching the goal from every node under ``policy`` (absorbing Markov chain).
 
     Goal and failure are absorbing; with ``Q`` the transitions among nodes that have an edge and
@@ -274,13 +283,14 @@ def success_probability(n_nodes: int, goal: int, policy: np.ndarray, landing: sc
         If the solution leaves [0, 1] by more than 1e-9 (inconsistent inputs).
     """
     policy = np.asarray(policy, dtype=np.int64)
+    is_goal = goal_mask(n_nodes, goal)
     T = policy_transition_matrix(n_nodes, goal, policy, landing)
-    act = np.flatnonzero((policy >= 0) & (np.arange(n_nodes) != goal))
+    act = np.flatnonzero((policy >= 0) & ~is_goal)
     p = np.zeros(n_nodes)
-    p[goal] = 1.0
+    p[is_goal] = 1.0
     if act.size:
         Q = T[act][:, act]
-        r = np.asarray(T[act][:, [goal]].todense()).ravel()
+        r = np.asarray(T[act][:, np.flatnonzero(is_goal)].sum(axis=1)).ravel()
         A = scipy.sparse.identity(act.size, format="csc") - Q.tocsc()
         with np.errstate(all="ignore"):
             sol = np.atleast_1d(scipy.sparse.linalg.spsolve(A, r))
@@ -299,7 +309,7 @@ def success_probability(n_nodes: int, goal: int, policy: np.ndarray, landing: sc
     return p
 
 
-def shortest_path_policy(n_nodes: int, goal: int, edge_source: np.ndarray, edge_target: np.ndarray,
+def shortest_path_policy(n_nodes: int, goal: int | np.ndarray, edge_source: np.ndarray, edge_target: np.ndarray,
                          edge_length: np.ndarray) -> np.ndarray:
     """The baseline that ignores uncertainty: at each node, the edge on a shortest path to the goal.
 
@@ -310,11 +320,13 @@ def shortest_path_policy(n_nodes: int, goal: int, edge_source: np.ndarray, edge_
     edge_target = np.asarray(edge_target, dtype=np.int64)
     w = np.asarray(edge_length, dtype=float)
     # reversed graph (target -> source), shortest of parallel edges kept
+    is_goal = goal_mask(n_nodes, goal)
     dist = scipy.sparse.csgraph.dijkstra(_min_duplicates(edge_target, edge_source, w, n_nodes), directed=True,
-                                         indices=goal)
+                                         indices=np.flatnonzero(is_goal))
+    dist = np.atleast_2d(dist).min(axis=0)
     policy = np.full(n_nodes, -1, dtype=np.int64)
     through = w + dist[edge_target]
-    usable = np.isfinite(through) & (edge_source != goal)
+    usable = np.isfinite(through) & ~is_goal[edge_source]
     seg = _Segments(edge_source, usable)
     if seg.nodes.size:
         _, best = seg.argmin(through)

@@ -69,13 +69,44 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
     """
     spec = problem.scenario.roadmap
     fixed = np.stack([problem.start, problem.goal])
+    extra_goals = _goal_region_nodes(problem, spec.goal_nodes - 1, rng, fixed) if problem.goal_disc else fixed[:0]
+    fixed = np.concatenate([fixed, extra_goals])
     sampled = sample_nodes(problem, spec.nodes, rng, min_separation=spec.min_separation, existing=fixed)
     if sampled.shape[0] == 0 and spec.nodes > 0:
         raise RunFailure("no collision-free configuration found: the free space is empty or tiny")
     centers = np.concatenate([fixed, sampled])
     kinds = np.full(centers.shape[0], REGULAR, dtype=np.int8)
     kinds[START_INDEX], kinds[GOAL_INDEX] = START, GOAL
+    kinds[2:2 + extra_goals.shape[0]] = GOAL
     return centers, kinds
+
+
+def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, existing: np.ndarray,
+                       batches: int = 200) -> np.ndarray:
+    """More goal nodes: valid configurations at rest whose last key point (the tip) lies in the goal disc.
+
+    A goal region reached through different passages needs one goal node per way in: the arm's
+    tip can reach the disc with its body through either passage.
+    """
+    center, radius = problem.goal_disc
+    d = problem.config_dim
+    min_sep = problem.scenario.roadmap.min_separation
+    found: list[np.ndarray] = []
+    for _ in range(batches):
+        if len(found) >= count:
+            break
+        q = rng.uniform(problem.config_lo, problem.config_hi, size=(4096, d))
+        X = problem.state_of(q)
+        inside = np.linalg.norm(problem.points(X)[:, -1] - center, axis=1) < radius
+        X = X[inside]
+        X = X[problem.is_valid(X)]
+        for x in X:
+            others = np.concatenate([existing[:, :d]] + [f[None, :d] for f in found])
+            if np.min(np.linalg.norm(others - x[:d], axis=1)) >= min_sep:
+                found.append(x)
+                if len(found) >= count:
+                    break
+    return np.asarray(found).reshape(-1, problem.model.n)
 
 
 @dataclass(frozen=True)

@@ -202,9 +202,22 @@ def _arm_goal(sc: Scenario, lengths: np.ndarray, theta_start: np.ndarray, is_val
         inside = np.all((theta >= lo) & (theta <= hi), axis=1)
         return inside & is_valid(pad(theta))
 
+    # Seeds for the inverse kinematics: valid configurations in the joint box whose tips are nearest
+    # to the goal (random restarts over all angles almost never give a collision-free arm).
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x60A1]))
-    theta = planar_arm.inverse_kinematics_tip(np.asarray(sc.task.goal_center, dtype=float), lengths, theta_start,
-                                              validity=validity, rng=rng, max_restarts=200)
+    target = np.asarray(sc.task.goal_center, dtype=float)
+    seeds = [theta_start[None]]
+    for _ in range(20):
+        cand = rng.uniform(lo, hi, size=(4096, L))
+        cand = cand[validity(cand)]
+        seeds.append(cand)
+    pool = np.concatenate(seeds)
+    tips = planar_arm.joint_positions(pool, lengths)[:, -1]
+    theta = None
+    for start in pool[np.argsort(np.linalg.norm(tips - target, axis=1))[:60]]:
+        theta = planar_arm.inverse_kinematics_tip(target, lengths, start, validity=validity, max_restarts=0)
+        if theta is not None:
+            break
     if theta is None:
         raise ScenarioError(sc.path, "task.goal_center",
                             "expected a tip position the arm can reach without collision (inverse kinematics found none)")

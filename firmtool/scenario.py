@@ -86,6 +86,7 @@ class RoadmapSpec:
     neighbors: int
     min_separation: float
     max_edge_length: float
+    goal_nodes: int = 1
 
 
 @dataclass(frozen=True)
@@ -402,6 +403,7 @@ def _read_roadmap(t: _Table) -> RoadmapSpec:
         neighbors=t.number("neighbors", 6, integer=True, positive=True),
         min_separation=t.number("min_separation", 0.0, nonnegative=True),
         max_edge_length=t.number("max_edge_length", math.inf, positive=True),
+        goal_nodes=t.number("goal_nodes", 1, integer=True, positive=True),
     )
     t.finish()
     return spec

@@ -14,8 +14,8 @@ from conftest import PERFECT, open_world
 
 def _setup(text):
     problem = build_problem(parse_scenario(text, "test.toml"))
-    centers, _ = roadmap_nodes(problem, np.random.default_rng(0))
-    d = design(problem, centers)
+    centers, kinds = roadmap_nodes(problem, np.random.default_rng(0))
+    d = design(problem, centers, kinds)
     return problem, d, d.regions(problem)
 
 

@@ -139,3 +139,12 @@ def test_shortest_path_policy_ignores_risk():
     assert policy.tolist() == [1, -1, 2]
     # a node with no path to the goal gets -1
     assert shortest_path_policy(4, 1, src, dst, np.ones(3))[3] == -1
+
+
+def test_several_goal_nodes_are_all_absorbing():
+    # Goals 1 and 3. From 0: edge to 1 (cost 5) or to 3 (cost 1, fails w.p. 0.1 with J_F = 10 -> 2).
+    src, cost, landing, fail = graph(4, [(0, 5.0, {1: 1.0}, 0.0), (0, 1.0, {3: 0.9}, 0.1), (2, 1.0, {0: 1.0}, 0.0)])
+    r = solve_dp(4, np.array([1, 3]), src, cost, landing, fail, 10.0)
+    np.testing.assert_allclose(r.cost_to_go, [2.0, 0.0, 3.0, 0.0])
+    assert r.policy.tolist() == [1, -1, 2, -1] and r.unreachable.size == 0
+    np.testing.assert_allclose(success_probability(4, [1, 3], r.policy, landing), [0.9, 1.0, 0.9, 1.0])
