@@ -17,7 +17,7 @@ from scipy.stats import norm
 from firmtool.controllers import LocalController
 from firmtool.design import Design, local_controller
 from firmtool.edges import belief_step
-from firmtool.nodes import GOAL_INDEX, START_INDEX, NodeRegions
+from firmtool.nodes import GOAL, START_INDEX, NodeRegions
 from firmtool.problem import Problem
 
 SUCCESS, COLLISION, TIMEOUT, STUCK = "success", "collision", "timeout", "stuck"
@@ -84,7 +84,7 @@ class Executor:
         P0 = np.zeros((model.n, model.n)) if perfect else d.P[START_INDEX]
         trace: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = [(x[0], xhat[0], P0)] if record else []
         while True:
-            if node == GOAL_INDEX:
+            if self.design.kinds[node] == GOAL:
                 ep.outcome = SUCCESS
                 break
             edge = int(self.policy[node])

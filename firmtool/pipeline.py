@@ -15,7 +15,7 @@ from firmtool.design import Design, design
 from firmtool.edges import FAILURE, TIMEOUT
 from firmtool.errors import RoadmapError, RunFailure
 from firmtool.graph import shortest_path_policy, solve_dp, success_probability
-from firmtool.nodes import GOAL_INDEX, START_INDEX, roadmap_nodes
+from firmtool.nodes import GOAL, START_INDEX, roadmap_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap import Roadmap, create_roadmap, inputs_hash, write_stage
@@ -32,10 +32,10 @@ def problem_of(roadmap: Roadmap) -> Problem:
 
 
 def design_of(roadmap: Roadmap) -> Design:
-    nodes = roadmap.require("nodes", "centers")
+    nodes = roadmap.require("nodes", "centers", "kind")
     c = roadmap.require("controllers", "u_eq", "K", "S", "L", "P", "Sigma", "scale",
                         "edge_source", "edge_target", "edge_steps")
-    return Design(centers=nodes["centers"], u_eq=c["u_eq"], K=c["K"], S=c["S"], L=c["L"], P=c["P"],
+    return Design(centers=nodes["centers"], kinds=nodes["kind"], u_eq=c["u_eq"], K=c["K"], S=c["S"], L=c["L"], P=c["P"],
                   Sigma=c["Sigma"], scale=c["scale"], edge_source=c["edge_source"].astype(np.int64),
                   edge_target=c["edge_target"].astype(np.int64), edge_steps=c["edge_steps"].astype(np.int64))
 
@@ -51,7 +51,7 @@ def sample_stage(scenario_path: str | Path, output: str | Path | None) -> dict:
     create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
     write_stage(out, "nodes", {"centers": centers, "kind": kinds},
                 {"inputs_sha256": inputs_hash(scenario.sha256, "nodes"),
-                 "start": START_INDEX, "goal": GOAL_INDEX})
+                 "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL)})
     return {"roadmap": str(out), "nodes": int(centers.shape[0]), "requested_nodes": scenario.roadmap.nodes,
             "seconds": time.perf_counter() - t0}
 
@@ -61,8 +61,9 @@ def design_stage(path: str | Path) -> dict:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
-    centers = roadmap.require("nodes", "centers")["centers"]
-    d = design(problem, centers)
+    nodes = roadmap.require("nodes", "centers", "kind")
+    centers = nodes["centers"]
+    d = design(problem, centers, nodes["kind"])
     if d.edge_source.size == 0:
         raise RunFailure(f"{path}: no collision-free edge between any two nodes; add nodes or neighbours")
     arrays = {name: getattr(d, name) for name in ("u_eq", "K", "S", "L", "P", "Sigma", "scale",
@@ -143,16 +144,17 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     landing, fail, timeout, _ = edge_probabilities(roadmap)
     N = landing.shape[1]
+    goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
     JF = float(failure_cost if failure_cost is not None else problem.scenario.cost.failure_cost)
-    res = solve_dp(N, GOAL_INDEX, edges["source"].astype(np.int64), edges["cost_mean"], landing,
+    res = solve_dp(N, goals, edges["source"].astype(np.int64), edges["cost_mean"], landing,
                    fail + timeout, JF, method=method)
-    p = success_probability(N, GOAL_INDEX, res.policy, landing)
+    p = success_probability(N, goals, res.policy, landing)
     next_node = np.where(res.policy >= 0, edges["target"][np.maximum(res.policy, 0)], -1)
     # The baseline that ignores uncertainty: shortest configuration-space path on the same roadmap.
     centers = roadmap.require("nodes", "centers")["centers"][:, :problem.config_dim]
     length = np.linalg.norm(centers[edges["target"]] - centers[edges["source"]], axis=1)
-    sp = shortest_path_policy(N, GOAL_INDEX, edges["source"], edges["target"], length)
-    p_sp = success_probability(N, GOAL_INDEX, sp, landing)
+    sp = shortest_path_policy(N, goals, edges["source"], edges["target"], length)
+    p_sp = success_probability(N, goals, sp, landing)
     write_stage(path, "policy",
                 {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
                  "success_probability": p, "unreachable": res.unreachable,
@@ -166,7 +168,7 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
               "start_success_probability": float(p[START_INDEX]),
               "shortest_path_start_success_probability": float(p_sp[START_INDEX]),
               "unreachable_nodes": [int(i) for i in res.unreachable],
-              "path": policy_path(res.policy, edges["target"], START_INDEX, GOAL_INDEX),
+              "path": policy_path(res.policy, edges["target"], START_INDEX, goals),
               "seconds": time.perf_counter() - t0}
     if not np.isfinite(res.cost_to_go[START_INDEX]):
         raise RunFailure(f"{path}: the goal is unreachable from the start node under the estimated edges "
@@ -179,11 +181,11 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def policy_path(policy: np.ndarray, target: np.ndarray, start: int, goal: int) -> list[int]:
-    """The most likely node sequence: follow each chosen edge's target from ``start``."""
+def policy_path(policy: np.ndarray, target: np.ndarray, start: int, goals: np.ndarray) -> list[int]:
+    """The nominal node sequence: follow each chosen edge's target from ``start`` to a goal."""
     path, seen = [start], {start}
     node = start
-    while node != goal and policy[node] >= 0:
+    while node not in set(np.atleast_1d(goals).tolist()) and policy[node] >= 0:
         node = int(target[policy[node]])
         if node in seen:
             break
