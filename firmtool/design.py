@@ -10,15 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from firmtool.controllers import (LocalController, NodeController, design_node, min_energy_trajectory,
                                   plan_local_controller, weights)
 from firmtool.errors import NumericalError
-from firmtool.nodes import GOAL, NodeRegions
+from firmtool.nodes import GOAL, NodeRegions, valid_pairs
 from firmtool.problem import Problem
 
-NOMINAL_CHECK_SPACING = 0.5  # validity checks per unit of robot radius along a nominal path
 
 
 @dataclass(frozen=True)
@@ -93,18 +91,6 @@ def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tupl
     raise NumericalError(f"no nominal trajectory within the speed/input limits from {x0} to {xf}")
 
 
-def _path_is_valid(problem: Problem, x: np.ndarray) -> bool:
-    """Nominal states, densified so that consecutive checks are closer than half a robot radius."""
-    d = problem.config_dim
-    step = np.max(np.linalg.norm(np.diff(x[:, :d], axis=0), axis=1), initial=0.0)
-    spacing = NOMINAL_CHECK_SPACING * problem.scenario.world.robot_radius / problem.workspace_gain
-    sub = max(1, int(np.ceil(step / spacing)))
-    t = np.linspace(0.0, 1.0, sub, endpoint=False)
-    dense = (x[:-1, None, :] * (1 - t)[None, :, None] + x[1:, None, :] * t[None, :, None]).reshape(-1, x.shape[1])
-    dense = np.vstack([dense, x[-1:]])
-    return bool(np.all(problem.is_valid(dense)))
-
-
 def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
 
@@ -114,25 +100,13 @@ def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[n
     -------
     source, target, steps : (E,) int64 arrays sorted by (source, target).
     """
-    spec = problem.scenario.roadmap
-    d = problem.config_dim
-    N = centers.shape[0]
-    k = min(spec.neighbors + 1, N)
-    dist, idx = cKDTree(centers[:, :d]).query(centers[:, :d], k=k)
-    pairs = set()
-    for i in range(N):  # loop over nodes, not particles
-        for dij, j in zip(np.atleast_1d(dist[i]), np.atleast_1d(idx[i])):
-            if j != i and j < N and dij <= spec.max_edge_length:
-                pairs.add((i, int(j)))
-                pairs.add((int(j), i))
-    pairs = sorted(p for p in pairs if kinds[p[0]] != GOAL)
+    directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
     src, dst, steps = [], [], []
-    for i, j in pairs:
-        x, u = nominal_trajectory(problem, centers[i], centers[j])
-        if _path_is_valid(problem, x):
-            src.append(i)
-            dst.append(j)
-            steps.append(u.shape[0])
+    for i, j in directed:
+        _, u = nominal_trajectory(problem, centers[i], centers[j])
+        src.append(i)
+        dst.append(j)
+        steps.append(u.shape[0])
     return (np.array(src, dtype=np.int64), np.array(dst, dtype=np.int64), np.array(steps, dtype=np.int64))
 
 

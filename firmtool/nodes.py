@@ -17,10 +17,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+import scipy.sparse
+import scipy.sparse.csgraph
+
 from firmtool.errors import RunFailure
 from firmtool.problem import Problem
 
 REGULAR, START, GOAL = 0, 1, 2
+SEGMENT_CHECK_SPACING = 0.5  # validity checks per robot radius of workspace motion along a segment
 START_INDEX, GOAL_INDEX = 0, 1  # the start and goal nodes are always nodes 0 and 1
 
 
@@ -71,14 +75,132 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
     fixed = np.stack([problem.start, problem.goal])
     extra_goals = _goal_region_nodes(problem, spec.goal_nodes - 1, rng, fixed) if problem.goal_disc else fixed[:0]
     fixed = np.concatenate([fixed, extra_goals])
-    sampled = sample_nodes(problem, spec.nodes, rng, min_separation=spec.min_separation, existing=fixed)
+    biased = int(round(spec.goal_bias * spec.nodes))
+    grown = grow_from_goals(problem, biased, rng, fixed) if biased else fixed[:0]
+    sampled = sample_nodes(problem, spec.nodes - grown.shape[0], rng, min_separation=spec.min_separation,
+                           existing=np.concatenate([fixed, grown]))
+    sampled = np.concatenate([grown, sampled])
     if sampled.shape[0] == 0 and spec.nodes > 0:
         raise RunFailure("no collision-free configuration found: the free space is empty or tiny")
     centers = np.concatenate([fixed, sampled])
     kinds = np.full(centers.shape[0], REGULAR, dtype=np.int8)
     kinds[START_INDEX], kinds[GOAL_INDEX] = START, GOAL
     kinds[2:2 + extra_goals.shape[0]] = GOAL
+    if spec.bridge_nodes:
+        centers, kinds = add_bridges(problem, centers, kinds, spec.bridge_nodes, rng)
     return centers, kinds
+
+
+def segment_is_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> bool:
+    """Whether the straight configuration-space segment between two states is collision-free.
+
+    The nominal trajectory between two nodes at rest follows this segment (every coordinate runs the
+    same rest-to-rest profile), so this is also the nominal's validity. Checks are spaced so that no
+    robot point moves more than half a robot radius between two of them.
+    """
+    d = problem.config_dim
+    length = float(np.linalg.norm(q1[:d] - q0[:d]))
+    spacing = SEGMENT_CHECK_SPACING * problem.scenario.world.robot_radius / problem.workspace_gain
+    t = np.linspace(0.0, 1.0, max(2, int(np.ceil(length / spacing)) + 1))
+    return bool(np.all(problem.is_valid(q0[None] + t[:, None] * (q1 - q0)[None])))
+
+
+def neighbour_pairs(problem: Problem, centers: np.ndarray) -> list[tuple[int, int]]:
+    """Undirected pairs (i < j): each node with its k nearest neighbours within the edge length."""
+    spec = problem.scenario.roadmap
+    d, N = problem.config_dim, centers.shape[0]
+    k = min(spec.neighbors + 1, N)
+    dist, idx = cKDTree(centers[:, :d]).query(centers[:, :d], k=k)
+    dist, idx = dist.reshape(N, k), idx.reshape(N, k)
+    ok = (idx != np.arange(N)[:, None]) & (idx < N) & (dist <= spec.max_edge_length)
+    i, j = np.nonzero(ok)
+    a, b = np.minimum(i, idx[i, j]), np.maximum(i, idx[i, j])
+    return sorted(set(zip(a.tolist(), b.tolist())))
+
+
+def valid_pairs(problem: Problem, centers: np.ndarray, cache: dict | None = None) -> list[tuple[int, int]]:
+    """The neighbour pairs whose segment is collision-free (``cache`` keeps results between calls)."""
+    cache = {} if cache is None else cache
+    out = []
+    for i, j in neighbour_pairs(problem, centers):  # loop over node pairs, not particles
+        key = (centers[i].tobytes(), centers[j].tobytes())
+        if key not in cache:
+            cache[key] = segment_is_valid(problem, centers[i], centers[j])
+        if cache[key]:
+            out.append((i, j))
+    return out
+
+
+def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget: int,
+                rng: np.random.Generator, per_round: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """Add nodes between the start's component and goal components that it does not reach.
+
+    Each round connects the roadmap (k nearest neighbours, collision-free segments), and for every
+    goal component apart from the start's samples valid nodes near the midpoints of the closest
+    node pairs across the two components (a Gaussian around the midpoint, spread a third of the gap).
+    Stops when every goal is connected to the start or ``budget`` nodes were added.
+    """
+    d = problem.config_dim
+    cache: dict = {}
+    added = 0
+    while added < budget:
+        pairs = valid_pairs(problem, centers, cache)
+        N = centers.shape[0]
+        a = np.array([p[0] for p in pairs], dtype=np.int64)
+        b = np.array([p[1] for p in pairs], dtype=np.int64)
+        graph = scipy.sparse.csr_matrix((np.ones(a.size), (a, b)), shape=(N, N))
+        _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
+        stranded = sorted(set(label[kinds == GOAL].tolist()) - {label[START_INDEX]})
+        if not stranded:
+            break
+        new = []
+        here = np.flatnonzero(label == label[START_INDEX])
+        for comp in stranded:
+            there = np.flatnonzero(label == comp)
+            gap = np.linalg.norm(centers[here, None, :d] - centers[None, there, :d], axis=2)
+            flat = np.argsort(gap, axis=None)[:per_round]
+            hi, ti = np.unravel_index(flat, gap.shape)
+            mid = 0.5 * (centers[here[hi], :d] + centers[there[ti], :d])
+            spread = gap[hi, ti][:, None] / 3.0
+            q = np.clip(mid + spread * rng.standard_normal(mid.shape), problem.config_lo, problem.config_hi)
+            new.append(q[problem.is_valid(problem.state_of(q))])
+        q = np.concatenate(new)[: budget - added]
+        if q.shape[0] == 0:
+            continue
+        centers = np.concatenate([centers, problem.state_of(q)])
+        kinds = np.concatenate([kinds, np.full(q.shape[0], REGULAR, dtype=np.int8)])
+        added += q.shape[0]
+    return centers, kinds
+
+
+def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixed: np.ndarray,
+                    max_attempts: int | None = None) -> np.ndarray:
+    """Nodes grown outwards from the goal nodes by Gaussian steps in configuration space.
+
+    Uniform samples rarely fall in narrow passages of a high-dimensional configuration space; a
+    cloud grown from the goals (each new node a valid, separated perturbation of a goal or of an
+    earlier grown node, step ``roadmap.bias_step``) reaches back through the passages.
+    """
+    spec = problem.scenario.roadmap
+    d = problem.config_dim
+    # one tree per goal node, grown in turn, so that every way into the goal region gets nodes
+    trees = [[x[:d]] for x in fixed[1:]]  # fixed = start, goal, extra goals
+    accepted = [x[:d] for x in fixed]
+    grown: list[np.ndarray] = []
+    attempts, max_attempts = 0, max_attempts or 400 * count
+    while len(grown) < count and attempts < max_attempts:
+        tree = trees[(attempts // 64) % len(trees)]
+        base = np.asarray(tree)[rng.integers(len(tree), size=64)]
+        q = np.clip(base + spec.bias_step * rng.standard_normal(base.shape), problem.config_lo, problem.config_hi)
+        attempts += q.shape[0]
+        q = q[problem.is_valid(problem.state_of(q))]
+        for x in q[:1]:  # at most one node per batch, so the trees grow evenly
+            if np.min(np.linalg.norm(np.asarray(accepted) - x, axis=1)) < spec.min_separation:
+                continue
+            accepted.append(x)
+            tree.append(x)
+            grown.append(x)
+    return problem.state_of(np.asarray(grown).reshape(-1, d))
 
 
 def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, existing: np.ndarray,

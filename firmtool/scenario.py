@@ -87,6 +87,9 @@ class RoadmapSpec:
     min_separation: float
     max_edge_length: float
     goal_nodes: int = 1
+    goal_bias: float = 0.0
+    bridge_nodes: int = 0
+    bias_step: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -404,7 +407,12 @@ def _read_roadmap(t: _Table) -> RoadmapSpec:
         min_separation=t.number("min_separation", 0.0, nonnegative=True),
         max_edge_length=t.number("max_edge_length", math.inf, positive=True),
         goal_nodes=t.number("goal_nodes", 1, integer=True, positive=True),
+        goal_bias=t.number("goal_bias", 0.0, nonnegative=True),
+        bias_step=t.number("bias_step", 0.3, positive=True),
+        bridge_nodes=t.number("bridge_nodes", 0, integer=True, nonnegative=True),
     )
+    if spec.goal_bias > 1:
+        raise ScenarioError(t.path, "roadmap.goal_bias", f"expected a fraction in [0, 1], found {spec.goal_bias}")
     t.finish()
     return spec
 
