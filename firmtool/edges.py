@@ -27,6 +27,21 @@ def edge_seed_sequence(seed: int, source: int, target: int, chunk: int = 0) -> n
     return np.random.SeedSequence([seed, source, target, chunk])
 
 
+def control_and_move(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+                     w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Control from the estimate, then the true-state step: returns the new true states and the controls."""
+    u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T
+    return x @ model.A.T + u @ model.B.T + w @ model.F.T, u
+
+
+def filter_update(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+                  u: np.ndarray, v: np.ndarray, variance: np.ndarray) -> np.ndarray:
+    """Observe the new true states ``x`` (noise variance ``variance``, at the TRUE state) and update."""
+    pred = xhat @ model.A.T + u @ model.B.T
+    z = x @ model.H.T + np.sqrt(variance) * v
+    return pred + (z - pred @ model.H.T) @ lc.L[k].T
+
+
 def belief_step(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
                 w: np.ndarray, v: np.ndarray, perfect: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Advance true states and estimates by one step of the local controller.
@@ -40,14 +55,10 @@ def belief_step(model: LinearGaussianModel, lc: LocalController, k: int, x: np.n
     -------
     x, xhat, u : the new true states and estimates, and the applied controls (M, m).
     """
-    u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T
-    x = x @ model.A.T + u @ model.B.T + w @ model.F.T
+    x, u = control_and_move(model, lc, k, x, xhat, w)
     if perfect:
         return x, x, u
-    pred = xhat @ model.A.T + u @ model.B.T
-    z = x @ model.H.T + np.sqrt(model.measurement_variance(x)) * v  # R at the TRUE state
-    xhat = pred + (z - pred @ model.H.T) @ lc.L[k].T
-    return x, xhat, u
+    return x, filter_update(model, lc, k, x, xhat, u, v, model.measurement_variance(x)), u
 
 
 @dataclass(frozen=True)
@@ -74,11 +85,19 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
         if alive.size == 0:
             break
         noise = rng.standard_normal((alive.size, r + (0 if perfect else nz)))
-        x_a, xhat_a, u = belief_step(model, lc, k, x[alive], xhat[alive], noise[:, :r], noise[:, r:], perfect)
+        # the same step as belief_step, with the robot's kinematics computed once for both the
+        # collision test and the state-dependent sensor noise
+        x_a, u = control_and_move(model, lc, k, x[alive], xhat[alive], noise[:, :r])
+        pts = problem.points(x_a)
+        if perfect:
+            xhat_a = x_a
+        else:
+            variance = model.noise.variance(problem.sensing_from_points(pts))
+            xhat_a = filter_update(model, lc, k, x_a, xhat[alive], u, noise[:, r:], variance)
         x[alive], xhat[alive] = x_a, xhat_a
         if cost_spec.alpha_control:
             effort[alive] += np.einsum("ij,ij->i", u, u)
-        failed = ~problem.is_valid(x_a)
+        failed = ~problem.points_valid(pts)
         done = failed.copy()
         outcome[alive[failed]] = FAILURE
         if k + 1 >= lc.edge_steps and candidates[k].any():

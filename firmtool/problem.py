@@ -36,6 +36,9 @@ class Problem:
     workspace_gain : bound on how far any robot point moves per unit of configuration change
         (1 for a point robot, the arm's total length), to space collision checks along paths.
     goal_disc : (center (2,), radius) when the goal is a region for the robot's last point.
+    points_valid : the validity test on key points (M, P, 2) -> bool (M,), so that a caller that
+        already has the points (the Monte Carlo: kinematics once per step) does not recompute them.
+    sensing_from_points : key points (M, P, 2) -> x-coordinate of each measurement's sensing point (M, nz).
     """
 
     scenario: Scenario
@@ -50,6 +53,8 @@ class Problem:
     points: Callable[[np.ndarray], np.ndarray]
     workspace_gain: float = 1.0
     goal_disc: tuple[np.ndarray, float] | None = None
+    points_valid: Callable[[np.ndarray], np.ndarray] | None = None
+    sensing_from_points: Callable[[np.ndarray], np.ndarray] | None = None
 
     @property
     def velocity_dim(self) -> int:
@@ -112,8 +117,16 @@ def _build_point(sc: Scenario) -> Problem:
         H = np.hstack([np.eye(d), np.zeros((d, n - d))])
     elif H.shape[1] != n:
         raise ScenarioError(sc.path, "measurement.H", f"expected shape (nz, {n}) but found {H.shape}")
+    nz = H.shape[0]
+
+    def points(X: np.ndarray) -> np.ndarray:
+        return np.asarray(X)[:, None, :2]
+
+    def sensing_from_points(P: np.ndarray) -> np.ndarray:
+        return np.repeat(P[:, 0, :1], nz, axis=1)
+
     model = LinearGaussianModel(A=A, B=B, F=F, H=np.asarray(H, dtype=float), noise=_noise(sc),
-                                sensing_x=lambda X, nz=H.shape[0]: np.repeat(X[:, :1], nz, axis=1), dt=sc.model.dt)
+                                sensing_x=lambda X: sensing_from_points(points(X)), dt=sc.model.dt)
 
     w = sc.world
     backend = make_backend(
@@ -124,14 +137,14 @@ def _build_point(sc: Scenario) -> Problem:
     )
     radius = w.robot_radius
 
-    def is_valid(X: np.ndarray) -> np.ndarray:
-        p = np.asarray(X)[:, None, :2]
-        return ~backend.capsules_collide(p, p, radius)
+    def points_valid(P: np.ndarray) -> np.ndarray:
+        return ~backend.capsules_collide(P, P, radius)
 
     start, goal = _task_states(sc, n, config_dim)
     problem = Problem(scenario=sc, model=model, perfect=sc.perfect, config_dim=config_dim,
-                      config_lo=np.array(w.lo), config_hi=np.array(w.hi), is_valid=is_valid,
-                      start=start, goal=goal, points=lambda X: np.asarray(X)[:, None, :2])
+                      config_lo=np.array(w.lo), config_hi=np.array(w.hi),
+                      is_valid=lambda X: points_valid(points(X)), start=start, goal=goal, points=points,
+                      points_valid=points_valid, sensing_from_points=sensing_from_points)
     _check_task(problem)
     return problem
 
@@ -153,11 +166,14 @@ def _build_arm(sc: Scenario) -> Problem:
     elif H.shape != (L, n):
         raise ScenarioError(sc.path, "measurement.H", f"expected shape ({L}, {n}) (one row per joint) but found {H.shape}")
 
-    def sensing_x(X: np.ndarray) -> np.ndarray:
-        return planar_arm.joint_positions(X[:, :L], lengths)[:, 1:, 0]
+    def points(X: np.ndarray) -> np.ndarray:
+        return planar_arm.joint_positions(np.asarray(X)[:, :L], lengths)
+
+    def sensing_from_points(P: np.ndarray) -> np.ndarray:
+        return P[:, 1:, 0]
 
     model = LinearGaussianModel(A=A, B=B, F=F, H=np.asarray(H, dtype=float), noise=_noise(sc),
-                                sensing_x=sensing_x, dt=spec.dt)
+                                sensing_x=lambda X: sensing_from_points(points(X)), dt=spec.dt)
     w = sc.world
     backend = make_backend(
         w.collision_backend,
@@ -166,14 +182,15 @@ def _build_arm(sc: Scenario) -> Problem:
         np.array(w.lo), np.array(w.hi), self_collision=True,
     )
 
-    def is_valid(X: np.ndarray) -> np.ndarray:
-        P = planar_arm.joint_positions(np.asarray(X)[:, :L], lengths)
+    def points_valid(P: np.ndarray) -> np.ndarray:
         return ~backend.capsules_collide(P[:, :-1], P[:, 1:], w.robot_radius)
+
+    def is_valid(X: np.ndarray) -> np.ndarray:
+        return points_valid(points(X))
 
     lo = np.full(L, -spec.joint_range)
     hi = np.full(L, spec.joint_range)
     lo[0], hi[0] = spec.first_joint_range
-    points = lambda X: planar_arm.joint_positions(np.asarray(X)[:, :L], lengths)  # noqa: E731
     task = sc.task
     if task.goal is None:
         start, _ = _task_states(sc, n, config_dim, goal_required=False)
@@ -184,7 +201,8 @@ def _build_arm(sc: Scenario) -> Problem:
         disc = None
     problem = Problem(scenario=sc, model=model, perfect=sc.perfect, config_dim=config_dim, config_lo=lo,
                       config_hi=hi, is_valid=is_valid, start=start, goal=goal, points=points,
-                      workspace_gain=float(lengths.sum()), goal_disc=disc)
+                      workspace_gain=float(lengths.sum()), goal_disc=disc, points_valid=points_valid,
+                      sensing_from_points=sensing_from_points)
     _check_task(problem)
     return problem
 
