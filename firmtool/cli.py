@@ -18,7 +18,7 @@ import typer
 
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
 
-DEFAULT_SCENARIO = "scenarios/point_lightdark.toml"
+DEFAULT_SCENARIO = "scenarios/arm8_lightdark.toml"
 
 app = typer.Typer(
     name="firmtool",
@@ -267,7 +267,7 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
         episodes: int = typer.Option(200, "--episodes", "-n", min=1),
         seed: int = typer.Option(0, "--seed", min=0),
         workers: Optional[int] = WorkersOpt, as_json: bool = JsonOpt) -> None:
-    """Build, solve and execute a scenario in one go (default: the shipped point light-dark scenario).
+    """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment).
 
     Example: firmtool run scenarios/smoke.toml --episodes 50
     """
