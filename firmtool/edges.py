@@ -31,15 +31,17 @@ def control_and_move(model: LinearGaussianModel, lc: LocalController, k: int, x:
                      w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Control from the estimate, then the true-state step: returns the new true states and the controls."""
     u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T
-    return x @ model.A.T + u @ model.B.T + w @ model.F.T, u
+    return model.f(x, u) + w @ model.F.T, u
 
 
 def filter_update(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
                   u: np.ndarray, v: np.ndarray, variance: np.ndarray) -> np.ndarray:
-    """Observe the new true states ``x`` (noise variance ``variance``, at the TRUE state) and update."""
-    pred = xhat @ model.A.T + u @ model.B.T
-    z = x @ model.H.T + np.sqrt(variance) * v
-    return pred + (z - pred @ model.H.T) @ lc.L[k].T
+    """Observe the new true states ``x`` (noise variance ``variance``, at the TRUE state) and update
+    with the precomputed gain (an extended Kalman filter for a nonlinear model: the prediction and
+    the innovation use ``f`` and ``h``, the gain is linearised along the nominal once per edge)."""
+    pred = model.f(xhat, u)
+    z = model.h(x) + np.sqrt(variance) * v
+    return pred + (z - model.h(pred)) @ lc.L[k].T
 
 
 def belief_step(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,

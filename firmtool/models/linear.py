@@ -126,6 +126,25 @@ class LinearGaussianModel:
         """Discrete process-noise covariance ``F F'`` (n, n)."""
         return self.F @ self.F.T
 
+    # The model interface the Monte Carlo, the filter and the controllers use. A nonlinear model
+    # provides the same methods (f, h and their Jacobians); for this one they are matrix products.
+
+    def f(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Noise-free dynamics, vectorised: (M, n), (M, m) -> (M, n)."""
+        return X @ self.A.T + U @ self.B.T
+
+    def h(self, X: np.ndarray) -> np.ndarray:
+        """Noise-free observation, vectorised: (M, n) -> (M, nz)."""
+        return X @ self.H.T
+
+    def dynamics_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(df/dx, df/du) at one state and input: (n, n), (n, m)."""
+        return self.A, self.B
+
+    def observation_jacobian(self, x: np.ndarray) -> np.ndarray:
+        """dh/dx at one state: (nz, n)."""
+        return self.H
+
     def measurement_variance(self, states: np.ndarray) -> np.ndarray:
         """Diagonal of R at ``states`` (M, n) -> (M, nz)."""
         return self.noise.variance(self.sensing_x(np.atleast_2d(states)))
