@@ -14,7 +14,7 @@ import numpy as np
 from firmtool.controllers import (LocalController, NodeController, design_node, min_energy_trajectory,
                                   plan_local_controller, weights)
 from firmtool.errors import NumericalError
-from firmtool.nodes import GOAL, NodeRegions, valid_pairs
+from firmtool.nodes import GOAL, NodeRegions, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
 
 
@@ -102,8 +102,13 @@ def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[n
     """
     directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
     src, dst, steps = [], [], []
+    # Integrators move every coordinate on the same rest-to-rest profile, so their nominal is the
+    # segment checked above; other models' nominals may bend and are checked along their states.
+    straight = problem.scenario.model.dynamics in ("single_integrator", "double_integrator")
     for i, j in directed:
-        _, u = nominal_trajectory(problem, centers[i], centers[j])
+        x, u = nominal_trajectory(problem, centers[i], centers[j])
+        if not straight and not trajectory_is_valid(problem, x):
+            continue
         src.append(i)
         dst.append(j)
         steps.append(u.shape[0])

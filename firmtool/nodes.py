@@ -105,6 +105,11 @@ def segment_is_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> bool:
     return bool(np.all(problem.is_valid(q0[None] + t[:, None] * (q1 - q0)[None])))
 
 
+def trajectory_is_valid(problem: Problem, x: np.ndarray) -> bool:
+    """Whether a state trajectory (T, n) is collision-free, checked densely between its states."""
+    return all(segment_is_valid(problem, a, b) for a, b in zip(x[:-1], x[1:]))
+
+
 def neighbour_pairs(problem: Problem, centers: np.ndarray) -> list[tuple[int, int]]:
     """Undirected pairs (i < j): each node with its k nearest neighbours within the edge length."""
     spec = problem.scenario.roadmap
@@ -142,8 +147,9 @@ def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget
     """
     d = problem.config_dim
     cache: dict = {}
-    added = 0
-    while added < budget:
+    added, rounds = 0, 0
+    while added < budget and rounds < 4 * budget // per_round + 10:  # bounded even if no sample is valid
+        rounds += 1
         pairs = valid_pairs(problem, centers, cache)
         N = centers.shape[0]
         a = np.array([p[0] for p in pairs], dtype=np.int64)
