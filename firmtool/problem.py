@@ -103,6 +103,17 @@ def _linear_dynamics(sc: Scenario, d: int) -> tuple[np.ndarray, np.ndarray, np.n
     return A, B, noise_factor(Qd), config_dim
 
 
+def world_backend(sc: Scenario, self_collision: bool):
+    """The scenario's collision backend over its rectangles and workspace bounds."""
+    w = sc.world
+    return make_backend(
+        w.collision_backend,
+        np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2),
+        np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2),
+        np.array(w.lo), np.array(w.hi), self_collision=self_collision,
+    )
+
+
 def _noise(sc: Scenario) -> LightDarkNoise:
     m = sc.measurement
     return LightDarkNoise(form=m.noise, light_x=m.light_x, eta=m.eta, sigma_b=m.sigma_b, a=m.a, c=m.c, std=m.std)
@@ -129,12 +140,7 @@ def _build_point(sc: Scenario) -> Problem:
                                 sensing_x=lambda X: sensing_from_points(points(X)), dt=sc.model.dt)
 
     w = sc.world
-    backend = make_backend(
-        w.collision_backend,
-        np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2),
-        np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2),
-        np.array(w.lo), np.array(w.hi), self_collision=False,
-    )
+    backend = world_backend(sc, self_collision=False)
     radius = w.robot_radius
 
     def points_valid(P: np.ndarray) -> np.ndarray:
@@ -175,12 +181,7 @@ def _build_arm(sc: Scenario) -> Problem:
     model = LinearGaussianModel(A=A, B=B, F=F, H=np.asarray(H, dtype=float), noise=_noise(sc),
                                 sensing_x=lambda X: sensing_from_points(points(X)), dt=spec.dt)
     w = sc.world
-    backend = make_backend(
-        w.collision_backend,
-        np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2),
-        np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2),
-        np.array(w.lo), np.array(w.hi), self_collision=True,
-    )
+    backend = world_backend(sc, self_collision=True)
 
     def points_valid(P: np.ndarray) -> np.ndarray:
         return ~backend.capsules_collide(P[:, :-1], P[:, 1:], w.robot_radius)
