@@ -67,3 +67,18 @@ def test_an_obstacle_across_the_edge_fails_particles():
         assert r.counts.sum() == 200
         fails += int(r.counts[r.outcomes == FAILURE].sum())
     assert fails > 0
+
+
+def test_collision_backends_give_identical_edge_estimates():
+    """python-fcl (the reference) and the numpy backend agree particle by particle on a real edge."""
+    obstacles = "[ { center = [2.5, 2.3], half_size = [0.3, 0.6] } ]"
+    results = []
+    for backend in ("numpy", "fcl"):
+        text = open_world(q=0.5, std=0.2, obstacles=obstacles).replace(
+            "robot_radius = 0.05", f'robot_radius = 0.05\ncollision_backend = "{backend}"')
+        problem, d, regions = _setup(text)
+        e = int(np.argmax(d.edge_steps))
+        results.append(estimate_edge(problem, d, regions, int(d.edge_source[e]), int(d.edge_target[e]), 150, 2, 1000))
+    a, b = results
+    assert np.array_equal(a.outcomes, b.outcomes) and np.array_equal(a.counts, b.counts)
+    assert a.cost_mean == b.cost_mean
