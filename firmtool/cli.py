@@ -209,7 +209,38 @@ def _execute_human(r: dict) -> str:
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
             f"{r['timeouts']} timeouts\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
             f"predicted {pred if pred is None else round(pred, 4)}\n"
-            f"mean steps {r['mean_steps']:.1f}, mean cost {r['mean_cost']:.2f}, replans {r['replans']}")
+            f"mean steps {r['mean_steps']:.1f}, mean cost {r['mean_cost']:.2f}, replans {r['replans']}"
+            + _execute_extra_human(r))
+
+
+def _execute_extra_human(r: dict) -> str:
+    lines = []
+    if r.get("predicted_success_probability_ci95"):
+        lo, hi = r["predicted_success_probability_ci95"]
+        lines.append(f"predicted probability 95% interval (edge-count uncertainty) {lo:.3f}-{hi:.3f}")
+    if r.get("disturbances"):
+        lines.append(f"disturbances {', '.join(r['disturbances'])}: {r['disturbances_applied']} applied")
+    if "step_time_us_mean" in r:
+        rt = r.get("replan_time_us_mean")
+        lines.append(f"compute per control step {r['step_time_us_mean']:.1f} us mean, {r['step_time_us_p99']:.1f} us p99"
+                     + ("" if rt is None else f"; per replan {rt / 1000:.2f} ms mean"))
+    cal = r.get("calibration")
+    if cal:
+        lines.append(f"calibration: {cal['edges_checked']} of {cal['edges_taken']} edges taken checked "
+                     f"(>= {cal['min_traversals']} traversals), flagged {cal['flagged_edges'] or 'none'}")
+    return "".join("\n" + line for line in lines)
+
+
+def _parse_start(text: str | None) -> np.ndarray | None:
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise InputError(f"--start: expected comma-separated numbers, e.g. 3.0,1.5; found {text!r}") from None
+    if not np.all(np.isfinite(values)):
+        raise InputError(f"--start: expected finite numbers, found {text!r}")
+    return np.asarray(values)
 
 
 @app.command()
@@ -220,22 +251,73 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
             policy_name: str = typer.Option("firm", "--policy",
                                             help="'firm' (the DP's policy) or 'shortest-path' (the baseline "
                                                  "that ignores uncertainty: shortest configuration-space path)."),
+            disturbance: Optional[list[str]] = typer.Option(
+                None, "--disturbance", "-d",
+                help="Inject a large disturbance into the simulated true system (the filter is not told): "
+                     "push:STEP:SIZE (true configuration moved SIZE scenario units in a random direction at "
+                     "control step STEP), push:random:SIZE:RATE (pushes at random steps, probability RATE per "
+                     "step), kidnap:STEP (true state jumps to a random valid state at rest), kidnap:random:RATE. "
+                     "Repeatable."),
+            no_replan: bool = typer.Option(False, "--no-replan",
+                                           help="Follow the stored controllers only: no real-time replanning."),
+            replan_threshold: float = typer.Option(
+                3.0, "--replan-threshold",
+                help="Replan when the estimate leaves the running controller's nominal by more than this, in "
+                     "the rms-scaled norm of node regions (rms over coordinates of deviation / node spread; "
+                     "node regions default to 1.5). A windowed innovation test also triggers a replan."),
+            start: Optional[str] = typer.Option(
+                None, "--start",
+                help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "
+                     "start node; a start in no node gets an initial controller to the best nearby node."),
+            save_episodes: Optional[Path] = typer.Option(
+                None, "--save-episodes",
+                help="Write every episode (true states, estimates, covariances, controls, nodes, events) to "
+                     "this HDF5 file (atomic write)."),
             as_json: bool = JsonOpt) -> None:
-    """Run closed-loop episodes of the policy on a simulated true system.
+    """Run closed-loop episodes of the policy on a simulated true system, with real-time replanning
+    after large disturbances, and check the plan against what happened (predicted success probability
+    with its interval from the edge counts, executed rate with its Wilson interval, per-edge landing
+    and failure frequencies of the edges taken).
 
-    Example: firmtool execute artifacts/smoke.h5 --episodes 200 --seed 1 --json
+    Examples:
+
+      firmtool execute artifacts/smoke.h5 --episodes 200 --seed 1 --json
+
+      firmtool execute artifacts/point_lightdark.h5 -n 200 -d push:random:2.5:0.01
+
+      firmtool execute artifacts/point_lightdark.h5 -n 200 -d push:40:2.0 --no-replan
+
+      firmtool execute artifacts/point_lightdark.h5 -d kidnap:40 --save-episodes episodes.h5
+
+      firmtool execute artifacts/point_lightdark.h5 --start 6.0,1.0
     """
-    from firmtool.execute import execute as run_episodes
+    from firmtool.disturbances import parse_disturbances
+    from firmtool.execute import ReplanSettings, edge_counts_of, execute as run_episodes
     from firmtool.pipeline import design_of, problem_of
     from firmtool.nodes import START_INDEX
     from firmtool.roadmap import Roadmap
     _check_exists(roadmap, "roadmap file")
+    dists = parse_disturbances(disturbance)
+    if not (np.isfinite(replan_threshold) and replan_threshold > 0):
+        raise InputError(f"--replan-threshold: expected a finite number > 0, found {replan_threshold}")
+    start_state = _parse_start(start)
     rm = Roadmap(roadmap)
     edge_key, prob_key = _policy_keys(policy_name)
-    policy = rm.require("policy", edge_key, prob_key)
+    policy = rm.require("policy", edge_key, prob_key, "cost_to_go")
     report = run_episodes(problem_of(rm), design_of(rm), policy[edge_key].astype(np.int64), episodes, seed,
-                          predicted=float(policy[prob_key][START_INDEX]))
+                          predicted=None if start_state is not None else float(policy[prob_key][START_INDEX]),
+                          cost_to_go=policy["cost_to_go"],
+                          replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
+                          disturbances=dists, start=start_state, record=save_episodes is not None,
+                          edge_counts=edge_counts_of(rm))
     report["policy"] = policy_name
+    if save_episodes is not None:
+        from firmtool.episodes_io import save_episodes as write_episodes
+        write_episodes(save_episodes, report["_episodes"],
+                       {"roadmap": str(roadmap), "seed": seed, "policy": policy_name,
+                        "disturbances": ";".join(report["disturbances"]), "replanning": not no_replan,
+                        "replan_threshold": replan_threshold})
+        report["episodes_file"] = str(save_episodes)
     _emit(report, as_json, _execute_human)
 
 

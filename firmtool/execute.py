@@ -2,8 +2,35 @@
 
 At each node the policy picks an edge; its local controller (edge controller, then the target's
 stabiliser) runs step by step until the belief enters a node, a constraint is violated, or the
-controller times out. Each step is the same :func:`firmtool.edges.belief_step` the Monte Carlo uses,
-so executed frequencies are comparable with the estimated probabilities.
+controller times out. Each step is the same math as the Monte Carlo of :mod:`firmtool.edges`
+(:func:`~firmtool.edges.control_and_move`, kinematics once for the collision test and the sensor
+noise, :func:`~firmtool.edges.filter_update`), on one particle, so executed frequencies are
+comparable with the estimated probabilities (``tests/test_execute.py`` checks that the two give
+identical states for the same noise draws).
+
+Beyond the stored policy (paper Sec. III-E "initial controller", Sec. IV-F "large disturbances"):
+
+- **Initial controller.** A start belief that lies in no node gets a local controller designed at
+  run time to the best nearby node, then the policy takes over.
+- **Replanning.** While a controller runs, the deviation of the estimate from its nominal is
+  measured in the rms-scaled norm of the node regions,
+  ``rms((xhat_k - x_ref_k) / s)``, ``s`` the per-coordinate estimate spread of the controller's
+  target node (for a policy edge the elementwise larger of its source's and target's spreads).
+  Above ``threshold`` (default :data:`DEFAULT_REPLAN_THRESHOLD`, i.e. twice the default node
+  radius: beyond any node's region and far above the deviations of undisturbed runs), a local
+  controller is designed in real time from the current belief ``(xhat, P)`` to the best
+  neighbouring node, and the stored policy resumes once a node is reached.
+- **Best nearby node.** Among the :data:`REPLAN_CANDIDATES` nodes nearest the estimate (in
+  configuration space) that can reach the goal, the node minimising
+  ``C_est + J(node)`` whose straight configuration segment from the estimate is collision-free.
+  ``J`` is the policy's cost-to-go and the transition cost is estimated cheaply from the nominal
+  length ``iota`` (the analytic rest-to-rest bound of :func:`firmtool.design.nominal_trajectory`):
+  ``C_est = iota * (alpha_time + alpha_covariance * (tr P + tr P_s^node) / 2)``, the eq. 16 cost
+  with the covariance trace interpolated between the current and the node's stationary one.
+
+The filter is never told of a disturbance: after a kidnap the estimate leaves the nominal only if
+the measurements pull it away, which in the dark they may not; the episode's events say what
+happened (``disturbance``, ``replan``, ``node``, ``collision``, ``goal``, ...).
 """
 
 from __future__ import annotations
@@ -12,15 +39,47 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import norm
+import scipy.sparse
+from scipy.spatial import cKDTree
+from scipy.stats import chi2, norm
 
-from firmtool.controllers import LocalController
-from firmtool.design import Design, local_controller
-from firmtool.edges import belief_step
-from firmtool.nodes import GOAL, START_INDEX, NodeRegions
+from firmtool import disturbances as dist_mod
+from firmtool.controllers import LocalController, min_energy_trajectory, plan_local_controller, stationary_kalman
+from firmtool.design import Design, local_controller, lqr_weights
+from firmtool.edges import FAILURE, TIMEOUT as EDGE_TIMEOUT, control_and_move, filter_update
+from firmtool.errors import InputError, NumericalError
+from firmtool.graph import success_probability
+from firmtool.nodes import GOAL, START_INDEX, NodeRegions, segment_is_valid
 from firmtool.problem import Problem
 
 SUCCESS, COLLISION, TIMEOUT, STUCK = "success", "collision", "timeout", "stuck"
+EPISODE_KEY, CI_KEY = 0xE7EC, 0xC1B0  # stable keys of the episode and prediction-interval streams
+
+DEFAULT_REPLAN_THRESHOLD = 3.0  # rms-scaled deviation (node regions use 1.5 by default)
+MAX_REPLANS_PER_EPISODE = 50  # then the current controller runs on without replanning
+REPLAN_CANDIDATES = 8  # nearest nodes scored for an initial controller or a replan
+MIN_EDGE_TRAVERSALS = 20  # executed traversals an edge needs before its calibration is checked
+RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at run time
+INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
+INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
+
+# Event kinds of an episode
+EV_START, EV_INITIAL, EV_NODE, EV_DISTURBANCE, EV_REPLAN, EV_REPLAN_FAILED = (
+    "start", "initial_controller", "node", "disturbance", "replan", "replan_failed")
+EV_COLLISION, EV_TIMEOUT, EV_GOAL, EV_STUCK = "collision", "timeout", "goal", "stuck"
+EV_INNOVATION = "innovation_alarm"
+
+
+@dataclass
+class Event:
+    """Something that happened at a step: ``node`` is the node involved (or -1), ``value`` a size
+    (push length, deviation) and ``detail`` a short text."""
+
+    step: int
+    kind: str
+    node: int = -1
+    value: float = float("nan")
+    detail: str = ""
 
 
 @dataclass
@@ -33,10 +92,36 @@ class Episode:
     nodes: list[int] = field(default_factory=list)
     edges: list[int] = field(default_factory=list)
     replans: int = 0
-    # Filled when recording: (T+1, n) true states and estimates, (T+1, n, n) covariances.
+    replan_failures: int = 0
+    disturbances: int = 0
+    events: list[Event] = field(default_factory=list)
+    # Policy edges run from their source node to the end without replan or disturbance:
+    # (edge, outcome) with outcome a node id, edges.FAILURE or edges.TIMEOUT (calibration).
+    traversals: list[tuple[int, int]] = field(default_factory=list)
+    step_times: np.ndarray | None = None  # (steps,) seconds of compute per control step
+    replan_times: list[float] = field(default_factory=list)  # seconds per replan (design included)
+    # Filled when recording: (T+1, n) true states and estimates, (T+1, n, n) covariances, (T, m) controls.
     states: np.ndarray | None = None
     estimates: np.ndarray | None = None
     covariances: np.ndarray | None = None
+    controls: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ReplanSettings:
+    """Replanning on large deviations (``enabled=False``: follow the stored controllers only)."""
+
+    enabled: bool = True
+    threshold: float = DEFAULT_REPLAN_THRESHOLD
+    max_per_episode: int = MAX_REPLANS_PER_EPISODE
+    candidates: int = REPLAN_CANDIDATES
+    innovation_test: bool = True
+    window: int = INNOVATION_WINDOW
+    false_alarm: float = INNOVATION_FALSE_ALARM
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.threshold) and self.threshold > 0):
+            raise InputError(f"replan threshold: expected a finite number > 0, found {self.threshold}")
 
 
 def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -51,104 +136,507 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
     return max(0.0, center - half), min(1.0, center + half)
 
 
+@dataclass
+class _Running:
+    """A local controller being executed, with its per-step arrays precomputed once."""
+
+    lc: LocalController
+    cand: np.ndarray  # (T, N) covariance candidates per step
+    trP: np.ndarray  # (T,) tr P[k+1]
+    inv_scale: np.ndarray  # (n,) 1 / spread for the deviation norm
+    target: int
+    edge: int  # policy edge index, or -1 for a controller designed at run time
+    land_from: int  # first step (1-based count) at which landing is tested
+    S_inv: np.ndarray | None = None  # (T, nz, nz) inverse innovation covariances (innovation test)
+
+
 class Executor:
-    """Runs episodes of a policy (an edge index per node, -1 for none) on one problem and design."""
+    """Runs episodes of a policy (an edge index per node, -1 for none) on one problem and design.
 
-    def __init__(self, problem: Problem, design_: Design, policy: np.ndarray) -> None:
-        self.problem, self.design, self.policy = problem, design_, policy
+    Parameters
+    ----------
+    cost_to_go : (N,) the policy's cost-to-go, to pick the best node for an initial controller or a
+        replan (default: 0 at every node that can act, i.e. the nearest such node by estimated cost).
+    replan : replanning settings (default: on, :data:`DEFAULT_REPLAN_THRESHOLD`).
+    disturbances : parsed disturbance specifications (:mod:`firmtool.disturbances`).
+    """
+
+    def __init__(self, problem: Problem, design_: Design, policy: np.ndarray, cost_to_go: np.ndarray | None = None,
+                 replan: ReplanSettings | None = None, disturbances: tuple = ()) -> None:
+        self.problem, self.design, self.policy = problem, design_, np.asarray(policy, dtype=np.int64)
         self.regions: NodeRegions = design_.regions(problem)
-        self._cache: dict[int, tuple[LocalController, np.ndarray, np.ndarray]] = {}
+        self.replan = replan or ReplanSettings()
+        self.disturbances = tuple(disturbances)
+        self._cache: dict[int, _Running] = {}
+        N = design_.centers.shape[0]
+        is_goal = design_.kinds == GOAL
+        J = np.zeros(N) if cost_to_go is None else np.asarray(cost_to_go, dtype=float)
+        self.cost_to_go = np.where(is_goal, 0.0, J)
+        usable = is_goal | ((self.policy >= 0) & np.isfinite(self.cost_to_go))
+        self._usable = np.flatnonzero(usable)
+        d = problem.config_dim
+        self._tree = cKDTree(design_.centers[self._usable, :d]) if self._usable.size else None
+        self._trPs = np.trace(design_.P, axis1=1, axis2=2)
+        model = problem.model
+        self._r, self._nv = model.F.shape[1], (0 if problem.perfect else model.nz)
+        s = self.replan
+        self._innovation = s.enabled and s.innovation_test and not problem.perfect
+        self._nis_limit = float(chi2.isf(s.false_alarm, s.window * model.nz)) if self._innovation else np.inf
 
-    def _controller(self, edge: int) -> tuple[LocalController, np.ndarray, np.ndarray]:
+    # -- controllers ---------------------------------------------------------------------------------
+
+    def _running(self, lc: LocalController, target: int, edge: int, scale: np.ndarray, land_from: int) -> _Running:
+        S_inv = None
+        if not self.problem.perfect:
+            # innovation covariance of every step as designed: H (A P_k A' + Qd) H' + R(landing state)
+            # (plan_local_controller keeps it, with the per-step linearisation of nonlinear models)
+            S_inv = np.linalg.inv(lc.innovation_cov)
+        return _Running(lc=lc, cand=self.regions.covariance_candidates(lc.P[1:]),
+                        trP=np.trace(lc.P[1:], axis1=1, axis2=2), inv_scale=1.0 / scale, target=target,
+                        edge=edge, land_from=land_from, S_inv=S_inv)
+
+    def _controller(self, edge: int) -> _Running:
         if edge not in self._cache:  # designed once per edge, reused by every episode
             d = self.design
-            lc = local_controller(self.problem, d, int(d.edge_source[edge]), int(d.edge_target[edge]))
-            cand = self.regions.covariance_candidates(lc.P[1:])
-            trP = np.trace(lc.P[1:], axis1=1, axis2=2)
-            self._cache[edge] = (lc, cand, trP)
+            i, j = int(d.edge_source[edge]), int(d.edge_target[edge])
+            lc = local_controller(self.problem, d, i, j)
+            self._cache[edge] = self._running(lc, j, edge, np.maximum(d.scale[i], d.scale[j]), lc.edge_steps)
         return self._cache[edge]
 
-    def run_episode(self, rng: np.random.Generator, record: bool = False) -> Episode:
+    def _nominal_steps(self, x0: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """The analytic rest-to-rest length bound of design.nominal_trajectory, per target node."""
+        problem, c = self.problem, self.problem.scenario.controller
+        d = problem.config_dim
+        dist = np.max(np.abs(self.design.centers[targets, :d] - x0[:d]), axis=1)
+        if problem.velocity_dim:
+            T = np.maximum(1.5 * dist / c.max_speed, np.sqrt(6.0 * dist / c.max_accel))
+        else:
+            T = dist / c.max_speed
+        return np.maximum(2, np.ceil(T / problem.model.dt - 1e-9))
+
+    def _runtime_controller(self, x0: np.ndarray, P0: np.ndarray, j: int) -> LocalController:
+        """TV-LQG from the belief ``(x0, P0)`` to node ``j``, then its stabiliser, designed in real time.
+
+        The same design as :func:`firmtool.design.local_controller` with ``start_state``, except for the
+        nominal's length: from a moving state, growing it until the speed and input limits hold (as the
+        offline design does, up to 60 times) can take seconds, so here it is the analytic rest-to-rest
+        bound plus the steps to brake the current speed, tried at most :data:`RUNTIME_NOMINAL_TRIES`
+        times (x1.5 each); the last try is used even if it exceeds the limits (design limits, not
+        actuator saturation: the simulation has none).
+        """
+        problem, c = self.problem, self.problem.scenario.controller
+        if problem.nonholonomic:  # kinematic nominal (no velocity to brake) and periodic stabiliser
+            return local_controller(problem, self.design, j, j, start_state=x0, start_P=P0)
+        model, d = problem.model, problem.config_dim
+        steps = int(self._nominal_steps(x0, np.array([j]))[0])
+        if problem.velocity_dim:
+            steps += int(np.ceil(2.0 * np.max(np.abs(x0[d:])) / c.max_accel / model.dt))
+        steps = max(steps, -(-model.n // model.m))
+        target = self.design.centers[j]
+        for _ in range(RUNTIME_NOMINAL_TRIES):
+            x, u = min_energy_trajectory(model.A, model.B, x0, target, steps)
+            speed = np.max(np.abs(np.diff(x[:, :d], axis=0))) / model.dt
+            if speed <= c.max_speed * (1 + 1e-9) and np.max(np.abs(u)) <= problem.max_input() * (1 + 1e-9):
+                break
+            steps = int(np.ceil(steps * 1.5))
+        Wx, Wu = lqr_weights(problem)
+        return plan_local_controller(model, x, u, P0, self.design.node(j), Wx, Wu, c.max_steps, problem.perfect)
+
+    def design_to_best_node(self, xhat: np.ndarray, P: np.ndarray) -> tuple[_Running | None, str]:
+        """A local controller from the belief ``(xhat, P)`` to the best nearby node (see module docs).
+
+        Returns the controller (None if no candidate works) and a short reason for the events.
+        """
+        if self._tree is None:
+            return None, "no node can reach the goal"
+        problem, cost = self.problem, self.problem.scenario.cost
+        d = problem.config_dim
+        k = min(self.replan.candidates, self._usable.size)
+        _, idx = self._tree.query(xhat[:d], k=k)
+        nodes = self._usable[np.atleast_1d(idx)]
+        iota = self._nominal_steps(xhat, nodes)
+        est = iota * (cost.alpha_time + cost.alpha_covariance * 0.5 * (np.trace(P) + self._trPs[nodes]))
+        score = est + self.cost_to_go[nodes]
+        for j in nodes[np.argsort(score, kind="stable")]:
+            j = int(j)
+            if not segment_is_valid(problem, xhat, self.design.centers[j]):
+                continue
+            try:
+                lc = self._runtime_controller(xhat, P, j)
+            except NumericalError:
+                continue
+            return self._running(lc, j, -1, self.design.scale[j], 0), f"to node {j}"
+        return None, f"none of the {k} nearest nodes has a collision-free straight way from the estimate"
+
+    # -- one step --------------------------------------------------------------------------------------
+
+    def step(self, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+             noise: np.ndarray, innovation: bool = False):
+        """One step of ``lc`` on (1, n) arrays: the same operations as :func:`firmtool.edges.simulate`.
+
+        Returns the new true state, estimate, control, whether the true state is valid and (with
+        ``innovation``, imperfect measurements) the filter's innovation ``z - H (A xhat + B u)`` (nz,),
+        recomputed from the same draws as :func:`firmtool.edges.filter_update` used.
+        """
+        problem, r = self.problem, self._r
+        model = problem.model
+        xhat_prev = xhat
+        x, u = control_and_move(model, lc, k, x, xhat, noise[:, :r])
+        pts = problem.points(x)
+        nu = None
+        if problem.perfect:
+            xhat = x
+        else:
+            variance = model.noise.variance(problem.sensing_from_points(pts))
+            xhat = filter_update(model, lc, k, x, xhat, u, noise[:, r:], variance)
+            if innovation:
+                pred = model.f(xhat_prev, u)  # the EKF's innovation, as in filter_update
+                nu = (model.h(x) + np.sqrt(variance) * noise[:, r:] - model.h(pred))[0]
+        return x, xhat, u, bool(problem.points_valid(pts)[0]), nu
+
+    # -- episodes ------------------------------------------------------------------------------------
+
+    def start_belief(self, start: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The initial belief: the start node's, or at a given state the stationary filter's there."""
+        d, problem = self.design, self.problem
+        if start is None:
+            P0 = np.zeros_like(d.P[START_INDEX]) if problem.perfect else d.P[START_INDEX]
+            return d.centers[START_INDEX].copy(), P0
+        start = np.asarray(start, dtype=float)
+        if problem.perfect:
+            return start.copy(), np.zeros((start.size, start.size))
+        model = problem.model
+        _, P0, _ = stationary_kalman(model.A, model.process_cov, model.H, model.R(start[None]))
+        return start.copy(), P0
+
+    def run_episode(self, rng: np.random.Generator, record: bool = False, *, start: np.ndarray | None = None,
+                    disturbance_seed: tuple[int, ...] | None = None) -> Episode:
+        """One episode from the start node (or from the state ``start``, by an initial controller).
+
+        ``disturbance_seed`` is the entropy of this episode's disturbance streams (see
+        :mod:`firmtool.disturbances`); required when disturbances are configured.
+        """
         problem, model, perfect = self.problem, self.problem.model, self.problem.perfect
         cost_spec, max_steps = problem.scenario.cost, problem.scenario.execution.max_steps
-        d = self.design
-        v = d.centers[START_INDEX]
-        xhat = v[None].copy()
+        d, settings = self.design, self.replan
+        a_cov, a_time, a_u = cost_spec.alpha_covariance, cost_spec.alpha_time, cost_spec.alpha_control
+        width = self._r + self._nv
+        clock = time.perf_counter
+
+        schedule: list = []
+        if self.disturbances:
+            key = tuple(disturbance_seed) if disturbance_seed is not None else (0,)
+            schedule = dist_mod.schedule(self.disturbances, max_steps,
+                                         np.random.default_rng(np.random.SeedSequence([*key])))
+        n_dist = 0
+
+        xhat0, P = self.start_belief(start)
+        xhat = xhat0[None].copy()
         if perfect:
             x = xhat.copy()
         else:
-            x = v[None] + rng.standard_normal((1, model.n)) @ np.linalg.cholesky(d.P[START_INDEX] + 1e-15 * np.eye(model.n)).T
-        node, total, cost = START_INDEX, 0, 0.0
-        ep = Episode(outcome=TIMEOUT, steps=0, cost=0.0, nodes=[START_INDEX])
-        r, nz = model.F.shape[1], model.nz
-        P0 = np.zeros((model.n, model.n)) if perfect else d.P[START_INDEX]
-        trace: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = [(x[0], xhat[0], P0)] if record else []
-        while True:
-            if self.design.kinds[node] == GOAL:
-                ep.outcome = SUCCESS
-                break
-            edge = int(self.policy[node])
-            if edge < 0:
+            chol = np.linalg.cholesky(P + 1e-15 * np.eye(model.n))
+            x = xhat0[None] + rng.standard_normal((1, model.n)) @ chol.T
+        total, cost = 0, 0.0
+        ep = Episode(outcome=TIMEOUT, steps=0, cost=0.0)
+        step_times: list[float] = []
+        trace: list[tuple] = [(x[0], xhat[0], P)] if record else []
+        controls: list[np.ndarray] = []
+
+        test_nis = self._innovation
+        W = settings.window
+        nis = np.zeros(W)  # moving window of normalised innovation squares
+        nus = np.zeros((W, model.nz))
+        filled = 0
+
+        node = START_INDEX if start is None else int(self.regions.locate(
+            xhat, self.regions.covariance_candidates(P[None])[0])[0])
+        run: _Running | None = None
+        ep.events.append(Event(0, EV_START, node))
+        if node >= 0:
+            ep.nodes.append(node)
+        else:
+            t0 = clock()
+            run, why = self.design_to_best_node(xhat[0], P)
+            ep.replan_times.append(clock() - t0)
+            if run is None:
                 ep.outcome = STUCK
-                break
-            ep.edges.append(edge)
-            lc, cand, trP = self._controller(edge)
-            landed = -1
-            for k in range(lc.steps):
-                noise = rng.standard_normal((1, r + nz))
-                x, xhat, u = belief_step(model, lc, k, x, xhat, noise[:, :r], noise[:, r:], perfect)
+                ep.events.append(Event(0, EV_STUCK, -1, detail=f"no initial controller: {why}"))
+            else:
+                ep.events.append(Event(0, EV_INITIAL, run.target, detail=why))
+
+        while ep.outcome != STUCK:
+            if run is None:  # at a node: the policy's edge
+                if d.kinds[node] == GOAL:
+                    ep.outcome = SUCCESS
+                    ep.events.append(Event(total, EV_GOAL, node))
+                    break
+                edge = int(self.policy[node])
+                if edge < 0:
+                    ep.outcome = STUCK
+                    ep.events.append(Event(total, EV_STUCK, node, detail="no policy edge"))
+                    break
+                ep.edges.append(edge)
+                run = self._controller(edge)
+            lc, cand, trP, inv_scale = run.lc, run.cand, run.trP, run.inv_scale
+            x_ref, T = lc.x_ref, lc.steps
+            clean = run.edge >= 0  # a policy edge from its node, so far undisturbed
+            landed, next_run, ended = -1, None, False
+            for k in range(T):
+                while schedule and schedule[0][0] <= total:
+                    _, dist = schedule.pop(0)
+                    ev_rng = np.random.default_rng(np.random.SeedSequence([*key, n_dist + 1]))
+                    x0, moved = dist_mod.apply(problem, dist, x[0], ev_rng)
+                    x = x0[None]
+                    n_dist += 1
+                    clean = False
+                    ep.events.append(Event(total, EV_DISTURBANCE, -1, moved, str(dist)))
+                t0 = clock()
+                noise = rng.standard_normal((1, width))
+                x, xhat, u, valid, nu = self.step(lc, k, x, xhat, noise, test_nis)
                 total += 1
+                cost += a_cov * trP[k] + a_time
+                if a_u:
+                    cost += a_u * float(u[0] @ u[0])
+                if valid and k + 1 >= run.land_from and cand[k].any():
+                    landed = int(self.regions.locate(xhat, cand[k])[0])
+                deviate, alarm = False, False
+                if landed < 0 and valid and settings.enabled and ep.replans < settings.max_per_episode:
+                    z = (xhat[0] - x_ref[min(k + 1, T - 1)]) * inv_scale
+                    dev = float(np.sqrt(np.mean(z * z)))
+                    deviate = dev > settings.threshold
+                    if test_nis:
+                        slot = filled % W
+                        nis[slot] = nu @ run.S_inv[k] @ nu
+                        nus[slot] = nu
+                        filled += 1
+                        alarm = filled >= W and nis.sum() > self._nis_limit
+                step_times.append(clock() - t0)
                 if record:
                     trace.append((x[0], xhat[0], lc.P[k + 1]))
-                cost += cost_spec.alpha_covariance * trP[k] + cost_spec.alpha_time
-                cost += cost_spec.alpha_control * float(u[0] @ u[0])
-                if not problem.is_valid(x)[0]:
-                    ep.outcome = COLLISION
+                    controls.append(u[0])
+                if not valid:
+                    ep.outcome, ended = COLLISION, True
+                    ep.events.append(Event(total, EV_COLLISION, run.target))
+                    if clean:
+                        ep.traversals.append((run.edge, FAILURE))
                     break
-                if k + 1 >= lc.edge_steps and cand[k].any():
-                    landed = int(self.regions.locate(xhat, cand[k])[0])
-                    if landed >= 0:
+                if landed >= 0:
+                    if clean:
+                        ep.traversals.append((run.edge, landed))
+                    break
+                if alarm and not deviate:
+                    # The measurements contradict the belief (e.g. an unseen push): the covariance is
+                    # inflated by the innovations' second moment over the window, and the replan
+                    # below designs fresh gains from it, so the estimate catches up in a few steps.
+                    ep.events.append(Event(total, EV_INNOVATION, run.target, float(nis.sum())))
+                    dev = float(nis.sum())
+                    H = model.observation_jacobian(xhat[0])
+                    P_now = lc.P[k + 1] + H.T @ (nus.T @ nus / W) @ H
+                    deviate = True
+                else:
+                    P_now = lc.P[k + 1]
+                if deviate:
+                    filled = 0
+                    t0 = clock()
+                    next_run, why = self.design_to_best_node(xhat[0], P_now)
+                    ep.replan_times.append(clock() - t0)
+                    if next_run is None:
+                        ep.replan_failures += 1
+                        ep.events.append(Event(total, EV_REPLAN_FAILED, run.target, dev, why))
+                    else:
+                        ep.replans += 1
+                        ep.events.append(Event(total, EV_REPLAN, next_run.target, dev, why))
                         break
                 if total >= max_steps:
+                    ep.outcome, ended = TIMEOUT, True
+                    ep.events.append(Event(total, EV_TIMEOUT, run.target, detail="episode step limit"))
                     break
-            if ep.outcome == COLLISION or landed < 0:
-                if ep.outcome != COLLISION:
-                    ep.outcome = TIMEOUT
+            if ended:
                 break
-            node = landed
+            if next_run is not None:
+                run = next_run
+                continue
+            if landed < 0:  # the controller ran out of steps without reaching a node
+                if clean:
+                    ep.traversals.append((run.edge, EDGE_TIMEOUT))
+                ep.outcome = TIMEOUT
+                ep.events.append(Event(total, EV_TIMEOUT, run.target, detail="controller timed out"))
+                break
+            node, run = landed, None
             ep.nodes.append(node)
-        ep.steps, ep.cost = total, cost
+            ep.events.append(Event(total, EV_NODE, node))
+        ep.steps, ep.cost, ep.disturbances = total, cost, n_dist
+        ep.step_times = np.asarray(step_times)
         if record:
             ep.states, ep.estimates, ep.covariances = (np.array(a) for a in zip(*trace))
+            ep.controls = np.array(controls).reshape(-1, model.m)
         return ep
 
 
-def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int, seed: int,
-            predicted: float | None = None) -> dict:
-    """Run ``episodes`` episodes and summarise them (counts, rates with Wilson 95% intervals).
+# -- calibration -------------------------------------------------------------------------------------
 
-    Episode ``i`` draws from ``SeedSequence([seed, i])``: reproducible and independent of the order.
+@dataclass(frozen=True)
+class EdgeCounts:
+    """The Monte Carlo outcome counts of ``/edges`` in sparse form (see pipeline.estimate_stage)."""
+
+    edge: np.ndarray  # (K,) edge index of each row
+    code: np.ndarray  # (K,) landed node id, edges.FAILURE or edges.TIMEOUT
+    count: np.ndarray  # (K,) particles
+    particles: np.ndarray  # (E,) particles per edge
+    target: np.ndarray  # (E,) target node per edge
+
+
+def predicted_interval(counts: EdgeCounts, n_nodes: int, goals: np.ndarray, policy: np.ndarray, seed: int,
+                       samples: int = 1000, node: int = START_INDEX) -> tuple[float, float]:
+    """95% interval of the predicted success probability from the edge-count uncertainty.
+
+    Each policy edge's outcome distribution is drawn from its Dirichlet posterior (the observed
+    counts plus 1/2 for every observed outcome and for failure, which always stays possible), and
+    ``(I - Q) p = r`` is re-solved per draw (:func:`firmtool.graph.success_probability`); the
+    interval is the 2.5 and 97.5 percentiles of ``p[node]``. Draws come from
+    ``SeedSequence([seed, CI_KEY])``.
     """
-    runner = Executor(problem, design_, policy)
+    policy = np.asarray(policy, dtype=np.int64)
+    E = counts.particles.size
+    used = np.zeros(E, dtype=bool)
+    used[policy[policy >= 0]] = True
+    rows = used[counts.edge]
+    edge, code, alpha = counts.edge[rows], counts.code[rows], counts.count[rows].astype(float) + 0.5
+    has_fail = np.zeros(E, dtype=bool)
+    has_fail[edge[code == FAILURE]] = True
+    extra = np.flatnonzero(used & ~has_fail)  # failure pseudo-outcome for edges that never failed
+    edge = np.concatenate([edge, extra])
+    code = np.concatenate([code, np.full(extra.size, FAILURE)])
+    alpha = np.concatenate([alpha, np.full(extra.size, 0.5)])
+    land = code >= 0
+    rng = np.random.default_rng(np.random.SeedSequence([seed, CI_KEY]))
+    values = np.empty(samples)
+    for s in range(samples):
+        g = rng.gamma(alpha)
+        g /= np.bincount(edge, weights=g, minlength=E)[edge]
+        landing = scipy.sparse.csr_matrix((g[land], (edge[land], code[land])), shape=(E, n_nodes))
+        values[s] = success_probability(n_nodes, goals, policy, landing)[node]
+    lo, hi = np.percentile(values, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def edge_calibration(episodes: list[Episode], counts: EdgeCounts,
+                     min_traversals: int = MIN_EDGE_TRAVERSALS) -> dict:
+    """Executed vs estimated outcome frequencies of the policy edges the episodes took.
+
+    Only traversals run from the edge's source node to their end with no replan and no disturbance
+    count. For every edge with at least ``min_traversals`` of them, two frequencies are checked:
+    landing in the edge's target and failure (collision or timeout). Each gets the Wilson 95%
+    interval of the executed and of the estimated (Monte Carlo) frequency; an edge is flagged when
+    the two intervals of either frequency do not overlap.
+    """
+    per_edge: dict[int, list[int]] = {}
+    for ep in episodes:
+        for e, o in ep.traversals:
+            per_edge.setdefault(int(e), []).append(int(o))
+    checked, flagged = [], []
+    for e in sorted(per_edge):
+        out = np.asarray(per_edge[e])
+        n_exec = out.size
+        if n_exec < min_traversals:
+            continue
+        rows = counts.edge == e
+        code, cnt = counts.code[rows], counts.count[rows]
+        n_est = int(counts.particles[e])
+        target = int(counts.target[e])
+        est = {"target": int(cnt[code == target].sum()), "failure": int(cnt[code < 0].sum())}
+        exe = {"target": int((out == target).sum()), "failure": int((out < 0).sum())}
+        row = {"edge": e, "target": target, "traversals": n_exec, "particles": n_est}
+        bad = []
+        for name in ("target", "failure"):
+            ci_x, ci_e = wilson_interval(exe[name], n_exec), wilson_interval(est[name], n_est)
+            row[f"{name}_executed"] = exe[name] / n_exec
+            row[f"{name}_estimated"] = est[name] / n_est
+            row[f"{name}_executed_ci95"] = list(ci_x)
+            row[f"{name}_estimated_ci95"] = list(ci_e)
+            if ci_x[1] < ci_e[0] or ci_e[1] < ci_x[0]:
+                bad.append(name)
+        row["flagged"] = bad
+        checked.append(row)
+        if bad:
+            flagged.append(e)
+    return {"min_traversals": min_traversals, "edges_taken": len(per_edge), "edges_checked": len(checked),
+            "flagged_edges": flagged, "ok": not flagged, "edges": checked}
+
+
+# -- the run -------------------------------------------------------------------------------------------
+
+def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int, seed: int,
+            predicted: float | None = None, *, cost_to_go: np.ndarray | None = None,
+            replan: ReplanSettings | None = None, disturbances: tuple = (), start: np.ndarray | None = None,
+            record: bool = False, edge_counts: EdgeCounts | None = None, ci_samples: int = 1000) -> dict:
+    """Run ``episodes`` episodes and summarise them (counts, rates with Wilson 95% intervals,
+    replans, compute time per step and per replan, and with ``edge_counts`` the calibration checks).
+
+    Episode ``i`` draws from ``SeedSequence([seed, 0xE7EC, i])`` and its disturbances from
+    ``SeedSequence([seed, 0xD157, i, ...])``: reproducible and independent of the order.
+    """
+    runner = Executor(problem, design_, policy, cost_to_go=cost_to_go, replan=replan, disturbances=disturbances)
+    if start is not None:
+        start = np.asarray(start, dtype=float)
+        if start.shape[0] == problem.config_dim:
+            start = problem.state_of(start)
+        if start.shape != (problem.model.n,):
+            raise InputError(f"start: expected {problem.config_dim} configuration values or {problem.model.n} state "
+                             f"values, found {start.shape[0]}")
+        if not problem.is_valid(start[None])[0]:
+            raise InputError(f"start {np.array2string(start, precision=3)} is in collision or out of bounds")
     t0 = time.perf_counter()
-    eps = [runner.run_episode(np.random.default_rng(np.random.SeedSequence([seed, 0xE7EC, i])))
+    eps = [runner.run_episode(np.random.default_rng(np.random.SeedSequence([seed, EPISODE_KEY, i])), record,
+                              start=start, disturbance_seed=(seed, dist_mod.DISTURBANCE_KEY, i))
            for i in range(episodes)]
     seconds = time.perf_counter() - t0
     count = lambda o: sum(e.outcome == o for e in eps)  # noqa: E731
     successes = count(SUCCESS)
     lo, hi = wilson_interval(successes, episodes)
     steps = np.array([e.steps for e in eps], dtype=float)
+    step_times = np.concatenate([e.step_times for e in eps]) if eps else np.zeros(0)
+    replan_times = np.array([t for e in eps for t in e.replan_times])
+    kinds: dict[str, int] = {}
+    for e in eps:
+        for ev in e.events:
+            kinds[ev.kind] = kinds.get(ev.kind, 0) + 1
+    settings = runner.replan
     report = {
         "episodes": episodes, "successes": successes, "collisions": count(COLLISION),
         "timeouts": count(TIMEOUT), "stuck": count(STUCK),
         "success_rate": successes / episodes if episodes else 0.0, "success_rate_ci95": [lo, hi],
         "predicted_success_probability": predicted,
         "prediction_within_ci95": None if predicted is None else bool(lo <= predicted <= hi),
+        "predicted_success_probability_ci95": None,
         "mean_steps": float(steps.mean()) if episodes else 0.0,
         "mean_cost": float(np.mean([e.cost for e in eps])) if episodes else 0.0,
         "replans": int(sum(e.replans for e in eps)),
+        "replan_failures": int(sum(e.replan_failures for e in eps)),
+        "replanning": settings.enabled, "replan_threshold": settings.threshold,
+        "disturbances": [str(x) for x in runner.disturbances],
+        "disturbances_applied": int(sum(e.disturbances for e in eps)),
+        "start": None if start is None else start.tolist(),
+        "events": kinds,
         "seed": seed, "seconds": seconds,
-        "step_time_us_mean": 1e6 * seconds / max(1.0, float(steps.sum())),
+        "step_time_us_mean": 1e6 * float(step_times.mean()) if step_times.size else 0.0,
+        "step_time_us_p99": 1e6 * float(np.percentile(step_times, 99)) if step_times.size else 0.0,
+        "replan_time_us_mean": 1e6 * float(replan_times.mean()) if replan_times.size else None,
     }
+    if edge_counts is not None:
+        goals = np.flatnonzero(design_.kinds == GOAL)
+        if start is None and predicted is not None:
+            ci = predicted_interval(edge_counts, design_.centers.shape[0], goals, policy, seed, ci_samples)
+            report["predicted_success_probability_ci95"] = list(ci)
+        report["calibration"] = edge_calibration(eps, edge_counts)
     report["_episodes"] = eps
     return report
+
+
+def edge_counts_of(roadmap) -> EdgeCounts:
+    """The outcome counts of a roadmap's ``/edges`` group."""
+    e = roadmap.require("edges", "target", "particles", "outcome_edge", "outcome_code", "outcome_count")
+    return EdgeCounts(edge=e["outcome_edge"].astype(np.int64), code=e["outcome_code"].astype(np.int64),
+                      count=e["outcome_count"].astype(np.int64), particles=e["particles"].astype(np.int64),
+                      target=e["target"].astype(np.int64))

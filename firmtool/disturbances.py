@@ -1,0 +1,156 @@
+"""Large disturbances injected into the simulated true system during execution.
+
+The filter is never told: a disturbance moves the TRUE state only, and the estimate learns of it
+(or not) through the measurements, as a real robot would.
+
+Specification strings (``firmtool execute --disturbance SPEC``, repeatable)::
+
+    push:STEP:SIZE            at step STEP, the true configuration moves by SIZE (scenario units) in a
+                              random direction of the position (configuration) coordinates
+    push:random:SIZE:RATE     the same push at random steps: each step with probability RATE
+    kidnap:STEP               at step STEP, the true state jumps to a uniformly drawn valid
+                              configuration at rest
+    kidnap:random:RATE        the same jump at random steps, probability RATE per step
+
+STEP counts control steps from the start of the episode (0 = before the first step). A push is
+drawn among the directions whose straight segment from the current configuration stays free of
+collision (up to 64 draws; a robot boxed in on all sides is pushed anyway): the push is the
+disturbance, not a teleport through a wall. Velocities are left unchanged by a push and set to zero
+by a kidnap.
+
+Reproducibility: the random times of an episode are drawn once at its start from
+``SeedSequence([seed, 0xD157, episode])`` and the direction / destination of its ``i``-th event from
+``SeedSequence([seed, 0xD157, episode, i + 1])``, so the same disturbances hit the same episode
+whatever the controller does (replanning on or off).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmtool.errors import InputError
+from firmtool.nodes import segment_is_valid
+from firmtool.problem import Problem
+
+PUSH, KIDNAP = "push", "kidnap"
+DISTURBANCE_KEY = 0xD157
+PUSH_DRAWS = 64  # directions tried for a collision-free push
+KIDNAP_DRAWS = 10_000  # configurations tried for a valid kidnap destination
+
+SPEC_HELP = ("push:STEP:SIZE (true state pushed SIZE scenario units in a random position direction at "
+             "step STEP), push:random:SIZE:RATE (pushes at random steps, probability RATE per step), "
+             "kidnap:STEP (true state jumps to a random valid state at rest, the filter is not told), "
+             "kidnap:random:RATE. Repeatable.")
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """One disturbance specification: a kind, a fixed step or a per-step rate, and a push size."""
+
+    kind: str  # PUSH or KIDNAP
+    step: int | None = None  # fixed step, or None for random times
+    rate: float = 0.0  # probability per step when ``step`` is None
+    size: float = 0.0  # push length (scenario units)
+
+    def __str__(self) -> str:
+        when = f"{self.step}" if self.step is not None else "random"
+        if self.kind == PUSH:
+            return f"push:{when}:{self.size:g}" + ("" if self.step is not None else f":{self.rate:g}")
+        return f"kidnap:{when}" + ("" if self.step is not None else f":{self.rate:g}")
+
+
+def _number(text: str, spec: str, what: str, kind: type = float) -> float:
+    try:
+        value = kind(text)
+    except ValueError:
+        raise InputError(f"--disturbance {spec!r}: {what} must be a{'n integer' if kind is int else ' number'}, "
+                         f"found {text!r} (format: {SPEC_HELP})") from None
+    if not np.isfinite(value):
+        raise InputError(f"--disturbance {spec!r}: {what} must be finite, found {text!r}")
+    return value
+
+
+def parse_disturbance(spec: str) -> Disturbance:
+    """Parse one specification string; :class:`InputError` (one line) if it is malformed.
+
+    Examples
+    --------
+    >>> parse_disturbance("push:40:0.8")
+    Disturbance(kind='push', step=40, rate=0.0, size=0.8)
+    >>> parse_disturbance("kidnap:random:0.01")
+    Disturbance(kind='kidnap', step=None, rate=0.01, size=0.0)
+    """
+    parts = spec.strip().split(":")
+    kind = parts[0].lower()
+    if kind not in (PUSH, KIDNAP):
+        raise InputError(f"--disturbance {spec!r}: expected 'push' or 'kidnap' first (format: {SPEC_HELP})")
+    expected = {(PUSH, False): 3, (PUSH, True): 4, (KIDNAP, False): 2, (KIDNAP, True): 3}
+    random_times = len(parts) > 1 and parts[1].lower() == "random"
+    if len(parts) != expected[(kind, random_times)]:
+        form = {(PUSH, False): "push:STEP:SIZE", (PUSH, True): "push:random:SIZE:RATE",
+                (KIDNAP, False): "kidnap:STEP", (KIDNAP, True): "kidnap:random:RATE"}[(kind, random_times)]
+        raise InputError(f"--disturbance {spec!r}: expected {form}")
+    step, rate, size = None, 0.0, 0.0
+    if random_times:
+        rate = _number(parts[-1], spec, "RATE")
+        if not 0.0 < rate <= 1.0:
+            raise InputError(f"--disturbance {spec!r}: RATE is a probability per step, expected 0 < RATE <= 1")
+    else:
+        step = int(_number(parts[1], spec, "STEP", int))
+        if step < 0:
+            raise InputError(f"--disturbance {spec!r}: STEP must be >= 0")
+    if kind == PUSH:
+        size = _number(parts[2], spec, "SIZE")
+        if size <= 0:
+            raise InputError(f"--disturbance {spec!r}: SIZE must be > 0")
+    return Disturbance(kind=kind, step=step, rate=rate, size=size)
+
+
+def parse_disturbances(specs: list[str] | tuple[str, ...] | None) -> tuple[Disturbance, ...]:
+    return tuple(parse_disturbance(s) for s in (specs or ()))
+
+
+def schedule(disturbances: tuple[Disturbance, ...], max_steps: int,
+             rng: np.random.Generator) -> list[tuple[int, Disturbance]]:
+    """The (step, disturbance) events of one episode, sorted by step (stable in spec order)."""
+    events: list[tuple[int, int, Disturbance]] = []
+    for order, dist in enumerate(disturbances):
+        if dist.step is not None:
+            events.append((dist.step, order, dist))
+        else:  # drawn for every spec, so that adding one spec does not shift another's times
+            times = np.flatnonzero(rng.random(max_steps) < dist.rate)
+            events.extend((int(t), order, dist) for t in times)
+    events.sort(key=lambda e: (e[0], e[1]))
+    return [(t, d) for t, _, d in events]
+
+
+def apply(problem: Problem, dist: Disturbance, x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """The true state after the disturbance, and how far the configuration moved.
+
+    Parameters
+    ----------
+    x : (n,) true state.
+
+    Returns
+    -------
+    x_new : (n,) new true state; moved : Euclidean configuration-space displacement.
+    """
+    d = problem.config_dim
+    new = x.copy()
+    if dist.kind == PUSH:
+        for _ in range(PUSH_DRAWS):
+            direction = rng.standard_normal(d)
+            direction /= max(np.linalg.norm(direction), 1e-300)
+            new[:d] = x[:d] + dist.size * direction
+            if segment_is_valid(problem, x, new):
+                break
+    else:
+        for _ in range(max(1, KIDNAP_DRAWS // 256)):
+            q = rng.uniform(problem.config_lo, problem.config_hi, size=(256, d))
+            ok = problem.is_valid(problem.state_of(q))
+            if ok.any():
+                new = problem.state_of(q[int(np.argmax(ok))])
+                break
+    return new, float(np.linalg.norm(new[:d] - x[:d]))
