@@ -151,6 +151,30 @@ class NodeController:
     L: np.ndarray  # (n, nz) stationary Kalman update gain (zeros with perfect measurements)
     P: np.ndarray  # (n, n) stationary a-posteriori covariance P_s (zeros with perfect measurements)
     Sigma: np.ndarray  # (n, n) stationary covariance of the decision state around the centre
+    # A periodic stabiliser (PLQG, paper Example 3.3; see firmtool.stabilisers): the orbit and its
+    # gains. None for a stationary one. The fields above then hold the values at phase 0.
+    periodic: "PeriodicStabiliser | None" = None
+
+
+@dataclass(frozen=True)
+class PeriodicStabiliser:
+    """A T-periodic stabiliser: step ``k`` of the stabiliser phase uses index ``k mod T``.
+
+    ``x[p]``/``u[p]`` the orbit's state and input at phase ``p``, ``x[T] = x[0]`` the node centre;
+    ``K[p]`` the periodic LQR gain, ``S[p]`` its Riccati solution, ``L[p]`` the update gain of the
+    step from phase ``p`` (measurement at ``x[p + 1]``), ``P[p]`` the a-posteriori covariance at phase ``p``.
+    """
+
+    x: np.ndarray  # (T + 1, n)
+    u: np.ndarray  # (T, m)
+    K: np.ndarray  # (T, m, n)
+    S: np.ndarray  # (T, n, n)
+    L: np.ndarray  # (T, n, nz)
+    P: np.ndarray  # (T, n, n)
+
+    @property
+    def period(self) -> int:
+        return self.u.shape[0]
 
 
 def weights(model: LinearGaussianModel, state_weight: float, velocity_weight: float,
@@ -192,6 +216,9 @@ class LocalController:
     L: np.ndarray  # (T, n, nz)
     P: np.ndarray  # (T + 1, n, n)
     edge_steps: int
+    # (T, nz, nz) innovation covariance H_k P-_k H_k' + R_k of every step as designed (None with
+    # perfect measurements), for consistency tests of the filter during execution.
+    innovation_cov: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -203,10 +230,16 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
                           stabiliser_steps: int, perfect: bool) -> LocalController:
     """Time-varying LQG along a nominal trajectory, then the target's stabiliser.
 
-    LQR gains come from the backward Riccati recursion with terminal cost ``target.S`` (for a
-    time-invariant model this reproduces the stationary gain; for linearised models it does not).
-    Kalman gains come from the forward covariance recursion with R at the NOMINAL states; during
-    the stabiliser phase R is evaluated at the target's centre, so ``P`` converges to ``target.P``.
+    The model is linearised about the nominal at every step (``A_k, B_k = df/dx, df/du`` at
+    ``(x_k, u_k)``, ``H_k = dh/dx`` at the state the step lands on); for a linear model these are
+    its constant matrices. LQR gains come from the backward Riccati recursion with terminal cost
+    ``target.S`` (for a time-invariant model this reproduces the stationary gain; for linearised
+    models it does not). Kalman gains come from the forward covariance recursion with R at the
+    NOMINAL states. During the stabiliser phase the reference, gains and linearisation are the
+    target's: constant (centre, ``u_eq``, ``K``; R at the centre) for a stationary stabiliser, so
+    ``P`` converges to ``target.P``; the orbit's at phase ``k mod T`` for a periodic one
+    (``target.periodic``), so ``P`` converges to the periodic ``P_k`` and the stabiliser starts at
+    phase 0 when the edge ends at the centre (the edge arrives in phase).
 
     Parameters
     ----------
@@ -215,18 +248,30 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
     P0 : (n, n) covariance at the start (the start node's P_s).
     stabiliser_steps : steps the stabiliser may run before the controller times out.
     """
-    A, B, H, n = model.A, model.B, model.H, model.n
+    n, m = model.n, model.m
     iota = u_nominal.shape[0]
     T = iota + stabiliser_steps
+    orbit = target.periodic
+    if orbit is None:  # a stationary stabiliser is the period-1 case
+        sx, su, sK = np.stack([target.center, target.center]), target.u_eq[None], target.K[None]
+    else:
+        sx, su, sK = orbit.x, orbit.u, orbit.K
+    period = su.shape[0]
+    phase = np.arange(T - iota) % period
     x_ref = np.empty((T, n))
-    u_ref = np.empty((T, model.m))
+    u_ref = np.empty((T, m))
     x_ref[:iota], u_ref[:iota] = x_nominal[:-1], u_nominal
-    x_ref[iota:], u_ref[iota:] = target.center, target.u_eq
+    x_ref[iota:], u_ref[iota:] = sx[phase], su[phase]
 
-    K = np.empty((T, model.m, n))
-    K[iota:] = target.K
+    # Linearisation per step: along the nominal, then the stabiliser's (once per phase).
+    edge_jac = [model.dynamics_jacobians(x_nominal[k], u_nominal[k]) for k in range(iota)]
+    stab_jac = [model.dynamics_jacobians(sx[p], su[p]) for p in range(period)]
+
+    K = np.empty((T, m, n))
+    K[iota:] = sK[phase]
     S = target.S
     for k in range(iota - 1, -1, -1):  # backward Riccati along the edge
+        A, B = edge_jac[k]
         BS = B.T @ S
         K[k] = np.linalg.solve(Wu + BS @ B, BS @ A)
         S = Wx + A.T @ S @ (A - B @ K[k])
@@ -234,12 +279,21 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
 
     L = np.zeros((T, n, model.nz))
     P = np.zeros((T + 1, n, n))
+    innovation = None
     if not perfect:
         Qd = model.process_cov
-        # R at the state the step lands on: the nominal during the edge, the centre after it.
-        landing_states = np.concatenate([x_nominal[1:], np.repeat(target.center[None], T - iota, axis=0)])
+        innovation = np.empty((T, model.nz, model.nz))
+        # R and H at the state the step lands on: the nominal during the edge, the orbit after it.
+        landing_states = np.concatenate([x_nominal[1:], sx[phase + 1]])
         variances = model.measurement_variance(landing_states)
+        edge_H = [model.observation_jacobian(x) for x in x_nominal[1:]]
+        stab_H = [model.observation_jacobian(sx[p + 1]) for p in range(period)]
         P[0] = P0
         for k in range(T):
-            L[k], P[k + 1] = kalman_update(A @ P[k] @ A.T + Qd, H, np.diag(variances[k]))
-    return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota)
+            A = edge_jac[k][0] if k < iota else stab_jac[phase[k - iota]][0]
+            H = edge_H[k] if k < iota else stab_H[phase[k - iota]]
+            R = np.diag(variances[k])
+            prior = A @ P[k] @ A.T + Qd
+            innovation[k] = H @ prior @ H.T + R
+            L[k], P[k + 1] = kalman_update(prior, H, R)
+    return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota, innovation_cov=innovation)

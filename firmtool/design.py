@@ -49,12 +49,33 @@ def lqr_weights(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     return weights(problem.model, c.state_weight, c.velocity_weight, c.control_weight, problem.config_dim)
 
 
+def periodic_node(problem: Problem, center: np.ndarray) -> NodeController:
+    """The periodic (PLQG / PLQR) stabiliser of a nonholonomic robot's node, memoised per centre."""
+    from firmtool.stabilisers import OrbitSpec, cached_periodic_node
+
+    Wx, Wu = lqr_weights(problem)
+    spec = problem.scenario.model
+    return cached_periodic_node((problem.scenario.sha256,), problem.model, center,
+                                OrbitSpec(spec.orbit_radius, spec.orbit_speed), Wx, Wu, problem.perfect)
+
+
+def node_controller(problem: Problem, design_: Design, j: int) -> NodeController:
+    """Stabiliser of node ``j`` with everything the local controllers need (the whole orbit of a
+    periodic one, recomputed from the centre; the stored arrays hold its phase-0 values)."""
+    if problem.nonholonomic:
+        return periodic_node(problem, design_.centers[j])
+    return design_.node(j)
+
+
 def design_nodes(problem: Problem, centers: np.ndarray) -> list[NodeController]:
-    """Stabiliser of every node (R at the node's centre)."""
+    """Stabiliser of every node (R at the node's centre; periodic for a nonholonomic robot)."""
     Wx, Wu = lqr_weights(problem)
     out = []
     for j, v in enumerate(centers):
         try:
+            if problem.nonholonomic:
+                out.append(periodic_node(problem, v))
+                continue
             out.append(design_node(problem.model, v, Wx, Wu, problem.perfect))
         except NumericalError as exc:
             raise NumericalError(f"node {j}: {exc}") from None
@@ -74,6 +95,10 @@ def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tupl
     and peak acceleration 6 D/T^2 for the cubic) and grows by 10% until both limits hold.
     """
     model, c = problem.model, problem.scenario.controller
+    if problem.nonholonomic:  # kinematically feasible: turn in place, drive straight, turn
+        from firmtool.models.unicycle import turn_drive_turn
+
+        return turn_drive_turn(model, x0, xf, c.max_speed, problem.scenario.model.max_turn_rate)
     dt, d = model.dt, problem.config_dim
     dist = float(np.max(np.abs(xf[:d] - x0[:d])))
     if problem.velocity_dim:
@@ -136,5 +161,5 @@ def local_controller(problem: Problem, design_: Design, source: int, target: int
     P0 = design_.P[source] if start_P is None else start_P
     x, u = nominal_trajectory(problem, x0, design_.centers[target])
     Wx, Wu = lqr_weights(problem)
-    return plan_local_controller(problem.model, x, u, P0, design_.node(target), Wx, Wu,
+    return plan_local_controller(problem.model, x, u, P0, node_controller(problem, design_, target), Wx, Wu,
                                  problem.scenario.controller.max_steps, problem.perfect)

@@ -55,6 +55,10 @@ class Problem:
     goal_disc: tuple[np.ndarray, float] | None = None
     points_valid: Callable[[np.ndarray], np.ndarray] | None = None
     sensing_from_points: Callable[[np.ndarray], np.ndarray] | None = None
+    # True for a nonholonomic robot (the unicycle): edge nominals respect its kinematics
+    # (turn-drive-turn) and node stabilisers are periodic (PLQG, firmtool.stabilisers) instead of
+    # the linear rest-to-rest nominals and stationary SLQG; design.py dispatches on it.
+    nonholonomic: bool = False
 
     @property
     def velocity_dim(self) -> int:
@@ -80,7 +84,7 @@ def build_problem(scenario: Scenario) -> Problem:
     ScenarioError
         For inconsistencies between sections (dimensions, a start or goal in collision).
     """
-    builders = {"point": _build_point, "arm": _build_arm}
+    builders = {"point": _build_point, "arm": _build_arm, "unicycle": _build_unicycle}
     return builders[scenario.model.robot](scenario)
 
 
@@ -208,6 +212,50 @@ def _build_arm(sc: Scenario) -> Problem:
     return problem
 
 
+def _build_unicycle(sc: Scenario) -> Problem:
+    """Unicycle (x, y, heading; speed and turn rate) with a light-dark position sensor.
+
+    The configuration is the position (``config_dim = 2``); the heading is the one further state
+    coordinate, 0 at every sampled node (each node is the phase-0 point of a figure-eight orbit
+    facing +x, see :mod:`firmtool.stabilisers`). ``is_valid`` (node sampling, nominal checks) keeps
+    the orbit's reach ``2 orbit_radius`` clear around the robot; ``points_valid`` (the Monte Carlo and
+    execution) tests the robot's true disc.
+    """
+    from firmtool.models.unicycle import UnicycleModel
+
+    spec = sc.model
+    if sc.measurement.H is not None:
+        raise ScenarioError(sc.path, "measurement.H", "not used for robot = 'unicycle' (its sensor measures the position)")
+    F = np.diag([spec.process_noise_std, spec.process_noise_std, spec.heading_noise_std]) * np.sqrt(spec.dt)
+    model = UnicycleModel(F=F, noise=_noise(sc), dt=spec.dt)
+    nz = model.nz
+
+    def points(X: np.ndarray) -> np.ndarray:
+        return np.asarray(X)[:, None, :2]
+
+    def sensing_from_points(P: np.ndarray) -> np.ndarray:
+        return np.repeat(P[:, 0, :1], nz, axis=1)
+
+    w = sc.world
+    backend = world_backend(sc, self_collision=False)
+    radius, reach = w.robot_radius, 2.0 * spec.orbit_radius
+
+    def points_valid(P: np.ndarray) -> np.ndarray:
+        return ~backend.capsules_collide(P, P, radius)
+
+    def is_valid(X: np.ndarray) -> np.ndarray:
+        P = points(X)
+        return ~backend.capsules_collide(P, P, radius + reach)
+
+    start, goal = _task_states(sc, model.n, 2)
+    problem = Problem(scenario=sc, model=model, perfect=sc.perfect, config_dim=2,
+                      config_lo=np.array(w.lo), config_hi=np.array(w.hi), is_valid=is_valid, start=start,
+                      goal=goal, points=points, points_valid=points_valid,
+                      sensing_from_points=sensing_from_points, nonholonomic=True)
+    _check_task(problem)
+    return problem
+
+
 def _arm_goal(sc: Scenario, lengths: np.ndarray, theta_start: np.ndarray, is_valid: Callable,
               lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
     """A valid configuration at rest whose tip is at the goal disc's centre (inverse kinematics)."""
@@ -263,5 +311,5 @@ def _check_task(problem: Problem) -> None:
             raise ScenarioError(sc.path, name, "expected a collision-free state inside world.bounds (it is in collision)")
         if np.any(state[problem.config_dim:] != 0):
             raise ScenarioError(sc.path, name, "expected zero velocity (nodes are states at rest)")
-    if not sc.perfect and problem.model.H.shape[0] == 0:
+    if not sc.perfect and problem.model.nz == 0:
         raise ScenarioError(sc.path, "measurement.H", "expected at least one measurement row")

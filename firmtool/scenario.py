@@ -17,8 +17,8 @@ import numpy as np
 
 from firmtool.errors import ScenarioError
 
-ROBOTS = ("point", "arm")
-DYNAMICS = ("single_integrator", "double_integrator", "matrices")
+ROBOTS = ("point", "arm", "unicycle")
+DYNAMICS = ("single_integrator", "double_integrator", "matrices", "unicycle")
 NOISE_FORMS = ("lightdark_std", "lightdark_variance", "constant")
 MEASUREMENT_KINDS = ("perfect", "imperfect")
 
@@ -46,6 +46,14 @@ class ModelSpec:
     link_lengths: np.ndarray | None = None
     first_joint_range: tuple[float, float] = (-math.pi, math.pi)
     joint_range: float = math.pi
+    # Only for robot = "unicycle" (dynamics = "unicycle"): process noise on the heading (rad per
+    # sqrt(s); process_noise_std is the position's, m per sqrt(s)), the turn-rate limit of edge
+    # nominals (rad/s; the speed limit is controller.max_speed), and the node stabiliser's orbit
+    # (a figure eight of two circles of radius orbit_radius driven at orbit_speed).
+    heading_noise_std: float = 0.0
+    max_turn_rate: float = 1.0
+    orbit_radius: float = 0.1
+    orbit_speed: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -329,6 +337,13 @@ def _read_model(t: _Table) -> ModelSpec:
             raise ScenarioError(t.path, "model.first_joint_range", "expected [low, high] with high > low")
         arm = dict(link_lengths=lengths, first_joint_range=(float(first[0]), float(first[1])),
                    joint_range=t.number("joint_range", math.pi, positive=True))
+    if (robot == "unicycle") != (dynamics == "unicycle"):
+        raise ScenarioError(t.path, "model.dynamics", "expected 'unicycle' exactly when robot = 'unicycle'")
+    if robot == "unicycle":
+        arm = dict(heading_noise_std=t.number("heading_noise_std", 0.0, nonnegative=True),
+                   max_turn_rate=t.number("max_turn_rate", 1.0, positive=True),
+                   orbit_radius=t.number("orbit_radius", 0.1, positive=True),
+                   orbit_speed=t.number("orbit_speed", 0.2, positive=True))
     t.finish()
     return ModelSpec(robot=robot, dynamics=dynamics, dt=dt, process_noise_std=std, A=A, B=B, G=G, Q=Q, **arm)
 
