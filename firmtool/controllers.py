@@ -219,6 +219,9 @@ class LocalController:
     # (T, nz, nz) innovation covariance H_k P-_k H_k' + R_k of every step as designed (None with
     # perfect measurements), for consistency tests of the filter during execution.
     innovation_cov: np.ndarray | None = None
+    # (T + 1, n) standard deviation of the decision state around the reference, from a start on the
+    # nominal: how far an undisturbed estimate is expected to stray at each step (replanning scale).
+    spread: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -296,4 +299,16 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
             prior = A @ P[k] @ A.T + Qd
             innovation[k] = H @ prior @ H.T + R
             L[k], P[k + 1] = kalman_update(prior, H, R)
-    return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota, innovation_cov=innovation)
+
+    # Spread of the decision state around the reference: the closed loop driven by the process
+    # noise (perfect measurements) or by the innovations through the filter gain (imperfect).
+    Sigma = np.zeros((n, n))
+    spread = np.zeros((T + 1, n))
+    for k in range(T):
+        A, B = edge_jac[k] if k < iota else stab_jac[phase[k - iota]]
+        Acl = A - B @ K[k]
+        drive = model.process_cov if perfect else L[k] @ innovation[k] @ L[k].T
+        Sigma = Acl @ Sigma @ Acl.T + drive
+        spread[k + 1] = np.sqrt(np.maximum(np.diagonal(Sigma), 0.0))
+    return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota, innovation_cov=innovation,
+                           spread=spread)

@@ -143,7 +143,7 @@ class _Running:
     lc: LocalController
     cand: np.ndarray  # (T, N) covariance candidates per step
     trP: np.ndarray  # (T,) tr P[k+1]
-    inv_scale: np.ndarray  # (n,) 1 / spread for the deviation norm
+    inv_scale: np.ndarray  # (T, n) 1 / expected spread at each step, for the deviation norm
     target: int
     edge: int  # policy edge index, or -1 for a controller designed at run time
     land_from: int  # first step (1-based count) at which landing is tested
@@ -191,8 +191,13 @@ class Executor:
             # innovation covariance of every step as designed: H (A P_k A' + Qd) H' + R(landing state)
             # (plan_local_controller keeps it, with the per-step linearisation of nonlinear models)
             S_inv = np.linalg.inv(lc.innovation_cov)
+        # Deviation scale per step: the node spread combined with the spread an undisturbed estimate
+        # is expected to build up along this controller (an EKF learning a heading legitimately
+        # strays further from the nominal than any node is wide).
+        spread = np.zeros((lc.steps + 1, scale.size)) if lc.spread is None else lc.spread
+        inv_scale = 1.0 / np.sqrt(scale[None, :] ** 2 + spread[1:] ** 2)
         return _Running(lc=lc, cand=self.regions.covariance_candidates(lc.P[1:]),
-                        trP=np.trace(lc.P[1:], axis1=1, axis2=2), inv_scale=1.0 / scale, target=target,
+                        trP=np.trace(lc.P[1:], axis1=1, axis2=2), inv_scale=inv_scale, target=target,
                         edge=edge, land_from=land_from, S_inv=S_inv)
 
     def _controller(self, edge: int) -> _Running:
@@ -402,7 +407,7 @@ class Executor:
                     landed = int(self.regions.locate(xhat, cand[k])[0])
                 deviate, alarm = False, False
                 if landed < 0 and valid and settings.enabled and ep.replans < settings.max_per_episode:
-                    z = (xhat[0] - x_ref[min(k + 1, T - 1)]) * inv_scale
+                    z = (xhat[0] - x_ref[min(k + 1, T - 1)]) * inv_scale[min(k + 1, T - 1)]
                     dev = float(np.sqrt(np.mean(z * z)))
                     deviate = dev > settings.threshold
                     if test_nis:
