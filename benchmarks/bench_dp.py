@@ -1,13 +1,69 @@
-import time, numpy as np, scipy.sparse
-from firmtool.graph import solve_dp, success_probability
-rng=np.random.default_rng(0); N=100_000; k=10
-src=np.repeat(np.arange(N),k); E=src.size
-# landing: each edge lands in one of 3 "nearby" nodes (ring graph towards the goal), plus failure
-t=np.stack([ (src + rng.integers(-3,8,size=E))%N for _ in range(2)],1)
-w=rng.dirichlet([5,5,0.2],size=E)
-landing=scipy.sparse.csr_matrix((w[:,:2].ravel(),(np.repeat(np.arange(E),2),t.ravel())),shape=(E,N))
-landing.sum_duplicates()
-fail=w[:,2]; cost=rng.uniform(0.5,2,size=E)
-for m in ("value","policy"):
-    t0=time.time(); r=solve_dp(N,0,src,cost,landing,fail,100.0,method=m); t1=time.time(); p=success_probability(N,0,r.policy,landing); t2=time.time()
-    print(m, r.status, r.iterations, r.residual, "dp %.2fs sp %.2fs"%(t1-t0,t2-t1), p[:3])
+"""DP (eq. 12) and success-probability solve times on synthetic graphs of 1e3, 1e4, 1e5 nodes with
+10 edges each (each edge lands in one of two nearby nodes towards the goal, or fails).
+
+    python benchmarks/bench_dp.py [--sizes 1000 10000 100000] [--repeat 3] [--json]
+
+Reports, per size and method (value / policy iteration): median seconds of the DP and of the
+success-probability sparse solve, iterations, residual, status.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+
+import numpy as np
+import scipy.sparse
+
+
+def graph(N: int, k: int = 10, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    src = np.repeat(np.arange(N), k)
+    E = src.size
+    t = np.stack([(src + rng.integers(-3, 8, size=E)) % N for _ in range(2)], 1)
+    w = rng.dirichlet([5, 5, 0.2], size=E)
+    landing = scipy.sparse.csr_matrix((w[:, :2].ravel(), (np.repeat(np.arange(E), 2), t.ravel())), shape=(E, N))
+    landing.sum_duplicates()
+    return src, landing, w[:, 2], rng.uniform(0.5, 2, size=E)
+
+
+def solve_times(N: int, repeat: int) -> list[dict]:
+    from firmtool.graph import solve_dp, success_probability
+    src, landing, fail, cost = graph(N)
+    out = []
+    for method in ("value", "policy"):
+        dp, sp = [], []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            r = solve_dp(N, 0, src, cost, landing, fail, 100.0, method=method)
+            t1 = time.perf_counter()
+            p = success_probability(N, 0, r.policy, landing)
+            t2 = time.perf_counter()
+            dp.append(t1 - t0)
+            sp.append(t2 - t1)
+        out.append({"nodes": N, "edges": int(src.size), "method": method, "dp_seconds": statistics.median(dp),
+                    "success_seconds": statistics.median(sp), "iterations": int(r.iterations),
+                    "residual": float(r.residual), "status": str(r.status), "p_node0": float(p[0])})
+    return out
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10_000, 100_000])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    rows = [row for N in args.sizes for row in solve_times(N, args.repeat)]
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    else:
+        for r in rows:
+            print(f"N={r['nodes']:>7d} {r['method']:6s} dp {r['dp_seconds']:.3f} s  success {r['success_seconds']:.3f} s "
+                  f" iterations {r['iterations']}  residual {r['residual']:.1e}  {r['status']}")
+    return {"dp": rows}
+
+
+if __name__ == "__main__":
+    main()

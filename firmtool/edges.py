@@ -73,8 +73,17 @@ class ParticleOutcomes:
 
 
 def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.ndarray, xhat: np.ndarray,
-             rng: np.random.Generator) -> ParticleOutcomes:
-    """Run ``lc`` on an ensemble until every particle lands, fails or times out."""
+             rng: np.random.Generator, engine: str | None = None) -> ParticleOutcomes:
+    """Run ``lc`` on an ensemble until every particle lands, fails or times out.
+
+    ``engine``: ``"numpy"`` (this function's body), ``"numba"`` (:func:`firmtool.kernels.simulate`,
+    the same step compiled, fed the same noise) or None: chosen by :func:`firmtool.kernels.engine_for`
+    (the compiled one when it supports the problem; ``FIRMTOOL_ENGINE=numpy|numba`` overrides).
+    """
+    from firmtool import kernels
+
+    if (engine or kernels.engine_for(problem)) == "numba":
+        return kernels.simulate(problem, lc, regions, x, xhat, rng)
     model, perfect, cost_spec = problem.model, problem.perfect, problem.scenario.cost
     M = x.shape[0]
     outcome = np.full(M, TIMEOUT, dtype=np.int64)
@@ -141,7 +150,7 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int,
 
 
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
-                  particles: int, seed: int, chunk: int) -> EdgeEstimate:
+                  particles: int, seed: int, chunk: int, engine: str | None = None) -> EdgeEstimate:
     """Monte Carlo of the local controller ``source -> target`` from the source node.
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
@@ -153,7 +162,7 @@ def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, sourc
         M = min(chunk, particles - start)
         rng = np.random.default_rng(edge_seed_sequence(seed, source, target, c))
         x, xhat = initial_ensemble(problem, design_, source, M, rng)
-        results.append(simulate(problem, lc, regions, x, xhat, rng))
+        results.append(simulate(problem, lc, regions, x, xhat, rng, engine))
     outcome = np.concatenate([r.outcome for r in results])
     steps = np.concatenate([r.steps for r in results])
     cost = np.concatenate([r.cost for r in results])

@@ -1,0 +1,582 @@
+"""Compiled Monte Carlo engine: the whole edge step in one numba kernel (plain loops, no temporaries).
+
+:func:`simulate` is a drop-in twin of :func:`firmtool.edges.simulate` for the models it knows:
+a :class:`~firmtool.models.linear.LinearGaussianModel` on the ``point`` or ``arm`` robot with the
+numpy or numba collision geometry. Per step and per live particle it does, in this order, exactly
+what the numpy path does:
+
+    control from the estimate -> true-state step with process noise -> kinematics (once) ->
+    observation noise with R at the TRUE state -> filter update with the precomputed gain ->
+    control effort -> collision test -> node membership (from the stabiliser phase on)
+
+Random numbers
+    The standard normal noise is drawn OUTSIDE the kernel with the same ``np.random.Generator``
+    and consumed in the same order as the numpy path (per step, ``(alive, r + nz)`` row-major, the
+    live particles in their original order). ``Generator.standard_normal`` is a plain stream (drawing
+    ``a`` then ``b`` numbers equals drawing ``a + b``), so the noise is drawn in blocks of several
+    steps and the kernel stops when a block runs out. Both engines therefore see the SAME noise for
+    every particle, and their outcomes agree particle by particle (up to floating-point summation
+    order, which can flip a decision only on a knife edge). The one difference: the block drawn
+    last is not used up, so ``rng`` ends further along its stream than after the numpy path (no
+    caller uses it afterwards; :func:`firmtool.edges.estimate_edge` makes one per chunk).
+
+Node membership
+    :meth:`firmtool.nodes.NodeRegions.locate` is reproduced exactly without its k-d tree: the nodes
+    whose covariance test passes at the step (few, and sorted once per edge by their first
+    coordinate) are scanned inside a window of that coordinate outside of which the exact test
+    cannot pass; the nearest passing node in the outer metric is kept only if fewer than ``k = 8``
+    nodes (all nodes, as in the tree query) are nearer in that metric.
+
+Selection: :func:`firmtool.edges.simulate` dispatches here when :func:`engine_for` says so: the
+environment variable ``FIRMTOOL_ENGINE=numpy|numba`` forces an engine (``numba`` raises if the
+problem is not supported); unset or ``auto`` uses this kernel whenever numba is importable and the
+problem is supported, and the numpy path otherwise (nonlinear models, other robots, fcl geometry).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+try:  # numba is a dependency, but keep the numpy path usable without it
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
+
+FAILURE, TIMEOUT = -1, -2  # same codes as firmtool.edges
+ROBOT_POINT, ROBOT_ARM = 0, 1
+NOISE_FORMS = {"lightdark_std": 0, "lightdark_variance": 1, "constant": 2}
+CANDIDATE_STEPS = 32  # steps whose node candidates are computed at once
+CALL_PARTICLE_STEPS = 1024  # particle-steps of noise drawn per kernel call
+LOCATE_K = 8  # neighbours the k-d tree query of NodeRegions.locate considers
+
+ENGINE_ENV = "FIRMTOOL_ENGINE"
+
+
+# ---------------------------------------------------------------------------------------------
+# selection
+
+
+def supports(problem) -> str | None:
+    """None if the compiled engine can run ``problem``, else the reason it cannot."""
+    from firmtool.models.linear import LinearGaussianModel
+
+    if numba is None:
+        return "numba is not installed"
+    if type(problem.model) is not LinearGaussianModel:
+        return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
+    sc = problem.scenario
+    if sc.model.robot not in ("point", "arm"):
+        return f"robot {sc.model.robot!r} has no compiled kinematics"
+    if sc.world.collision_backend not in ("numpy", "numba"):
+        return f"collision backend {sc.world.collision_backend!r} is not compiled (numpy/numba geometry only)"
+    if problem.model.noise.form not in NOISE_FORMS:
+        return f"measurement noise {problem.model.noise.form!r} is not compiled"
+    return None
+
+
+def engine_for(problem) -> str:
+    """``"numba"`` or ``"numpy"`` for this problem, honouring ``FIRMTOOL_ENGINE``."""
+    from firmtool.errors import InputError
+
+    choice = os.environ.get(ENGINE_ENV, "auto").strip().lower() or "auto"
+    if choice not in ("auto", "numpy", "numba"):
+        raise InputError(f"{ENGINE_ENV}: expected 'auto', 'numpy' or 'numba' but found {choice!r}")
+    if choice == "numpy":
+        return "numpy"
+    reason = supports(problem)
+    if reason is None:
+        return "numba"
+    if choice == "numba":
+        raise InputError(f"{ENGINE_ENV}=numba: the compiled engine cannot run this problem: {reason}")
+    return "numpy"
+
+
+# ---------------------------------------------------------------------------------------------
+# data preparation (Python, once per problem / once per edge)
+
+
+def _rows(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row-compressed stack of matrices (T, a, b) sharing one sparsity pattern (the union over T).
+
+    Returns counts (a,), columns (a, w) and values (T, a, w). Only entries that are zero at every
+    t are dropped, so a product over the stored entries equals the dense one."""
+    M = np.asarray(M, dtype=float)
+    T, a, b = M.shape
+    nz = (M != 0.0).any(axis=0)
+    counts = nz.sum(axis=1).astype(np.int64)
+    w = max(1, int(counts.max(initial=0)))
+    cols = np.argsort(~nz, axis=1, kind="stable")[:, :w]  # each row's nonzero columns first, in order
+    keep = np.arange(w)[None, :] < counts[:, None]
+    cols = np.where(keep, cols, 0).astype(np.int64)
+    vals = np.where(keep[None], M[:, np.arange(a)[:, None], cols], 0.0)
+    return counts, cols, np.ascontiguousarray(vals)
+
+
+class _ProblemData:
+    """Per-problem constant arrays for the kernel."""
+
+    def __init__(self, problem) -> None:
+        sc, model = problem.scenario, problem.model
+        self.mats = tuple(_rows(M[None]) for M in (model.A, model.B, model.H))
+        self.F = np.ascontiguousarray(model.F[None], dtype=float)
+        self.r, self.nz = model.F.shape[1], model.nz
+        nm = model.noise
+        self.noise = (NOISE_FORMS[nm.form], float(nm.light_x), float(nm.eta), float(nm.sigma_b), float(nm.a),
+                      float(nm.c), float(nm.std))
+        w = sc.world
+        if sc.model.robot == "arm":
+            self.robot, self.lengths, self.self_collision = ROBOT_ARM, np.asarray(sc.model.link_lengths, float), True
+        else:
+            self.robot, self.lengths, self.self_collision = ROBOT_POINT, np.zeros(0), False
+        C = np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2)
+        Hs = np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2)
+        ang = np.array([getattr(o, "angle", 0.0) for o in w.obstacles], dtype=float)
+        cs, sn = np.cos(ang), np.sin(ang)
+        ext = np.abs(cs)[:, None] * Hs + np.abs(sn)[:, None] * Hs[:, ::-1]
+        rotated = ang != 0.0
+        self.world = (np.array(w.lo, float), np.array(w.hi, float), C, Hs, np.where(rotated, cs, 1.0),
+                      np.where(rotated, sn, 0.0), C - ext, C + ext, float(w.robot_radius))
+
+
+_problem_cache: dict[int, tuple[object, _ProblemData]] = {}
+
+
+def _problem_data(problem) -> _ProblemData:
+    hit = _problem_cache.get(id(problem))
+    if hit is not None and hit[0] is problem:
+        return hit[1]
+    data = _ProblemData(problem)
+    if len(_problem_cache) > 8:
+        _problem_cache.clear()
+    _problem_cache[id(problem)] = (problem, data)
+    return data
+
+
+def _candidate_lists(regions, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per step, the candidate nodes sorted by their centre's first coordinate (CSR: ptr (T+1,), idx, key)."""
+    order = np.argsort(regions.centers[:, 0], kind="stable")
+    sorted_cand = cand[:, order]
+    counts = sorted_cand.sum(axis=1)
+    ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    t, j = np.nonzero(sorted_cand)
+    idx = order[j].astype(np.int64)
+    return ptr, idx, np.ascontiguousarray(regions.centers[idx, 0])
+
+
+# ---------------------------------------------------------------------------------------------
+# the kernel
+
+_kernel = None
+
+
+def _build():
+    njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+    @njit
+    def matvec(counts, cols, vals, t, x, out, n_out):
+        """out[i] = sum_j M[t, i, j] x[j] over the stored (nonzero) entries, in column order: the
+        same value as the dense row product (an exact zero term adds nothing)."""
+        for i in range(n_out):
+            s = 0.0
+            for q in range(counts[i]):
+                s += vals[t, i, q] * x[cols[i, q]]
+            out[i] = s
+
+    @numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+    def dense(M, t, x, out, n_out, n_in):
+        """out = M[t] x for the dense factors (F, L). Reassociation lets the row sums vectorise: the
+        order of the terms then depends on the SIMD width (as in BLAS), not on the data; about 10%
+        of the arm's kernel time."""
+        for i in range(n_out):
+            s = 0.0
+            for j in range(n_in):
+                s += M[t, i, j] * x[j]
+            out[i] = s
+
+    @njit
+    def sincos(a):
+        """(sin a, cos a): Cody-Waite reduction by pi/2 and fdlibm's minimax polynomials on
+        [-pi/4, pi/4] (within an ulp or two of libm; branch-free but for the quadrant select)."""
+        q = np.floor(a * 0.6366197723675814 + 0.5)
+        y = (a - q * 1.57079632673412561417e+00) - q * 6.07710050650619224932e-11
+        z = y * y
+        sp = y + y * z * (-1.66666666666666324348e-01 + z * (8.33333333332248946124e-03 + z * (
+            -1.98412698298579493134e-04 + z * (2.75573137070700676789e-06 + z * (
+                -2.50507602534068634195e-08 + z * 1.58969099521155010221e-10)))))
+        cp = 1.0 - 0.5 * z + z * z * (4.16666666666666019037e-02 + z * (-1.38888888888741095749e-03 + z * (
+            2.48015872894767294178e-05 + z * (-2.75573143513906633035e-07 + z * (
+                2.08757232129817482790e-09 + z * -1.13596475577881948265e-11)))))
+        k = int(q) & 3
+        if k == 0:
+            return sp, cp
+        if k == 1:
+            return cp, -sp
+        if k == 2:
+            return -sp, -cp
+        return -cp, sp
+
+    @njit
+    def pseg_d2(px, py, ax, ay, bx, by):
+        dx, dy = bx - ax, by - ay
+        dd = dx * dx + dy * dy
+        t = 0.0
+        if dd > 0.0:
+            t = ((px - ax) * dx + (py - ay) * dy) / dd
+            t = min(max(t, 0.0), 1.0)
+        ex, ey = ax + t * dx - px, ay + t * dy - py
+        return ex * ex + ey * ey
+
+    @njit
+    def pbox_d2(px, py, hx, hy):
+        ex = max(abs(px) - hx, 0.0)
+        ey = max(abs(py) - hy, 0.0)
+        return ex * ex + ey * ey
+
+    @njit
+    def seg_box_d2(ax, ay, bx, by, hx, hy):
+        sep = (min(ax, bx) > hx) or (max(ax, bx) < -hx) or (min(ay, by) > hy) or (max(ay, by) < -hy)
+        if not sep:
+            nx, ny = ay - by, bx - ax
+            mx, my = 0.5 * (ax + bx), 0.5 * (ay + by)
+            sep = abs(nx * mx + ny * my) > abs(nx) * hx + abs(ny) * hy
+        if not sep:
+            return 0.0
+        d = min(pbox_d2(ax, ay, hx, hy), pbox_d2(bx, by, hx, hy))
+        d = min(d, pseg_d2(hx, hy, ax, ay, bx, by))
+        d = min(d, pseg_d2(hx, -hy, ax, ay, bx, by))
+        d = min(d, pseg_d2(-hx, hy, ax, ay, bx, by))
+        d = min(d, pseg_d2(-hx, -hy, ax, ay, bx, by))
+        return d
+
+    @njit
+    def seg_seg_d2(a0x, a0y, a1x, a1y, b0x, b0y, b1x, b1y):
+        dax, day = a1x - a0x, a1y - a0y
+        dbx, dby = b1x - b0x, b1y - b0y
+        o1 = dax * (b0y - a0y) - day * (b0x - a0x)
+        o2 = dax * (b1y - a0y) - day * (b1x - a0x)
+        o3 = dbx * (a0y - b0y) - dby * (a0x - b0x)
+        o4 = dbx * (a1y - b0y) - dby * (a1x - b0x)
+        if o1 * o2 < 0.0 and o3 * o4 < 0.0:
+            return 0.0
+        d = min(pseg_d2(a0x, a0y, b0x, b0y, b1x, b1y), pseg_d2(a1x, a1y, b0x, b0y, b1x, b1y))
+        d = min(d, pseg_d2(b0x, b0y, a0x, a0y, a1x, a1y))
+        return min(d, pseg_d2(b1x, b1y, a0x, a0y, a1x, a1y))
+
+    @njit
+    def collides(px, py, n_seg, seg_offset, lo, hi, C, Hs, cs, sn, blo, bhi, r, self_collision, half):
+        """Capsules [p[l], p[l + seg_offset]] for l < n_seg (seg_offset 0: discs at the points);
+        ``half[l]`` bounds half the length of segment l (for the self-collision prefilter)."""
+        r2, lim = r * r, 4.0 * r * r
+        for l in range(n_seg):
+            ax, ay, bx, by = px[l], py[l], px[l + seg_offset], py[l + seg_offset]
+            for c in range(2):
+                lr, hr = lo[c] + r, hi[c] - r
+                if c == 0:
+                    a_, b_ = ax, bx
+                else:
+                    a_, b_ = ay, by
+                if not (a_ >= lr and a_ <= hr and b_ >= lr and b_ <= hr):
+                    return True
+        for l in range(n_seg):
+            ax, ay, bx, by = px[l], py[l], px[l + seg_offset], py[l + seg_offset]
+            lox, hix = min(ax, bx) - r, max(ax, bx) + r
+            loy, hiy = min(ay, by) - r, max(ay, by) + r
+            for k in range(C.shape[0]):
+                if lox > bhi[k, 0] or hix < blo[k, 0] or loy > bhi[k, 1] or hiy < blo[k, 1]:
+                    continue
+                qax, qay = ax - C[k, 0], ay - C[k, 1]
+                qbx, qby = bx - C[k, 0], by - C[k, 1]
+                c_, s_ = cs[k], sn[k]
+                if s_ != 0.0 or c_ != 1.0:
+                    qax, qay = c_ * qax + s_ * qay, -s_ * qax + c_ * qay
+                    qbx, qby = c_ * qbx + s_ * qby, -s_ * qbx + c_ * qby
+                if seg_box_d2(qax, qay, qbx, qby, Hs[k, 0], Hs[k, 1]) < r2:
+                    return True
+        if self_collision:
+            tr = 2.0 * r
+            for a in range(n_seg):
+                a0x, a0y, a1x, a1y = px[a], py[a], px[a + seg_offset], py[a + seg_offset]
+                alox, ahix = min(a0x, a1x), max(a0x, a1x)
+                aloy, ahiy = min(a0y, a1y), max(a0y, a1y)
+                for b in range(a + 2, n_seg):
+                    b0x, b0y, b1x, b1y = px[b], py[b], px[b + seg_offset], py[b + seg_offset]
+                    # AABB prefilter (the numpy backend's): farther than 2r apart on an axis cannot hit
+                    if not (alox - tr <= max(b0x, b1x) and ahix + tr >= min(b0x, b1x)
+                            and aloy - tr <= max(b0y, b1y) and ahiy + tr >= min(b0y, b1y)):
+                        continue
+                    # bounding circles about the midpoints: farther apart than the half lengths + 2r
+                    ex = 0.5 * (a0x + a1x - b0x - b1x)
+                    ey = 0.5 * (a0y + a1y - b0y - b1y)
+                    reach = half[a] + half[b] + tr
+                    if ex * ex + ey * ey > reach * reach * (1.0 + 1e-9):
+                        continue
+                    if seg_seg_d2(a0x, a0y, a1x, a1y, b0x, b0y, b1x, b1y) < lim:
+                        return True
+        return False
+
+    @njit
+    def locate(xh, n, lo_ptr, hi_ptr, cand_idx, cand_key, centers, scale, inv_outer, radius2, window, knn):
+        """NodeRegions.locate for one estimate: nearest (outer metric) passing candidate among the
+        ``knn`` nearest nodes, or -1."""
+        x0 = xh[0]
+        # first candidate whose key >= x0 - window (binary search)
+        a, b = lo_ptr, hi_ptr
+        lo_key = x0 - window
+        while a < b:
+            mid = (a + b) // 2
+            if cand_key[mid] < lo_key:
+                a = mid + 1
+            else:
+                b = mid
+        hi_key = x0 + window
+        limit = radius2 * n
+        best, best_d = -1, np.inf
+        for q in range(a, hi_ptr):
+            if cand_key[q] > hi_key:
+                break
+            c = cand_idx[q]
+            s = 0.0
+            for i in range(n):
+                z = (xh[i] - centers[c, i]) / scale[c, i]
+                s += z * z
+                if s >= limit:
+                    break
+            if s / n < radius2:
+                d = 0.0
+                for i in range(n):
+                    e = xh[i] * inv_outer[i] - centers[c, i] * inv_outer[i]
+                    d += e * e
+                if d < best_d:
+                    best, best_d = c, d
+        if best < 0:
+            return -1
+        nearer = 0
+        for j in range(centers.shape[0]):
+            d = 0.0
+            for i in range(n):
+                e = xh[i] * inv_outer[i] - centers[j, i] * inv_outer[i]
+                d += e * e
+                if d >= best_d:
+                    break
+            if d < best_d:
+                nearer += 1
+                if nearer >= knn:
+                    return -1
+        return best
+
+    @njit
+    def run(k, k_end, n_alive, alive, x, xhat, outcome, steps, effort, noise, pos, w_len,
+            Ac, Acol, Aval, Bc, Bcol, Bval, Fd, Hc, Hcol, Hval,
+            x_ref, u_ref, Kc, Kcol, Kval, Ld,
+            cand_ptr, cand_idx, cand_key, centers, scale, inv_outer, radius2, window, knn,
+            form, light_x, eta, sigma_b, na, nc, nstd,
+            robot, lengths, lo, hi, C, Hs, cs, sn, blo, bhi, rob_r, self_collision,
+            perfect, with_effort):
+        """Advance the live particles ``alive[:n_alive]`` from step ``k`` while the noise lasts.
+
+        Stops before step ``k_end`` or when ``noise`` cannot feed a whole step. Returns the next
+        step, the number of live particles (compacted in place, order kept) and the position in
+        ``noise``. The candidate nodes of step k are ``cand_idx[cand_ptr[k]:cand_ptr[k + 1]]``."""
+        n = x.shape[1]
+        m = u_ref.shape[1]
+        r = w_len
+        nz = Hc.shape[0]
+        d = r if perfect else r + nz
+        u = np.empty(m)
+        dx = np.empty(n)
+        xn = np.empty(n)
+        xo = np.empty(n)
+        pred = np.empty(n)
+        tmp = np.empty(n)
+        hz = np.empty(nz)
+        inn = np.empty(nz)
+        corr = np.empty(n)
+        w = np.empty(r)
+        L_links = lengths.shape[0]
+        half = 0.5 * lengths * (1.0 + 1e-12)
+        n_pts = L_links + 1 if robot == 1 else 1
+        px = np.empty(n_pts)
+        py = np.empty(n_pts)
+        while k < k_end and n_alive > 0:
+            if pos + n_alive * d > noise.shape[0]:
+                break
+            test_nodes = cand_ptr[k + 1] > cand_ptr[k]
+            kept = 0
+            for a in range(n_alive):
+                i = alive[a]
+                base = pos + a * d
+                # control from the estimate
+                for j in range(n):
+                    dx[j] = xhat[i, j] - x_ref[k, j]
+                matvec(Kc, Kcol, Kval, k, dx, u, m)
+                for j in range(m):
+                    u[j] = u_ref[k, j] - u[j]
+                # true state: (A x + B u) + F w
+                for j in range(n):
+                    xo[j] = x[i, j]
+                matvec(Ac, Acol, Aval, 0, xo, xn, n)
+                matvec(Bc, Bcol, Bval, 0, u, tmp, n)
+                for j in range(n):
+                    xn[j] += tmp[j]
+                for j in range(r):
+                    w[j] = noise[base + j]
+                dense(Fd, 0, w, tmp, n, r)
+                for j in range(n):
+                    xn[j] += tmp[j]
+                    x[i, j] = xn[j]
+                # kinematics, once
+                if robot == 1:
+                    phi, sx, sy = 0.0, 0.0, 0.0
+                    px[0], py[0] = 0.0, 0.0
+                    for l in range(L_links):
+                        phi += xn[l]
+                        s_phi, c_phi = sincos(phi)
+                        sx += lengths[l] * c_phi
+                        sy += lengths[l] * s_phi
+                        px[l + 1], py[l + 1] = sx + 0.0, sy + 0.0
+                else:
+                    px[0], py[0] = xn[0], xn[1]
+                # estimate
+                if perfect:
+                    for j in range(n):
+                        xhat[i, j] = xn[j]
+                else:
+                    for j in range(n):
+                        xo[j] = xhat[i, j]
+                    matvec(Ac, Acol, Aval, 0, xo, pred, n)
+                    matvec(Bc, Bcol, Bval, 0, u, tmp, n)
+                    for j in range(n):
+                        pred[j] += tmp[j]
+                    matvec(Hc, Hcol, Hval, 0, xn, hz, nz)
+                    matvec(Hc, Hcol, Hval, 0, pred, inn, nz)
+                    for j in range(nz):
+                        sxj = px[j + 1] if robot == 1 else px[0]
+                        dd = sxj - light_x
+                        if form == 0:
+                            s_ = eta * abs(dd) + sigma_b
+                            var = s_ * s_
+                        elif form == 1:
+                            var = na * dd * dd + nc
+                        else:
+                            var = nstd * nstd
+                        zj = hz[j] + np.sqrt(var) * noise[base + r + j]
+                        inn[j] = zj - inn[j]
+                    dense(Ld, k, inn, corr, n, nz)
+                    for j in range(n):
+                        xhat[i, j] = pred[j] + corr[j]
+                if with_effort:
+                    e = 0.0
+                    for j in range(m):
+                        e += u[j] * u[j]
+                    effort[i] += e
+                # constraints on the true state
+                if robot == 1:
+                    failed = collides(px, py, L_links, 1, lo, hi, C, Hs, cs, sn, blo, bhi, rob_r, self_collision, half)
+                else:
+                    failed = collides(px, py, 1, 0, lo, hi, C, Hs, cs, sn, blo, bhi, rob_r, False, half)
+                if failed:
+                    outcome[i] = -1
+                    steps[i] = k + 1
+                    continue
+                if test_nodes:
+                    node = locate(xhat[i], n, cand_ptr[k], cand_ptr[k + 1], cand_idx, cand_key, centers, scale,
+                                  inv_outer, radius2, window, knn)
+                    if node >= 0:
+                        outcome[i] = node
+                        steps[i] = k + 1
+                        continue
+                alive[kept] = i
+                kept += 1
+            pos += n_alive * d
+            n_alive = kept
+            k += 1
+        return k, n_alive, pos
+
+    return run
+
+
+def kernel():
+    """The compiled kernel (compiled on first use; cached on disk by numba)."""
+    global _kernel
+    if _kernel is None:
+        if numba is None:  # pragma: no cover
+            from firmtool.errors import InputError
+            raise InputError("the compiled Monte Carlo engine needs numba")
+        _kernel = _build()
+    return _kernel
+
+
+# ---------------------------------------------------------------------------------------------
+# driver
+
+
+def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.random.Generator):
+    """Compiled twin of :func:`firmtool.edges.simulate` (same arguments, same result type).
+
+    ``x`` and ``xhat`` (M, n) are updated in place for the particles' last live step, like the
+    numpy path does.
+    """
+    from firmtool.edges import ParticleOutcomes
+    from firmtool.errors import InputError
+
+    reason = supports(problem)
+    if reason is not None:
+        raise InputError(f"the compiled Monte Carlo engine cannot run this problem: {reason}")
+    run = kernel()
+    pd = _problem_data(problem)
+    perfect, cost_spec = problem.perfect, problem.scenario.cost
+    M, n = x.shape
+    T = lc.steps
+    outcome = np.full(M, TIMEOUT, dtype=np.int64)
+    steps = np.full(M, T, dtype=np.int64)
+    effort = np.zeros(M)
+    X = np.ascontiguousarray(x, dtype=float)
+    Xh = np.ascontiguousarray(xhat, dtype=float)
+    outer = np.asarray(regions._outer, dtype=float)
+    radius = float(regions.radius)
+    # the exact test needs |xhat_0 - c_0| < radius sqrt(n) scale_c0 <= radius sqrt(n) outer_0
+    window = radius * np.sqrt(n) * float(outer[0]) * (1.0 + 1e-9)
+    d = pd.r + (0 if perfect else pd.nz)
+    alive = np.arange(M, dtype=np.int64)
+    n_alive, k, pos = M, 0, 0
+    noise = np.empty(0)
+    knn = min(LOCATE_K, regions.count)
+    A_, B_, H_ = pd.mats
+    K_ = _rows(lc.K)
+    Ld = np.ascontiguousarray(lc.L, dtype=float)
+    x_ref = np.ascontiguousarray(lc.x_ref, dtype=float)
+    u_ref = np.ascontiguousarray(lc.u_ref, dtype=float)
+    centers = np.ascontiguousarray(regions.centers, dtype=float)
+    scale = np.ascontiguousarray(regions.scale, dtype=float)
+    tail = (centers, scale, 1.0 / outer, radius * radius, window, knn, *pd.noise, pd.robot, pd.lengths,
+            *pd.world, pd.self_collision, bool(perfect), bool(cost_spec.alpha_control))
+    first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
+    cand_ptr = np.zeros(T + 1, dtype=np.int64)
+    cand_idx, cand_key = np.zeros(0, dtype=np.int64), np.zeros(0)
+    while k < T and n_alive > 0:
+        # node candidates for a segment of steps only: particles rarely live to the last step
+        k_end = min(T, k + CANDIDATE_STEPS)
+        lo_t = max(k, first_test)
+        if lo_t < k_end:
+            cand = regions.covariance_candidates(lc.P[1 + lo_t:1 + k_end])
+            ptr, cand_idx, cand_key = _candidate_lists(regions, cand)
+            cand_ptr[:] = 0
+            cand_ptr[lo_t:k_end + 1] = ptr
+            cand_ptr[k_end + 1:] = ptr[-1]
+        while k < k_end and n_alive > 0:
+            # noise for ~CALL_PARTICLE_STEPS particle-steps: little is drawn ahead (the last
+            # draw is wasted where particles stop), few kernel calls when few particles remain
+            ahead = min(k_end - k, max(1, CALL_PARTICLE_STEPS // n_alive))
+            fresh = rng.standard_normal(n_alive * d * ahead)
+            noise = np.concatenate([noise[pos:], fresh]) if pos < noise.shape[0] else fresh
+            k, n_alive, pos = run(k, k_end, n_alive, alive, X, Xh, outcome, steps, effort, noise, 0, pd.r,
+                                  *A_, *B_, pd.F, *H_, x_ref, u_ref, *K_, Ld, cand_ptr, cand_idx, cand_key, *tail)
+    if X is not x:
+        x[...] = X
+    if Xh is not xhat:
+        xhat[...] = Xh
+    trP = np.concatenate([[0.0], np.cumsum(np.trace(lc.P[1:], axis1=1, axis2=2))])
+    cost = cost_spec.alpha_covariance * trP[steps] + cost_spec.alpha_time * steps + cost_spec.alpha_control * effort
+    return ParticleOutcomes(outcome=outcome, steps=steps, cost=cost)
