@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.linalg
 
@@ -56,6 +57,42 @@ def kalman_update(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np
     IL = np.eye(P_prior.shape[0]) - L @ H
     P = IL @ P_prior @ IL.T + L @ R @ L.T
     return L, 0.5 * (P + P.T)
+
+
+@numba.njit(cache=True)
+def _forward_recursions(A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread):
+    """Kalman covariance recursion (Joseph form) and the closed-loop spread of the decision state.
+
+    Step ``k`` uses the matrices ``A_steps[index[k]]`` (etc.). Fills ``L`` (T, n, nz), ``P[1:]``,
+    ``innovation`` (T, nz, nz) and ``spread`` (T + 1, n) in place. The spread follows
+    ``Sigma_{k+1} = Acl Sigma Acl' + D`` with ``D = Qd`` (perfect measurements) or the innovations
+    through the gain ``L S L'`` (imperfect), from ``Sigma_0 = 0``.
+    """
+    T = index.shape[0]
+    n = Qd.shape[0]
+    eye = np.eye(n)
+    Sigma = np.zeros((n, n))
+    for k in range(T):
+        j = index[k]
+        A = A_steps[j]
+        if perfect:
+            drive = Qd
+        else:
+            H = H_steps[j]
+            R = np.diag(variances[k])
+            prior = A @ P[k] @ A.T + Qd
+            S = H @ prior @ H.T + R
+            innovation[k] = S
+            Lk = np.linalg.solve(S, H @ prior).T
+            IL = eye - Lk @ H
+            Pn = IL @ prior @ IL.T + Lk @ R @ Lk.T
+            P[k + 1] = 0.5 * (Pn + Pn.T)
+            L[k] = Lk
+            drive = Lk @ S @ Lk.T
+        Acl = A - B_steps[j] @ K[k]
+        Sigma = Acl @ Sigma @ Acl.T + drive
+        for i in range(n):
+            spread[k + 1, i] = np.sqrt(max(Sigma[i, i], 0.0))
 
 
 def stationary_kalman(A: np.ndarray, Qd: np.ndarray, H: np.ndarray, R: np.ndarray
@@ -292,23 +329,21 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
         edge_H = [model.observation_jacobian(x) for x in x_nominal[1:]]
         stab_H = [model.observation_jacobian(sx[p + 1]) for p in range(period)]
         P[0] = P0
-        for k in range(T):
-            A = edge_jac[k][0] if k < iota else stab_jac[phase[k - iota]][0]
-            H = edge_H[k] if k < iota else stab_H[phase[k - iota]]
-            R = np.diag(variances[k])
-            prior = A @ P[k] @ A.T + Qd
-            innovation[k] = H @ prior @ H.T + R
-            L[k], P[k + 1] = kalman_update(prior, H, R)
-
-    # Spread of the decision state around the reference: the closed loop driven by the process
-    # noise (perfect measurements) or by the innovations through the filter gain (imperfect).
-    Sigma = np.zeros((n, n))
+    # Per-step matrices (indexing of the few distinct ones), then both forward recursions compiled:
+    # this loop of small products dominated the time per edge in Python.
+    A_steps = np.stack([edge_jac[k][0] for k in range(iota)] + [stab_jac[p][0] for p in range(period)])
+    B_steps = np.stack([edge_jac[k][1] for k in range(iota)] + [stab_jac[p][1] for p in range(period)])
+    index = np.concatenate([np.arange(iota), iota + phase])
+    if perfect:
+        H_steps = np.zeros((iota + period, 0, n))
+        variances = np.zeros((T, 0))
+    else:
+        H_steps = np.stack(edge_H + stab_H)
     spread = np.zeros((T + 1, n))
-    for k in range(T):
-        A, B = edge_jac[k] if k < iota else stab_jac[phase[k - iota]]
-        Acl = A - B @ K[k]
-        drive = model.process_cov if perfect else L[k] @ innovation[k] @ L[k].T
-        Sigma = Acl @ Sigma @ Acl.T + drive
-        spread[k + 1] = np.sqrt(np.maximum(np.diagonal(Sigma), 0.0))
+    innovation_out = np.zeros((T, H_steps.shape[1], H_steps.shape[1]))
+    _forward_recursions(A_steps, B_steps, H_steps, index, K, np.asarray(variances, dtype=float),
+                        model.process_cov, perfect, L, P, innovation_out, spread)
+    if not perfect:
+        innovation[:] = innovation_out
     return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota, innovation_cov=innovation,
                            spread=spread)
