@@ -48,8 +48,11 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from threadpoolctl import threadpool_limits
         try:
-            return fn(*args, **kwargs)
+            # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
+            with threadpool_limits(limits=1):
+                return fn(*args, **kwargs)
         except InputError as exc:
             _fail(str(exc), 2)
         except (RunFailure, NumericalError) as exc:

@@ -223,10 +223,13 @@ def weights(model: LinearGaussianModel, state_weight: float, velocity_weight: fl
 
 
 def design_node(model: LinearGaussianModel, center: np.ndarray, Wx: np.ndarray, Wu: np.ndarray,
-                perfect: bool) -> NodeController:
-    """SLQR (perfect) or SLQG (imperfect) stabiliser for ``center``; R evaluated at the centre."""
+                perfect: bool, lqr: tuple[np.ndarray, np.ndarray] | None = None) -> NodeController:
+    """SLQR (perfect) or SLQG (imperfect) stabiliser for ``center``; R evaluated at the centre.
+
+    ``lqr``: a precomputed ``(K, S)`` (for a linear model the LQR gain is the same at every node).
+    """
     u_eq = equilibrium_input(model.A, model.B, center)
-    K, S = lqr_gain(model.A, model.B, Wx, Wu)
+    K, S = lqr if lqr is not None else lqr_gain(model.A, model.B, Wx, Wu)
     Qd = model.process_cov
     if perfect:
         zeros_L = np.zeros((model.n, model.nz))

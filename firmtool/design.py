@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.controllers import (LocalController, NodeController, design_node, min_energy_trajectory,
+from firmtool.controllers import (LocalController, NodeController, design_node, lqr_gain, min_energy_trajectory,
                                   plan_local_controller, weights)
 from firmtool.errors import NumericalError
 from firmtool.nodes import GOAL, NodeRegions, trajectory_is_valid, valid_pairs
@@ -71,12 +71,15 @@ def design_nodes(problem: Problem, centers: np.ndarray) -> list[NodeController]:
     """Stabiliser of every node (R at the node's centre; periodic for a nonholonomic robot)."""
     Wx, Wu = lqr_weights(problem)
     out = []
+    lqr = None
     for j, v in enumerate(centers):
         try:
             if problem.nonholonomic:
                 out.append(periodic_node(problem, v))
                 continue
-            out.append(design_node(problem.model, v, Wx, Wu, problem.perfect))
+            if lqr is None:  # a linear model: one LQR gain serves every node (only R varies)
+                lqr = lqr_gain(problem.model.A, problem.model.B, Wx, Wu)
+            out.append(design_node(problem.model, v, Wx, Wu, problem.perfect, lqr=lqr))
         except NumericalError as exc:
             raise NumericalError(f"node {j}: {exc}") from None
     return out
