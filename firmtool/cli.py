@@ -48,6 +48,7 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
         from threadpoolctl import threadpool_limits
         try:
             # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
