@@ -16,6 +16,8 @@ _designed: dict[str, Path] = {}
 
 
 def one_blas_thread() -> None:
+    """As the CLI does: one BLAS thread (small matrices), scipy's own BLAS loaded first so it is covered."""
+    import scipy.linalg  # noqa: F401
     from threadpoolctl import threadpool_limits
     threadpool_limits(1)
 

@@ -15,11 +15,12 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SCENARIOS, engine  # noqa: E402
+from _common import SCENARIOS, engine, one_blas_thread  # noqa: E402
 
 
 def build_times(workers: int, repeat: int, eng: str | None, scenario: str = "arm") -> dict:
     from firmtool.pipeline import build
+    one_blas_thread()  # as the CLI does
     runs = []
     with engine(eng), tempfile.TemporaryDirectory() as tmp:
         for i in range(repeat):
