@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Optional
 
+import click
 import numpy as np
 import typer
 
@@ -43,6 +44,11 @@ def _fail(message: str, code: int) -> None:
     raise typer.Exit(code)
 
 
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0][:300] if text else type(exc).__name__
+
+
 def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     """Map library exceptions to one-line messages and exit codes."""
 
@@ -62,6 +68,20 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             _fail(str(exc), 1)
         except KeyboardInterrupt:
             _fail("interrupted; the roadmap file is unchanged by the stage that was running", 130)
+        except (typer.Exit, typer.Abort, click.exceptions.ClickException):
+            raise
+        except OSError as exc:
+            if os.environ.get("FIRMTOOL_DEBUG") or not exc.filename:
+                raise
+            # a file the user named that cannot be read or written (permissions, disk full, ...)
+            _fail(f"{exc.filename}: {exc.strerror or _first_line(exc)}", 2)
+        except MemoryError:
+            _fail("out of memory; lower roadmap.nodes, estimation.particles or estimation.chunk", 1)
+        except Exception as exc:
+            if os.environ.get("FIRMTOOL_DEBUG"):
+                raise
+            _fail(f"unexpected error (a bug in firmtool; rerun with FIRMTOOL_DEBUG=1 for the traceback): "
+                  f"{type(exc).__name__}: {_first_line(exc)}", 1)
 
     return wrapper
 
@@ -332,6 +352,54 @@ def _policy_keys(name: str) -> tuple[str, str]:
     if name not in keys:
         raise InputError(f"--policy: expected 'firm' or 'shortest-path', found {name!r}")
     return keys[name]
+
+
+@app.command()
+@handles_errors
+def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
+         output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG file (default: next to the roadmap)."),
+         policy_name: str = typer.Option("both", "--policy", help="'both' (side by side), 'firm' or 'shortest-path'."),
+         seed: int = typer.Option(0, "--seed", min=0, help="Seed of the drawn episode (the first success from it on)."),
+         episodes: int = typer.Option(0, "--episodes", "-n", min=0,
+                                      help="Also run this many episodes per policy and show the executed rate."),
+         dpi: int = typer.Option(120, "--dpi", min=30, max=600)) -> None:
+    """Draw the paper's Fig. 1: obstacles, sensing field, goal, roadmap, policy path, and an executed
+    episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip).
+
+    Example: firmtool plot artifacts/arm8_lightdark.h5 -o fig.png --episodes 100
+    """
+    from firmtool.execute import Executor, execute as run_episodes
+    from firmtool.pipeline import design_of, problem_of
+    from firmtool.plot import PanelData, plot_roadmap, save_figure
+    from firmtool.roadmap import Roadmap
+    _check_exists(roadmap, "roadmap file")
+    names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
+    if policy_name not in names:
+        raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
+    rm = Roadmap(roadmap)
+    problem, design_ = problem_of(rm), design_of(rm)
+    J = rm.require("policy", "cost_to_go")["cost_to_go"]
+    panels = []
+    for name in names[policy_name]:
+        edge_key, prob_key = _policy_keys(name)
+        pol = rm.require("policy", edge_key, prob_key)
+        edges, predicted = pol[edge_key].astype(np.int64), float(pol[prob_key][0])
+        runner = Executor(problem, design_, edges, cost_to_go=J)
+        episode, used = None, seed
+        for i in range(seed, seed + 20):  # the first success, else the last try
+            episode = runner.run_episode(np.random.default_rng(np.random.SeedSequence([i, 0xE7EC, 0])), record=True)
+            used = i
+            if episode.outcome == "success":
+                break
+        executed = None
+        if episodes:
+            r = run_episodes(problem, design_, edges, episodes, seed, cost_to_go=J)
+            executed = (r["success_rate"], *r["success_rate_ci95"])
+        panels.append(PanelData(name=name, policy=edges, predicted=predicted, episode=episode,
+                                executed=executed, seed=used))
+    out = output or roadmap.with_suffix(".png")
+    save_figure(plot_roadmap(problem, design_, panels, dpi=dpi), out)
+    typer.echo(f"wrote {out}")
 
 
 @app.command()

@@ -1,0 +1,174 @@
+"""Figures of a roadmap, its policies and executed episodes (the paper's Fig. 1), for any robot.
+
+Only :attr:`Problem.points` is used to draw the robot (a polyline of its key points; the last one,
+the arm's tip or the point robot itself, is the one followed), so a new robot needs no change here.
+The belief of the followed point is drawn as its mean path with 3-sigma ellipses of the covariance
+pushed through the Jacobian of that point (central finite differences of ``problem.points``).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: figures are files
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.patches import Circle, Ellipse, Rectangle  # noqa: E402
+
+from firmtool.design import Design  # noqa: E402
+from firmtool.nodes import GOAL, START_INDEX  # noqa: E402
+from firmtool.problem import Problem  # noqa: E402
+
+OBSTACLE_COLOR = "#8c564b"  # brown, as in the paper
+GOAL_COLOR = "#9467bd"  # purple
+ELLIPSE_EVERY = 6  # draw a covariance ellipse every this many steps
+
+
+@dataclass(frozen=True)
+class PanelData:
+    """What one panel shows: a policy, its predicted success, and optionally an episode and rates."""
+
+    name: str
+    policy: np.ndarray  # (N,) edge per node
+    predicted: float | None
+    episode: object | None = None  # execute.Episode with states/estimates/covariances recorded
+    executed: tuple[float, float, float] | None = None  # (rate, lo, hi)
+    seed: int | None = None
+
+
+def point_jacobian(problem: Problem, X: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """Jacobian of the followed key point w.r.t. the state, by central differences.
+
+    Parameters
+    ----------
+    X : (T, n) states.
+
+    Returns
+    -------
+    (T, 2, n)
+    """
+    T, n = X.shape
+    J = np.empty((T, 2, n))
+    for i in range(n):  # loop over state coordinates, each vectorised over the T states
+        d = np.zeros(n)
+        d[i] = eps
+        J[:, :, i] = (problem.points(X + d)[:, -1] - problem.points(X - d)[:, -1]) / (2 * eps)
+    return J
+
+
+def point_covariance(problem: Problem, X: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Covariance (T, 2, 2) of the followed point: ``J P J'`` with ``J`` from :func:`point_jacobian`."""
+    J = point_jacobian(problem, X)
+    return np.einsum("tai,tij,tbj->tab", J, P, J)
+
+
+def _ellipse(center: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, **kw) -> Ellipse | None:
+    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    w = np.maximum(w, 0.0)
+    if not np.all(np.isfinite(w)):
+        return None
+    angle = np.degrees(np.arctan2(V[1, 1], V[0, 1]))
+    return Ellipse(center, 2 * sigmas * np.sqrt(w[1]), 2 * sigmas * np.sqrt(w[0]), angle=angle, **kw)
+
+
+def _background(ax, problem: Problem) -> None:
+    sc = problem.scenario
+    lo, hi = np.array(sc.world.lo), np.array(sc.world.hi)
+    if not problem.perfect and sc.measurement.noise != "constant":
+        xs = np.linspace(lo[0], hi[0], 400)
+        std = np.sqrt(problem.model.noise.variance(xs))
+        ax.imshow(std[None, :], extent=(lo[0], hi[0], lo[1], hi[1]), origin="lower", aspect="auto",
+                  cmap="Greys", alpha=0.55, vmin=0.0, vmax=float(std.max()) * 1.2, zorder=0)
+        lx = sc.measurement.light_x
+        if lo[0] <= lx <= hi[0]:
+            ax.axvline(lx, color="gold", lw=2.5, zorder=1, label="light")
+    for o in sc.world.obstacles:
+        c, h = np.array(o.center), np.array(o.half_size)
+        ax.add_patch(Rectangle(c - h, 2 * h[0], 2 * h[1], color=OBSTACLE_COLOR, zorder=2))
+    ax.add_patch(Rectangle(lo, *(hi - lo), fill=False, lw=1.0, color="k", zorder=2))
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+
+
+def _robot(ax, problem: Problem, state: np.ndarray, color: str, label: str, lw: float = 2.0) -> None:
+    pts = problem.points(state[None])[0]
+    if pts.shape[0] == 1:
+        ax.add_patch(Circle(pts[0], problem.scenario.world.robot_radius, color=color, zorder=6, label=label))
+    else:
+        ax.plot(pts[:, 0], pts[:, 1], "-o", color=color, lw=lw, ms=3, zorder=6, label=label)
+
+
+def _panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
+    from firmtool.pipeline import policy_path
+
+    _background(ax, problem)
+    tips = problem.points(design.centers)[:, -1]
+    segs = np.stack([tips[design.edge_source], tips[design.edge_target]], axis=1)
+    ax.add_collection(LineCollection(segs, colors="tab:blue", alpha=0.06, lw=0.5, zorder=3))
+    ax.plot(tips[:, 0], tips[:, 1], ".", color="tab:blue", ms=2.5, alpha=0.6, zorder=3)
+    goals = np.flatnonzero(design.kinds == GOAL)
+    if problem.goal_disc is not None:
+        c, r = problem.goal_disc
+        ax.add_patch(Circle(c, r, color=GOAL_COLOR, alpha=0.6, zorder=4, label="goal"))
+    else:
+        ax.plot(tips[goals, 0], tips[goals, 1], "*", color=GOAL_COLOR, ms=14, zorder=4, label="goal")
+    path = policy_path(data.policy, design.edge_target, START_INDEX, goals)
+    ax.plot(tips[path, 0], tips[path, 1], "-", color="tab:orange", lw=2, alpha=0.9, zorder=4, label="policy path")
+    _robot(ax, problem, design.centers[START_INDEX], "black", "start")
+
+    ep = data.episode
+    if ep is not None and ep.estimates is not None:
+        mean = problem.points(ep.estimates)[:, -1]
+        ax.plot(mean[:, 0], mean[:, 1], "-", color="red", lw=1.2, zorder=5, label="estimated mean")
+        if not problem.perfect:
+            idx = np.arange(0, len(ep.estimates), ELLIPSE_EVERY)
+            covs = point_covariance(problem, ep.estimates[idx], ep.covariances[idx])
+            for center, cov in zip(mean[idx], covs):
+                e = _ellipse(center, cov, fill=False, color="red", lw=0.6, alpha=0.8, zorder=5)
+                if e is not None:
+                    ax.add_patch(e)
+        _robot(ax, problem, ep.states[-1], "green", f"final true ({ep.outcome})")
+        _robot(ax, problem, ep.estimates[-1], "blue", "final estimate", lw=1.2)
+    title = data.name
+    if data.predicted is not None:
+        title += f"\npredicted success {data.predicted:.3f}"
+    if data.executed is not None:
+        rate, lo, hi = data.executed
+        title += f", executed {rate:.3f} [{lo:.3f}, {hi:.3f}]"
+    if ep is not None and data.seed is not None:
+        title += f"\nepisode seed {data.seed}: {ep.outcome}, {ep.steps} steps"
+    ax.set_title(title, fontsize=9)
+    ax.legend(loc="lower left", fontsize=6, framealpha=0.8)
+
+
+def plot_roadmap(problem: Problem, design: Design, panels: list[PanelData], *, dpi: int = 120) -> plt.Figure:
+    """One panel per policy, side by side: obstacles, sensing field, goal, roadmap, policy path,
+    the robot at the start, and the executed episode's belief of the followed point."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.0 * len(panels), 6.0), dpi=dpi, squeeze=False)
+    for ax, data in zip(axes[0], panels):
+        _panel(ax, problem, design, data)
+    fig.suptitle(f"{problem.scenario.name} ({problem.scenario.measurement.kind} measurements)")
+    fig.tight_layout()
+    return fig
+
+
+def save_figure(fig: plt.Figure, path: str | Path) -> None:
+    """Write a PNG atomically (temporary file in the same folder, then rename)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".png", dir=p.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, format="png")
+        os.replace(tmp, p)
+    finally:
+        plt.close(fig)
+        if os.path.exists(tmp):
+            os.unlink(tmp)
