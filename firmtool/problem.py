@@ -103,8 +103,16 @@ def _linear_dynamics(sc: Scenario, d: int) -> tuple[np.ndarray, np.ndarray, np.n
         config_dim = d
         if Ac.shape[0] < d:
             raise ScenarioError(sc.path, "model.A", f"expected at least {d} states for a planar robot")
-    A, B, Qd = discretize(Ac, Bc, Gc, Qc, spec.dt)
-    return A, B, noise_factor(Qd), config_dim
+    try:
+        with np.errstate(all="ignore"):
+            A, B, Qd = discretize(Ac, Bc, Gc, Qc, spec.dt)
+            F = noise_factor(Qd) if np.all(np.isfinite(Qd)) else Qd
+    except (np.linalg.LinAlgError, ValueError, ArithmeticError):
+        A = B = F = np.full((1, 1), np.nan)
+    if not all(np.all(np.isfinite(M)) for M in (A, B, F)):
+        raise ScenarioError(sc.path, "model.dt", f"expected a step over which the dynamics stay finite "
+                                                 f"(discretising over dt = {spec.dt:g} overflows)")
+    return A, B, F, config_dim
 
 
 def world_backend(sc: Scenario, self_collision: bool):
@@ -307,9 +315,88 @@ def _task_states(sc: Scenario, n: int, config_dim: int,
 def _check_task(problem: Problem) -> None:
     sc = problem.scenario
     for name, state in (("task.start", problem.start), ("task.goal", problem.goal)):
+        config = state[:problem.config_dim]
+        if np.any(config < problem.config_lo) or np.any(config > problem.config_hi):
+            where = "world.bounds" if sc.model.robot != "arm" else "the joint ranges"
+            raise ScenarioError(sc.path, name, f"expected a state inside {where}, found {np.array2string(config, precision=4)}")
         if not problem.is_valid(state[None])[0]:
-            raise ScenarioError(sc.path, name, "expected a collision-free state inside world.bounds (it is in collision)")
+            _check_free_space(problem)
+            raise ScenarioError(sc.path, name, "expected a collision-free state inside world.bounds (it is in collision "
+                                               "with an obstacle or the world's edge, at world.robot_radius)")
         if np.any(state[problem.config_dim:] != 0):
             raise ScenarioError(sc.path, name, "expected zero velocity (nodes are states at rest)")
     if not sc.perfect and problem.model.nz == 0:
         raise ScenarioError(sc.path, "measurement.H", "expected at least one measurement row")
+    span = float(np.linalg.norm(np.asarray(problem.config_hi) - np.asarray(problem.config_lo)))
+    if sc.roadmap.min_separation >= span:
+        raise ScenarioError(sc.path, "roadmap.min_separation",
+                            f"expected less than the configuration space's diagonal {span:.4g}, "
+                            f"found {sc.roadmap.min_separation:g} (no second node could be placed)")
+    if not problem.nonholonomic:
+        _check_linear_model(problem)
+
+
+def _check_free_space(problem: Problem, samples: int = 4096) -> None:
+    """ScenarioError on world.obstacles if no uniformly drawn configuration is collision-free."""
+    rng = np.random.default_rng(0)
+    q = rng.uniform(problem.config_lo, problem.config_hi, size=(samples, problem.config_dim))
+    if not np.any(problem.is_valid(problem.state_of(q))):
+        sc = problem.scenario
+        raise ScenarioError(sc.path, "world.obstacles", f"expected some free space: none of {samples} random "
+                                                        "configurations is collision-free (the obstacles and "
+                                                        "world.robot_radius cover world.bounds)")
+
+
+def _uncontrollable_modes(A: np.ndarray, C: np.ndarray, unstable_only: bool) -> list[complex]:
+    """Eigenvalues of A (all, or those with |lambda| >= 1) that fail the PBH rank test with C:
+    rank [A - lambda I, C] < n (for observability pass A' and H')."""
+    n = A.shape[0]
+    bad = []
+    if C.size and np.abs(C).max() > 0:
+        C = C / np.abs(C).max()  # the rank of [A - lambda I, C] does not depend on C's scale
+    scale = max(1.0, float(np.abs(A).max()))
+    for lam in np.linalg.eigvals(A):
+        if unstable_only and abs(lam) < 1 - 1e-9:
+            continue
+        M = np.hstack([A - lam * np.eye(n), C])
+        s = np.linalg.svd(M, compute_uv=False)
+        if s.size < n or s[n - 1] <= 1e-9 * scale:
+            bad.append(complex(lam))
+    return bad
+
+
+def _check_linear_model(problem: Problem) -> None:
+    """Input errors (not numerical failures later) for a linear model the planner cannot use:
+    (A, B) not stabilisable or not controllable (node stabilisers and rest-to-rest nominals),
+    configurations at rest that are no equilibrium, (A, H) not detectable (the Kalman filter)."""
+    sc, model = problem.scenario, problem.model
+    A, B = np.asarray(model.A, dtype=float), np.asarray(model.B, dtype=float)
+    text = lambda modes: ", ".join(f"{z.real:.4g}" + (f"{z.imag:+.4g}j" if abs(z.imag) > 1e-12 else "")  # noqa: E731
+                                   for z in modes[:3])
+    bad = _uncontrollable_modes(A, B, unstable_only=True)
+    if bad:
+        raise ScenarioError(sc.path, "model.A/B", f"(A, B) is not stabilisable: discretised mode(s) {text(bad)} "
+                                                  "on or outside the unit circle cannot be controlled")
+    bad = _uncontrollable_modes(A, B, unstable_only=False)
+    if bad:
+        raise ScenarioError(sc.path, "model.A/B", f"(A, B) is not controllable: mode(s) {text(bad)} cannot be "
+                                                  "steered (rest-to-rest nominal trajectories need every state)")
+    d = problem.config_dim
+    drift = (A - np.eye(A.shape[0]))[:, :d]
+    if np.linalg.matrix_rank(np.hstack([B, drift]), tol=1e-9 * max(1.0, np.abs(A).max())) > \
+            np.linalg.matrix_rank(B, tol=1e-9 * max(1.0, np.abs(B).max())):
+        raise ScenarioError(sc.path, "model.A", "expected every configuration at rest to be an equilibrium "
+                                                "(A v + B u = v solvable for u), so nodes can be held")
+    if not sc.perfect:
+        H = np.asarray(model.H, dtype=float)
+        bad = _uncontrollable_modes(A.T, H.T, unstable_only=True)
+        if bad:
+            raise ScenarioError(sc.path, "measurement.H", f"(A, H) is not detectable: discretised mode(s) {text(bad)} "
+                                                          "on or outside the unit circle are not observed")
+        # The stationary Kalman filter's Riccati equation also needs process noise on those modes.
+        bad = _uncontrollable_modes(A, np.asarray(model.F, dtype=float), unstable_only=True)
+        if bad:
+            field_name = "model.G/Q" if sc.model.dynamics == "matrices" else "model.process_noise_std"
+            raise ScenarioError(sc.path, field_name, f"expected process noise on every mode on or outside the unit "
+                                                     f"circle (mode(s) {text(bad)} get none) with imperfect "
+                                                     "measurements: the stationary Kalman filter needs it")

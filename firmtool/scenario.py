@@ -21,6 +21,13 @@ ROBOTS = ("point", "arm", "unicycle")
 DYNAMICS = ("single_integrator", "double_integrator", "matrices", "unicycle")
 NOISE_FORMS = ("lightdark_std", "lightdark_variance", "constant")
 MEASUREMENT_KINDS = ("perfect", "imperfect")
+# Sanity bounds of any number in a scenario: beyond them squares, exponentials and products of
+# the model overflow, and an integer must fit the roadmap file's int64 attributes.
+MAX_MAGNITUDE = 1e12
+MAX_INTEGER = 2**63 - 1
+# Largest state dimension (matrices model; arm: 2 x links): dense n x n covariances per node and
+# per step of every edge make larger ones impractical long before the planner could use them.
+MAX_STATE_DIM = 64
 
 
 @dataclass(frozen=True)
@@ -112,10 +119,16 @@ class ControllerSpec:
     max_steps: int
 
 
+# Default work budget of one build's Monte Carlo (particle-steps): about an hour on two cores at
+# the measured ~3M particle-steps/s. A scenario may raise it with estimation.max_particle_steps.
+DEFAULT_MAX_PARTICLE_STEPS = 1e10
+
+
 @dataclass(frozen=True)
 class EstimationSpec:
     particles: int
     chunk: int
+    max_particle_steps: float = DEFAULT_MAX_PARTICLE_STEPS
 
 
 @dataclass(frozen=True)
@@ -185,6 +198,10 @@ class _Table:
             raise ScenarioError(self.path, self._name(key), f"expected {kind}, found {value!r}")
         if not math.isfinite(value):
             raise ScenarioError(self.path, self._name(key), f"expected a finite number, found {value!r}")
+        if abs(value) > (MAX_INTEGER if integer else MAX_MAGNITUDE):
+            raise ScenarioError(self.path, self._name(key),
+                                f"expected {kind} of magnitude <= {MAX_INTEGER if integer else MAX_MAGNITUDE:.3g}, "
+                                f"found {value!r}")
         if positive and value <= 0:
             raise ScenarioError(self.path, self._name(key), f"expected {kind} > 0, found {value!r}")
         if nonnegative and value < 0:
@@ -216,6 +233,8 @@ class _Table:
                                 f"expected shape {_shape_text(shape)} but found {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise ScenarioError(self.path, name, "expected finite numbers")
+        if arr.size and np.abs(arr).max() > MAX_MAGNITUDE:
+            raise ScenarioError(self.path, name, f"expected numbers of magnitude <= {MAX_MAGNITUDE:.3g}")
         arr.setflags(write=False)
         return arr
 
@@ -312,10 +331,15 @@ def _read_model(t: _Table) -> ModelSpec:
     if dynamics == "matrices":
         A = t.array("A", _REQUIRED, shape=(None, None))
         n = A.shape[0]
-        if A.shape != (n, n):
+        if A.shape != (n, n) or n == 0:
             raise ScenarioError(t.path, "model.A", f"expected a square matrix but found {A.shape}")
+        if n > MAX_STATE_DIM:
+            raise ScenarioError(t.path, "model.A", f"expected at most {MAX_STATE_DIM} states, found {n}")
         B = t.array("B", _REQUIRED, shape=(n, None))
         G = t.array("G", _REQUIRED, shape=(n, None))
+        for key, M in (("B", B), ("G", G)):
+            if M.shape[1] == 0:
+                raise ScenarioError(t.path, f"model.{key}", f"expected at least one column, found shape {M.shape}")
         Q = t.array("Q", _REQUIRED, shape=(G.shape[1], G.shape[1]))
         _check_psd(t.path, "model.Q", Q, strict=False)
     arm: dict[str, Any] = {}
@@ -323,6 +347,8 @@ def _read_model(t: _Table) -> ModelSpec:
         if dynamics != "double_integrator":
             raise ScenarioError(t.path, "model.dynamics", "expected 'double_integrator' for robot = 'arm'")
         links = t.number("links", None, integer=True, positive=True)
+        if links is not None and links > MAX_STATE_DIM // 2:
+            raise ScenarioError(t.path, "model.links", f"expected 1 to {MAX_STATE_DIM // 2} links, found {links}")
         lengths = t.array("link_lengths", None, shape=(None,))
         if lengths is None:
             if links is None:
@@ -332,6 +358,8 @@ def _read_model(t: _Table) -> ModelSpec:
             raise ScenarioError(t.path, "model.links", f"expected {lengths.size} (the size of link_lengths), found {links}")
         if np.any(lengths <= 0):
             raise ScenarioError(t.path, "model.link_lengths", "expected positive lengths")
+        if not 0 < lengths.size <= MAX_STATE_DIM // 2:
+            raise ScenarioError(t.path, "model.link_lengths", f"expected 1 to {MAX_STATE_DIM // 2} links, found {lengths.size}")
         first = t.array("first_joint_range", np.array([-math.pi, math.pi]), shape=(2,))
         if first[1] <= first[0]:
             raise ScenarioError(t.path, "model.first_joint_range", "expected [low, high] with high > low")
@@ -451,6 +479,7 @@ def _read_estimation(t: _Table) -> EstimationSpec:
     spec = EstimationSpec(
         particles=t.number("particles", 500, integer=True, positive=True),
         chunk=t.number("chunk", 2000, integer=True, positive=True),
+        max_particle_steps=t.number("max_particle_steps", DEFAULT_MAX_PARTICLE_STEPS, positive=True),
     )
     t.finish()
     return spec
