@@ -18,6 +18,7 @@ from firmtool.graph import shortest_path_policy, solve_dp, success_probability
 from firmtool.nodes import GOAL, START_INDEX, roadmap_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
+from firmtool.resources import check_budget
 from firmtool.roadmap import Roadmap, create_roadmap, inputs_hash, write_stage
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
 
@@ -45,6 +46,7 @@ def sample_stage(scenario_path: str | Path, output: str | Path | None) -> dict:
     t0 = time.perf_counter()
     scenario = load_scenario(scenario_path)
     problem = build_problem(scenario)
+    check_budget(problem)  # refuse up front what would take hours or exhaust memory
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
     centers, kinds = roadmap_nodes(problem, rng)
     out = Path(output) if output else default_output(scenario)
@@ -84,6 +86,7 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
     d = design_of(roadmap)
+    check_budget(problem, d.edge_source.size, float(d.edge_steps.mean()) if d.edge_steps.size else 0.0)
     sc = problem.scenario
     workers = workers or default_workers()
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
