@@ -140,15 +140,29 @@ class Roadmap:
         try:
             f = h5py.File(p, "r")
         except (OSError, ValueError) as exc:
+            if "unable to lock file" in str(exc):
+                raise RoadmapError(f"{p}: the file is open for writing in another process (HDF5 file lock); "
+                                   "wait until that process closes it, then retry") from None
             raise RoadmapError(f"{p}: not a readable HDF5 roadmap file ({_short(exc)})") from None
         with f:
             self._read(f)
+        _validate_stages(self)
 
     def _read(self, f: h5py.File) -> None:
         p = self.path
         attrs = f.attrs
-        if attrs.get("encoding-type") != ENCODING_TYPE or "schema_version" not in attrs:
+        encoding = attrs.get("encoding-type")
+        if not isinstance(encoding, str) or encoding != ENCODING_TYPE or "schema_version" not in attrs:
             raise RoadmapError(f"{p}: an HDF5 file but not a firmtool roadmap (no encoding-type '{ENCODING_TYPE}')")
+        for key, kind in (("schema_version", int), ("seed", int), ("scenario_toml", str), ("scenario_sha256", str)):
+            if key not in attrs:
+                raise RoadmapError(f"{p}: root attribute '{key}' is missing (file damaged or from another tool)")
+            value = attrs[key]
+            ok = isinstance(value, str) if kind is str else \
+                isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+            if not ok:
+                raise RoadmapError(f"{p}: root attribute '{key}' is not {'a string' if kind is str else 'an integer'} "
+                                   f"(file damaged or from another tool)")
         version = int(attrs["schema_version"])
         if version != SCHEMA_VERSION:
             raise RoadmapError(
@@ -194,6 +208,63 @@ class Roadmap:
     def attrs(self, stage: str) -> dict[str, Any]:
         self.require(stage)
         return self.stages[stage][1]
+
+
+# Shapes of the datasets of each stage, by dimension symbol (N nodes, n state, m input, nz measurement,
+# E designed edges, R outcome rows), and the index ranges of the integer ones: a damaged or foreign
+# file is refused here with the dataset's name, not deep inside a stage with an IndexError.
+_SHAPES: dict[str, dict[str, tuple[str, ...]]] = {
+    "nodes": {"centers": ("N", "n"), "kind": ("N",)},
+    "controllers": {"u_eq": ("N", "m"), "K": ("N", "m", "n"), "S": ("N", "n", "n"), "L": ("N", "n", "nz"),
+                    "P": ("N", "n", "n"), "Sigma": ("N", "n", "n"), "scale": ("N", "n"),
+                    "edge_source": ("E",), "edge_target": ("E",), "edge_steps": ("E",)},
+    "edges": {"source": ("E",), "target": ("E",), "particles": ("E",), "cost_mean": ("E",), "cost_std": ("E",),
+              "steps_mean": ("E",), "particle_steps": ("E",), "outcome_edge": ("R",), "outcome_code": ("R",),
+              "outcome_count": ("R",)},
+    "policy": {"cost_to_go": ("N",), "edge": ("N",), "next_node": ("N",), "success_probability": ("N",),
+               "shortest_path_edge": ("N",), "shortest_path_success_probability": ("N",)},
+}
+_RANGES = {  # dataset -> (low, high symbol or None, offset): low <= value < dims[high] + offset
+    ("controllers", "edge_source"): (0, "N"), ("controllers", "edge_target"): (0, "N"),
+    ("controllers", "edge_steps"): (0, None), ("edges", "source"): (0, "N"), ("edges", "target"): (0, "N"),
+    ("edges", "particles"): (1, None), ("edges", "outcome_edge"): (0, "E"), ("edges", "outcome_code"): (-2, "N"),
+    ("edges", "outcome_count"): (0, None), ("policy", "edge"): (-1, "E"), ("policy", "shortest_path_edge"): (-1, "E"),
+    ("policy", "next_node"): (-1, "N"),
+}
+_FINITE = {("nodes", "centers"), ("controllers", "u_eq"), ("controllers", "K"), ("controllers", "S"),
+           ("controllers", "L"), ("controllers", "P"), ("controllers", "Sigma"), ("controllers", "scale")}
+
+
+def _validate_stages(rm: "Roadmap") -> None:
+    """Check dtypes, shapes (consistent across stages), index ranges and finiteness of known datasets."""
+    dims: dict[str, int] = {}
+    for stage, table in _SHAPES.items():
+        if stage not in rm.stages:
+            continue
+        arrays = rm.stages[stage][0]
+        for name, symbols in table.items():
+            if name not in arrays:
+                continue  # Roadmap.require names a missing dataset when a stage needs it
+            a = np.asarray(arrays[name])
+            where = f"{rm.path}: '/{stage}/{name}'"
+            if a.dtype.kind not in "biuf":
+                raise RoadmapError(f"{where} is not numeric (dtype {a.dtype}; file damaged or from another tool)")
+            if a.ndim != len(symbols):
+                raise RoadmapError(f"{where} has shape {a.shape}, expected ({', '.join(symbols)}) "
+                                   "(file damaged or from another tool)")
+            for sym, size in zip(symbols, a.shape):
+                if dims.setdefault(sym, size) != size:
+                    raise RoadmapError(f"{where} has shape {a.shape}: {sym} = {size} but {dims[sym]} elsewhere "
+                                       "in the file (file damaged or from another tool)")
+            if (stage, name) in _FINITE and not np.all(np.isfinite(a)):
+                raise RoadmapError(f"{where} holds non-finite values (file damaged)")
+            rng = _RANGES.get((stage, name))
+            if rng is not None and a.size:
+                low, high = rng
+                top = dims.get(high) if high else None
+                if a.min() < low or (top is not None and a.max() >= top):
+                    raise RoadmapError(f"{where} holds values outside [{low}, {high if high else 'inf'}) "
+                                       "(file damaged or from another tool)")
 
 
 def _short(exc: BaseException) -> str:
