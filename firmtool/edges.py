@@ -17,6 +17,7 @@ from firmtool.design import Design, local_controller
 from firmtool.models.linear import LinearGaussianModel
 from firmtool.nodes import NodeRegions
 from firmtool.problem import Problem
+from firmtool.scenario import CostSpec
 
 FAILURE, TIMEOUT = -1, -2  # outcome codes besides node ids
 
@@ -69,7 +70,23 @@ class ParticleOutcomes:
 
     outcome: np.ndarray  # (M,) node id, FAILURE or TIMEOUT
     steps: np.ndarray  # (M,) stopping time
-    cost: np.ndarray  # (M,) eq. 16 cost (+ control effort if weighted)
+    terms: np.ndarray  # (M, 3) cost terms: sum of tr(P_k), steps, control effort sum |u_k|^2
+
+    def cost(self, spec: CostSpec) -> np.ndarray:
+        """Per-particle eq. 16 cost (+ control effort if weighted) under the weights of ``spec``."""
+        return self.terms @ cost_weights(spec)
+
+
+def cost_weights(spec: CostSpec) -> np.ndarray:
+    """The weights of the cost terms (:attr:`ParticleOutcomes.terms`): alpha1, alpha2, alpha_control."""
+    return np.array([spec.alpha_covariance, spec.alpha_time, spec.alpha_control])
+
+
+def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np.ndarray:
+    """(M, 3) cost terms of particles that stopped after ``steps``: the weights are applied later, so
+    that a change of cost weights re-solves without re-estimating."""
+    trP = np.concatenate([[0.0], np.cumsum(np.trace(lc.P[1:], axis1=1, axis2=2))])
+    return np.column_stack([trP[steps], steps.astype(float), effort])
 
 
 def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.ndarray, xhat: np.ndarray,
@@ -84,7 +101,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
 
     if (engine or kernels.engine_for(problem)) == "numba":
         return kernels.simulate(problem, lc, regions, x, xhat, rng)
-    model, perfect, cost_spec = problem.model, problem.perfect, problem.scenario.cost
+    model, perfect = problem.model, problem.perfect
     M = x.shape[0]
     outcome = np.full(M, TIMEOUT, dtype=np.int64)
     steps = np.full(M, lc.steps, dtype=np.int64)
@@ -106,8 +123,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
             variance = model.noise.variance(problem.sensing_from_points(pts))
             xhat_a = filter_update(model, lc, k, x_a, xhat[alive], u, noise[:, r:], variance)
         x[alive], xhat[alive] = x_a, xhat_a
-        if cost_spec.alpha_control:
-            effort[alive] += np.einsum("ij,ij->i", u, u)
+        effort[alive] += np.einsum("ij,ij->i", u, u)
         failed = ~problem.points_valid(pts)
         done = failed.copy()
         outcome[alive[failed]] = FAILURE
@@ -118,9 +134,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
             done |= landed
         steps[alive[done]] = k + 1
         alive = alive[~done]
-    trP = np.concatenate([[0.0], np.cumsum(np.trace(lc.P[1:], axis1=1, axis2=2))])
-    cost = cost_spec.alpha_covariance * trP[steps] + cost_spec.alpha_time * steps + cost_spec.alpha_control * effort
-    return ParticleOutcomes(outcome=outcome, steps=steps, cost=cost)
+    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort))
 
 
 @dataclass(frozen=True)
@@ -132,10 +146,17 @@ class EdgeEstimate:
     particles: int
     outcomes: np.ndarray  # (K,) distinct outcomes (node ids, FAILURE, TIMEOUT)
     counts: np.ndarray  # (K,) particle counts
-    cost_mean: float
-    cost_std: float
+    terms_mean: np.ndarray  # (3,) mean of the cost terms (ParticleOutcomes.terms)
+    terms_cov: np.ndarray  # (3, 3) their sample covariance (ddof 1; zeros for one particle)
     steps_mean: float
     particle_steps: int
+
+    def cost_mean(self, spec: CostSpec) -> float:
+        return float(self.terms_mean @ cost_weights(spec))
+
+    def cost_std(self, spec: CostSpec) -> float:
+        w = cost_weights(spec)
+        return float(np.sqrt(max(w @ self.terms_cov @ w, 0.0)))
 
 
 def initial_ensemble(problem: Problem, design_: Design, source: int, M: int,
@@ -165,8 +186,9 @@ def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, sourc
         results.append(simulate(problem, lc, regions, x, xhat, rng, engine))
     outcome = np.concatenate([r.outcome for r in results])
     steps = np.concatenate([r.steps for r in results])
-    cost = np.concatenate([r.cost for r in results])
+    terms = np.concatenate([r.terms for r in results])
     values, counts = np.unique(outcome, return_counts=True)
+    cov = np.cov(terms, rowvar=False, ddof=1) if particles > 1 else np.zeros((3, 3))
     return EdgeEstimate(source=source, target=target, particles=particles, outcomes=values, counts=counts,
-                        cost_mean=float(cost.mean()), cost_std=float(cost.std(ddof=1)) if particles > 1 else 0.0,
+                        terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
                         steps_mean=float(steps.mean()), particle_steps=int(steps.sum()))

@@ -518,7 +518,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     ``x`` and ``xhat`` (M, n) are updated in place for the particles' last live step, like the
     numpy path does.
     """
-    from firmtool.edges import ParticleOutcomes
+    from firmtool.edges import ParticleOutcomes, cost_terms
     from firmtool.errors import InputError
 
     reason = supports(problem)
@@ -526,7 +526,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
         raise InputError(f"the compiled Monte Carlo engine cannot run this problem: {reason}")
     run = kernel()
     pd = _problem_data(problem)
-    perfect, cost_spec = problem.perfect, problem.scenario.cost
+    perfect = problem.perfect
     M, n = x.shape
     T = lc.steps
     outcome = np.full(M, TIMEOUT, dtype=np.int64)
@@ -551,7 +551,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     centers = np.ascontiguousarray(regions.centers, dtype=float)
     scale = np.ascontiguousarray(regions.scale, dtype=float)
     tail = (centers, scale, 1.0 / outer, radius * radius, window, knn, *pd.noise, pd.robot, pd.lengths,
-            *pd.world, pd.self_collision, bool(perfect), bool(cost_spec.alpha_control))
+            *pd.world, pd.self_collision, bool(perfect), True)  # effort always: weights apply later
     first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
     cand_ptr = np.zeros(T + 1, dtype=np.int64)
     cand_idx, cand_key = np.zeros(0, dtype=np.int64), np.zeros(0)
@@ -577,6 +577,4 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
         x[...] = X
     if Xh is not xhat:
         xhat[...] = Xh
-    trP = np.concatenate([[0.0], np.cumsum(np.trace(lc.P[1:], axis1=1, axis2=2))])
-    cost = cost_spec.alpha_covariance * trP[steps] + cost_spec.alpha_time * steps + cost_spec.alpha_control * effort
-    return ParticleOutcomes(outcome=outcome, steps=steps, cost=cost)
+    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort))

@@ -36,8 +36,8 @@ def test_estimates_are_reproducible_and_depend_on_the_seed():
     b = estimate_edge(problem, d, regions, int(d.edge_source[0]), int(d.edge_target[0]), 300, 7, 128)
     c = estimate_edge(problem, d, regions, int(d.edge_source[0]), int(d.edge_target[0]), 300, 8, 128)
     assert np.array_equal(a.outcomes, b.outcomes) and np.array_equal(a.counts, b.counts)
-    assert a.cost_mean == b.cost_mean and a.particle_steps == b.particle_steps
-    assert a.cost_mean != c.cost_mean
+    assert np.array_equal(a.terms_mean, b.terms_mean) and a.particle_steps == b.particle_steps
+    assert not np.array_equal(a.terms_mean, c.terms_mean)
 
 
 def test_particle_estimates_follow_the_designed_covariance():
@@ -81,4 +81,5 @@ def test_collision_backends_give_identical_edge_estimates():
         results.append(estimate_edge(problem, d, regions, int(d.edge_source[e]), int(d.edge_target[e]), 150, 2, 1000))
     a, b = results
     assert np.array_equal(a.outcomes, b.outcomes) and np.array_equal(a.counts, b.counts)
-    assert a.cost_mean == b.cost_mean
+    # fcl runs on the numpy engine, the numpy backend on the compiled one: sums differ in rounding only
+    np.testing.assert_allclose(a.terms_mean, b.terms_mean, rtol=1e-12)
