@@ -9,8 +9,15 @@ Layout (schema version 1)::
                       edge_source, edge_target, edge_steps (per edge)      attrs: inputs_sha256
     /edges            source, target, particles, cost_mean, cost_std, steps_mean, particle_steps (E,),
                       outcome_edge, outcome_code, outcome_count (sparse counts; code = node id,
-                      -1 failure, -2 timeout)                               attrs: inputs_sha256, seed
+                      -1 failure, -2 timeout), key (E, 32) uint8 sha256 of each edge's inputs,
+                      cost_terms_mean (E, 3), cost_terms_cov (E, 3, 3) (sum tr P, steps,
+                      effort; weighted at solve time)                      attrs: inputs_sha256, seed
     /policy           cost_to_go, edge, success_probability (N,)          attrs: status, iterations, ...
+    /edge_cache       (optional, not a stage) the /edges datasets of estimates finished by an
+                      interrupted estimate stage or superseded by a new design; reused by key
+
+``key``, ``cost_terms_*`` and ``/edge_cache`` were added within schema 1 (readers ignore what they do
+not know; files without them are read as before and their edges are not reused).
 
 Every stage group carries ``encoding-type`` / ``encoding-version`` and the hash of the inputs it was
 computed from, so a reader can tell a stale stage. Every write copies the file to a temporary file
@@ -38,6 +45,7 @@ from firmtool.errors import RoadmapError
 SCHEMA_VERSION = 1
 ENCODING_TYPE = "firmtool.roadmap"
 STAGES = ("nodes", "controllers", "edges", "policy")
+CACHE = "edge_cache"  # not a stage: estimates kept for reuse while /edges is incomplete or stale
 STAGE_COMMANDS = {"nodes": "firmtool sample", "controllers": "firmtool design",
                   "edges": "firmtool estimate", "policy": "firmtool solve"}
 
@@ -111,6 +119,10 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
         raise RoadmapError(f"{p}: no such roadmap file")
     with _atomic_copy(p) as f:
         later = STAGES[STAGES.index(stage):] if drop_later else (stage,)
+        if stage == "edges":
+            _delete(f, CACHE)  # its estimates are in the new table or no longer wanted
+        elif "edges" in later and "edges" in f:
+            _cache_edges(f)  # keep the estimates: edges whose inputs are unchanged are reused
         for name in later:
             if name in f:
                 del f[name]
@@ -121,6 +133,82 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
             g.attrs[k] = v
         for k, v in arrays.items():
             g.create_dataset(k, data=np.asarray(v))
+
+
+def _delete(f: h5py.File, name: str) -> None:
+    if name in f:
+        del f[name]
+
+
+def _read_table(g: h5py.Group) -> dict[str, np.ndarray]:
+    return {k: g[k][()] for k in g if isinstance(g[k], h5py.Dataset)}
+
+
+def _write_table(f: h5py.File, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+    _delete(f, name)
+    g = f.create_group(name)
+    g.attrs["encoding-type"] = f"firmtool.{name}"
+    g.attrs["encoding-version"] = SCHEMA_VERSION
+    for k, v in attrs.items():
+        g.attrs[k] = v
+    for k, v in arrays.items():
+        g.create_dataset(k, data=np.asarray(v))
+
+
+def concat_edge_tables(*tables: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """One edge table from several (per-edge arrays stacked, outcome rows re-indexed); only the
+    datasets every table has are kept. Tables without edge keys are skipped (they cannot be reused)."""
+    tables = tuple(t for t in tables if "key" in t and "source" in t)
+    if not tables:
+        return {}
+    names = set.intersection(*(set(t) for t in tables))
+    out: dict[str, list[np.ndarray]] = {k: [] for k in names}
+    offset = 0
+    for t in tables:
+        for k in names:
+            out[k].append(np.asarray(t[k]) + offset if k == "outcome_edge" else np.asarray(t[k]))
+        offset += int(np.asarray(t["source"]).size)
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def _cache_edges(f: h5py.File) -> None:
+    """Move the rows of ``/edges`` into ``/edge_cache`` (merged with what it holds)."""
+    cached = _read_table(f[CACHE]) if CACHE in f and isinstance(f[CACHE], h5py.Group) else {}
+    merged = concat_edge_tables(cached, _read_table(f["edges"]))
+    if merged:
+        _write_table(f, CACHE, merged, {"description": "edge estimates keyed by their inputs, for reuse"})
+
+
+def read_edge_cache(path: str | Path) -> dict[str, np.ndarray]:
+    """The ``/edge_cache`` table (estimates of an interrupted or superseded estimate stage), or {}
+    if there is none. A damaged cache is ignored: it only saves work."""
+    try:
+        with h5py.File(path, "r") as f:
+            if CACHE in f and isinstance(f[CACHE], h5py.Group):
+                table = _read_table(f[CACHE])
+                E = np.asarray(table.get("source", [])).size
+                if table.get("key") is not None and table["key"].shape == (E, 32):
+                    return table
+    except (OSError, ValueError, KeyError):
+        pass
+    return {}
+
+
+def write_edge_cache(path: str | Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+    """Replace ``/edge_cache`` atomically (a checkpoint of the estimate stage); later stages stay."""
+    p = Path(path)
+    if not p.exists():
+        raise RoadmapError(f"{p}: no such roadmap file")
+    with _atomic_copy(p) as f:
+        _write_table(f, CACHE, arrays, attrs)
+
+
+def update_scenario(path: str | Path, scenario_text: str, scenario_sha256: str) -> None:
+    """Store a new scenario text (same seed) in an existing roadmap. The caller checked which stages
+    it makes stale; each stage's ``inputs_sha256`` tells the stages that are re-run."""
+    with _atomic_copy(Path(path)) as f:
+        f.attrs["scenario_toml"] = scenario_text
+        f.attrs["scenario_sha256"] = scenario_sha256
 
 
 class Roadmap:
@@ -211,24 +299,26 @@ class Roadmap:
 
 
 # Shapes of the datasets of each stage, by dimension symbol (N nodes, n state, m input, nz measurement,
-# E designed edges, R outcome rows), and the index ranges of the integer ones: a damaged or foreign
+# E designed edges, F estimated edges (E less any that failed), R outcome rows), and the index
+# ranges of the integer ones: a damaged or foreign
 # file is refused here with the dataset's name, not deep inside a stage with an IndexError.
 _SHAPES: dict[str, dict[str, tuple[str, ...]]] = {
     "nodes": {"centers": ("N", "n"), "kind": ("N",)},
     "controllers": {"u_eq": ("N", "m"), "K": ("N", "m", "n"), "S": ("N", "n", "n"), "L": ("N", "n", "nz"),
                     "P": ("N", "n", "n"), "Sigma": ("N", "n", "n"), "scale": ("N", "n"),
                     "edge_source": ("E",), "edge_target": ("E",), "edge_steps": ("E",)},
-    "edges": {"source": ("E",), "target": ("E",), "particles": ("E",), "cost_mean": ("E",), "cost_std": ("E",),
-              "steps_mean": ("E",), "particle_steps": ("E",), "outcome_edge": ("R",), "outcome_code": ("R",),
-              "outcome_count": ("R",)},
+    "edges": {"source": ("F",), "target": ("F",), "particles": ("F",), "cost_mean": ("F",), "cost_std": ("F",),
+              "steps_mean": ("F",), "particle_steps": ("F",), "outcome_edge": ("R",), "outcome_code": ("R",),
+              "outcome_count": ("R",), "key": ("F", "H"), "cost_terms_mean": ("F", "C"),
+              "cost_terms_cov": ("F", "C", "C")},
     "policy": {"cost_to_go": ("N",), "edge": ("N",), "next_node": ("N",), "success_probability": ("N",),
                "shortest_path_edge": ("N",), "shortest_path_success_probability": ("N",)},
 }
 _RANGES = {  # dataset -> (low, high symbol or None, offset): low <= value < dims[high] + offset
     ("controllers", "edge_source"): (0, "N"), ("controllers", "edge_target"): (0, "N"),
     ("controllers", "edge_steps"): (0, None), ("edges", "source"): (0, "N"), ("edges", "target"): (0, "N"),
-    ("edges", "particles"): (1, None), ("edges", "outcome_edge"): (0, "E"), ("edges", "outcome_code"): (-2, "N"),
-    ("edges", "outcome_count"): (0, None), ("policy", "edge"): (-1, "E"), ("policy", "shortest_path_edge"): (-1, "E"),
+    ("edges", "particles"): (1, None), ("edges", "outcome_edge"): (0, "F"), ("edges", "outcome_code"): (-2, "N"),
+    ("edges", "outcome_count"): (0, None), ("policy", "edge"): (-1, "F"), ("policy", "shortest_path_edge"): (-1, "F"),
     ("policy", "next_node"): (-1, "N"),
 }
 _FINITE = {("nodes", "centers"), ("controllers", "u_eq"), ("controllers", "K"), ("controllers", "S"),

@@ -179,7 +179,7 @@ BROKEN_ROADMAPS = {
     "outcome_code_out_of_range": (_replace("edges/outcome_code", lambda a: np.full_like(a, 999)), "solve",
                                   "'/edges/outcome_code' holds values outside"),
     "zero_particles": (_replace("edges/particles", lambda a: np.zeros_like(a)), "solve", "'/edges/particles'"),
-    "edges_length_mismatch": (_replace("edges/source", lambda a: a[:3]), "solve", "'/edges/source' has shape"),
+    "edges_length_mismatch": (_replace("edges/source", lambda a: a[:3]), "solve", "but 3 elsewhere in the file"),
     "policy_edge_out_of_range": (_replace("policy/edge", lambda a: np.full_like(a, 999)), "execute",
                                  "'/policy/edge' holds values outside"),
     "a_directory": (lambda p: (p.unlink(), p.mkdir()), "inspect", "not a readable HDF5 roadmap"),
