@@ -4,13 +4,19 @@ Work is shipped as batches of edge indices; each worker rebuilds the problem and
 the scenario text and the design arrays once (in its initialiser, or once per task on dask), so a
 task carries only integers. Results are identical whatever the executor or the number of workers:
 every edge draws from its own seed sequence (see :func:`firmtool.edges.edge_seed_sequence`).
+
+A batch that raises (or whose worker dies) is retried once, edge by edge; an edge that fails
+again is reported with its cause and the rest of the work goes on.
 """
 
 from __future__ import annotations
 
 import os
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+import re
+import traceback
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence
 
 from firmtool.design import Design
@@ -64,6 +70,16 @@ def _worker_batch(edges: Sequence[int]) -> list[EdgeEstimate]:
     return run_batch(_worker_state["job"], edges)  # type: ignore[arg-type]
 
 
+@dataclass
+class BatchResult:
+    """What one finished task gives back: the estimates of ``edges``, or the ``error`` of its one edge
+    (after the retry)."""
+
+    edges: list[int]
+    estimates: list[EdgeEstimate] = field(default_factory=list)
+    error: str | None = None
+
+
 def batches(edges: Sequence[int], workers: int, per_batch: int | None = None) -> list[list[int]]:
     """Split edges into batches: a few per worker so that the load balances and overhead stays small."""
     edges = list(edges)
@@ -77,64 +93,144 @@ def default_workers() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
+def _cause(exc: BaseException) -> str:
+    """One line naming an exception and where it was raised (the innermost frame)."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" (at {os.path.basename(frames[-1].filename)}:{frames[-1].lineno})" if frames else ""
+    remote = getattr(exc.__cause__, "tb", None)  # a worker process's traceback, as text
+    if isinstance(remote, str):
+        found = re.findall(r'File "([^"]+)", line (\d+)', remote)
+        if found:
+            where = f" (at {os.path.basename(found[-1][0])}:{found[-1][1]})"
+    text = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ""
+    return f"{type(exc).__name__}: {text}{where}" if text else f"{type(exc).__name__}{where}"
+
+
+class _Retries:
+    """Bookkeeping of attempts: a failed batch comes back as single edges once, then as errors."""
+
+    def __init__(self, work: list[list[int]]) -> None:
+        self.queue: deque[tuple[list[int], int]] = deque((b, 1) for b in work)
+
+    def failed(self, batch: list[int], attempt: int, exc: BaseException) -> list[BatchResult]:
+        if attempt == 1:
+            self.queue.extend(([e], 2) for e in batch)
+            return []
+        return [BatchResult([e], error=_cause(exc)) for e in batch]
+
+
 def run_edges(job: EstimationJob, edges: Sequence[int], *, workers: int, executor: str = "process",
-              scheduler: str | None = None,
-              progress: Callable[[int], None] | None = None) -> Iterator[tuple[list[int], list[EdgeEstimate]]]:
-    """Estimate ``edges`` and yield ``(batch, results)`` as batches finish (in completion order).
+              scheduler: str | None = None, per_batch: int | None = None,
+              progress: Callable[[int], None] | None = None) -> Iterator[BatchResult]:
+    """Estimate ``edges`` and yield a :class:`BatchResult` per finished task (in completion order).
 
     Parameters
     ----------
     workers : number of local processes (``1`` runs in this process).
     executor : ``"process"`` or ``"dask"`` (``scheduler`` an address, or None for a LocalCluster).
-    progress : called with the number of edges finished in each batch.
+    per_batch : edges per task (default: up to 16, at least 4 tasks per worker).
+    progress : called with the number of edges finished (or given up) in each task.
     """
-    work = batches(edges, workers)
+    work = batches(edges, workers, per_batch)
     if executor == "dask":
-        yield from _run_dask(job, work, workers, scheduler, progress)
-        return
-    if executor != "process":
+        runner = _run_dask(job, work, workers, scheduler)
+    elif executor != "process":
         raise InputError(f"--executor: expected 'process' or 'dask', found {executor!r}")
-    if workers <= 1:
-        for b in work:
+    elif workers <= 1:
+        runner = _run_here(job, work)
+    else:
+        runner = _run_pool(job, work, workers)
+    for result in runner:
+        if progress:
+            progress(len(result.edges))
+        yield result
+
+
+def _run_here(job: EstimationJob, work: list[list[int]]) -> Iterator[BatchResult]:
+    retries = _Retries(work)
+    while retries.queue:
+        b, attempt = retries.queue.popleft()
+        try:
             out = run_batch(job, b)
-            if progress:
-                progress(len(b))
-            yield b, out
-        return
-    with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(job,)) as pool:
-        pending = {pool.submit(_worker_batch, b): b for b in work}
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                b = pending.pop(fut)
-                out = fut.result()
-                if progress:
-                    progress(len(b))
-                yield b, out
+        except Exception as exc:  # noqa: BLE001 - any failure of one edge must not stop the build
+            yield from retries.failed(b, attempt, exc)
+            continue
+        yield BatchResult(b, out)
 
 
-def _run_dask(job: EstimationJob, work: list[list[int]], workers: int, scheduler: str | None,
-              progress: Callable[[int], None] | None) -> Iterator[tuple[list[int], list[EdgeEstimate]]]:
+def _run_pool(job: EstimationJob, work: list[list[int]], workers: int) -> Iterator[BatchResult]:
+    from concurrent.futures.process import BrokenProcessPool
+
+    retries = _Retries(work)
+    while retries.queue:
+        # A new pool per round: a worker that died (killed, out of memory) breaks the whole pool,
+        # and every task in flight comes back failed; they are retried in a fresh one.
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(job,))
+        try:
+            pending: dict[Future, tuple[list[int], int]] = {}
+            while retries.queue:
+                b, attempt = retries.queue.popleft()
+                pending[pool.submit(_worker_batch, b)] = (b, attempt)
+            broken = False
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    b, attempt = pending.pop(fut)
+                    exc = fut.exception()
+                    if exc is None:
+                        yield BatchResult(b, fut.result())
+                        continue
+                    broken |= isinstance(exc, BrokenProcessPool)
+                    yield from retries.failed(b, attempt, exc)
+                    if not broken:  # the pool still works: retry right away
+                        while retries.queue:
+                            rb, ra = retries.queue.popleft()
+                            pending[pool.submit(_worker_batch, rb)] = (rb, ra)
+        except BaseException:
+            # interrupted (Ctrl-C) or the consumer stopped: do not wait for the queued tasks
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+
+
+def _run_dask(job: EstimationJob, work: list[list[int]], workers: int,
+              scheduler: str | None) -> Iterator[BatchResult]:
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
         raise InputError("--executor dask needs dask.distributed: pip install 'firmtool[dask]'") from None
     cluster = None
-    if scheduler:
-        client = Client(scheduler)
-    else:
-        cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-        client = Client(cluster)
+    try:
+        if scheduler:
+            client = Client(scheduler, timeout="20s")
+        else:
+            cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, processes=True,
+                                   dashboard_address=None)
+            client = Client(cluster)
+    except (OSError, TimeoutError) as exc:
+        raise InputError(f"--scheduler: cannot reach the dask scheduler {scheduler!r} ({_cause(exc)})") from None
     try:
         job_future = client.scatter(job, broadcast=True)
-        futures = {client.submit(run_batch, job_future, b, pure=False): tuple(b) for b in work}
-        for fut in as_completed(futures):
-            b = list(futures[fut])
-            out = fut.result()
-            if progress:
-                progress(len(b))
-            yield b, out
+        retries = _Retries(work)
+        futures: dict[Future, tuple[list[int], int]] = {}
+
+        def submit_queued(ac=None) -> None:
+            while retries.queue:
+                b, attempt = retries.queue.popleft()
+                fut = client.submit(run_batch, job_future, b, pure=False)
+                futures[fut] = (b, attempt)
+                if ac is not None:
+                    ac.add(fut)
+
+        submit_queued()
+        ac = as_completed(list(futures))
+        for fut in ac:
+            b, attempt = futures.pop(fut)
+            if fut.status == "finished":
+                yield BatchResult(b, fut.result())
+                continue
+            yield from retries.failed(b, attempt, fut.exception())
+            submit_queued(ac)
     finally:
         client.close()
         if cluster is not None:
