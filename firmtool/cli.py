@@ -35,6 +35,8 @@ app = typer.Typer(
 JsonOpt = typer.Option(False, "--json", help="Print machine-readable results on stdout.")
 WorkersOpt = typer.Option(None, "--workers", "-w", min=1, help="Worker processes (default: all cores).")
 ExecutorOpt = typer.Option("process", "--executor", help="'process' (local) or 'dask' (dask.distributed).")
+CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
+                             help="Save finished edge estimates into the roadmap this often (resume after a kill).")
 SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
                             "without it --executor dask starts a LocalCluster.")
 
@@ -62,12 +64,14 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
                 return fn(*args, **kwargs)
         except InputError as exc:
             _fail(str(exc), 2)
+        except KeyboardInterrupt as exc:
+            if isinstance(exc, FirmtoolError):  # the stage saved what it had (EstimationInterrupted)
+                _fail(str(exc), 130)
+            _fail("interrupted; the roadmap file is unchanged by the stage that was running", 130)
         except (RunFailure, NumericalError) as exc:
             _fail(str(exc), 1)
         except FirmtoolError as exc:  # pragma: no cover - every subclass is mapped above
             _fail(str(exc), 1)
-        except KeyboardInterrupt:
-            _fail("interrupted; the roadmap file is unchanged by the stage that was running", 130)
         except (typer.Exit, typer.Abort, click.exceptions.ClickException):
             raise
         except OSError as exc:
@@ -160,25 +164,47 @@ def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled n
 @handles_errors
 def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designed controllers."),
              workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
-             scheduler: Optional[str] = SchedulerOpt, as_json: bool = JsonOpt) -> None:
+             scheduler: Optional[str] = SchedulerOpt, checkpoint_seconds: float = CheckpointOpt,
+             as_json: bool = JsonOpt) -> None:
     """Estimate every edge by Monte Carlo (landing, failure, timeout counts; cost), in parallel.
+
+    Edges already estimated with the same inputs (in the file, or saved by an interrupted run) are
+    reused, not estimated again.
 
     Example: firmtool estimate artifacts/smoke.h5 --workers 2
     """
     from firmtool.pipeline import estimate_stage
     _check_exists(roadmap, "roadmap file")
     report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
-                            progress_factory=_progress_factory("estimating edges"))
-    _emit(report, as_json, lambda r: (f"estimated {r['edges']} edges x {r['particles_per_edge']} particles "
-                                      f"({r['particle_steps']:,} particle-steps, {r['seconds']:.1f} s, "
+                            progress_factory=_progress_factory("estimating edges"),
+                            checkpoint_seconds=checkpoint_seconds)
+    _emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
+                                      f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
+                                      f"{r['simulated_particle_steps']:,} particle-steps, {r['seconds']:.1f} s, "
                                       f"{r['workers']} workers)"))
+    _exit_on_failed_edges(report)
+
+
+def _exit_on_failed_edges(report: dict) -> None:
+    failed = report.get("failed_edges") or []
+    for f in failed[:20]:
+        typer.echo(f"error: edge {f['edge']} ({f['source']} -> {f['target']}) failed twice: {f['error']}", err=True)
+    if failed:
+        _fail(f"{len(failed)} edge(s) failed and were left out of {report['roadmap']}; run the same command "
+              "again to retry them", 1)
 
 
 def _build_human(r: dict) -> str:
     s = r["seconds"]
-    return (f"built {r['roadmap']}: {r['nodes']} nodes, {r['edges']} edges, {r['particles_per_edge']} particles/edge, "
-            f"{r['particle_steps']:,} particle-steps; sample {s['sample']:.1f} s, design {s['design']:.1f} s, "
-            f"estimate {s['estimate']:.1f} s on {r['workers']} workers")
+    text = (f"built {r['roadmap']}: {r['nodes']} nodes, {r['edges']} edges ({r['estimated_edges']} estimated, "
+            f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
+            f"{r['simulated_particle_steps']:,} particle-steps simulated; sample {s['sample']:.1f} s, "
+            f"design {s['design']:.1f} s, estimate {s['estimate']:.1f} s on {r['workers']} workers")
+    if "densify" in r:
+        text += "\n" + "\n".join(f"  {x['nodes']} nodes: start success probability {x['start_success_probability']:.4f}"
+                                  for x in r["densify"]["rounds"])
+        text += f"\n{r['densify']['reason']}"
+    return text
 
 
 @app.command()
@@ -186,15 +212,35 @@ def _build_human(r: dict) -> str:
 def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
           output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
           workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
-          scheduler: Optional[str] = SchedulerOpt, as_json: bool = JsonOpt) -> None:
-    """Run the offline stages: sample, design, estimate.
+          scheduler: Optional[str] = SchedulerOpt, checkpoint_seconds: float = CheckpointOpt,
+          fresh: bool = typer.Option(False, "--fresh", help="Start a new roadmap even if the output can be reused."),
+          p_min: Optional[float] = typer.Option(None, "--p-min", min=0.0, max=1.0,
+                                                help="Densify (add nodes, estimate new edges, re-solve) until the "
+                                                     "start node's success probability reaches this."),
+          max_nodes: Optional[int] = typer.Option(None, "--max-nodes", min=1,
+                                                  help="Node budget of --p-min densification."),
+          add_nodes: Optional[int] = typer.Option(None, "--add-nodes", min=1,
+                                                  help="Nodes added per densification round (default: a quarter "
+                                                       "of the current count, at least 5)."),
+          as_json: bool = JsonOpt) -> None:
+    """Run the offline stages: sample, design, estimate (and, with --p-min, densify and solve).
 
-    Example: firmtool build scenarios/point_lightdark.toml --workers 2
+    An existing roadmap at the output, sampled from the same scenario settings, is continued: an
+    interrupted build resumes, and edges whose inputs did not change are not estimated again
+    (changing only cost weights re-estimates nothing). --fresh starts over.
+
+    Example: firmtool build scenarios/point_lightdark.toml --workers 2 --p-min 0.8 --max-nodes 120
     """
     from firmtool.pipeline import build as build_roadmap
+    if max_nodes is not None and p_min is None:
+        raise InputError("--max-nodes: only meaningful with --p-min")
     report = build_roadmap(scenario, output, workers=workers, executor=executor, scheduler=scheduler,
-                           progress_factory=_progress_factory("estimating edges"))
+                           progress_factory=_progress_factory("estimating edges"), fresh=fresh, p_min=p_min,
+                           max_nodes=max_nodes, add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds)
     _emit(report, as_json, _build_human)
+    _exit_on_failed_edges(report)
+    if "densify" in report and not report["densify"]["reached"]:
+        _fail(report["densify"]["reason"], 1)
 
 
 def _solve_human(r: dict) -> str:
@@ -442,3 +488,7 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
 
 def main() -> None:  # pragma: no cover - console entry point
     app()
+
+
+if __name__ == "__main__":  # python -m firmtool.cli (tests run the CLI with the interpreter they use)
+    main()

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from firmtool.nodes import START_INDEX
-from firmtool.roadmap import STAGES, Roadmap
+from firmtool.roadmap import STAGES, Roadmap, read_edge_cache
 from firmtool.scenario import parse_scenario
 
 
@@ -27,6 +27,11 @@ def summarize(path: str | Path) -> dict:
         e = rm.require("edges", "particles", "particle_steps")
         out["particles_per_edge"] = int(np.median(e["particles"])) if e["particles"].size else 0
         out["particle_steps"] = int(e["particle_steps"].sum())
+        out["estimated_edges"] = int(e["particles"].size)
+        out["densify_rounds"] = int(rm.attrs("nodes").get("densify_rounds", 0)) if rm.has("nodes") else 0
+    cache = read_edge_cache(path)
+    if cache:  # an interrupted estimate stage (or a superseded design) left estimates to reuse
+        out["cached_edges"] = int(cache["source"].size)
     if rm.has("policy"):
         a = rm.attrs("policy")
         p = rm.require("policy", "success_probability", "cost_to_go")

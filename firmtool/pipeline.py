@@ -12,15 +12,31 @@ import numpy as np
 import scipy.sparse
 
 from firmtool.design import Design, design
-from firmtool.edges import FAILURE, TIMEOUT
-from firmtool.errors import RoadmapError, RunFailure
+from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
+from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
+from firmtool.errors import FirmtoolError, RoadmapError, RunFailure
 from firmtool.graph import shortest_path_policy, solve_dp, success_probability
-from firmtool.nodes import GOAL, START_INDEX, roadmap_nodes
+from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
 from firmtool.resources import check_budget
-from firmtool.roadmap import Roadmap, create_roadmap, inputs_hash, write_stage
+from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, read_edge_cache,
+                              update_scenario, write_edge_cache, write_stage)
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
+
+# Seconds between checkpoints of the estimate stage (finished edges written to /edge_cache).
+CHECKPOINT_SECONDS = 10.0
+
+
+class EstimationInterrupted(FirmtoolError, KeyboardInterrupt):
+    """Ctrl-C during the estimate stage, after the finished edges were saved (exit code 130)."""
+
+
+def nodes_inputs(scenario: Scenario) -> str:
+    """Identity of what the sampled nodes depend on: every section but the cost weights, the
+    estimation and execution settings and the name (changing those keeps the nodes)."""
+    return digest(scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
+                  scenario.roadmap, scenario.controller).hex()
 
 
 def default_output(scenario: Scenario) -> Path:
@@ -52,10 +68,16 @@ def sample_stage(scenario_path: str | Path, output: str | Path | None) -> dict:
     out = Path(output) if output else default_output(scenario)
     create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
     write_stage(out, "nodes", {"centers": centers, "kind": kinds},
-                {"inputs_sha256": inputs_hash(scenario.sha256, "nodes"),
+                {"inputs_sha256": nodes_inputs(scenario), "densify_rounds": 0,
                  "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL)})
     return {"roadmap": str(out), "nodes": int(centers.shape[0]), "requested_nodes": scenario.roadmap.nodes,
             "seconds": time.perf_counter() - t0}
+
+
+def controllers_inputs(roadmap: Roadmap) -> str:
+    """Identity of the design stage's inputs: the nodes' inputs and the node centres and kinds."""
+    nodes = roadmap.require("nodes", "centers", "kind")
+    return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
 
 
 def design_stage(path: str | Path) -> dict:
@@ -71,7 +93,7 @@ def design_stage(path: str | Path) -> dict:
     arrays = {name: getattr(d, name) for name in ("u_eq", "K", "S", "L", "P", "Sigma", "scale",
                                                   "edge_source", "edge_target", "edge_steps")}
     write_stage(path, "controllers", arrays,
-                {"inputs_sha256": inputs_hash(roadmap.scenario_sha256, centers),
+                {"inputs_sha256": controllers_inputs(roadmap),
                  "node_radius": problem.scenario.controller.node_radius,
                  "covariance_tolerance": problem.scenario.controller.covariance_tolerance})
     return {"roadmap": str(path), "nodes": int(centers.shape[0]), "edges": int(d.edge_source.size),
@@ -80,42 +102,86 @@ def design_stage(path: str | Path) -> dict:
 
 def estimate_stage(path: str | Path, *, workers: int | None = None, executor: str = "process",
                    scheduler: str | None = None,
-                   progress_factory: Callable[[int], Callable[[int], None]] | None = None) -> dict:
-    """Monte Carlo estimation of every edge, in parallel; writes ``/edges``."""
+                   progress_factory: Callable[[int], Callable[[int], None]] | None = None,
+                   checkpoint_seconds: float = CHECKPOINT_SECONDS) -> dict:
+    """Monte Carlo estimation of every edge, in parallel; writes ``/edges``.
+
+    Edges whose key (:func:`firmtool.edge_table.edge_keys`) matches a stored estimate, in ``/edges``
+    or in ``/edge_cache``, are reused. Finished edges are checkpointed to ``/edge_cache`` every
+    ``checkpoint_seconds`` and on Ctrl-C, so an interrupted run resumes where it stopped. An edge
+    that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges``.
+    """
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
     d = design_of(roadmap)
-    check_budget(problem, d.edge_source.size, float(d.edge_steps.mean()) if d.edge_steps.size else 0.0)
     sc = problem.scenario
+    E = d.edge_source.size
+    keys = edge_keys(problem, d)
+    table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
+                             digest(sc.cost).hex())
+    if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
+        e = roadmap.require("edges", "particle_steps")
+        return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0, workers or 0, executor,
+                                time.perf_counter() - t0, up_to_date=True)
+    known: dict[bytes, EdgeEstimate] = from_arrays(roadmap.stages["edges"][0]) if roadmap.has("edges") else {}
+    cache = read_edge_cache(path)
+    known.update(from_arrays(cache))
+    est: list[EdgeEstimate | None] = [known.get(bytes(k)) for k in keys]
+    reused = sum(x is not None for x in est)
+    todo = [e for e in range(E) if est[e] is None]
+    check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
     workers = workers or default_workers()
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed)
-    E = d.edge_source.size
-    progress = progress_factory(E) if progress_factory else None
-    results: dict[int, object] = {}
-    for batch, out in run_edges(job, range(E), workers=workers, executor=executor, scheduler=scheduler,
-                                progress=progress):
-        results.update(zip(batch, out))
-    est = [results[e] for e in range(E)]
-    rows = [(e, int(code), int(cnt)) for e, r in enumerate(est) for code, cnt in zip(r.outcomes, r.counts)]
-    table = np.array(rows, dtype=np.int64).reshape(-1, 3)
-    arrays = {
-        "source": d.edge_source, "target": d.edge_target,
-        "particles": np.array([r.particles for r in est], dtype=np.int64),
-        "cost_mean": np.array([r.cost_mean for r in est]), "cost_std": np.array([r.cost_std for r in est]),
-        "steps_mean": np.array([r.steps_mean for r in est]),
-        "particle_steps": np.array([r.particle_steps for r in est], dtype=np.int64),
-        "outcome_edge": table[:, 0], "outcome_code": table[:, 1], "outcome_count": table[:, 2],
-    }
+    progress = progress_factory(len(todo)) if progress_factory and todo else None
+    new: list[int] = []
+    saved = 0
+    failed: dict[int, str] = {}
+
+    def checkpoint() -> None:
+        nonlocal saved
+        if len(new) > saved:
+            fresh = to_arrays([est[e] for e in new], keys[new], sc.cost)
+            write_edge_cache(path, concat_edge_tables(cache, fresh), {"controllers_sha256": table_hash})
+            saved = len(new)
+
+    last = time.monotonic()
+    try:
+        for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress):
+            if r.error is not None:
+                failed[r.edges[0]] = r.error
+            for e, x in zip(r.edges, r.estimates):
+                est[e] = x
+                new.append(e)
+            if time.monotonic() - last >= checkpoint_seconds:
+                checkpoint()
+                last = time.monotonic()
+    except KeyboardInterrupt:
+        checkpoint()
+        raise EstimationInterrupted(f"{path}: interrupted; {saved} newly estimated edges saved "
+                                    f"({reused} reused, {E - reused - saved} still to do); run the same "
+                                    "command again to resume") from None
+    done = [e for e in range(E) if est[e] is not None]
+    arrays = to_arrays([est[e] for e in done], keys[done], sc.cost)
     write_stage(path, "edges", arrays,
-                {"inputs_sha256": inputs_hash(roadmap.attrs("controllers")["inputs_sha256"],
-                                              sc.estimation.particles, sc.seed),
-                 "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT})
-    seconds = time.perf_counter() - t0
-    steps = int(arrays["particle_steps"].sum())
-    return {"roadmap": str(path), "edges": E, "particles_per_edge": sc.estimation.particles,
-            "particle_steps": steps, "particle_steps_per_second": steps / seconds if seconds else 0.0,
+                {"inputs_sha256": table_hash if not failed else "incomplete",
+                 "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT,
+                 "engine_version": ENGINE_VERSION, "failed_edges": len(failed)})
+    failures = [{"edge": e, "source": int(d.edge_source[e]), "target": int(d.edge_target[e]), "error": failed[e]}
+                for e in sorted(failed)]
+    simulated = int(sum(est[e].particle_steps for e in new))  # type: ignore[union-attr]
+    return _estimate_report(path, sc, E, len(new), reused, failures, int(arrays["particle_steps"].sum()), simulated,
+                            workers, executor, time.perf_counter() - t0)
+
+
+def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list, steps: int,
+                     simulated: int, workers: int, executor: str, seconds: float, up_to_date: bool = False) -> dict:
+    """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
+    return {"roadmap": str(path), "edges": E, "estimated_edges": estimated, "reused_edges": reused,
+            "failed_edges": failures, "up_to_date": up_to_date, "particles_per_edge": sc.estimation.particles,
+            "particle_steps": steps, "simulated_particle_steps": simulated,
+            "particle_steps_per_second": simulated / seconds if seconds and simulated else 0.0,
             "workers": workers, "executor": executor, "seconds": seconds}
 
 
@@ -145,11 +211,12 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
     edges = roadmap.require("edges", "source", "target", "cost_mean")
+    cost = edge_costs(roadmap.stages["edges"][0], problem.scenario.cost)
     landing, fail, timeout, _ = edge_probabilities(roadmap)
     N = landing.shape[1]
     goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
     JF = float(failure_cost if failure_cost is not None else problem.scenario.cost.failure_cost)
-    res = solve_dp(N, goals, edges["source"].astype(np.int64), edges["cost_mean"], landing,
+    res = solve_dp(N, goals, edges["source"].astype(np.int64), cost, landing,
                    fail + timeout, JF, method=method)
     p = success_probability(N, goals, res.policy, landing)
     next_node = np.where(res.policy >= 0, edges["target"][np.maximum(res.policy, 0)], -1)
@@ -162,7 +229,8 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
                 {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
                  "success_probability": p, "unreachable": res.unreachable,
                  "shortest_path_edge": sp, "shortest_path_success_probability": p_sp},
-                {"inputs_sha256": inputs_hash(roadmap.attrs("edges")["inputs_sha256"], JF, method),
+                {"inputs_sha256": inputs_hash(roadmap.attrs("edges")["inputs_sha256"], JF, method,
+                                              digest(problem.scenario.cost).hex()),
                  "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
                  "failure_cost": JF, "method": method})
     report = {"roadmap": str(path), "status": res.status.name, "iterations": int(res.iterations),
@@ -197,17 +265,134 @@ def policy_path(policy: np.ndarray, target: np.ndarray, start: int, goals: np.nd
     return path
 
 
+def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
+    """The roadmap at ``out`` if its nodes were sampled from the same inputs (so the build can go on
+    from it), else None (a new roadmap replaces it)."""
+    if not out.exists():
+        return None
+    try:
+        rm = Roadmap(out)
+    except RoadmapError:
+        return None  # damaged or foreign: replaced atomically by a fresh build
+    if rm.seed != scenario.seed or not rm.has("nodes") or rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario):
+        return None
+    return rm
+
+
+def add_nodes_stage(path: str | Path, count: int) -> dict:
+    """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
+    scenario's minimum separation from the others, from a random stream keyed by the seed and the
+    round number (so a densified build is reproducible). Later stages are rebuilt by the caller."""
+    t0 = time.perf_counter()
+    roadmap = Roadmap(path)
+    problem = problem_of(roadmap)
+    nodes = roadmap.require("nodes", "centers", "kind")
+    attrs = roadmap.attrs("nodes")
+    rounds = int(attrs.get("densify_rounds", 0)) + 1
+    rng = np.random.default_rng(np.random.SeedSequence([problem.scenario.seed, 0xD5, rounds]))
+    spec = problem.scenario.roadmap
+    new = sample_nodes(problem, count, rng, min_separation=spec.min_separation, existing=nodes["centers"])
+    if new.shape[0] < count:  # the separation leaves no room: fill the rest without it
+        more = sample_nodes(problem, count - new.shape[0], rng, existing=np.concatenate([nodes["centers"], new]))
+        new = np.concatenate([new, more])
+    centers = np.concatenate([nodes["centers"], new])
+    kinds = np.concatenate([nodes["kind"], np.full(new.shape[0], REGULAR, dtype=nodes["kind"].dtype)])
+    write_stage(path, "nodes", {"centers": centers, "kind": kinds},
+                {**{k: v for k, v in attrs.items() if k not in ("encoding-type", "encoding-version")},
+                 "densify_rounds": rounds})
+    return {"added": int(new.shape[0]), "nodes": int(centers.shape[0]), "seconds": time.perf_counter() - t0}
+
+
 def build(scenario_path: str | Path, output: str | Path | None, *, workers: int | None = None,
           executor: str = "process", scheduler: str | None = None,
-          progress_factory: Callable[[int], Callable[[int], None]] | None = None) -> dict:
-    """sample + design + estimate; returns a report with seconds per stage."""
-    s = sample_stage(scenario_path, output)
-    path = s["roadmap"]
-    d = design_stage(path)
-    e = estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
-                       progress_factory=progress_factory)
-    return {"roadmap": path, "nodes": s["nodes"], "edges": d["edges"],
-            "particles_per_edge": e["particles_per_edge"], "particle_steps": e["particle_steps"],
-            "particle_steps_per_second": e["particle_steps_per_second"], "workers": e["workers"],
-            "executor": executor,
-            "seconds": {"sample": s["seconds"], "design": d["seconds"], "estimate": e["seconds"]}}
+          progress_factory: Callable[[int], Callable[[int], None]] | None = None, fresh: bool = False,
+          p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
+          checkpoint_seconds: float = CHECKPOINT_SECONDS) -> dict:
+    """sample + design + estimate, going on from an existing roadmap at the output when it can.
+
+    A roadmap whose nodes come from the same inputs (seed, model, measurement, world, task, roadmap
+    and controller settings) keeps its nodes and designs; its edges are reused by key, so an
+    interrupted build resumes, and a changed cost weight or particle count re-estimates only what
+    depends on it (nothing, or every edge). ``fresh`` starts over.
+
+    With ``p_min``: solve, and while the start node's success probability is below ``p_min`` and
+    the roadmap has fewer than ``max_nodes`` nodes, add ``add_nodes`` nodes (default: a quarter of
+    the current count, at least 5), re-design, estimate only the new edges and solve again.
+    """
+    scenario = load_scenario(scenario_path)
+    out = Path(output) if output else default_output(scenario)
+    seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
+    existing = None if fresh else _resumable(out, scenario)
+    if existing is None:
+        s = sample_stage(scenario_path, out)
+        seconds["sample"] = s["seconds"]
+    elif existing.scenario_sha256 != scenario.sha256:
+        update_scenario(out, scenario.text, scenario.sha256)
+    totals = {"estimated_edges": 0, "simulated_particle_steps": 0}
+    failed: list[dict] = []
+
+    def design_and_estimate() -> dict:
+        rm = Roadmap(out)
+        if not (rm.has("controllers") and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
+            seconds["design"] += design_stage(out)["seconds"]
+        e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
+                           progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
+        seconds["estimate"] += e["seconds"]
+        totals["estimated_edges"] += e["estimated_edges"]
+        totals["simulated_particle_steps"] += e["simulated_particle_steps"]
+        failed[:] = e["failed_edges"]
+        return e
+
+    e = design_and_estimate()
+    report: dict = {"roadmap": str(out), "resumed": existing is not None}
+    if p_min is not None:
+        report["densify"] = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate)
+        e = report["densify"].pop("_last_estimate", e)
+    else:
+        del seconds["solve"]
+    rm = Roadmap(out)
+    nodes = rm.require("nodes", "centers")["centers"].shape[0]
+    rate = totals["simulated_particle_steps"] / seconds["estimate"] if seconds["estimate"] else 0.0
+    report.update({"nodes": int(nodes), "edges": e["edges"], "estimated_edges": totals["estimated_edges"],
+                   "reused_edges": e["reused_edges"], "failed_edges": failed,
+                   "particles_per_edge": e["particles_per_edge"], "particle_steps": e["particle_steps"],
+                   "simulated_particle_steps": totals["simulated_particle_steps"],
+                   "particle_steps_per_second": rate, "workers": workers or default_workers(),
+                   "executor": executor, "seconds": seconds})
+    return report
+
+
+def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | None, seconds: dict,
+             design_and_estimate: Callable[[], dict]) -> dict:
+    """The p_min loop of :func:`build`; returns its rounds and why it stopped."""
+    rounds = []
+    last = None
+    while True:
+        try:
+            sol = solve_stage(out)
+            p = sol["start_success_probability"]
+            seconds["solve"] += sol["seconds"]
+        except RunFailure:  # the goal is not reachable yet: that is what densification is for
+            p = 0.0
+        nodes = Roadmap(out).require("nodes", "centers")["centers"].shape[0]
+        rounds.append({"nodes": int(nodes), "start_success_probability": float(p),
+                       "estimated_edges": last["estimated_edges"] if last else None})
+        if p >= p_min:
+            reason = f"reached p_min: start success probability {p:.4f} >= {p_min:g} with {nodes} nodes"
+            break
+        if max_nodes is None or nodes >= max_nodes:
+            reason = (f"node budget spent: {nodes} nodes (--max-nodes {max_nodes}) and the start success "
+                      f"probability is {p:.4f} < p_min {p_min:g}")
+            break
+        count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
+        added = add_nodes_stage(out, count)
+        seconds["sample"] += added["seconds"]
+        if added["added"] == 0:
+            reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"
+            break
+        last = design_and_estimate()
+    result = {"p_min": p_min, "max_nodes": max_nodes, "reached": p >= p_min, "reason": reason, "rounds": rounds,
+              "start_success_probability": float(p)}
+    if last is not None:
+        result["_last_estimate"] = last
+    return result
