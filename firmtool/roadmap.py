@@ -124,15 +124,8 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
         elif "edges" in later and "edges" in f:
             _cache_edges(f)  # keep the estimates: edges whose inputs are unchanged are reused
         for name in later:
-            if name in f:
-                del f[name]
-        g = f.create_group(stage)
-        g.attrs["encoding-type"] = f"firmtool.{stage}"
-        g.attrs["encoding-version"] = SCHEMA_VERSION
-        for k, v in attrs.items():
-            g.attrs[k] = v
-        for k, v in arrays.items():
-            g.create_dataset(k, data=np.asarray(v))
+            _delete(f, name)
+        _write_table(f, stage, arrays, attrs)
 
 
 def _delete(f: h5py.File, name: str) -> None:
