@@ -171,7 +171,9 @@ def _candidate_lists(regions, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray,
 _kernel = None
 
 
-def _build():
+# Module-level functions (not closures): numba keys its on-disk cache of a closure by its cells,
+# and a cell holding another dispatcher pickles with a per-process uuid, so every process recompiled.
+if numba is not None:
     njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
     @njit
@@ -494,7 +496,6 @@ def _build():
             k += 1
         return k, n_alive, pos
 
-    return run
 
 
 def kernel():
@@ -504,7 +505,7 @@ def kernel():
         if numba is None:  # pragma: no cover
             from firmtool.errors import InputError
             raise InputError("the compiled Monte Carlo engine needs numba")
-        _kernel = _build()
+        _kernel = run
     return _kernel
 
 
