@@ -158,9 +158,24 @@ def _problem_data(problem) -> _ProblemData:
     return data
 
 
+_order_cache: dict[int, tuple[object, np.ndarray]] = {}
+
+
+def _first_coordinate_order(regions) -> np.ndarray:
+    """The nodes sorted by their centre's first coordinate (stable), once per regions object."""
+    hit = _order_cache.get(id(regions))
+    if hit is not None and hit[0] is regions:
+        return hit[1]
+    order = np.argsort(regions.centers[:, 0], kind="stable")
+    if len(_order_cache) > 8:
+        _order_cache.clear()
+    _order_cache[id(regions)] = (regions, order)
+    return order
+
+
 def _candidate_lists(regions, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per step, the candidate nodes sorted by their centre's first coordinate (CSR: ptr (T+1,), idx, key)."""
-    order = np.argsort(regions.centers[:, 0], kind="stable")
+    order = _first_coordinate_order(regions)
     sorted_cand = cand[:, order]
     counts = sorted_cand.sum(axis=1)
     ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -580,6 +595,8 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
             # noise for ~CALL_PARTICLE_STEPS particle-steps: little is drawn ahead (the last
             # draw is wasted where particles stop), few kernel calls when few particles remain
             ahead = min(k_end - k, max(1, CALL_PARTICLE_STEPS // n_alive))
+            if k <= first_test:  # most particles stop at the first test step: no block runs past it
+                ahead = min(ahead, first_test + 1 - k)
             fresh = rng.standard_normal(n_alive * d * ahead)
             noise = np.concatenate([noise[pos:], fresh]) if pos < noise.shape[0] else fresh
             k, n_alive, pos = run(k, k_end, n_alive, alive, X, Xh, outcome, steps, effort, noise, 0, pd.r,
