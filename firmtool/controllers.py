@@ -146,6 +146,33 @@ def equilibrium_input(A: np.ndarray, B: np.ndarray, v: np.ndarray) -> np.ndarray
     return u
 
 
+_reachability_cache: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _reachability(A: np.ndarray, B: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(blocks, W, A^steps)`` of :func:`min_energy_trajectory`: ``blocks[k] = A^(steps-1-k) B``, ``W`` the
+    reachability Gramian. They depend on the model and the step count only, so they are memoised
+    (by value; every edge of a roadmap has one of a few dozen lengths): the same arrays as computed afresh."""
+    A = np.ascontiguousarray(A, dtype=float)
+    B = np.ascontiguousarray(B, dtype=float)
+    key = (A.shape, B.shape, A.tobytes(), B.tobytes(), int(steps))
+    hit = _reachability_cache.get(key)
+    if hit is not None:
+        return hit
+    n = A.shape[0]
+    powers = [np.eye(n)]
+    for _ in range(steps):
+        powers.append(A @ powers[-1])
+    blocks = np.stack([powers[steps - 1 - k] @ B for k in range(steps)])  # (steps, n, m)
+    W = np.einsum("kim,kjm->ij", blocks, blocks)
+    for a in (blocks, W, powers[steps]):
+        a.setflags(write=False)
+    if len(_reachability_cache) >= 128:
+        _reachability_cache.clear()
+    _reachability_cache[key] = (blocks, W, powers[steps])
+    return blocks, W, powers[steps]
+
+
 def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.ndarray,
                           steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-energy open-loop trajectory from ``x0`` to ``xf`` in exactly ``steps`` steps.
@@ -160,13 +187,9 @@ def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.n
     u : (steps, m) inputs.
     """
     n = A.shape[0]
-    powers = [np.eye(n)]
-    for _ in range(steps):
-        powers.append(A @ powers[-1])
-    blocks = np.stack([powers[steps - 1 - k] @ B for k in range(steps)])  # (steps, n, m)
-    W = np.einsum("kim,kjm->ij", blocks, blocks)
+    blocks, W, A_steps = _reachability(A, B, steps)
     try:
-        lam = np.linalg.solve(W, xf - powers[steps] @ x0)
+        lam = np.linalg.solve(W, xf - A_steps @ x0)
     except np.linalg.LinAlgError:
         raise NumericalError(f"no trajectory in {steps} steps: the pair (A, B) is not controllable") from None
     u = np.einsum("kim,i->km", blocks, lam)

@@ -188,3 +188,19 @@ def test_backward_recursion_shortcut_matches_full_recursion(monkeypatch, termina
         stopped = np.flatnonzero((short.K != full.K).any(axis=(1, 2)))
         assert 0 < stopped.size and stopped.max() < 250  # the shortcut took over after some 50+ steps
         np.testing.assert_array_equal(short.K[250:], full.K[250:])
+
+
+def test_min_energy_trajectory_memo_gives_the_fresh_result():
+    from firmtool import controllers
+
+    A, B, _ = double_integrator()
+    x0, xf = np.array([0.0, 0.0, 0, 0]), np.array([1.0, -2.0, 0, 0])
+    controllers._reachability_cache.clear()
+    x1, u1 = min_energy_trajectory(A, B, x0, xf, 40)
+    x2, u2 = min_energy_trajectory(A.copy(), B.copy(), x0, 2 * xf, 40)  # hit: keyed by value
+    assert len(controllers._reachability_cache) == 1
+    controllers._reachability_cache.clear()
+    x3, u3 = min_energy_trajectory(A, B, x0, 2 * xf, 40)
+    np.testing.assert_array_equal(x2, x3)
+    np.testing.assert_array_equal(u2, u3)
+    np.testing.assert_allclose(x1[-1], xf, atol=1e-9)
