@@ -48,6 +48,8 @@ def main(argv=None) -> dict:
             print(f"arm build, {r['workers']} worker(s), engine {r['engine']}: sample {m['sample']:.1f} s, design "
                   f"{m['design']:.1f} s, estimate {m['estimate']:.1f} s, total {m['total']:.1f} s "
                   f"({m['edges']:.0f} edges, {m['particle_steps_per_second'] / 1e6:.2f} M particle-steps/s in estimate)")
+        print("RESULT " + " ".join(f"w{r['workers']}_{k}={r['median'][k]}" for r in out
+                                   for k in ("sample", "design", "estimate", "total", "particle_steps_per_second")))
     return {"builds": out}
 
 

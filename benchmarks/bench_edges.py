@@ -69,7 +69,7 @@ def estimate_throughput(name: str, edges_count: int, repeat: int, workers: int, 
 
     def run() -> float:
         t0 = time.perf_counter()
-        ps = sum(r.particle_steps for _, out in run_edges(job, edges, workers=workers) for r in out)
+        ps = sum(e.particle_steps for r in run_edges(job, edges, workers=workers) for e in r.estimates)
         return ps / (time.perf_counter() - t0)
 
     with engine(eng):
@@ -84,14 +84,17 @@ def main(argv=None) -> dict:
     ap.add_argument("--edges", type=int, default=60)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--robots", nargs="+", default=["arm", "point"], choices=("arm", "point"))
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="estimate rows (numba engine)")
+    ap.add_argument("--no-numpy-estimate", action="store_true", help="skip the numpy engine's estimate row")
     args = ap.parse_args(argv)
     one_blas_thread()
     out = {}
-    for name in ("arm", "point"):
+    rows = ([] if args.no_numpy_estimate else [(1, "numpy")]) + [(w, "numba") for w in args.workers]
+    for name in args.robots:
         out[name] = {"engine": engine_throughput(name, args.edges, args.repeat),
                      "engine_1000_particles": engine_throughput(name, max(10, args.edges // 4), args.repeat, 1000),
-                     "estimate": [estimate_throughput(name, args.edges * 5, args.repeat, w, e)
-                                  for w, e in ((1, "numpy"), (1, "numba"), (2, "numba"))]}
+                     "estimate": [estimate_throughput(name, args.edges * 5, args.repeat, w, e) for w, e in rows]}
     if args.json:
         print(json.dumps(out, indent=1))
     else:
@@ -103,6 +106,10 @@ def main(argv=None) -> dict:
             for g in r["estimate"]:
                 print(f"{name:5s} estimate {g['engine']:5s} {g['workers']} worker(s) {g['median'] / 1e6:6.3f} M/s "
                       f"({g['edges']} edges x {g['particles']})")
+        print("RESULT " + " ".join(
+            [f"{n}_engine_{e}={r[key][e]['median']}" for n, r in out.items() for key in ("engine",) for e in ("numpy", "numba")]
+            + [f"{n}_engine1000_numba={r['engine_1000_particles']['numba']['median']}" for n, r in out.items()]
+            + [f"{n}_estimate_{g['engine']}_w{g['workers']}={g['median']}" for n, r in out.items() for g in r["estimate"]]))
     return out
 
 

@@ -60,19 +60,21 @@ def kalman_update(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np
 
 
 @numba.njit(cache=True)
-def _forward_recursions(A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread):
-    """Kalman covariance recursion (Joseph form) and the closed-loop spread of the decision state.
+def _forward_recursions(A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread,
+                        Sigma, k0, k1):
+    """Steps ``k0 <= k < k1`` of the Kalman covariance recursion (Joseph form) and of the closed-loop
+    spread of the decision state.
 
-    Step ``k`` uses the matrices ``A_steps[index[k]]`` (etc.). Fills ``L`` (T, n, nz), ``P[1:]``,
-    ``innovation`` (T, nz, nz) and ``spread`` (T + 1, n) in place. The spread follows
-    ``Sigma_{k+1} = Acl Sigma Acl' + D`` with ``D = Qd`` (perfect measurements) or the innovations
-    through the gain ``L S L'`` (imperfect), from ``Sigma_0 = 0``.
+    Step ``k`` uses the matrices ``A_steps[index[k]]`` (etc.). Fills ``L[k]`` (n, nz), ``P[k + 1]``,
+    ``innovation[k]`` (nz, nz) and ``spread[k + 1]`` (n,) in place, from ``P[k0]`` and the spread's
+    covariance ``Sigma`` (n, n) at step ``k0``, which is advanced in place to step ``k1``. The spread
+    follows ``Sigma_{k+1} = Acl Sigma Acl' + D`` with ``D = Qd`` (perfect measurements) or the
+    innovations through the gain ``L S L'`` (imperfect), from ``Sigma_0 = 0``. Running ``[0, a)``
+    then ``[a, b)`` does exactly what ``[0, b)`` does.
     """
-    T = index.shape[0]
     n = Qd.shape[0]
     eye = np.eye(n)
-    Sigma = np.zeros((n, n))
-    for k in range(T):
+    for k in range(k0, k1):
         j = index[k]
         A = A_steps[j]
         if perfect:
@@ -90,7 +92,7 @@ def _forward_recursions(A_steps, B_steps, H_steps, index, K, variances, Qd, perf
             L[k] = Lk
             drive = Lk @ S @ Lk.T
         Acl = A - B_steps[j] @ K[k]
-        Sigma = Acl @ Sigma @ Acl.T + drive
+        Sigma[:, :] = Acl @ Sigma @ Acl.T + drive
         for i in range(n):
             spread[k + 1, i] = np.sqrt(max(Sigma[i, i], 0.0))
 
@@ -144,6 +146,33 @@ def equilibrium_input(A: np.ndarray, B: np.ndarray, v: np.ndarray) -> np.ndarray
     return u
 
 
+_reachability_cache: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _reachability(A: np.ndarray, B: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(blocks, W, A^steps)`` of :func:`min_energy_trajectory`: ``blocks[k] = A^(steps-1-k) B``, ``W`` the
+    reachability Gramian. They depend on the model and the step count only, so they are memoised
+    (by value; every edge of a roadmap has one of a few dozen lengths): the same arrays as computed afresh."""
+    A = np.ascontiguousarray(A, dtype=float)
+    B = np.ascontiguousarray(B, dtype=float)
+    key = (A.shape, B.shape, A.tobytes(), B.tobytes(), int(steps))
+    hit = _reachability_cache.get(key)
+    if hit is not None:
+        return hit
+    n = A.shape[0]
+    powers = [np.eye(n)]
+    for _ in range(steps):
+        powers.append(A @ powers[-1])
+    blocks = np.stack([powers[steps - 1 - k] @ B for k in range(steps)])  # (steps, n, m)
+    W = np.einsum("kim,kjm->ij", blocks, blocks)
+    for a in (blocks, W, powers[steps]):
+        a.setflags(write=False)
+    if len(_reachability_cache) >= 128:
+        _reachability_cache.clear()
+    _reachability_cache[key] = (blocks, W, powers[steps])
+    return blocks, W, powers[steps]
+
+
 def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.ndarray,
                           steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-energy open-loop trajectory from ``x0`` to ``xf`` in exactly ``steps`` steps.
@@ -158,13 +187,9 @@ def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.n
     u : (steps, m) inputs.
     """
     n = A.shape[0]
-    powers = [np.eye(n)]
-    for _ in range(steps):
-        powers.append(A @ powers[-1])
-    blocks = np.stack([powers[steps - 1 - k] @ B for k in range(steps)])  # (steps, n, m)
-    W = np.einsum("kim,kjm->ij", blocks, blocks)
+    blocks, W, A_steps = _reachability(A, B, steps)
     try:
-        lam = np.linalg.solve(W, xf - powers[steps] @ x0)
+        lam = np.linalg.solve(W, xf - A_steps @ x0)
     except np.linalg.LinAlgError:
         raise NumericalError(f"no trajectory in {steps} steps: the pair (A, B) is not controllable") from None
     u = np.einsum("kim,i->km", blocks, lam)
@@ -241,31 +266,107 @@ def design_node(model: LinearGaussianModel, center: np.ndarray, Wx: np.ndarray, 
     return NodeController(center, u_eq, K, S, L, P, Sigma)
 
 
-@dataclass(frozen=True)
+class _ForwardRecursion:
+    """The inputs of :func:`_forward_recursions` for one local controller, and how far it has run."""
+
+    def __init__(self, A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread):
+        self.args = (A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread)
+        self.Sigma = np.zeros((Qd.shape[0], Qd.shape[0]))
+        self.done = 0
+
+    def run(self, k: int) -> None:
+        if k > self.done:
+            _forward_recursions(*self.args, self.Sigma, self.done, k)
+            self.done = k
+
+
 class LocalController:
     """Edge controller followed by the target's stabiliser, unrolled over ``steps`` steps.
 
     Step ``k`` (0-based) applies ``u = u_ref[k] - K[k] (xhat - x_ref[k])``; the filter update
     after it uses ``L[k]`` and yields covariance ``P[k + 1]`` (``P[0]`` is the start covariance).
     Node membership is tested only from step ``edge_steps`` on (the stabiliser's phase).
+
+    Attributes
+    ----------
+    x_ref (T, n), u_ref (T, m), K (T, m, n), edge_steps : the reference and the LQR gains.
+    L (T, n, nz), P (T + 1, n, n) : Kalman update gains and a-posteriori covariances.
+    innovation_cov : (T, nz, nz) innovation covariance ``H_k P-_k H_k' + R_k`` of every step as
+        designed (None with perfect measurements), for consistency tests of the filter during execution.
+    spread : (T + 1, n) standard deviation of the decision state around the reference, from a start
+        on the nominal: how far an undisturbed estimate is expected to stray at each step (replanning scale).
+
+    The filter side (``L``, ``P``, ``innovation_cov``, ``spread``) comes from a forward recursion over
+    all ``T = edge_steps + stabiliser steps`` steps, which runs lazily: :meth:`compute` and
+    :meth:`head` run it only as far as asked (a Monte Carlo needs only the steps its particles live,
+    usually a few past ``edge_steps`` of ~``edge_steps + 200``), and reading one of these attributes
+    runs it to the end. Every step is computed by the same code in the same order either way, so the
+    values do not depend on how far, or in how many pieces, the recursion ran.
     """
 
-    x_ref: np.ndarray  # (T, n)
-    u_ref: np.ndarray  # (T, m)
-    K: np.ndarray  # (T, m, n)
-    L: np.ndarray  # (T, n, nz)
-    P: np.ndarray  # (T + 1, n, n)
-    edge_steps: int
-    # (T, nz, nz) innovation covariance H_k P-_k H_k' + R_k of every step as designed (None with
-    # perfect measurements), for consistency tests of the filter during execution.
-    innovation_cov: np.ndarray | None = None
-    # (T + 1, n) standard deviation of the decision state around the reference, from a start on the
-    # nominal: how far an undisturbed estimate is expected to stray at each step (replanning scale).
-    spread: np.ndarray | None = None
+    def __init__(self, x_ref: np.ndarray, u_ref: np.ndarray, K: np.ndarray, L: np.ndarray, P: np.ndarray,
+                 edge_steps: int, innovation_cov: np.ndarray | None = None, spread: np.ndarray | None = None,
+                 *, forward: _ForwardRecursion | None = None) -> None:
+        self.x_ref, self.u_ref, self.K, self.edge_steps = x_ref, u_ref, K, edge_steps
+        self._L, self._P, self._innovation, self._spread = L, P, innovation_cov, spread
+        self._forward = forward
 
     @property
     def steps(self) -> int:
         return self.x_ref.shape[0]
+
+    def compute(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Run the forward recursion through step ``k`` (at most ``steps``): ``L[:k]``, ``P[:k + 1]``,
+        ``innovation_cov[:k]`` and ``spread[:k + 1]`` are then final.
+
+        Returns the full-length buffers ``(L, P)``; their rows past ``k`` may not be computed yet."""
+        fw = self._forward
+        if fw is not None:
+            fw.run(min(k, self.steps))
+            if fw.done >= self.steps:
+                self._forward = None
+        return self._L, self._P
+
+    def head(self, k: int) -> "LocalController":
+        """The first ``k`` steps of this controller (views), computed only that far."""
+        k = max(0, min(k, self.steps))
+        self.compute(k)
+        return LocalController(self.x_ref[:k], self.u_ref[:k], self.K[:k], self._L[:k], self._P[:k + 1],
+                               self.edge_steps, None if self._innovation is None else self._innovation[:k],
+                               None if self._spread is None else self._spread[:k + 1])
+
+    @property
+    def L(self) -> np.ndarray:
+        return self.compute(self.steps)[0]
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.compute(self.steps)[1]
+
+    @property
+    def innovation_cov(self) -> np.ndarray | None:
+        self.compute(self.steps)
+        return self._innovation
+
+    @property
+    def spread(self) -> np.ndarray | None:
+        self.compute(self.steps)
+        return self._spread
+
+
+# Relative change of the LQR Riccati solution S over one backward step below which S counts as
+# stationary (time-invariant linearisation only): the gains of the remaining steps are then the
+# current one. Near the stationary solution the backward map contracts, so the gains differ from the
+# full recursion's by O(BACKWARD_RTOL) relative (tests/test_controllers.py checks 1e-9).
+BACKWARD_RTOL = 1e-12
+
+
+def _same_matrices(jacobians: list[tuple[np.ndarray, ...]]) -> bool:
+    """Whether every step's matrices are the first step's (the same objects, or equal arrays)."""
+    if not jacobians:
+        return False
+    first = jacobians[0]
+    return all(all(a is b or np.array_equal(a, b) for a, b in zip(first, j)) for j in jacobians[1:])
 
 
 def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_nominal: np.ndarray,
@@ -313,27 +414,33 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
     K = np.empty((T, m, n))
     K[iota:] = sK[phase]
     S = target.S
+    # A model whose linearisation is the same at every step (a linear one): once S is stationary
+    # within BACKWARD_RTOL, every earlier gain is the current one (within that tolerance; for a
+    # linear model the terminal S is the stationary solution, so the recursion stops at once).
+    uniform = _same_matrices(edge_jac)
     for k in range(iota - 1, -1, -1):  # backward Riccati along the edge
         A, B = edge_jac[k]
         BS = B.T @ S
         K[k] = np.linalg.solve(Wu + BS @ B, BS @ A)
+        S_prev = S
         S = Wx + A.T @ S @ (A - B @ K[k])
         S = 0.5 * (S + S.T)
+        if uniform and np.linalg.norm(S - S_prev) <= BACKWARD_RTOL * np.linalg.norm(S_prev):
+            K[:k] = K[k]
+            break
 
     L = np.zeros((T, n, model.nz))
     P = np.zeros((T + 1, n, n))
-    innovation = None
     if not perfect:
-        Qd = model.process_cov
-        innovation = np.empty((T, model.nz, model.nz))
         # R and H at the state the step lands on: the nominal during the edge, the orbit after it.
-        landing_states = np.concatenate([x_nominal[1:], sx[phase + 1]])
-        variances = model.measurement_variance(landing_states)
+        # (each distinct state once: the stabiliser's repeat with its period)
+        landing = model.measurement_variance(np.concatenate([x_nominal[1:], sx[1:period + 1]]))
+        variances = landing[np.concatenate([np.arange(iota), iota + phase])]
         edge_H = [model.observation_jacobian(x) for x in x_nominal[1:]]
         stab_H = [model.observation_jacobian(sx[p + 1]) for p in range(period)]
         P[0] = P0
-    # Per-step matrices (indexing of the few distinct ones), then both forward recursions compiled:
-    # this loop of small products dominated the time per edge in Python.
+    # Per-step matrices (indexing of the few distinct ones), then both forward recursions compiled
+    # (this loop of small products dominated the time per edge in Python), run lazily.
     A_steps = np.stack([edge_jac[k][0] for k in range(iota)] + [stab_jac[p][0] for p in range(period)])
     B_steps = np.stack([edge_jac[k][1] for k in range(iota)] + [stab_jac[p][1] for p in range(period)])
     index = np.concatenate([np.arange(iota), iota + phase])
@@ -343,10 +450,8 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
     else:
         H_steps = np.stack(edge_H + stab_H)
     spread = np.zeros((T + 1, n))
-    innovation_out = np.zeros((T, H_steps.shape[1], H_steps.shape[1]))
-    _forward_recursions(A_steps, B_steps, H_steps, index, K, np.asarray(variances, dtype=float),
-                        model.process_cov, perfect, L, P, innovation_out, spread)
-    if not perfect:
-        innovation[:] = innovation_out
-    return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota, innovation_cov=innovation,
-                           spread=spread)
+    innovation_buf = np.zeros((T, H_steps.shape[1], H_steps.shape[1]))
+    forward = _ForwardRecursion(A_steps, B_steps, H_steps, index, K, np.asarray(variances, dtype=float),
+                                model.process_cov, perfect, L, P, innovation_buf, spread)
+    return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota,
+                           innovation_cov=None if perfect else innovation_buf, spread=spread, forward=forward)

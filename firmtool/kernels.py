@@ -47,7 +47,11 @@ except ImportError:  # pragma: no cover
 FAILURE, TIMEOUT = -1, -2  # same codes as firmtool.edges
 ROBOT_POINT, ROBOT_ARM = 0, 1
 NOISE_FORMS = {"lightdark_std": 0, "lightdark_variance": 1, "constant": 2}
-CANDIDATE_STEPS = 32  # steps whose node candidates are computed at once
+# Steps are run in segments; per segment the local controller's filter recursion is run as far as
+# the segment's end (lazily: particles mostly stop within a few steps of the edge's end, long before
+# the controller's ~edge + 200 steps) and the node candidates of its steps are computed at once.
+FIRST_SEGMENT_PAST_EDGE = 8  # the first segment: the edge and this many stabiliser steps
+SEGMENT_STEPS = (16, 32, 64)  # the following segments (the last length repeats)
 CALL_PARTICLE_STEPS = 1024  # particle-steps of noise drawn per kernel call
 LOCATE_K = 8  # neighbours the k-d tree query of NodeRegions.locate considers
 
@@ -154,9 +158,24 @@ def _problem_data(problem) -> _ProblemData:
     return data
 
 
+_order_cache: dict[int, tuple[object, np.ndarray]] = {}
+
+
+def _first_coordinate_order(regions) -> np.ndarray:
+    """The nodes sorted by their centre's first coordinate (stable), once per regions object."""
+    hit = _order_cache.get(id(regions))
+    if hit is not None and hit[0] is regions:
+        return hit[1]
+    order = np.argsort(regions.centers[:, 0], kind="stable")
+    if len(_order_cache) > 8:
+        _order_cache.clear()
+    _order_cache[id(regions)] = (regions, order)
+    return order
+
+
 def _candidate_lists(regions, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per step, the candidate nodes sorted by their centre's first coordinate (CSR: ptr (T+1,), idx, key)."""
-    order = np.argsort(regions.centers[:, 0], kind="stable")
+    order = _first_coordinate_order(regions)
     sorted_cand = cand[:, order]
     counts = sorted_cand.sum(axis=1)
     ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -546,7 +565,6 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     knn = min(LOCATE_K, regions.count)
     A_, B_, H_ = pd.mats
     K_ = _rows(lc.K)
-    Ld = np.ascontiguousarray(lc.L, dtype=float)
     x_ref = np.ascontiguousarray(lc.x_ref, dtype=float)
     u_ref = np.ascontiguousarray(lc.u_ref, dtype=float)
     centers = np.ascontiguousarray(regions.centers, dtype=float)
@@ -556,12 +574,19 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
     cand_ptr = np.zeros(T + 1, dtype=np.int64)
     cand_idx, cand_key = np.zeros(0, dtype=np.int64), np.zeros(0)
+    k_end, segment = 0, 0
     while k < T and n_alive > 0:
-        # node candidates for a segment of steps only: particles rarely live to the last step
-        k_end = min(T, k + CANDIDATE_STEPS)
+        # a segment of steps: the filter recursion and the node candidates only that far
+        if k_end == 0:
+            k_end = min(T, max(1, lc.edge_steps + FIRST_SEGMENT_PAST_EDGE))
+        else:
+            k_end = min(T, k + SEGMENT_STEPS[min(segment, len(SEGMENT_STEPS) - 1)])
+            segment += 1
+        Ld, P_ = lc.compute(k_end)  # L[:k_end], P[:k_end + 1] final (the buffers are filled in place)
+        Ld = np.ascontiguousarray(Ld, dtype=float)
         lo_t = max(k, first_test)
         if lo_t < k_end:
-            cand = regions.covariance_candidates(lc.P[1 + lo_t:1 + k_end])
+            cand = regions.covariance_candidates(P_[1 + lo_t:1 + k_end])
             ptr, cand_idx, cand_key = _candidate_lists(regions, cand)
             cand_ptr[:] = 0
             cand_ptr[lo_t:k_end + 1] = ptr
@@ -570,10 +595,15 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
             # noise for ~CALL_PARTICLE_STEPS particle-steps: little is drawn ahead (the last
             # draw is wasted where particles stop), few kernel calls when few particles remain
             ahead = min(k_end - k, max(1, CALL_PARTICLE_STEPS // n_alive))
+            if k <= first_test:  # most particles stop at the first test step: no block runs past it
+                ahead = min(ahead, first_test + 1 - k)
             fresh = rng.standard_normal(n_alive * d * ahead)
             noise = np.concatenate([noise[pos:], fresh]) if pos < noise.shape[0] else fresh
             k, n_alive, pos = run(k, k_end, n_alive, alive, X, Xh, outcome, steps, effort, noise, 0, pd.r,
                                   *A_, *B_, pd.F, *H_, x_ref, u_ref, *K_, Ld, cand_ptr, cand_idx, cand_key, *tail)
+    # The cost terms read P only up to the last particle's stopping step: hand them the controller's
+    # head, so that the recursion does not run on to the controller's end for them.
+    lc = lc.head(int(steps.max(initial=0)))
     if X is not x:
         x[...] = X
     if Xh is not xhat:

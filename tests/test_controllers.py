@@ -130,3 +130,77 @@ def test_local_controller_converges_to_target_node_and_reproduces_stationary_gai
     np.testing.assert_allclose(lc.K, np.broadcast_to(dst.K, lc.K.shape), rtol=1e-6)  # LTI: TV-LQR = SLQR
     # Light-dark design: the node near the light (x=4) is better localised than the one at x=0.
     assert np.trace(dst.P) < np.trace(src.P)
+
+
+def _edge(perfect=False, steps=50, stab=400):
+    model = _model(LightDarkNoise("lightdark_variance", light_x=5.0, a=0.05, c=1e-3))
+    Wx, Wu = np.diag([1.0, 1.0, 0.1, 0.1]), 0.1 * np.eye(2)
+    src = design_node(model, np.array([0.0, 0.0, 0, 0]), Wx, Wu, perfect=perfect)
+    dst = design_node(model, np.array([4.0, 1.0, 0, 0]), Wx, Wu, perfect=perfect)
+    x, u = min_energy_trajectory(model.A, model.B, src.center, dst.center, steps)
+    return model, x, u, src, dst, Wx, Wu, stab
+
+
+@pytest.mark.parametrize("perfect", [False, True])
+def test_local_controller_lazy_recursion_equals_full_one(perfect):
+    model, x, u, src, dst, Wx, Wu, stab = _edge(perfect)
+    full = plan_local_controller(model, x, u, src.P, dst, Wx, Wu, stab, perfect)
+    L, P, spread = full.L.copy(), full.P.copy(), full.spread.copy()  # attribute access runs it to the end
+    lazy = plan_local_controller(model, x, u, src.P, dst, Wx, Wu, stab, perfect)
+    h = lazy.head(7)  # in pieces: 7, 58, then the rest
+    assert h.steps == 7 and h.P.shape[0] == 8 and h.spread.shape[0] == 8
+    L58, P58 = lazy.compute(58)
+    assert lazy._forward is not None and lazy._forward.done == 58  # not run further than asked
+    np.testing.assert_array_equal(P58[:59], P[:59])
+    np.testing.assert_array_equal(L58[:58], L[:58])
+    # bit for bit the same: the same steps in the same order, however it is split
+    np.testing.assert_array_equal(lazy.P, P)
+    np.testing.assert_array_equal(lazy.L, L)
+    np.testing.assert_array_equal(lazy.spread, spread)
+    np.testing.assert_array_equal(h.P, P[:8])
+    if perfect:
+        assert lazy.innovation_cov is None
+    else:
+        np.testing.assert_array_equal(lazy.innovation_cov, full.innovation_cov)
+
+
+@pytest.mark.parametrize("terminal", ["stationary", "far"])
+def test_backward_recursion_shortcut_matches_full_recursion(monkeypatch, terminal):
+    """Stopping the backward Riccati recursion once S is stationary (BACKWARD_RTOL) gives the gains
+    of the full recursion within 1e-9 relative: from the stationary terminal cost (stops at once) and
+    from a far one (converges along a long edge first)."""
+    import dataclasses
+
+    from firmtool import controllers
+
+    model, x, u, src, dst, Wx, Wu, _ = _edge(steps=300, stab=20)
+    if terminal == "far":
+        dst = dataclasses.replace(dst, S=100.0 * np.eye(4))
+    short = plan_local_controller(model, x, u, src.P, dst, Wx, Wu, 20, False)
+    monkeypatch.setattr(controllers, "BACKWARD_RTOL", -1.0)  # never stationary: the full recursion
+    full = plan_local_controller(model, x, u, src.P, dst, Wx, Wu, 20, False)
+    assert not np.array_equal(full.K[:300], np.broadcast_to(full.K[299], (300, 2, 4)))  # varies in the last bits
+    np.testing.assert_allclose(short.K, full.K, rtol=0, atol=1e-9 * np.abs(full.K).max())
+    np.testing.assert_allclose(short.P, full.P, rtol=0, atol=1e-9 * np.abs(full.P).max())
+    np.testing.assert_allclose(short.spread, full.spread, rtol=0, atol=1e-9 * np.abs(full.spread).max())
+    if terminal == "far":  # the far terminal cost shapes the last gains: the shortcut kept them
+        assert np.abs(full.K[-21] - dst.K).max() > 1e-3 * np.abs(dst.K).max()
+        stopped = np.flatnonzero((short.K != full.K).any(axis=(1, 2)))
+        assert 0 < stopped.size and stopped.max() < 250  # the shortcut took over after some 50+ steps
+        np.testing.assert_array_equal(short.K[250:], full.K[250:])
+
+
+def test_min_energy_trajectory_memo_gives_the_fresh_result():
+    from firmtool import controllers
+
+    A, B, _ = double_integrator()
+    x0, xf = np.array([0.0, 0.0, 0, 0]), np.array([1.0, -2.0, 0, 0])
+    controllers._reachability_cache.clear()
+    x1, u1 = min_energy_trajectory(A, B, x0, xf, 40)
+    x2, u2 = min_energy_trajectory(A.copy(), B.copy(), x0, 2 * xf, 40)  # hit: keyed by value
+    assert len(controllers._reachability_cache) == 1
+    controllers._reachability_cache.clear()
+    x3, u3 = min_energy_trajectory(A, B, x0, 2 * xf, 40)
+    np.testing.assert_array_equal(x2, x3)
+    np.testing.assert_array_equal(u2, u3)
+    np.testing.assert_allclose(x1[-1], xf, atol=1e-9)
