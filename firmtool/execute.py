@@ -45,7 +45,7 @@ from scipy.stats import chi2, norm
 
 from firmtool import disturbances as dist_mod
 from firmtool.controllers import LocalController, min_energy_trajectory, plan_local_controller, stationary_kalman
-from firmtool.design import Design, local_controller, lqr_weights
+from firmtool.design import Design, local_controller, lqr_weights, periodic_node
 from firmtool.edges import FAILURE, TIMEOUT as EDGE_TIMEOUT, control_and_move, filter_update
 from firmtool.errors import InputError, NumericalError
 from firmtool.graph import success_probability
@@ -311,7 +311,15 @@ class Executor:
         if problem.perfect:
             return start.copy(), np.zeros((start.size, start.size))
         model = problem.model
-        _, P0, _ = stationary_kalman(model.A, model.process_cov, model.H, model.R(start[None]))
+        if problem.nonholonomic:
+            # At rest a unicycle's heading is not observable (its linearisation there is not
+            # detectable): no stationary filter exists. Its nodes' belief is the periodic filter's at
+            # phase 0 of the orbit through the node; so is the belief at a start state.
+            return start.copy(), periodic_node(problem, start).P.copy()
+        # the stationary filter of the model linearised at the start state (at rest, zero input)
+        A, _ = model.dynamics_jacobians(start, np.zeros(model.m))
+        H = model.observation_jacobian(start)
+        _, P0, _ = stationary_kalman(A, model.process_cov, H, model.R(start[None]))
         return start.copy(), P0
 
     def run_episode(self, rng: np.random.Generator, record: bool = False, *, start: np.ndarray | None = None,

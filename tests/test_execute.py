@@ -167,3 +167,53 @@ def test_calibration_passes_on_undisturbed_smoke(smoke):
     assert x_lo <= hi and lo <= x_hi
     # few false alarms without disturbances (the smoke single integrator sits near the default threshold)
     assert rep["replans"] <= 0.2 * rep["episodes"]
+
+
+# -- start states: linearised stationary filter, nonholonomic robots ---------------------------------
+
+def test_start_belief_at_a_node_is_the_nodes_belief(smoke):
+    _, _, problem, design, pol = smoke
+    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    xhat, P = ex.start_belief(design.centers[START_INDEX])
+    np.testing.assert_allclose(P, design.P[START_INDEX], rtol=1e-8, atol=1e-12)
+
+
+def _tiny_unicycle(start="[0.4, 0.4]", goal="[2.6, 0.4]"):
+    from test_unicycle import LIGHTDARK, TINY  # noqa: PLC0415 (the unicycle tests' scenario)
+
+    from firmtool.problem import build_problem
+    from firmtool.scenario import parse_scenario
+    text = TINY.format(q=0.02, measurement=LIGHTDARK)
+    text = text.replace("start = [0.4, 0.4]", f"start = {start}").replace("goal = [2.6, 0.4]", f"goal = {goal}")
+    return build_problem(parse_scenario(text, "tiny.toml"))
+
+
+def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
+    """--start on a nonlinear model (no model.A): the belief at a start state is the periodic
+    filter's at phase 0 of the orbit through it (at rest its heading is not observable)."""
+    from firmtool.design import design as design_stage, periodic_node
+    from firmtool.nodes import GOAL, START
+
+    problem = _tiny_unicycle()
+    centers = problem.state_of(np.array([[0.4, 1.4], [2.4, 1.2]]))
+    d = design_stage(problem, centers, np.array([START, GOAL], dtype=np.int8))
+    policy = np.full(2, -1)
+    policy[0] = int(np.flatnonzero((d.edge_source == 0) & (d.edge_target == 1))[0])
+    ex = Executor(problem, d, policy, cost_to_go=np.array([1.0, 0.0]))
+    _, P = ex.start_belief(centers[0])
+    np.testing.assert_allclose(P, d.P[0], rtol=1e-6, atol=1e-12)  # a node's own belief
+    start = np.array([0.5, 1.3, 0.7])  # a heading: not a node state
+    _, P = ex.start_belief(start)
+    np.testing.assert_allclose(P, periodic_node(problem, start).P)
+    assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0)
+    rep = execute(problem, d, policy, 3, 0, cost_to_go=np.array([1.0, 0.0]), start=start)
+    assert all(ep.events[1].kind == "initial_controller" for ep in rep["_episodes"])
+    assert rep["successes"] >= 2
+
+
+def test_unicycle_task_heading_error_names_the_heading():
+    from firmtool.errors import ScenarioError
+
+    with pytest.raises(ScenarioError, match="heading") as info:
+        _tiny_unicycle(start="[0.4, 0.4, 0.5]", goal="[2.6, 0.4, 0.0]")
+    assert "velocity" not in str(info.value)
