@@ -395,6 +395,12 @@ class Executor:
         J[land] = self._J_or_fail[out.outcome[land]]
         return float(out.cost.mean() + J.mean())
 
+    def _running_what(self, run: _Running) -> str:
+        """What a controller is, for the events: a policy edge or a controller designed at run time."""
+        if run.edge >= 0:
+            return f"policy edge {int(self.design.edge_source[run.edge])}->{run.target}"
+        return f"run-time controller to node {run.target}"
+
     # -- one step --------------------------------------------------------------------------------------
 
     def step(self, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
@@ -586,7 +592,7 @@ class Executor:
                     controls.append(u[0])
                 if not valid:
                     ep.outcome, ended = COLLISION, True
-                    ep.events.append(Event(total, EV_COLLISION, run.target))
+                    ep.events.append(Event(total, EV_COLLISION, run.target, detail=self._running_what(run)))
                     if clean:
                         ep.traversals.append((run.edge, FAILURE))
                     break
@@ -639,11 +645,12 @@ class Executor:
                 if clean:
                     ep.traversals.append((run.edge, EDGE_TIMEOUT))
                 ep.outcome = TIMEOUT
-                ep.events.append(Event(total, EV_TIMEOUT, run.target, detail="controller timed out"))
+                ep.events.append(Event(total, EV_TIMEOUT, run.target, detail="controller timed out: " + self._running_what(run)))
                 break
+            ep.nodes.append(landed)
+            ep.events.append(Event(total, EV_NODE, landed, detail="" if run.edge >= 0 else "recovered: "
+                                   + self._running_what(run)))
             node, run = landed, None
-            ep.nodes.append(node)
-            ep.events.append(Event(total, EV_NODE, node))
         ep.steps, ep.cost, ep.disturbances = total, cost, n_dist
         ep.step_times = np.asarray(step_times)
         if record:

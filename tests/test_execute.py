@@ -108,6 +108,12 @@ def test_kidnap_ends_with_a_clear_event(smoke):
         kinds = [ev.kind for ev in ep.events]
         if "disturbance" in kinds:
             assert kinds[-1] in ("goal", "collision", "timeout", "stuck")
+        last = ep.events[-1]
+        if last.kind in ("collision", "timeout"):  # says what was running: a policy edge or a replan
+            assert "policy edge" in last.detail or "run-time controller" in last.detail
+        for ev in ep.events:
+            if ev.kind == "node" and ev.detail:
+                assert ev.detail.startswith("recovered: run-time controller to node")
 
 
 def test_same_seed_same_results(smoke):
