@@ -239,6 +239,22 @@ def test_replans_are_scored_by_monte_carlo_unless_disabled(smoke):
         ReplanSettings(risk_particles=-1)
 
 
+def test_keeping_the_running_controller_is_a_scored_choice(smoke):
+    """A replan trigger may keep the running controller when no new one scores lower; then no
+    replan is considered for a window of steps."""
+    rep = run(smoke, episodes=20, disturbances=parse_disturbances(["push:30:1.5", "kidnap:20"]))
+    kept = 0
+    for ep in rep["_episodes"]:
+        for ev in ep.events:
+            if ev.kind == "kept_controller":
+                kept += 1
+                assert np.isfinite(ev.value) and "no candidate scores below" in ev.detail
+                later = [e for e in ep.events if e.kind in (EV_REPLAN, "kept_controller", "replan_failed")
+                         and ev.step < e.step < ev.step + ReplanSettings().window]
+                assert not later
+    assert kept >= 1
+
+
 def test_replan_after_an_alarm_starts_near_the_true_state(smoke):
     """After an unseen push the replan starts from the reset estimate, not the one the measurements
     refuted: the estimate error at the replan is well below the error a step before."""
