@@ -324,6 +324,9 @@ def _check_task(problem: Problem) -> None:
             raise ScenarioError(sc.path, name, "expected a collision-free state inside world.bounds (it is in collision "
                                                "with an obstacle or the world's edge, at world.robot_radius)")
         if np.any(state[problem.config_dim:] != 0):
+            if problem.nonholonomic:  # the one further coordinate is the heading, not a velocity
+                raise ScenarioError(sc.path, name, "expected heading 0 (every node faces +x; give the "
+                                                   "position only, or a heading of 0)")
             raise ScenarioError(sc.path, name, "expected zero velocity (nodes are states at rest)")
     if not sc.perfect and problem.model.nz == 0:
         raise ScenarioError(sc.path, "measurement.H", "expected at least one measurement row")

@@ -108,6 +108,12 @@ def test_kidnap_ends_with_a_clear_event(smoke):
         kinds = [ev.kind for ev in ep.events]
         if "disturbance" in kinds:
             assert kinds[-1] in ("goal", "collision", "timeout", "stuck")
+        last = ep.events[-1]
+        if last.kind in ("collision", "timeout"):  # says what was running: a policy edge or a replan
+            assert "policy edge" in last.detail or "run-time controller" in last.detail
+        for ev in ep.events:
+            if ev.kind == "node" and ev.detail:
+                assert ev.detail.startswith("recovered: run-time controller to node")
 
 
 def test_same_seed_same_results(smoke):
@@ -167,3 +173,148 @@ def test_calibration_passes_on_undisturbed_smoke(smoke):
     assert x_lo <= hi and lo <= x_hi
     # few false alarms without disturbances (the smoke single integrator sits near the default threshold)
     assert rep["replans"] <= 0.2 * rep["episodes"]
+
+
+# -- replanning: the belief reset, valid estimates, the Monte Carlo choice of node -----------------------
+
+def test_reset_belief_is_the_update_redone_from_the_inflated_prior(smoke):
+    """A large innovation (an unseen jump) moves the reset estimate onto the measurement, the
+    covariance stays symmetric positive definite and grows along the jump."""
+    _, _, problem, design, pol = smoke
+    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    run_ = ex._controller(int(pol["edge"][START_INDEX]))
+    lc, k, model = run_.lc, 5, problem.model
+    xprev, u = lc.x_ref[k], lc.u_ref[k]
+    nu = np.array([0.8, -0.5])  # ~1 unit jump, far beyond the filter's spread
+    window = np.zeros((10, 2))
+    window[-1] = nu
+    xhat, P = ex.reset_belief(lc, k, xprev, u, nu, window)
+    pred = model.f(xprev[None], u[None])[0]
+    d = nu / np.linalg.norm(nu)
+    moved = (xhat - pred) @ d  # the prior no longer pins the estimate: most of the jump is taken in
+    assert moved > 0.7 * np.linalg.norm(nu) and moved > 3 * (lc.L[k] @ nu) @ d
+    np.testing.assert_allclose(P, P.T)
+    assert np.all(np.linalg.eigvalsh(P) > 0)
+    assert d @ P @ d > d @ lc.P[k + 1] @ d
+    # a zero innovation changes only the covariance's inflation by the window
+    xhat0, _ = ex.reset_belief(lc, k, xprev, u, np.zeros(2), np.zeros((10, 2)))
+    np.testing.assert_allclose(xhat0, pred)
+
+
+def test_valid_estimate_leaves_the_obstacle(smoke):
+    _, _, problem, design, pol = smoke
+    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    rng = np.random.default_rng(0)
+    inside = problem.state_of(np.array([2.0, 1.2]))  # the obstacle's centre
+    out = ex.valid_estimate(inside, 0.3 * np.eye(2), rng)
+    assert out is not None and problem.is_valid(out[None])[0]
+    assert np.linalg.norm(out - inside) < 1.0  # the nearest side (half widths 0.3 x 0.7), not anywhere
+    free = problem.state_of(np.array([0.5, 0.5]))
+    assert ex.valid_estimate(free, np.eye(2), rng) is free
+    assert ex.valid_estimate(inside, 1e-6 * np.eye(2), rng) is None  # no valid state is likely
+
+
+def test_monte_carlo_score_charges_failures(smoke):
+    """A run-time controller straight through the obstacle scores at least J_F; one in free space
+    scores its cost plus the cost-to-go of where it lands."""
+    _, _, problem, design, pol = smoke
+    ex = Executor(problem, design, pol["edge"].astype(np.int64), cost_to_go=pol["cost_to_go"])
+    x0, P = problem.state_of(np.array([1.2, 1.2])), design.P[7]
+    rng = np.random.default_rng(1)
+    through = ex._runtime_controller(x0, P, 11)  # (2.78, 0.78): behind the obstacle
+    assert ex._risk_score(through, x0, P, 32, rng) >= ex.failure_cost
+    free = ex._runtime_controller(x0, P, 8)  # (0.49, 1.23): open space
+    assert ex._risk_score(free, x0, P, 32, rng) < 0.5 * ex.failure_cost
+
+
+def test_replans_are_scored_by_monte_carlo_unless_disabled(smoke):
+    dists = parse_disturbances(["push:8:1.0"])
+    on = run(smoke, episodes=10, disturbances=dists)
+    details = [ev.detail for ep in on["_episodes"] for ev in ep.events if ev.kind == EV_REPLAN]
+    assert details and all("scored" in t for t in details)
+    cheap = run(smoke, episodes=10, disturbances=dists, replan=ReplanSettings(risk_particles=0))
+    details = [ev.detail for ep in cheap["_episodes"] for ev in ep.events if ev.kind == EV_REPLAN]
+    assert details and not any("scored" in t for t in details)
+    with pytest.raises(InputError, match="risk_particles"):
+        ReplanSettings(risk_particles=-1)
+
+
+def test_keeping_the_running_controller_is_a_scored_choice(smoke):
+    """A replan trigger may keep the running controller when no new one scores lower; then no
+    replan is considered for a window of steps."""
+    rep = run(smoke, episodes=20, disturbances=parse_disturbances(["push:30:1.5", "kidnap:20"]))
+    kept = 0
+    for ep in rep["_episodes"]:
+        for ev in ep.events:
+            if ev.kind == "kept_controller":
+                kept += 1
+                assert np.isfinite(ev.value) and "no candidate scores below" in ev.detail
+                later = [e for e in ep.events if e.kind in (EV_REPLAN, "kept_controller", "replan_failed")
+                         and ev.step < e.step < ev.step + ReplanSettings().window]
+                assert not later
+    assert kept >= 1
+
+
+def test_replan_after_an_alarm_starts_near_the_true_state(smoke):
+    """After an unseen push the replan starts from the reset estimate, not the one the measurements
+    refuted: the estimate error at the replan is well below the error a step before."""
+    rep = run(smoke, episodes=20, disturbances=parse_disturbances(["push:30:1.5"]), record=True)
+    before, after = [], []
+    for ep in rep["_episodes"]:
+        alarms = {ev.step for ev in ep.events if ev.kind == "innovation_alarm"}
+        err = np.linalg.norm(ep.states[:, :2] - ep.estimates[:, :2], axis=1)
+        for ev in ep.events:
+            if ev.kind == EV_REPLAN and ev.step in alarms:
+                before.append(err[ev.step - 1])
+                after.append(err[ev.step])
+    assert len(after) >= 5 and np.median(after) < 0.5 * np.median(before)
+
+
+# -- start states: linearised stationary filter, nonholonomic robots ---------------------------------
+
+def test_start_belief_at_a_node_is_the_nodes_belief(smoke):
+    _, _, problem, design, pol = smoke
+    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    xhat, P = ex.start_belief(design.centers[START_INDEX])
+    np.testing.assert_allclose(P, design.P[START_INDEX], rtol=1e-8, atol=1e-12)
+
+
+def _tiny_unicycle(start="[0.4, 0.4]", goal="[2.6, 0.4]"):
+    from test_unicycle import LIGHTDARK, TINY  # noqa: PLC0415 (the unicycle tests' scenario)
+
+    from firmtool.problem import build_problem
+    from firmtool.scenario import parse_scenario
+    text = TINY.format(q=0.02, measurement=LIGHTDARK)
+    text = text.replace("start = [0.4, 0.4]", f"start = {start}").replace("goal = [2.6, 0.4]", f"goal = {goal}")
+    return build_problem(parse_scenario(text, "tiny.toml"))
+
+
+def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
+    """--start on a nonlinear model (no model.A): the belief at a start state is the periodic
+    filter's at phase 0 of the orbit through it (at rest its heading is not observable)."""
+    from firmtool.design import design as design_stage, periodic_node
+    from firmtool.nodes import GOAL, START
+
+    problem = _tiny_unicycle()
+    centers = problem.state_of(np.array([[0.4, 1.4], [2.4, 1.2]]))
+    d = design_stage(problem, centers, np.array([START, GOAL], dtype=np.int8))
+    policy = np.full(2, -1)
+    policy[0] = int(np.flatnonzero((d.edge_source == 0) & (d.edge_target == 1))[0])
+    ex = Executor(problem, d, policy, cost_to_go=np.array([1.0, 0.0]))
+    _, P = ex.start_belief(centers[0])
+    np.testing.assert_allclose(P, d.P[0], rtol=1e-6, atol=1e-12)  # a node's own belief
+    start = np.array([0.5, 1.3, 0.7])  # a heading: not a node state
+    _, P = ex.start_belief(start)
+    np.testing.assert_allclose(P, periodic_node(problem, start).P)
+    assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0)
+    rep = execute(problem, d, policy, 3, 0, cost_to_go=np.array([1.0, 0.0]), start=start)
+    assert all(ep.events[1].kind == "initial_controller" for ep in rep["_episodes"])
+    assert rep["successes"] >= 2
+
+
+def test_unicycle_task_heading_error_names_the_heading():
+    from firmtool.errors import ScenarioError
+
+    with pytest.raises(ScenarioError, match="heading") as info:
+        _tiny_unicycle(start="[0.4, 0.4, 0.5]", goal="[2.6, 0.4, 0.0]")
+    assert "velocity" not in str(info.value)
