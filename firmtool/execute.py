@@ -408,7 +408,7 @@ class Executor:
         land = out.outcome >= 0
         J = np.full(M, self.failure_cost)
         J[land] = self._J_or_fail[out.outcome[land]]
-        return float(out.cost.mean() + J.mean())
+        return float(out.cost(self.problem.scenario.cost).mean() + J.mean())
 
     def _running_what(self, run: _Running) -> str:
         """What a controller is, for the events: a policy edge or a controller designed at run time."""
