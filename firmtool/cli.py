@@ -379,7 +379,8 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                           cost_to_go=policy["cost_to_go"],
                           replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
                           disturbances=dists, start=start_state, record=save_episodes is not None,
-                          edge_counts=edge_counts_of(rm))
+                          edge_counts=edge_counts_of(rm),
+                          failure_cost=rm.attrs("policy").get("failure_cost"))  # J_F the policy was solved with
     report["policy"] = policy_name
     if save_episodes is not None:
         from firmtool.episodes_io import save_episodes as write_episodes

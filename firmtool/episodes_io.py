@@ -21,14 +21,13 @@ Written to a temporary file in the same folder, then renamed: a reader never see
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
+from firmtool.atomic import replacing
 from firmtool.errors import InputError
 
 FORMAT, FORMAT_VERSION = "firmtool-episodes", 1
@@ -46,38 +45,29 @@ def _events_array(events: list) -> np.ndarray:
 
 def save_episodes(path: str | Path, episodes: list, attrs: dict[str, Any]) -> None:
     """Write recorded episodes (``Executor.run_episode(record=True)``) atomically to ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"], f.attrs["format_version"] = FORMAT, FORMAT_VERSION
-            for k, v in attrs.items():
-                f.attrs[k] = "" if v is None else v
-            group = f.create_group("episodes")
-            for i, ep in enumerate(episodes):
-                if ep.states is None:
-                    raise ValueError("episode was not recorded (run_episode(record=True))")
-                g = group.create_group(f"{i:06d}")
-                for k in ("outcome", "steps", "cost", "replans", "replan_failures", "disturbances"):
-                    g.attrs[k] = getattr(ep, k)
-                opts = {"compression": "gzip", "shuffle": True}
-                g.create_dataset("states", data=ep.states, **opts)
-                g.create_dataset("estimates", data=ep.estimates, **opts)
-                g.create_dataset("controls", data=ep.controls, **opts)
-                g.create_dataset("covariance_trace", data=np.trace(ep.covariances, axis1=1, axis2=2), **opts)
-                if ep.states.shape[1] <= FULL_COVARIANCE_MAX_DIM:
-                    g.create_dataset("covariances", data=ep.covariances, **opts)
-                else:
-                    g.create_dataset("covariance_diag", data=np.diagonal(ep.covariances, axis1=1, axis2=2), **opts)
-                g.create_dataset("nodes", data=np.asarray(ep.nodes, dtype=np.int64))
-                g.create_dataset("edges", data=np.asarray(ep.edges, dtype=np.int64))
-                g.create_dataset("events", data=_events_array(ep.events))
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with replacing(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"], f.attrs["format_version"] = FORMAT, FORMAT_VERSION
+        for k, v in attrs.items():
+            f.attrs[k] = "" if v is None else v
+        group = f.create_group("episodes")
+        for i, ep in enumerate(episodes):
+            if ep.states is None:
+                raise ValueError("episode was not recorded (run_episode(record=True))")
+            g = group.create_group(f"{i:06d}")
+            for k in ("outcome", "steps", "cost", "replans", "replan_failures", "disturbances"):
+                g.attrs[k] = getattr(ep, k)
+            opts = {"compression": "gzip", "shuffle": True}
+            g.create_dataset("states", data=ep.states, **opts)
+            g.create_dataset("estimates", data=ep.estimates, **opts)
+            g.create_dataset("controls", data=ep.controls, **opts)
+            g.create_dataset("covariance_trace", data=np.trace(ep.covariances, axis1=1, axis2=2), **opts)
+            if ep.states.shape[1] <= FULL_COVARIANCE_MAX_DIM:
+                g.create_dataset("covariances", data=ep.covariances, **opts)
+            else:
+                g.create_dataset("covariance_diag", data=np.diagonal(ep.covariances, axis1=1, axis2=2), **opts)
+            g.create_dataset("nodes", data=np.asarray(ep.nodes, dtype=np.int64))
+            g.create_dataset("edges", data=np.asarray(ep.edges, dtype=np.int64))
+            g.create_dataset("events", data=_events_array(ep.events))
 
 
 def load_episodes(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from firmtool.errors import RunFailure
+from firmtool.errors import RunFailure, ScenarioError
 from firmtool.problem import Problem
 
 REGULAR, START, GOAL = 0, 1, 2
@@ -80,6 +80,10 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
     sampled = sample_nodes(problem, spec.nodes - grown.shape[0], rng, min_separation=spec.min_separation,
                            existing=np.concatenate([fixed, grown]))
     sampled = np.concatenate([grown, sampled])
+    if sampled.shape[0] == 0 and spec.nodes > 0 and spec.min_separation > 0:
+        raise ScenarioError(problem.scenario.path, "roadmap.min_separation",
+                            f"expected a separation that leaves room for nodes, found {spec.min_separation:g}: "
+                            "no valid configuration is that far from the start and goal nodes")
     if sampled.shape[0] == 0 and spec.nodes > 0:
         raise RunFailure("no collision-free configuration found: the free space is empty or tiny")
     centers = np.concatenate([fixed, sampled])

@@ -8,8 +8,6 @@ pushed through the Jacobian of that point (central finite differences of ``probl
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +19,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.patches import Circle, Ellipse, Rectangle  # noqa: E402
 
+from firmtool.atomic import replacing  # noqa: E402
 from firmtool.design import Design  # noqa: E402
 from firmtool.nodes import GOAL, START_INDEX  # noqa: E402
 from firmtool.problem import Problem  # noqa: E402
@@ -161,14 +160,8 @@ def plot_roadmap(problem: Problem, design: Design, panels: list[PanelData], *, d
 
 def save_figure(fig: plt.Figure, path: str | Path) -> None:
     """Write a PNG atomically (temporary file in the same folder, then rename)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".png", dir=p.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, p)
+        with replacing(path, suffix=".png") as tmp:
+            fig.savefig(tmp, format="png")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)

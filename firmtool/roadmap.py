@@ -29,9 +29,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
-import os
 import shutil
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator, Mapping
@@ -40,6 +38,7 @@ import h5py
 import numpy as np
 
 from firmtool import __version__
+from firmtool.atomic import replacing
 from firmtool.errors import RoadmapError
 
 SCHEMA_VERSION = 1
@@ -66,10 +65,7 @@ def inputs_hash(*parts: Any) -> str:
 @contextmanager
 def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
     """Open a temporary copy of ``path`` (a new file if ``fresh``) for writing; rename it into place on success."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with replacing(path) as tmp:
         if path.exists() and not fresh:
             shutil.copyfile(path, tmp)
             f = h5py.File(tmp, "r+")
@@ -77,12 +73,6 @@ def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
             f = h5py.File(tmp, "w")
         with f:
             yield f
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def create_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int) -> None:

@@ -135,8 +135,9 @@ def _run_until_cached(cmd: list[str], path: Path, at_least: int, sig: int) -> tu
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["sigkill", "ctrl-c"])
 def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, sig):
-    # 1000 particles per edge: the estimate stage takes a few seconds, so the signal lands midway
-    scenario = _scenario(tmp_path, **{"particles = 100": "particles = 1000"})
+    # 2000 particles per edge: the estimate stage takes a few seconds, so the signal usually lands
+    # midway (a kill after the last checkpoint but before the final write leaves every edge cached)
+    scenario = _scenario(tmp_path, **{"particles = 100": "particles = 2000"})
     out = tmp_path / "r.h5"
     cmd = [sys.executable, "-m", "firmtool.cli", "build", str(scenario), "-o", str(out), "--workers", "2",
            "--checkpoint-seconds", "0"]
@@ -153,13 +154,13 @@ def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, si
         cached = f["edge_cache/source"].shape[0]
     assert cached >= seen >= 8
     E = rm.require("controllers", "edge_source")["edge_source"].size
-    assert cached < E
+    assert cached <= E
     report = build(scenario, out, workers=2)
     assert report["resumed"] and report["reused_edges"] == cached and report["estimated_edges"] == E - cached
     clean = tmp_path / "clean.h5"
     build(scenario, clean, workers=1)
     _assert_same_tables(_edges(out), _edges(clean))
-    assert not list(tmp_path.glob("*.tmp"))  # a SIGKILLed writer may leave one; none here
+    assert not list(tmp_path.glob("*.tmp"))  # a SIGKILLed writer leaves one; the resumed build removes it
 
 
 def test_a_complete_build_is_not_redone(tmp_path):
