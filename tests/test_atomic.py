@@ -47,3 +47,16 @@ def test_only_dead_writers_leftovers_are_removed(tmp_path):
         tmp.write_text("new")
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         [target.name, live.name, other_host.name, unrelated.name])
+
+
+def test_the_new_file_gets_the_usual_mode(tmp_path):
+    fresh, existing = tmp_path / "new.h5", tmp_path / "old.h5"
+    existing.write_text("old")
+    existing.chmod(0o640)
+    for target in (fresh, existing):
+        with replacing(target) as tmp:
+            tmp.write_text("new")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert fresh.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's private 0600
+    assert existing.stat().st_mode & 0o777 == 0o640
