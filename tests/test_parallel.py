@@ -313,3 +313,27 @@ def test_cli_failed_edge_exit_1_one_line_each(designed, tmp_path, monkeypatch):
     lines = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
     assert len(lines) == 2 and f"({bad[0]} -> {bad[1]}) failed twice" in lines[0] and "retry" in lines[1]
     assert "Traceback" not in r.output
+
+
+@pytest.mark.parametrize("mode", ["always", "once"])
+def test_dask_failing_edge_is_retried_once_then_reported(designed, tmp_path, monkeypatch, mode):
+    """The dask path's retry bookkeeping, on an in-process cluster (threads in this process, so the
+    injected failure reaches its workers; an address, as for a remote scheduler)."""
+    distributed = pytest.importorskip("dask.distributed")
+    path, reference = designed
+    copy = tmp_path / "d.h5"
+    shutil.copyfile(path, copy)
+    bad = (int(reference["source"][4]), int(reference["target"][4]))
+    monkeypatch.setattr(firmtool.parallel, "estimate_edge", _flaky(tmp_path, bad, mode))
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        report = estimate_stage(copy, workers=2, executor="dask", scheduler=cluster.scheduler_address)
+    assert (tmp_path / f"failed-{bad[0]}-{bad[1]}").exists()
+    if mode == "once":
+        assert report["failed_edges"] == []
+        _assert_same_tables(_edges(copy), reference)
+        return
+    (failure,) = report["failed_edges"]
+    assert (failure["source"], failure["target"]) == bad and "FloatingPointError: injected failure" in failure["error"]
+    e = _edges(copy)
+    assert e["source"].size == reference["source"].size - 1 and bad not in set(zip(e["source"], e["target"]))
