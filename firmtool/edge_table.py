@@ -2,8 +2,9 @@
 that says whether a stored estimate can be reused.
 
 An edge's key is a sha256 over everything its Monte Carlo depends on: the engine's semantics
-(:data:`ENGINE_VERSION`), the scenario's model, measurement, world, task and controller settings,
-the seed, the particle count and chunk size, the two node indices (they seed the random streams),
+(:data:`ENGINE_VERSION`) and which engine runs it (the compiled one draws its own noise, so the
+two give statistically equal, not identical, estimates), the scenario's model, measurement,
+world, task and controller settings, the seed, the particle count and chunk size, the two node indices (they seed the random streams),
 both nodes' centres and stabilisers, and the nominal length. Not in it: the cost weights (the
 table stores cost terms, weighted at solve time) and the other nodes of the roadmap. The latter is
 a deliberate approximation: when nodes are added, existing edges keep their estimates, whose
@@ -26,7 +27,7 @@ from firmtool.scenario import CostSpec
 
 # Bump when the Monte Carlo's results change meaning (not for rounding-level changes): stored
 # estimates with an older version are then estimated again instead of reused.
-ENGINE_VERSION = 1
+ENGINE_VERSION = 2  # 2: the compiled engine draws its noise in the kernel
 KEY_BYTES = 32
 _NODE_ARRAYS = ("centers", "u_eq", "K", "S", "L", "P", "Sigma", "scale")
 
@@ -65,7 +66,9 @@ def digest(*parts: Any) -> bytes:
 def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = None) -> np.ndarray:
     """(E, 32) uint8 keys of the design's edges (or of ``edges``, indices into them)."""
     sc = problem.scenario
-    base = digest(ENGINE_VERSION, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
+    from firmtool.kernels import engine_for
+
+    base = digest(ENGINE_VERSION, engine_for(problem), sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
                   sc.estimation.particles, sc.estimation.chunk)
     idx = np.arange(design_.edge_source.size) if edges is None else np.asarray(list(edges), dtype=np.int64)
     node_digest: dict[int, bytes] = {}

@@ -90,17 +90,19 @@ def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np
 
 
 def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.ndarray, xhat: np.ndarray,
-             rng: np.random.Generator, engine: str | None = None) -> ParticleOutcomes:
+             rng: np.random.Generator, engine: str | None = None, numpy_noise: bool = False) -> ParticleOutcomes:
     """Run ``lc`` on an ensemble until every particle lands, fails or times out.
 
     ``engine``: ``"numpy"`` (this function's body), ``"numba"`` (:func:`firmtool.kernels.simulate`,
-    the same step compiled, fed the same noise) or None: chosen by :func:`firmtool.kernels.engine_for`
-    (the compiled one when it supports the problem; ``FIRMTOOL_ENGINE=numpy|numba`` overrides).
+    the same step compiled) or None: chosen by :func:`firmtool.kernels.engine_for` (the compiled one
+    when it supports the problem; ``FIRMTOOL_ENGINE=numpy|numba`` overrides). The compiled engine
+    draws its noise inside the kernel from ``rng``'s seed, unless ``numpy_noise``: then it consumes
+    ``rng.standard_normal`` exactly as this body does, and both engines simulate the same particles.
     """
     from firmtool import kernels
 
     if (engine or kernels.engine_for(problem)) == "numba":
-        return kernels.simulate(problem, lc, regions, x, xhat, rng)
+        return kernels.simulate(problem, lc, regions, x, xhat, rng, numpy_noise)
     model, perfect = problem.model, problem.perfect
     M = x.shape[0]
     outcome = np.full(M, TIMEOUT, dtype=np.int64)
@@ -171,11 +173,13 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int,
 
 
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
-                  particles: int, seed: int, chunk: int, engine: str | None = None) -> EdgeEstimate:
+                  particles: int, seed: int, chunk: int, engine: str | None = None,
+                  numpy_noise: bool = False) -> EdgeEstimate:
     """Monte Carlo of the local controller ``source -> target`` from the source node.
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
-    with its own seed derived from ``(seed, source, target, chunk index)``.
+    with its own seed derived from ``(seed, source, target, chunk index)``. ``engine`` and
+    ``numpy_noise``: as in :func:`simulate`.
     """
     lc = local_controller(problem, design_, source, target)
     results = []
@@ -183,7 +187,7 @@ def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, sourc
         M = min(chunk, particles - start)
         rng = np.random.default_rng(edge_seed_sequence(seed, source, target, c))
         x, xhat = initial_ensemble(problem, design_, source, M, rng)
-        results.append(simulate(problem, lc, regions, x, xhat, rng, engine))
+        results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise))
     outcome = np.concatenate([r.outcome for r in results])
     steps = np.concatenate([r.steps for r in results])
     terms = np.concatenate([r.terms for r in results])

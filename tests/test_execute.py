@@ -78,7 +78,7 @@ def test_executor_step_is_the_monte_carlo_step(smoke):
         rng = np.random.default_rng(seed)
         x_mc, xhat_mc = initial_ensemble(problem, design, i, 1, rng)
         x0, xhat0 = x_mc.copy(), xhat_mc.copy()
-        out = simulate(problem, lc, ex.regions, x_mc, xhat_mc, rng)  # updates x_mc, xhat_mc in place
+        out = simulate(problem, lc, ex.regions, x_mc, xhat_mc, rng, numpy_noise=True)  # updates x_mc, xhat_mc
         rng = np.random.default_rng(seed)
         initial_ensemble(problem, design, i, 1, rng)  # the same draws as above
         x, xhat = x0, xhat0
@@ -248,7 +248,9 @@ def test_keeping_the_running_controller_is_a_scored_choice(smoke):
         for ev in ep.events:
             if ev.kind == "kept_controller":
                 kept += 1
-                assert np.isfinite(ev.value) and "no candidate scores below" in ev.detail
+                # kept because no new controller scored lower, or because none could be designed
+                assert np.isfinite(ev.value) and ("no candidate scores below" in ev.detail
+                                                  or "has a collision-free straight way" in ev.detail)
                 later = [e for e in ep.events if e.kind in (EV_REPLAN, "kept_controller", "replan_failed")
                          and ev.step < e.step < ev.step + ReplanSettings().window]
                 assert not later

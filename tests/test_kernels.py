@@ -1,10 +1,12 @@
 """The compiled Monte Carlo engine (firmtool.kernels) against the numpy path of firmtool.edges.
 
-Both engines draw the same noise from the same generator in the same order, so the strongest check
-holds: every particle ends the same way (node, failure or timeout) at the same step, with the same
-cost. Summation order differs (BLAS vs plain loops), so a particle sitting exactly on a region or
+Given the same noise (``numpy_noise=True``: the kernel consumes the numpy Generator's stream in the
+numpy path's order), the strongest check holds: every particle ends the same way (node, failure or
+timeout) at the same step, with the same cost. Summation order differs (BLAS vs plain loops), so a particle sitting exactly on a region or
 obstacle boundary could in principle differ; the cases here have none, and a tolerance of one
-particle in a thousand would still flag any real disagreement.
+particle in a thousand would still flag any real disagreement. The kernel's own noise (the
+default) is checked against the normal law, and the engines' probabilities with independent noise
+agree within their confidence intervals.
 """
 
 import re
@@ -52,7 +54,7 @@ def _same_particles(problem, d, regions, edges, M, seed=0):
         for engine in ("numpy", "numba"):
             rng = np.random.default_rng([seed, e])
             x, xhat = initial_ensemble(problem, d, s, M, rng)
-            out[engine] = simulate(problem, lc, regions, x, xhat, rng, engine)
+            out[engine] = simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise=True)
         a, b = out["numpy"], out["numba"]
         same = (a.outcome == b.outcome) & (a.steps == b.steps)
         assert same.mean() >= 0.999, (e, np.flatnonzero(~same)[:5])
@@ -103,14 +105,49 @@ def test_probabilities_agree_within_confidence_intervals_with_independent_seeds(
             assert abs(pa - pb) <= 4 * se, (e, code, pa, pb)
 
 
-def test_estimate_edge_is_identical_with_both_engines_and_chunks():
+def test_estimate_edge_is_identical_with_both_engines_given_numpys_noise():
     problem, d, regions = _setup(open_world(q=0.3, std=0.3))
     s, t = int(d.edge_source[0]), int(d.edge_target[0])
     a = estimate_edge(problem, d, regions, s, t, 700, 7, 256, engine="numpy")
-    b = estimate_edge(problem, d, regions, s, t, 700, 7, 256, engine="numba")
+    b = estimate_edge(problem, d, regions, s, t, 700, 7, 256, engine="numba", numpy_noise=True)
     assert np.array_equal(a.outcomes, b.outcomes) and np.array_equal(a.counts, b.counts)
     assert a.particle_steps == b.particle_steps
     np.testing.assert_allclose(b.terms_mean, a.terms_mean, rtol=1e-12)
+
+
+def test_kernel_noise_is_reproducible_from_the_seed_and_differs_between_seeds():
+    problem, d, regions = _setup(open_world(q=0.3, std=0.3))
+    s, t = int(d.edge_source[0]), int(d.edge_target[0])
+    a, b, c = (estimate_edge(problem, d, regions, s, t, 700, seed, 256, engine="numba") for seed in (7, 7, 8))
+    assert np.array_equal(a.counts, b.counts) and a.particle_steps == b.particle_steps
+    assert np.array_equal(a.terms_mean, b.terms_mean) and np.array_equal(a.terms_cov, b.terms_cov)
+    assert not np.array_equal(a.terms_mean, c.terms_mean)
+
+
+def test_kernel_normals_are_standard_normal():
+    """The in-kernel generator (xoshiro256++ + ziggurat) against the normal law: moments, a
+    Kolmogorov-Smirnov test, the mass beyond the base layer (drawn by the tail method) and inside
+    one wedge (drawn by the rejection step)."""
+    from scipy import stats
+
+    N = 4_000_000
+    z = np.empty(N)
+    kernels.fill_normals(np.array([1, 2, 3, 4], dtype=np.uint64), z, N)
+    se = 1.0 / np.sqrt(N)
+    assert abs(z.mean()) < 5 * se and abs(z.var() - 1.0) < 5 * np.sqrt(2.0) * se
+    assert abs(stats.skew(z)) < 5 * np.sqrt(6.0) * se and abs(stats.kurtosis(z)) < 5 * np.sqrt(24.0) * se
+    assert stats.kstest(z[:500_000], "norm").pvalue > 1e-3
+    for lo, hi in ((kernels.ZIG_R, np.inf), (1.0, 1.05), (-0.3, -0.29)):
+        p = stats.norm.cdf(hi) - stats.norm.cdf(lo)
+        f = ((z > lo) & (z < hi)).mean()
+        assert abs(f - p) < 5 * np.sqrt(p * (1 - p) / N), (lo, hi, f, p)
+    # the state advances (a second fill continues the stream) and is a function of the seed only
+    s1, s2 = np.array([5, 6, 7, 8], dtype=np.uint64), np.array([5, 6, 7, 8], dtype=np.uint64)
+    a, b, c = np.empty(1000), np.empty(500), np.empty(500)
+    kernels.fill_normals(s1, a, 1000)
+    kernels.fill_normals(s2, b, 500)
+    kernels.fill_normals(s2, c, 500)
+    assert np.array_equal(a, np.concatenate([b, c]))
 
 
 def test_engine_selection(monkeypatch):
