@@ -4,9 +4,9 @@
 
 Two measurements per robot, on the same fixed random subset of the scenario's edges:
 
-* engine: ``firmtool.edges.simulate`` alone (gains designed beforehand), one process, numpy path vs
-  the compiled kernel (``FIRMTOOL_ENGINE``); both see the same noise, so they simulate exactly the
-  same particle-steps;
+* engine: ``firmtool.edges.simulate`` alone (gains designed beforehand), one process: the numpy
+  path, the compiled kernel fed numpy's noise (``numpy_noise=True``: exactly the numpy path's
+  particles) and the compiled kernel as it runs in builds (noise drawn in the kernel);
 * estimate: ``parallel.run_edges`` end to end (per edge: the local controller's gains, node
   candidates, then the Monte Carlo), 1 and 2 worker processes, scenario particle counts.
 
@@ -39,18 +39,20 @@ def engine_throughput(name: str, edges_count: int, repeat: int, particles: int |
     lcs = [local_controller(problem, d, int(d.edge_source[e]), int(d.edge_target[e])) for e in edges]
     starts = [initial_ensemble(problem, d, int(d.edge_source[e]), M, np.random.default_rng([1, e])) for e in edges]
 
-    def run(eng: str) -> float:
+    def run(variant: str) -> float:
+        eng, numpy_noise = {"numpy": ("numpy", False), "numba_numpy_noise": ("numba", True),
+                            "numba": ("numba", False)}[variant]
         ps, t0 = 0, time.perf_counter()
         for e, lc, (x, xh) in zip(edges, lcs, starts):
-            out = simulate(problem, lc, regions, x.copy(), xh.copy(), np.random.default_rng([2, e]), eng)
+            out = simulate(problem, lc, regions, x.copy(), xh.copy(), np.random.default_rng([2, e]), eng, numpy_noise)
             ps += int(out.steps.sum())
         return ps / (time.perf_counter() - t0)
 
     run("numba")  # compile / load the cache outside the timing
     res = {}
-    for eng in ("numpy", "numba"):
-        med, vals = median_of(lambda: run(eng), repeat)
-        res[eng] = {"median": med, "runs": vals}
+    for variant in ("numpy", "numba_numpy_noise", "numba"):
+        med, vals = median_of(lambda: run(variant), repeat)
+        res[variant] = {"median": med, "runs": vals}
     res["speedup"] = res["numba"]["median"] / res["numpy"]["median"]
     res.update(edges=int(edges.size), particles=M)
     return res
@@ -101,13 +103,15 @@ def main(argv=None) -> dict:
         for name, r in out.items():
             for key in ("engine", "engine_1000_particles"):
                 g = r[key]
-                print(f"{name:5s} {key:22s} numpy {g['numpy']['median'] / 1e6:6.3f} M/s  numba "
-                      f"{g['numba']['median'] / 1e6:6.3f} M/s  x{g['speedup']:.2f}  ({g['edges']} edges x {g['particles']})")
+                print(f"{name:5s} {key:22s} numpy {g['numpy']['median'] / 1e6:6.3f} M/s  numba, numpy's noise "
+                      f"{g['numba_numpy_noise']['median'] / 1e6:6.3f} M/s  numba {g['numba']['median'] / 1e6:6.3f} M/s  "
+                      f"x{g['speedup']:.2f}  ({g['edges']} edges x {g['particles']})")
             for g in r["estimate"]:
                 print(f"{name:5s} estimate {g['engine']:5s} {g['workers']} worker(s) {g['median'] / 1e6:6.3f} M/s "
                       f"({g['edges']} edges x {g['particles']})")
         print("RESULT " + " ".join(
-            [f"{n}_engine_{e}={r[key][e]['median']}" for n, r in out.items() for key in ("engine",) for e in ("numpy", "numba")]
+            [f"{n}_engine_{e}={r[key][e]['median']}" for n, r in out.items() for key in ("engine",)
+             for e in ("numpy", "numba_numpy_noise", "numba")]
             + [f"{n}_engine1000_numba={r['engine_1000_particles']['numba']['median']}" for n, r in out.items()]
             + [f"{n}_estimate_{g['engine']}_w{g['workers']}={g['median']}" for n, r in out.items() for g in r["estimate"]]))
     return out

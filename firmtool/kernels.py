@@ -548,7 +548,6 @@ if numba is not None:
         px = np.empty(n_pts)
         py = np.empty(n_pts)
         xh1 = np.empty(n)
-        flat = np.empty(d * N)
         na = N
         while k < k_end and na > 0:
             # the step's noise, as columns
@@ -560,10 +559,8 @@ if numba is not None:
                         W[j, a] = noise[pos + a * d + j]
                 pos += na * d
             else:
-                fill_normals(rng_state, flat, na * d)
                 for j in range(d):
-                    for a in range(na):
-                        W[j, a] = flat[j * na + a]
+                    fill_normals(rng_state, W[j], na)
             # control from the estimate: u = u_ref - K (xhat - x_ref)
             for j in range(n):
                 xr = x_ref[k, j]
