@@ -60,39 +60,148 @@ def kalman_update(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np
 
 
 @numba.njit(cache=True)
-def _forward_recursions(A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread,
-                        Sigma, k0, k1):
-    """Steps ``k0 <= k < k1`` of the Kalman covariance recursion (Joseph form) and of the closed-loop
-    spread of the decision state.
+def _mm(A, B, out):
+    """``out = A @ B`` as row updates (``out[i] += A[i, l] B[l]``: the inner loop runs along a row, so
+    it vectorises), skipping exact zeros of ``A`` (the models' A, B, H are mostly zeros)."""
+    nc = B.shape[1]
+    for i in range(A.shape[0]):
+        for c in range(nc):
+            out[i, c] = 0.0
+        for l in range(A.shape[1]):
+            a = A[i, l]
+            if a != 0.0:
+                for c in range(nc):
+                    out[i, c] += a * B[l, c]
 
-    Step ``k`` uses the matrices ``A_steps[index[k]]`` (etc.). Fills ``L[k]`` (n, nz), ``P[k + 1]``,
-    ``innovation[k]`` (nz, nz) and ``spread[k + 1]`` (n,) in place, from ``P[k0]`` and the spread's
-    covariance ``Sigma`` (n, n) at step ``k0``, which is advanced in place to step ``k1``. The spread
-    follows ``Sigma_{k+1} = Acl Sigma Acl' + D`` with ``D = Qd`` (perfect measurements) or the
-    innovations through the gain ``L S L'`` (imperfect), from ``Sigma_0 = 0``. Running ``[0, a)``
+
+@numba.njit(cache=True)
+def _transpose(X, out):
+    for i in range(X.shape[0]):
+        for j in range(X.shape[1]):
+            out[j, i] = X[i, j]
+
+
+@numba.njit(cache=True)
+def _symmetric_part(X, out):
+    for i in range(X.shape[0]):
+        for j in range(X.shape[1]):
+            out[i, j] = 0.5 * (X[i, j] + X[j, i])
+
+
+@numba.njit(cache=True)
+def _cholesky_solve(S, B, C, out):
+    """``out = S^-1 B`` for a symmetric positive definite ``S`` (Cholesky factor in ``C``); returns
+    False if ``S`` is not numerically positive definite."""
+    q = S.shape[0]
+    for i in range(q):
+        for j in range(i + 1):
+            s = S[i, j]
+            for l in range(j):
+                s -= C[i, l] * C[j, l]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                C[i, i] = np.sqrt(s)
+            else:
+                C[i, j] = s / C[j, j]
+    for c in range(B.shape[1]):
+        for i in range(q):  # C y = b
+            s = B[i, c]
+            for l in range(i):
+                s -= C[i, l] * out[l, c]
+            out[i, c] = s / C[i, i]
+        for i in range(q - 1, -1, -1):  # C' x = y
+            s = out[i, c]
+            for l in range(i + 1, q):
+                s -= C[l, i] * out[l, c]
+            out[i, c] = s / C[i, i]
+    return True
+
+
+@numba.njit(cache=True)
+def _filter_recursion(A_steps, H_steps, index, variances, Qd, L, P, innovation, k0, k1):
+    """Steps ``k0 <= k < k1`` of the Kalman covariance recursion (Joseph form), from ``P[k0]``.
+
+    Step ``k`` uses ``A_steps[index[k]]`` and ``H_steps[index[k]]`` and R = diag(``variances[k]``);
+    fills ``L[k]`` (n, nz), ``P[k + 1]`` and ``innovation[k]`` (nz, nz) in place. Running ``[0, a)``
     then ``[a, b)`` does exactly what ``[0, b)`` does.
+
+    The products are plain loops over preallocated work arrays (no temporaries per step) that skip
+    the models' zeros. The Joseph form ``(I - L H) P- (I - L H)' + L R L'`` is evaluated expanded,
+    ``P- - G - G' + L S L'`` with ``G = L H P-`` and ``S = H P- H' + R``. ``S`` is inverted through
+    its Cholesky factor; an ``S`` that is not positive definite (cannot happen with R > 0 but for
+    rounding) raises NumericalError.
     """
     n = Qd.shape[0]
-    eye = np.eye(n)
+    nz = H_steps.shape[1]
+    X1, X2, X3, prior = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    G, LSL = np.empty((n, n)), np.empty((n, n))
+    HP, Lt = np.empty((nz, n)), np.empty((nz, n))
+    S, Ssym, C = np.empty((nz, nz)), np.empty((nz, nz)), np.empty((nz, nz))
+    Lk, LS, HPt = np.empty((n, nz)), np.empty((n, nz)), np.empty((n, nz))
+    for k in range(k0, k1):
+        j = index[k]
+        A, H = A_steps[j], H_steps[j]
+        _mm(A, P[k], X1)  # prior = A P A' + Q (computed as its transpose, then symmetrised)
+        _transpose(X1, X3)
+        _mm(A, X3, X2)
+        for a in range(n):
+            for b in range(n):
+                X2[a, b] += Qd[a, b]
+        _symmetric_part(X2, prior)
+        _mm(H, prior, HP)  # S = H P- H' + R
+        _transpose(HP, HPt)
+        _mm(H, HPt, S)
+        for i in range(nz):
+            S[i, i] += variances[k, i]
+        _symmetric_part(S, Ssym)
+        innovation[k] = Ssym
+        if not _cholesky_solve(Ssym, HP, C, Lt):  # L' = S^-1 H P-
+            raise NumericalError("Kalman filter: the innovation covariance H P- H' + R is not positive definite")
+        _transpose(Lt, Lk)
+        _mm(Lk, HP, G)
+        _mm(Lk, Ssym, LS)
+        _mm(LS, Lt, LSL)
+        for a in range(n):
+            for b in range(n):
+                X1[a, b] = prior[a, b] - G[a, b] - G[b, a] + LSL[a, b]
+        _symmetric_part(X1, P[k + 1])
+        L[k] = Lk
+
+
+@numba.njit(cache=True)
+def _spread_recursion(A_steps, B_steps, index, K, Qd, perfect, L, innovation, spread, Sigma, k0, k1):
+    """Steps ``k0 <= k < k1`` of the closed-loop spread of the decision state: ``Sigma_{k+1} = Acl
+    Sigma Acl' + D`` with ``Acl = A - B K[k]`` and ``D = Qd`` (perfect measurements) or the
+    innovations through the gain, ``L[k] S_k L[k]'`` (imperfect; ``L`` and ``innovation`` must be
+    computed through step k). ``Sigma`` (n, n) is advanced in place; fills ``spread[k + 1]``."""
+    n = Qd.shape[0]
+    nz = L.shape[2]
+    X1, X2, X3, D = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    Acl, BK = np.empty((n, n)), np.empty((n, n))
+    LS, Lt = np.empty((n, nz)), np.empty((nz, n))
     for k in range(k0, k1):
         j = index[k]
         A = A_steps[j]
         if perfect:
-            drive = Qd
+            for a in range(n):
+                for b in range(n):
+                    D[a, b] = Qd[a, b]
         else:
-            H = H_steps[j]
-            R = np.diag(variances[k])
-            prior = A @ P[k] @ A.T + Qd
-            S = H @ prior @ H.T + R
-            innovation[k] = S
-            Lk = np.linalg.solve(S, H @ prior).T
-            IL = eye - Lk @ H
-            Pn = IL @ prior @ IL.T + Lk @ R @ Lk.T
-            P[k + 1] = 0.5 * (Pn + Pn.T)
-            L[k] = Lk
-            drive = Lk @ S @ Lk.T
-        Acl = A - B_steps[j] @ K[k]
-        Sigma[:, :] = Acl @ Sigma @ Acl.T + drive
+            _transpose(L[k], Lt)
+            _mm(L[k], innovation[k], LS)
+            _mm(LS, Lt, D)
+        _mm(B_steps[j], K[k], BK)  # Acl = A - B K
+        for a in range(n):
+            for b in range(n):
+                Acl[a, b] = A[a, b] - BK[a, b]
+        _mm(Acl, Sigma, X1)
+        _transpose(X1, X3)
+        _mm(Acl, X3, X2)
+        for a in range(n):
+            for b in range(n):
+                X2[a, b] += D[a, b]
+        _symmetric_part(X2, Sigma)
         for i in range(n):
             spread[k + 1, i] = np.sqrt(max(Sigma[i, i], 0.0))
 
@@ -267,17 +376,31 @@ def design_node(model: LinearGaussianModel, center: np.ndarray, Wx: np.ndarray, 
 
 
 class _ForwardRecursion:
-    """The inputs of :func:`_forward_recursions` for one local controller, and how far it has run."""
+    """The inputs of the forward recursions of one local controller, and how far each has run: the
+    filter's (:func:`_filter_recursion`: L, P, innovation covariances), which a Monte Carlo needs, and
+    the spread's (:func:`_spread_recursion`), which only execution reads."""
 
     def __init__(self, A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread):
-        self.args = (A_steps, B_steps, H_steps, index, K, variances, Qd, perfect, L, P, innovation, spread)
+        self.filter_args = (A_steps, H_steps, index, variances, Qd, L, P, innovation)
+        self.spread_args = (A_steps, B_steps, index, K, Qd, perfect, L, innovation, spread)
+        self.perfect = perfect
         self.Sigma = np.zeros((Qd.shape[0], Qd.shape[0]))
         self.done = 0
+        self.spread_done = 0
 
     def run(self, k: int) -> None:
+        """The filter recursion through step ``k``."""
         if k > self.done:
-            _forward_recursions(*self.args, self.Sigma, self.done, k)
+            if not self.perfect:  # perfect measurements: no filter (P = 0, no L)
+                _filter_recursion(*self.filter_args, self.done, k)
             self.done = k
+
+    def run_spread(self, k: int) -> None:
+        """The spread recursion (and the filter's, which drives it) through step ``k``."""
+        if k > self.spread_done:
+            self.run(k)
+            _spread_recursion(*self.spread_args, self.Sigma, self.spread_done, k)
+            self.spread_done = k
 
 
 class LocalController:
@@ -296,11 +419,11 @@ class LocalController:
     spread : (T + 1, n) standard deviation of the decision state around the reference, from a start
         on the nominal: how far an undisturbed estimate is expected to stray at each step (replanning scale).
 
-    The filter side (``L``, ``P``, ``innovation_cov``, ``spread``) comes from a forward recursion over
-    all ``T = edge_steps + stabiliser steps`` steps, which runs lazily: :meth:`compute` and
-    :meth:`head` run it only as far as asked (a Monte Carlo needs only the steps its particles live,
-    usually a few past ``edge_steps`` of ~``edge_steps + 200``), and reading one of these attributes
-    runs it to the end. Every step is computed by the same code in the same order either way, so the
+    The filter side (``L``, ``P``, ``innovation_cov``) and the ``spread`` come from forward recursions
+    over all ``T = edge_steps + stabiliser steps`` steps, which run lazily: :meth:`compute` runs the
+    filter's only as far as asked (a Monte Carlo needs only the steps its particles live, usually a
+    few past ``edge_steps`` of ~``edge_steps + 200``, and never the spread), :meth:`head` both, and
+    reading one of these attributes runs its recursion to the end. Every step is computed by the same code in the same order either way, so the
     values do not depend on how far, or in how many pieces, the recursion ran.
     """
 
@@ -316,21 +439,26 @@ class LocalController:
         return self.x_ref.shape[0]
 
     def compute(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Run the forward recursion through step ``k`` (at most ``steps``): ``L[:k]``, ``P[:k + 1]``,
-        ``innovation_cov[:k]`` and ``spread[:k + 1]`` are then final.
+        """Run the filter recursion through step ``k`` (at most ``steps``): ``L[:k]``, ``P[:k + 1]``
+        and ``innovation_cov[:k]`` are then final (the spread is not: :meth:`head`, :attr:`spread`).
 
         Returns the full-length buffers ``(L, P)``; their rows past ``k`` may not be computed yet."""
         fw = self._forward
         if fw is not None:
             fw.run(min(k, self.steps))
-            if fw.done >= self.steps:
-                self._forward = None
         return self._L, self._P
 
+    def _compute_spread(self, k: int) -> None:
+        fw = self._forward
+        if fw is not None:
+            fw.run_spread(min(k, self.steps))
+            if fw.spread_done >= self.steps:
+                self._forward = None
+
     def head(self, k: int) -> "LocalController":
-        """The first ``k`` steps of this controller (views), computed only that far."""
+        """The first ``k`` steps of this controller (views), every array computed only that far."""
         k = max(0, min(k, self.steps))
-        self.compute(k)
+        self._compute_spread(k)
         return LocalController(self.x_ref[:k], self.u_ref[:k], self.K[:k], self._L[:k], self._P[:k + 1],
                                self.edge_steps, None if self._innovation is None else self._innovation[:k],
                                None if self._spread is None else self._spread[:k + 1])
@@ -350,7 +478,7 @@ class LocalController:
 
     @property
     def spread(self) -> np.ndarray | None:
-        self.compute(self.steps)
+        self._compute_spread(self.steps)
         return self._spread
 
 

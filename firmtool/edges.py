@@ -85,7 +85,9 @@ def cost_weights(spec: CostSpec) -> np.ndarray:
 def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np.ndarray:
     """(M, 3) cost terms of particles that stopped after ``steps``: the weights are applied later, so
     that a change of cost weights re-solves without re-estimating."""
-    trP = np.concatenate([[0.0], np.cumsum(np.trace(lc.P[1:], axis1=1, axis2=2))])
+    last = int(steps.max(initial=0))
+    P = lc.compute(last)[1]  # the filter recursion only as far as the last particle lived
+    trP = np.concatenate([[0.0], np.cumsum(np.trace(P[1:last + 1], axis1=1, axis2=2))])
     return np.column_stack([trP[steps], steps.astype(float), effort])
 
 

@@ -784,9 +784,6 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
             noise = np.concatenate([noise[pos:], fresh]) if pos < noise.shape[0] else fresh
             k, n_alive, pos = run(k, k_end, n_alive, alive, X, Xh, outcome, steps, effort, noise, 0, rng_state, pd.r,
                                   A_, B_, F_, H_, x_ref, u_ref, K_, Ld, cand_ptr, cand_idx, cand_key, *tail)
-    # The cost terms read P only up to the last particle's stopping step: hand them the controller's
-    # head, so that the recursion does not run on to the controller's end for them.
-    lc = lc.head(int(steps.max(initial=0)))
     if X is not x:
         x[...] = X
     if Xh is not xhat:

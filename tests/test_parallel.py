@@ -135,9 +135,9 @@ def _run_until_cached(cmd: list[str], path: Path, at_least: int, sig: int) -> tu
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["sigkill", "ctrl-c"])
 def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, sig):
-    # 2000 particles per edge: the estimate stage takes a few seconds, so the signal usually lands
+    # 6000 particles per edge: the estimate stage takes a few seconds, so the signal usually lands
     # midway (a kill after the last checkpoint but before the final write leaves every edge cached)
-    scenario = _scenario(tmp_path, **{"particles = 100": "particles = 2000"})
+    scenario = _scenario(tmp_path, **{"particles = 100": "particles = 6000"})
     out = tmp_path / "r.h5"
     cmd = [sys.executable, "-m", "firmtool.cli", "build", str(scenario), "-o", str(out), "--workers", "2",
            "--checkpoint-seconds", "0"]
