@@ -51,9 +51,26 @@ def discretize(Ac: np.ndarray, Bc: np.ndarray, Gc: np.ndarray, Qc: np.ndarray,
 
 
 def noise_factor(Q: np.ndarray, tol: float = 1e-14) -> np.ndarray:
-    """A factor ``F`` (n, r) with ``F F' = Q`` for a positive semi-definite ``Q``, dropping null directions."""
-    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
-    keep = w > tol * max(1.0, float(w.max(initial=0.0)))
+    """A factor ``F`` (n, r) with ``F F' = Q`` for a positive semi-definite ``Q``, dropping null directions.
+
+    A well-conditioned positive definite ``Q`` gets its lower-triangular Cholesky factor, with the
+    entries that are rounding noise (below ``tol`` relative to the largest) set to zero: a
+    discretised model's ``Q`` couples each joint's position with its own velocity only, and its
+    factor keeps that structure (on the arm 24 nonzeros instead of the 215 of an eigenvector factor),
+    which the Monte Carlo's process noise ``F w`` of every simulated step skips. Otherwise: the
+    eigenvectors scaled by the square roots of the eigenvalues above ``tol``."""
+    Q = 0.5 * (Q + Q.T)
+    w, V = np.linalg.eigh(Q)
+    top = max(1.0, float(w.max(initial=0.0)))
+    keep = w > tol * top
+    if keep.all() and float(w.min()) > 1e3 * tol * top:
+        try:
+            F = np.linalg.cholesky(Q)
+        except np.linalg.LinAlgError:
+            pass
+        else:
+            F[np.abs(F) <= tol * np.abs(F).max()] = 0.0
+            return F
     return V[:, keep] * np.sqrt(w[keep])
 
 
