@@ -282,6 +282,22 @@ def _reachability(A: np.ndarray, B: np.ndarray, steps: int) -> tuple[np.ndarray,
     return blocks, W, powers[steps]
 
 
+@numba.njit(cache=True)
+def _rollout(A, B, x0, u, x):
+    """``x[0] = x0``, ``x[k + 1] = A x[k] + B u[k]`` (the nominal's states from its inputs)."""
+    n, m = B.shape
+    x[0] = x0
+    for k in range(u.shape[0]):
+        for i in range(n):
+            s = 0.0
+            for j in range(n):
+                s += A[i, j] * x[k, j]
+            t = 0.0
+            for j in range(m):
+                t += B[i, j] * u[k, j]
+            x[k + 1, i] = s + t
+
+
 def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.ndarray,
                           steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-energy open-loop trajectory from ``x0`` to ``xf`` in exactly ``steps`` steps.
@@ -303,9 +319,8 @@ def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.n
         raise NumericalError(f"no trajectory in {steps} steps: the pair (A, B) is not controllable") from None
     u = np.einsum("kim,i->km", blocks, lam)
     x = np.empty((steps + 1, n))
-    x[0] = x0
-    for k in range(steps):
-        x[k + 1] = A @ x[k] + B @ u[k]
+    _rollout(np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(B, dtype=float),
+             np.asarray(x0, dtype=float), u, x)
     if np.linalg.norm(x[-1] - xf) > 1e-6 * max(1.0, np.linalg.norm(xf)):
         raise NumericalError("nominal trajectory misses its target: the pair (A, B) is not controllable")
     return x, u
@@ -569,14 +584,21 @@ def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_n
         P[0] = P0
     # Per-step matrices (indexing of the few distinct ones), then both forward recursions compiled
     # (this loop of small products dominated the time per edge in Python), run lazily.
-    A_steps = np.stack([edge_jac[k][0] for k in range(iota)] + [stab_jac[p][0] for p in range(period)])
-    B_steps = np.stack([edge_jac[k][1] for k in range(iota)] + [stab_jac[p][1] for p in range(period)])
-    index = np.concatenate([np.arange(iota), iota + phase])
+    H_all = [] if perfect else edge_H + stab_H
+    if uniform and _same_matrices(edge_jac[:1] + stab_jac) and _same_matrices([(h,) for h in H_all] or [()]):
+        # the same matrices at every step (a linear model): one copy, every step indexes it
+        A_steps, B_steps = edge_jac[0][0][None], edge_jac[0][1][None]
+        index = np.zeros(T, dtype=np.int64)
+        H_all = H_all[:1]
+    else:
+        A_steps = np.stack([edge_jac[k][0] for k in range(iota)] + [stab_jac[p][0] for p in range(period)])
+        B_steps = np.stack([edge_jac[k][1] for k in range(iota)] + [stab_jac[p][1] for p in range(period)])
+        index = np.concatenate([np.arange(iota), iota + phase])
     if perfect:
-        H_steps = np.zeros((iota + period, 0, n))
+        H_steps = np.zeros((A_steps.shape[0], 0, n))
         variances = np.zeros((T, 0))
     else:
-        H_steps = np.stack(edge_H + stab_H)
+        H_steps = np.stack(H_all)
     spread = np.zeros((T + 1, n))
     innovation_buf = np.zeros((T, H_steps.shape[1], H_steps.shape[1]))
     forward = _ForwardRecursion(A_steps, B_steps, H_steps, index, K, np.asarray(variances, dtype=float),
