@@ -120,17 +120,19 @@ def _cholesky_solve(S, B, C, out):
 
 @numba.njit(cache=True)
 def _filter_recursion(A_steps, H_steps, index, variances, Qd, L, P, innovation, k0, k1):
-    """Steps ``k0 <= k < k1`` of the Kalman covariance recursion (Joseph form), from ``P[k0]``.
+    """Steps ``k0 <= k < k1`` of the Kalman covariance recursion, from ``P[k0]``.
 
     Step ``k`` uses ``A_steps[index[k]]`` and ``H_steps[index[k]]`` and R = diag(``variances[k]``);
     fills ``L[k]`` (n, nz), ``P[k + 1]`` and ``innovation[k]`` (nz, nz) in place. Running ``[0, a)``
     then ``[a, b)`` does exactly what ``[0, b)`` does.
 
     The products are plain loops over preallocated work arrays (no temporaries per step) that skip
-    the models' zeros. The Joseph form ``(I - L H) P- (I - L H)' + L R L'`` is evaluated expanded,
-    ``P- - G - G' + L S L'`` with ``G = L H P-`` and ``S = H P- H' + R``. ``S`` is inverted through
-    its Cholesky factor; an ``S`` that is not positive definite (cannot happen with R > 0 but for
-    rounding) raises NumericalError.
+    the models' zeros. The Joseph form ``(I - L H) P- (I - L H)' + L R L'`` is evaluated as its
+    expansion ``P- - G - G' + L S L'`` with ``G = L H P-`` and ``S = H P- H' + R`` (equal for any
+    gain, but as a sum it lacks the product form's guarantee of a positive semi-definite result: P is
+    symmetrised, and its negative eigenvalues are of the rounding size the product form gave, ~1e-16
+    relative). ``S`` is inverted through its Cholesky factor; an ``S`` that is not positive definite
+    (cannot happen with R > 0 but for rounding) raises NumericalError.
     """
     n = Qd.shape[0]
     nz = H_steps.shape[1]

@@ -63,12 +63,16 @@ def digest(*parts: Any) -> bytes:
     return h.digest()
 
 
-def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = None) -> np.ndarray:
-    """(E, 32) uint8 keys of the design's edges (or of ``edges``, indices into them)."""
+def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = None,
+              engine: str | None = None) -> np.ndarray:
+    """(E, 32) uint8 keys of the design's edges (or of ``edges``, indices into them), for the Monte
+    Carlo ``engine`` (default: the one :func:`firmtool.kernels.engine_for` picks here)."""
     sc = problem.scenario
-    from firmtool.kernels import engine_for
+    if engine is None:
+        from firmtool.kernels import engine_for
 
-    base = digest(ENGINE_VERSION, engine_for(problem), sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
+        engine = engine_for(problem)
+    base = digest(ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
                   sc.estimation.particles, sc.estimation.chunk)
     idx = np.arange(design_.edge_source.size) if edges is None else np.asarray(list(edges), dtype=np.int64)
     node_digest: dict[int, bytes] = {}

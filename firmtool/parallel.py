@@ -36,6 +36,10 @@ class EstimationJob:
     particles: int
     chunk: int
     seed: int
+    # The Monte Carlo engine, chosen once by the caller (the one its edge keys record), so that a
+    # worker with another FIRMTOOL_ENGINE or without numba cannot silently run a different one
+    # (it fails the edge instead). None: each worker chooses (kernels.engine_for).
+    engine: str | None = None
 
 
 _worker_state: dict[str, object] = {}
@@ -62,8 +66,8 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list[EdgeEstimate]:
     """Estimate a batch of edges (indices into the design's edge arrays)."""
     problem, design, regions = _context(job)
     src, dst = design.edge_source, design.edge_target
-    return [estimate_edge(problem, design, regions, int(src[e]), int(dst[e]), job.particles, job.seed, job.chunk)
-            for e in edges]
+    return [estimate_edge(problem, design, regions, int(src[e]), int(dst[e]), job.particles, job.seed, job.chunk,
+                          job.engine) for e in edges]
 
 
 def _worker_batch(edges: Sequence[int]) -> list[EdgeEstimate]:

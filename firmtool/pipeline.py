@@ -16,6 +16,7 @@ from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, f
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
 from firmtool.errors import FirmtoolError, RoadmapError, RunFailure
 from firmtool.graph import shortest_path_policy, solve_dp, success_probability
+from firmtool.kernels import engine_for
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
@@ -117,7 +118,8 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     d = design_of(roadmap)
     sc = problem.scenario
     E = d.edge_source.size
-    keys = edge_keys(problem, d)
+    engine = engine_for(problem)  # chosen once: the keys record it, the workers run it
+    keys = edge_keys(problem, d, engine=engine)
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
@@ -133,7 +135,8 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
     workers = workers or default_workers()
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
-                        particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed)
+                        particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
+                        engine=engine)
     progress = progress_factory(len(todo)) if progress_factory and todo else None
     new: list[int] = []
     saved = 0

@@ -88,6 +88,36 @@ def test_dask_local_cluster_gives_the_one_worker_table(designed, tmp_path):
     _assert_same_tables(_edges(copy), reference)
 
 
+def test_the_engine_is_chosen_once_keyed_and_run_by_every_worker(designed, tmp_path, monkeypatch):
+    """The edge keys record the engine, and the workers run the one the caller chose, whatever their
+    own FIRMTOOL_ENGINE says: a switch of engine re-estimates instead of reusing the other's results."""
+    from firmtool.edge_table import edge_keys
+    from firmtool.edges import estimate_edge
+    from firmtool.kernels import ENGINE_ENV
+    from firmtool.pipeline import design_of, problem_of
+
+    path, reference = designed
+    rm = Roadmap(path)
+    problem, d = problem_of(rm), design_of(rm)
+    assert not np.array_equal(edge_keys(problem, d, engine="numpy"), edge_keys(problem, d, engine="numba"))
+    sc = problem.scenario
+    job = firmtool.parallel.EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(path), design=d,
+                                          particles=sc.estimation.particles, chunk=sc.estimation.chunk,
+                                          seed=sc.seed, engine="numpy")
+    monkeypatch.setenv(ENGINE_ENV, "numba")  # a worker's own setting is not what runs
+    got = firmtool.parallel.run_batch(job, [0])[0]
+    want = estimate_edge(problem, d, d.regions(problem), int(d.edge_source[0]), int(d.edge_target[0]),
+                         sc.estimation.particles, sc.seed, sc.estimation.chunk, engine="numpy")
+    assert got.counts.tolist() == want.counts.tolist() and np.array_equal(got.terms_mean, want.terms_mean)
+    # a build whose engine changed estimates every edge again
+    copy = tmp_path / "e.h5"
+    shutil.copyfile(path, copy)
+    estimate_stage(copy, workers=1)
+    monkeypatch.setenv(ENGINE_ENV, "numpy")
+    report = estimate_stage(copy, workers=1)
+    assert report["estimated_edges"] == reference["source"].size and report["reused_edges"] == 0
+
+
 def test_batch_size_does_not_change_results(designed, tmp_path):
     path, reference = designed
     copy = tmp_path / "b.h5"
