@@ -184,8 +184,10 @@ def _build_arm(sc: Scenario) -> Problem:
     elif H.shape != (L, n):
         raise ScenarioError(sc.path, "measurement.H", f"expected shape ({L}, {n}) (one row per joint) but found {H.shape}")
 
+    planar_arm.joint_positions(np.zeros(L), lengths)  # checks the lengths, once
+
     def points(X: np.ndarray) -> np.ndarray:
-        return planar_arm.joint_positions(np.asarray(X)[:, :L], lengths)
+        return planar_arm.chain_points(np.asarray(X, dtype=float)[:, :L], lengths)
 
     def sensing_from_points(P: np.ndarray) -> np.ndarray:
         return P[:, 1:, 0]

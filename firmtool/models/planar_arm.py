@@ -64,14 +64,19 @@ def joint_positions(theta: np.ndarray, link_lengths: np.ndarray, base=(0.0, 0.0)
     row is the tip.
     """
     ll = _lengths(link_lengths)
-    th = _angles(theta, ll.size)
-    b = _base(base)
-    phi = np.cumsum(th, axis=-1)
-    steps = np.stack([ll * np.cos(phi), ll * np.sin(phi)], axis=-1)  # (..., L, 2)
-    P = np.empty(th.shape[:-1] + (ll.size + 1, 2))
-    P[..., 0, :] = b
-    np.cumsum(steps, axis=-2, out=P[..., 1:, :])
-    P[..., 1:, :] += b
+    return chain_points(_angles(theta, ll.size), ll, _base(base))
+
+
+def chain_points(theta: np.ndarray, link_lengths: np.ndarray, base: np.ndarray = np.zeros(2)) -> np.ndarray:
+    """:func:`joint_positions` without the argument checks, for callers whose arrays are already
+    valid (float ``theta`` (..., L), positive ``link_lengths`` (L,), ``base`` (2,)): the simulation's
+    every step, where the checks cost as much as the kinematics."""
+    phi = np.cumsum(theta, axis=-1)
+    P = np.empty(theta.shape[:-1] + (link_lengths.size + 1, 2))
+    P[..., 0, :] = base
+    np.cumsum(link_lengths * np.cos(phi), axis=-1, out=P[..., 1:, 0])
+    np.cumsum(link_lengths * np.sin(phi), axis=-1, out=P[..., 1:, 1])
+    P[..., 1:, :] += base
     return P
 
 
