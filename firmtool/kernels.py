@@ -210,6 +210,8 @@ _kernel = None
 # Module-level functions (not closures): numba keys its on-disk cache of a closure by its cells,
 # and a cell holding another dispatcher pickles with a per-process uuid, so every process recompiled.
 if numba is not None:
+    from firmtool.geometry._numba import seg_box_d2, seg_seg_d2  # the distances, shared with the geometry backend
+
     njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
     @njit
@@ -233,53 +235,6 @@ if numba is not None:
         if k == 2:
             return -sp, -cp
         return -cp, sp
-
-    @njit
-    def pseg_d2(px, py, ax, ay, bx, by):
-        dx, dy = bx - ax, by - ay
-        dd = dx * dx + dy * dy
-        t = 0.0
-        if dd > 0.0:
-            t = ((px - ax) * dx + (py - ay) * dy) / dd
-            t = min(max(t, 0.0), 1.0)
-        ex, ey = ax + t * dx - px, ay + t * dy - py
-        return ex * ex + ey * ey
-
-    @njit
-    def pbox_d2(px, py, hx, hy):
-        ex = max(abs(px) - hx, 0.0)
-        ey = max(abs(py) - hy, 0.0)
-        return ex * ex + ey * ey
-
-    @njit
-    def seg_box_d2(ax, ay, bx, by, hx, hy):
-        sep = (min(ax, bx) > hx) or (max(ax, bx) < -hx) or (min(ay, by) > hy) or (max(ay, by) < -hy)
-        if not sep:
-            nx, ny = ay - by, bx - ax
-            mx, my = 0.5 * (ax + bx), 0.5 * (ay + by)
-            sep = abs(nx * mx + ny * my) > abs(nx) * hx + abs(ny) * hy
-        if not sep:
-            return 0.0
-        d = min(pbox_d2(ax, ay, hx, hy), pbox_d2(bx, by, hx, hy))
-        d = min(d, pseg_d2(hx, hy, ax, ay, bx, by))
-        d = min(d, pseg_d2(hx, -hy, ax, ay, bx, by))
-        d = min(d, pseg_d2(-hx, hy, ax, ay, bx, by))
-        d = min(d, pseg_d2(-hx, -hy, ax, ay, bx, by))
-        return d
-
-    @njit
-    def seg_seg_d2(a0x, a0y, a1x, a1y, b0x, b0y, b1x, b1y):
-        dax, day = a1x - a0x, a1y - a0y
-        dbx, dby = b1x - b0x, b1y - b0y
-        o1 = dax * (b0y - a0y) - day * (b0x - a0x)
-        o2 = dax * (b1y - a0y) - day * (b1x - a0x)
-        o3 = dbx * (a0y - b0y) - dby * (a0x - b0x)
-        o4 = dbx * (a1y - b0y) - dby * (a1x - b0x)
-        if o1 * o2 < 0.0 and o3 * o4 < 0.0:
-            return 0.0
-        d = min(pseg_d2(a0x, a0y, b0x, b0y, b1x, b1y), pseg_d2(a1x, a1y, b0x, b0y, b1x, b1y))
-        d = min(d, pseg_d2(b0x, b0y, a0x, a0y, a1x, a1y))
-        return min(d, pseg_d2(b1x, b1y, a0x, a0y, a1x, a1y))
 
     @njit
     def collides(px, py, n_seg, seg_offset, lo, hi, C, Hs, cs, sn, blo, bhi, r, self_collision, half):

@@ -1,6 +1,8 @@
 """Optional numba kernel for :class:`NumbaCollisionBackend`: the numpy geometry, scalar, one
 configuration at a time with early exit. The numpy backend stays the reference; the tests check
-that both agree. Compiled lazily on first use (about a second).
+that both agree. The distance primitives are shared with the Monte Carlo kernel
+(:mod:`firmtool.kernels`). Module-level and cached on disk by numba (compiled once, ~1-2 s; later
+processes load them in well under a second).
 """
 
 from __future__ import annotations
@@ -14,11 +16,11 @@ try:  # numba is optional
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
-_kernel = None
-
-
-def _build_kernel():
-    njit = numba.njit(cache=False, nogil=True, fastmath=False)
+# Module-level functions (not a closure): numba caches them on disk (a closure recompiled in every
+# process). firmtool.kernels compiles these distances into its step kernel: numba's cache of a
+# caller does not notice a change here, so after editing them clear firmtool/__pycache__/*.nb*.
+if numba is not None:
+    njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
     @njit
     def pseg_d2(px, py, ax, ay, bx, by):
@@ -112,8 +114,6 @@ def _build_kernel():
                             break
             out[m] = hit
 
-    return kernel
-
 
 class NumbaCollisionBackend(NumpyCollisionBackend):
     """Same constructor and semantics as :class:`NumpyCollisionBackend`; a compiled scalar loop
@@ -127,16 +127,13 @@ class NumbaCollisionBackend(NumpyCollisionBackend):
         super().__init__(*args, **kwargs)
 
     def capsules_collide(self, starts: np.ndarray, ends: np.ndarray, radius: float) -> np.ndarray:
-        global _kernel
         starts, ends, r = _check_capsules(starts, ends, radius)
         out = np.zeros(starts.shape[0], dtype=np.bool_)
         if starts.shape[0] == 0 or starts.shape[1] == 0:
             return out
-        if _kernel is None:
-            _kernel = _build_kernel()
         cs = np.where(self._rotated, self._cos, 1.0)
         sn = np.where(self._rotated, self._sin, 0.0)
-        _kernel(np.ascontiguousarray(starts), np.ascontiguousarray(ends), r, self.lo, self.hi,
+        kernel(np.ascontiguousarray(starts), np.ascontiguousarray(ends), r, self.lo, self.hi,
                 self.centers, self.half_sizes, cs, sn, self._box_lo, self._box_hi,
                 self.self_collision, out)
         return out
