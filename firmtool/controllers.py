@@ -89,6 +89,20 @@ def _symmetric_part(X, out):
 
 
 @numba.njit(cache=True)
+def _sandwich(M, X, D, W1, W2, W3, out):
+    """``out`` = the symmetric part of ``M X M' + D`` (``W1..W3``: (n, n) work arrays; ``out`` may be
+    ``X``). ``M X M'`` is computed as its transpose ``M (M X)'``: equal for a symmetric X."""
+    _mm(M, X, W1)
+    _transpose(W1, W2)
+    _mm(M, W2, W3)
+    n = W3.shape[0]
+    for a in range(n):
+        for b in range(n):
+            W3[a, b] += D[a, b]
+    _symmetric_part(W3, out)
+
+
+@numba.njit(cache=True)
 def _cholesky_solve(S, B, C, out):
     """``out = S^-1 B`` for a symmetric positive definite ``S`` (Cholesky factor in ``C``); returns
     False if ``S`` is not numerically positive definite."""
@@ -144,13 +158,7 @@ def _filter_recursion(A_steps, H_steps, index, variances, Qd, L, P, innovation, 
     for k in range(k0, k1):
         j = index[k]
         A, H = A_steps[j], H_steps[j]
-        _mm(A, P[k], X1)  # prior = A P A' + Q (computed as its transpose, then symmetrised)
-        _transpose(X1, X3)
-        _mm(A, X3, X2)
-        for a in range(n):
-            for b in range(n):
-                X2[a, b] += Qd[a, b]
-        _symmetric_part(X2, prior)
+        _sandwich(A, P[k], Qd, X1, X3, X2, prior)  # P- = A P A' + Q
         _mm(H, prior, HP)  # S = H P- H' + R
         _transpose(HP, HPt)
         _mm(H, HPt, S)
@@ -197,13 +205,7 @@ def _spread_recursion(A_steps, B_steps, index, K, Qd, perfect, L, innovation, sp
         for a in range(n):
             for b in range(n):
                 Acl[a, b] = A[a, b] - BK[a, b]
-        _mm(Acl, Sigma, X1)
-        _transpose(X1, X3)
-        _mm(Acl, X3, X2)
-        for a in range(n):
-            for b in range(n):
-                X2[a, b] += D[a, b]
-        _symmetric_part(X2, Sigma)
+        _sandwich(Acl, Sigma, D, X1, X3, X2, Sigma)
         for i in range(n):
             spread[k + 1, i] = np.sqrt(max(Sigma[i, i], 0.0))
 

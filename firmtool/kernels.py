@@ -453,6 +453,15 @@ if numba is not None:
                         o[a] += v * xj[a]
 
     @njit
+    def linear_step(A, B, X, U, out, TMP, n, na):
+        """``out = A X + B U`` over the particle columns (``TMP``: work array)."""
+        mat_rows(A, 0, X, out, n, na)
+        mat_rows(B, 0, U, TMP, n, na)
+        for j in range(n):
+            for a in range(na):
+                out[j, a] += TMP[j, a]
+
+    @njit
     def run(k, k_end, n_alive, alive, x, xhat, outcome, steps, effort, noise, pos, rng_state, w_len,
             A, B, F, H, x_ref, u_ref, K, L,
             cand_ptr, cand_idx, cand_key, centers, scale, inv_outer, radius2, window, knn,
@@ -527,11 +536,7 @@ if numba is not None:
                 for a in range(na):
                     U[j, a] = ur - U[j, a]
             # true state: (A x + B u) + F w
-            mat_rows(A, 0, X, XN, n, na)
-            mat_rows(B, 0, U, TMP, n, na)
-            for j in range(n):
-                for a in range(na):
-                    XN[j, a] += TMP[j, a]
+            linear_step(A, B, X, U, XN, TMP, n, na)
             mat_rows(F, 0, W, TMP, n, na)
             for j in range(n):
                 for a in range(na):
@@ -560,11 +565,7 @@ if numba is not None:
                     for a in range(na):
                         XH[j, a] = X[j, a]
             else:
-                mat_rows(A, 0, XH, PRED, n, na)
-                mat_rows(B, 0, U, TMP, n, na)
-                for j in range(n):
-                    for a in range(na):
-                        PRED[j, a] += TMP[j, a]
+                linear_step(A, B, XH, U, PRED, TMP, n, na)
                 mat_rows(H, 0, X, HZ, nz, na)
                 mat_rows(H, 0, PRED, INN, nz, na)
                 for j in range(nz):
