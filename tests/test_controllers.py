@@ -204,3 +204,18 @@ def test_min_energy_trajectory_memo_gives_the_fresh_result():
     np.testing.assert_array_equal(x2, x3)
     np.testing.assert_array_equal(u2, u3)
     np.testing.assert_allclose(x1[-1], xf, atol=1e-9)
+
+
+def test_filter_recursion_reports_an_innovation_covariance_that_is_not_positive_definite():
+    """A numerical fault in the compiled filter recursion is reported as such, not as NaNs."""
+    from firmtool.controllers import _filter_recursion
+    from firmtool.errors import NumericalError
+
+    n, nz, T = 2, 1, 3
+    L, P, innovation = np.zeros((T, n, nz)), np.zeros((T + 1, n, n)), np.zeros((T, nz, nz))
+    P[0] = 0.1 * np.eye(n)
+    args = (np.eye(n)[None], np.array([[[1.0, 0.0]]]), np.zeros(T, dtype=np.int64))
+    _filter_recursion(*args, np.full((T, nz), 0.5), 0.01 * np.eye(n), L, P, innovation, 0, T)
+    assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P[1:]) > 0)
+    with pytest.raises(NumericalError, match="not positive definite"):  # R < 0: S = P- + R < 0
+        _filter_recursion(*args, np.full((T, nz), -10.0), 0.01 * np.eye(n), L, P, innovation, 0, T)
