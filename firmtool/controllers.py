@@ -60,11 +60,12 @@ def kalman_update(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np
 
 
 @numba.njit(cache=True)
-def _mm(A, B, out):
-    """``out = A @ B`` as row updates (``out[i] += A[i, l] B[l]``: the inner loop runs along a row, so
-    it vectorises), skipping exact zeros of ``A`` (the models' A, B, H are mostly zeros)."""
-    nc = B.shape[1]
-    for i in range(A.shape[0]):
+def mat_rows(A, B, out, n_out, nc):
+    """``out[:n_out, :nc] = A[:n_out] @ B[:, :nc]`` as row updates (``out[i] += A[i, l] B[l]``: the inner
+    loop runs along a row of B, so it vectorises), skipping exact zeros of ``A`` (the models' A, B, H
+    are mostly zeros). Per output entry the terms are added in column order: the dense row
+    product's value. Shared with the Monte Carlo kernel, where B's columns are the particles."""
+    for i in range(n_out):
         for c in range(nc):
             out[i, c] = 0.0
         for l in range(A.shape[1]):
@@ -72,6 +73,12 @@ def _mm(A, B, out):
             if a != 0.0:
                 for c in range(nc):
                     out[i, c] += a * B[l, c]
+
+
+@numba.njit(cache=True)
+def _mm(A, B, out):
+    """``out = A @ B`` (:func:`mat_rows` over the whole matrices)."""
+    mat_rows(A, B, out, A.shape[0], B.shape[1])
 
 
 @numba.njit(cache=True)

@@ -233,27 +233,13 @@ class Executor:
         if s.enabled and s.risk_particles > 0:  # compile (or load) the Monte Carlo engine now, not in a replan
             self._warm_up()
         self._nis_limit = float(chi2.isf(s.false_alarm, s.window * model.nz)) if self._innovation else np.inf
-        self._locate_args: tuple | None = None
 
     def _locate(self, xhat: np.ndarray, candidates: np.ndarray) -> int:
-        """The node whose region holds the estimate ``xhat`` (1, n), or -1: :meth:`NodeRegions.locate`
-        for one estimate, through the compiled Monte Carlo's membership test (the same decision; a
-        tree query costs ~30 us per call, this ~5) when numba is there."""
-        regions = self.regions
+        """The node whose region holds the estimate ``xhat`` (1, n), or -1: the Monte Carlo kernel's
+        membership test when numba is there (the same decision as :meth:`NodeRegions.locate`)."""
         if kernels.numba is None:  # pragma: no cover
-            return int(regions.locate(xhat, candidates)[0])
-        if self._locate_args is None:
-            outer = np.asarray(regions._outer, dtype=float)
-            n = regions.centers.shape[1]
-            window = float(regions.radius) * np.sqrt(n) * float(outer[0]) * (1.0 + 1e-9)
-            self._locate_args = (np.ascontiguousarray(regions.centers, dtype=float),
-                                 np.ascontiguousarray(regions.scale, dtype=float), 1.0 / outer,
-                                 float(regions.radius) ** 2, window, min(kernels.LOCATE_K, regions.count))
-        order = kernels._first_coordinate_order(regions)
-        idx = order[candidates[order]]
-        centers = self._locate_args[0]
-        return int(kernels.locate(np.ascontiguousarray(xhat[0], dtype=float), xhat.shape[1], 0, idx.size, idx,
-                                  np.ascontiguousarray(centers[idx, 0]), *self._locate_args))
+            return int(self.regions.locate(xhat, candidates)[0])
+        return kernels.locate_one(self.regions, xhat[0], candidates)
 
     def _warm_up(self) -> None:
         edges = self.policy[self.policy >= 0]

@@ -174,7 +174,7 @@ def _build_arm(sc: Scenario) -> Problem:
     from firmtool.models import planar_arm
 
     spec = sc.model
-    lengths = np.asarray(spec.link_lengths, dtype=float)
+    lengths = planar_arm.validated_lengths(spec.link_lengths)
     L = lengths.size
     A, B, F, config_dim = _linear_dynamics(sc, L)
     n = A.shape[0]
@@ -183,8 +183,6 @@ def _build_arm(sc: Scenario) -> Problem:
         H = np.hstack([np.eye(L), np.zeros((L, n - L))])
     elif H.shape != (L, n):
         raise ScenarioError(sc.path, "measurement.H", f"expected shape ({L}, {n}) (one row per joint) but found {H.shape}")
-
-    planar_arm.joint_positions(np.zeros(L), lengths)  # checks the lengths, once
 
     def points(X: np.ndarray) -> np.ndarray:
         return planar_arm.chain_points(np.asarray(X, dtype=float)[:, :L], lengths)

@@ -165,15 +165,22 @@ def _run_until_cached(cmd: list[str], path: Path, at_least: int, sig: int) -> tu
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["sigkill", "ctrl-c"])
 def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, sig):
-    # 6000 particles per edge: the estimate stage takes a few seconds, so the signal usually lands
-    # midway (a kill after the last checkpoint but before the final write leaves every edge cached)
-    scenario = _scenario(tmp_path, **{"particles = 100": "particles = 6000"})
+    # The signal must land midway: after >= 8 edges are checkpointed, before the build ends (a kill
+    # after the last checkpoint but before the final write leaves every edge cached). With 2000
+    # particles per edge the estimate stage takes a few seconds; should a faster machine finish first,
+    # the same run with 4x and 16x the particles follows. A build that still finishes before the
+    # signal means the checkpoints did not appear while it ran: a failure, not a skip.
     out = tmp_path / "r.h5"
-    cmd = [sys.executable, "-m", "firmtool.cli", "build", str(scenario), "-o", str(out), "--workers", "2",
-           "--checkpoint-seconds", "0"]
-    done, seen = _run_until_cached(cmd, out, 8, sig)
-    if done.returncode == 0:
-        pytest.skip("the build finished before the signal (machine too fast for this test's timing)")
+    for particles in (2000, 8000, 32000):
+        scenario = _scenario(tmp_path, **{"particles = 100": f"particles = {particles}"})
+        out.unlink(missing_ok=True)
+        cmd = [sys.executable, "-m", "firmtool.cli", "build", str(scenario), "-o", str(out), "--workers", "2",
+               "--checkpoint-seconds", "0"]
+        done, seen = _run_until_cached(cmd, out, 8, sig)
+        if done.returncode != 0:
+            break
+    else:
+        pytest.fail(f"the build finished before >= 8 checkpointed edges were seen (last seen: {seen})")
     if sig == signal.SIGKILL:
         assert done.returncode == -signal.SIGKILL
     else:

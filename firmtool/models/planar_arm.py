@@ -22,7 +22,8 @@ import numpy as np
 from firmtool.errors import InputError
 
 
-def _lengths(link_lengths) -> np.ndarray:
+def validated_lengths(link_lengths) -> np.ndarray:
+    """The link lengths as a float array, or InputError if they are not positive finite numbers."""
     try:
         ll = np.asarray(link_lengths, dtype=float)
     except (TypeError, ValueError):
@@ -63,11 +64,11 @@ def joint_positions(theta: np.ndarray, link_lengths: np.ndarray, base=(0.0, 0.0)
     (M, L+1, 2) or (L+1, 2): ``P[..., i, :]`` is joint ``i+1`` (0-based row 0 is the base), the last
     row is the tip.
     """
-    ll = _lengths(link_lengths)
+    ll = validated_lengths(link_lengths)
     return chain_points(_angles(theta, ll.size), ll, _base(base))
 
 
-def chain_points(theta: np.ndarray, link_lengths: np.ndarray, base: np.ndarray = np.zeros(2)) -> np.ndarray:
+def chain_points(theta: np.ndarray, link_lengths: np.ndarray, base=(0.0, 0.0)) -> np.ndarray:
     """:func:`joint_positions` without the argument checks, for callers whose arrays are already
     valid (float ``theta`` (..., L), positive ``link_lengths`` (L,), ``base`` (2,)): the simulation's
     every step, where the checks cost as much as the kinematics."""
@@ -92,7 +93,7 @@ def tip_jacobian(theta: np.ndarray, link_lengths: np.ndarray, base=(0.0, 0.0)) -
     Column ``j`` is ``sum_{i >= j} l_i (-sin phi_i, cos phi_i)``. ``base`` does not enter (accepted
     for a uniform signature).
     """
-    ll = _lengths(link_lengths)
+    ll = validated_lengths(link_lengths)
     th = _angles(theta, ll.size)
     _base(base)
     phi = np.cumsum(th, axis=-1)
@@ -112,7 +113,7 @@ def joint_x_jacobian(theta: np.ndarray, link_lengths: np.ndarray, base=(0.0, 0.0
     the tip is not included (it is ``tip_jacobian(...)[0]``). Entry ``(i, j)`` is
     ``-sum_{j <= k < i} l_k sin phi_k`` for ``j < i`` and 0 otherwise (0-based link indices ``k``).
     """
-    ll = _lengths(link_lengths)
+    ll = validated_lengths(link_lengths)
     th = _angles(theta, ll.size)
     _base(base)
     L = ll.size
@@ -126,7 +127,7 @@ def joint_x_jacobian(theta: np.ndarray, link_lengths: np.ndarray, base=(0.0, 0.0
 
 def reach(link_lengths: np.ndarray) -> tuple[float, float]:
     """``(inner, outer)`` radii of the annulus of reachable tip positions around the base."""
-    ll = _lengths(link_lengths)
+    ll = validated_lengths(link_lengths)
     outer = float(ll.sum())
     inner = float(max(0.0, 2.0 * ll.max() - outer))
     return inner, outer
@@ -161,7 +162,7 @@ def inverse_kinematics_tip(target: np.ndarray, link_lengths: np.ndarray, theta0:
     (L,) angles with ``|tip - target| <= tol``, or None when the target is out of reach (outside the
     reachable annulus, decided up front) or no valid converged solution was found.
     """
-    ll = _lengths(link_lengths)
+    ll = validated_lengths(link_lengths)
     L = ll.size
     th0 = _angles(theta0, L)
     if th0.ndim != 1:
