@@ -242,8 +242,10 @@ _kernel = None
 # Module-level functions (not closures): numba keys its on-disk cache of a closure by its cells,
 # and a cell holding another dispatcher pickles with a per-process uuid, so every process recompiled.
 if numba is not None:
-    from firmtool.controllers import mat_rows  # the products skipping zeros, shared with the controllers
-    from firmtool.geometry._numba import seg_box_d2, seg_seg_d2  # the distances, shared with the geometry backend
+    # Shared with the controllers (products skipping zeros) and the geometry backend (distances). numba's
+    # disk cache of this module's kernel does not notice edits to them: clear firmtool/__pycache__/*.nb*.
+    from firmtool.controllers import mat_rows
+    from firmtool.geometry._numba import seg_box_d2, seg_seg_d2
 
     njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
