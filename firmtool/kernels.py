@@ -241,13 +241,15 @@ _kernel = None
 
 # Module-level functions (not closures): numba keys its on-disk cache of a closure by its cells,
 # and a cell holding another dispatcher pickles with a per-process uuid, so every process recompiled.
+# The kernel calls compiled functions of other modules (the controllers' skip-zero product, the
+# geometry's distances): firmtool._jit's cache key covers their source files, so an edit of them is
+# compiled, not loaded stale from the cache.
 if numba is not None:
-    # Shared with the controllers (products skipping zeros) and the geometry backend (distances). numba's
-    # disk cache of this module's kernel does not notice edits to them: clear firmtool/__pycache__/*.nb*.
+    from firmtool._jit import cached_njit
     from firmtool.controllers import mat_rows
     from firmtool.geometry._numba import seg_box_d2, seg_seg_d2
 
-    njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+    njit = cached_njit(nogil=True, fastmath=False, error_model="numpy")
 
     @njit
     def sincos(a):
