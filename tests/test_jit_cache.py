@@ -9,8 +9,10 @@ happen and the check would prove nothing).
 
 import json
 import os
+import shutil
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -69,6 +71,43 @@ def test_a_callees_edit_in_another_module_is_compiled_not_loaded_stale(tmp_path,
         assert edited == 106.0
     else:  # the trap itself, with numba's own cache: if this fails, numba now tracks callees (issue #1833)
         assert edited == 104.0, "numba's cache noticed the callee's edit: firmtool._jit may no longer be needed"
+
+
+KERNEL_CALLS = textwrap.dedent("""
+    import json
+    import numpy as np
+    import firmtool
+    from firmtool import kernels
+    assert firmtool.__file__.startswith({root!r}), firmtool.__file__
+    # the control through controllers.mat_rows: U = u_ref - K (XH - x_ref)
+    XH, DX, U = np.array([[1.0, 2.0], [3.0, 4.0]]), np.empty((2, 2)), np.empty((1, 2))
+    kernels.control(XH, np.zeros(2), np.zeros(1), np.array([[1.0, 1.0]]), DX, U, 2)
+    # a disc of radius 0.1 at (0.38, 0.38), 0.113 from the corner of the box [-0.3, 0.3]^2: its
+    # bounding box overlaps the box's, so geometry._numba.seg_box_d2 decides (clear)
+    C, Hs = np.zeros((1, 2)), np.full((1, 2), 0.3)
+    world = (np.array([-2.0, -2.0]), np.array([2.0, 2.0]), C, Hs, np.ones(1), np.zeros(1), C - Hs, C + Hs, 0.1)
+    hit = kernels.collides(np.array([0.38]), np.array([0.38]), 1, 0, world, False, np.zeros(0))
+    hits = sum(sum(f.stats.cache_hits.values()) for f in (kernels.control, kernels.collides))
+    print(json.dumps({{"control": U.tolist(), "collides": bool(hit), "hits": hits}}))
+""")
+
+
+def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp_path):
+    """The real case: in a copy of the package, the kernel's control (which calls controllers.mat_rows)
+    and collision test (geometry._numba.seg_box_d2) compiled and cached, those two callees edited,
+    then run again in a fresh process."""
+    src, cache = tmp_path / "src", tmp_path / "cache"
+    shutil.copytree(ROOT / "firmtool", src / "firmtool", ignore=shutil.ignore_patterns("__pycache__"))
+    code = KERNEL_CALLS.format(root=str(src))
+    first = _run(code, src, cache)
+    second = _run(code, src, cache)
+    assert first["control"] == [[-4.0, -6.0]] and first["collides"] is False and first["hits"] == 0
+    assert second["hits"] == 2 and second["control"] == first["control"] and second["collides"] is False
+    _edit(src / "firmtool" / "controllers.py", "out[i, c] += a * B[l, c]", "out[i, c] += 2.0 * a * B[l, c]")
+    nearest_corner = "d = min(pbox_d2(ax, ay, hx, hy), pbox_d2(bx, by, hx, hy))"  # seg_box_d2: now always 0
+    _edit(src / "firmtool" / "geometry" / "_numba.py", nearest_corner, nearest_corner.replace("= min", "= 0.0 * min"))
+    edited = _run(code, src, cache)
+    assert edited["control"] == [[-8.0, -12.0]] and edited["collides"] is True
 
 
 def test_the_kernels_cache_key_covers_every_module_it_calls_into():
