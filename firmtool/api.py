@@ -26,10 +26,8 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.atomic import replacing
-from firmtool.disturbances import Disturbance, parse_disturbance
 from firmtool.edges import FAILURE, TIMEOUT
 from firmtool.errors import InputError
-from firmtool.execute import ReplanSettings, edge_counts_of, execute, predicted_interval
 from firmtool.graph import SolveStatus
 from firmtool.nodes import GOAL, START_INDEX
 from firmtool.reports import BuildReport, SolveReport
@@ -42,6 +40,9 @@ from firmtool.scenario import load_scenario as _load_scenario_file
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
+
+    from firmtool.disturbances import Disturbance
+    from firmtool.execute import ReplanSettings
 
     from firmtool.design import Design
     from firmtool.problem import Problem
@@ -210,6 +211,8 @@ class Roadmap:
     @functools.cached_property
     def edge_counts(self):
         """The outcome counts in sparse form (``firmtool.execute.EdgeCounts``), for calibration."""
+        from firmtool.execute import edge_counts_of  # execution is loaded when first needed
+
         return edge_counts_of(self._data)
 
     @functools.cached_property
@@ -437,6 +440,8 @@ class Solution:
         policy : ``"firm"`` or ``"shortest-path"``.
         samples : posterior draws.
         """
+        from firmtool.execute import predicted_interval
+
         key = (policy, samples)
         if key not in self._intervals:
             edges, _ = self._policy(policy)
@@ -525,8 +530,8 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
 # -- execution ------------------------------------------------------------------------------------------
 
 def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
-             start: np.ndarray | None = None, disturbances: Iterable[str | Disturbance] = (),
-             replan: ReplanSettings | None = None, record: bool = True) -> Results:
+             start: np.ndarray | None = None, disturbances: Iterable["str | Disturbance"] = (),
+             replan: "ReplanSettings | None" = None, record: bool = True) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
     Each episode starts at the start node (or at ``start``), follows the policy's edge controllers
@@ -562,6 +567,9 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         Success rate with its Wilson interval, the prediction with its interval, the calibration
         check of the edges taken, and the episodes.
     """
+    from firmtool.disturbances import Disturbance, parse_disturbance
+    from firmtool.execute import execute
+
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise InputError(f"episodes: expected an integer >= 1, found {episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
