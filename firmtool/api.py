@@ -48,7 +48,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.problem import Problem
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
-_SCENARIOS_DIR = Path(__file__).resolve().parents[1] / "scenarios"  # shipped scenarios (a source checkout)
+# Shipped scenarios by name, until firmtool.scenario.resolve_scenario (issue 13) ships them with the
+# package: the source checkout's scenarios/, else ./scenarios/ (an installed copy run from the checkout).
+_SCENARIOS_DIR = Path(__file__).resolve().parents[1] / "scenarios"
 
 
 # -- scenarios -----------------------------------------------------------------------------------------
@@ -80,9 +82,9 @@ def load_scenario(source: str | Path) -> Scenario:
         return _load_scenario_file(resolve(source))
     path = Path(source)
     if not path.exists() and path.suffix == "" and path.parent == Path("."):
-        shipped = _SCENARIOS_DIR / f"{path.name}.toml"
-        if shipped.exists():
-            path = shipped
+        for folder in (_SCENARIOS_DIR, Path("scenarios")):  # a source checkout, then the working folder
+            if (folder / f"{path.name}.toml").exists():
+                return _load_scenario_file(folder / f"{path.name}.toml")
     return _load_scenario_file(path)
 
 
