@@ -42,7 +42,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
     from firmtool.disturbances import Disturbance
-    from firmtool.execute import ReplanSettings
+    from firmtool.execute import EdgeCounts, ReplanSettings
 
     from firmtool.design import Design
     from firmtool.problem import Problem
@@ -211,7 +211,7 @@ class Roadmap:
         return self._edge_table("cost_std")["cost_std"]
 
     @functools.cached_property
-    def edge_counts(self):
+    def edge_counts(self) -> "EdgeCounts":
         """The outcome counts in sparse form (``firmtool.execute.EdgeCounts``), for calibration."""
         from firmtool.execute import edge_counts_of  # execution is loaded when first needed
 
@@ -385,6 +385,10 @@ class Solution:
     seconds: float = 0.0
     _inputs_sha256: str = dataclasses.field(default="", repr=False)
     _intervals: dict = dataclasses.field(default_factory=dict, repr=False)
+
+    def __repr__(self) -> str:
+        return (f"<firmtool.Solution {self.status.name}: success probability {self.success_probability:.4f}, "
+                f"cost-to-go {self.start_cost_to_go:.4g}, path {self.path()}>")
 
     @classmethod
     def _from_group(cls, roadmap: Roadmap, group: pipeline.PolicyGroup) -> "Solution":

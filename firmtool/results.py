@@ -216,6 +216,13 @@ class Results(Report):
 
     _json_names: ClassVar[dict[str, str]] = {"event_counts": "events"}
 
+    def __repr__(self) -> str:
+        lo, hi = self.success_rate_ci95
+        p = self.predicted_success_probability
+        return (f"<firmtool.Results {self.policy or 'policy'}: {self.successes} of {len(self.episodes)} episodes "
+                f"succeeded, rate {self.success_rate:.3f} (95% {lo:.3f}-{hi:.3f}), predicted "
+                f"{'-' if p is None else f'{p:.4f}'}>")
+
     @property
     def ci95(self) -> tuple[float, float]:
         """Wilson 95% interval of the success rate (the same as :attr:`success_rate_ci95`)."""
