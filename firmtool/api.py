@@ -230,6 +230,9 @@ class Roadmap:
     def save(self, path: str | Path) -> Path:
         """Write the roadmap as a versioned HDF5 file (the schema ``firmtool build`` writes), atomically.
 
+        Every stage it holds is written (``/policy`` too, when it was read from a solved file); the
+        ``/edge_cache`` of an interrupted build is not (it only saves work when resuming).
+
         Parameters
         ----------
         path : str or Path
