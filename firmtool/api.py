@@ -41,10 +41,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from firmtool.design import Design
     from firmtool.disturbances import Disturbance
     from firmtool.execute import EdgeCounts, ReplanSettings
-
-    from firmtool.design import Design
     from firmtool.problem import Problem
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty

@@ -95,6 +95,22 @@ def test_the_api_gives_the_numbers_of_the_command_line(name, point, point_cli, t
     assert list(res.predicted_success_probability_ci95) == executed["predicted_success_probability_ci95"]
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["point_perfect", "unicycle_lightdark", "unicycle_perfect", "arm8_lightdark"])
+def test_the_snippet_gives_the_numbers_of_the_command_line_on_every_shipped_scenario(name, tmp_path):
+    """The other shipped scenarios (6.5 minutes in all on 2 shared cores: pytest -m slow)."""
+    rm = ft.build(ft.load_scenario(name), workers=2)
+    sol = ft.solve(rm)
+    res = ft.simulate(sol, episodes=200, seed=0, record=False)
+    path, built, solved, executed = run_cli(name, tmp_path)
+    stored = ft.open_roadmap(path)
+    assert np.array_equal(rm.edges, stored.edges) and np.array_equal(rm.landing_counts, stored.landing_counts)
+    assert np.array_equal(rm.failure_counts, stored.failure_counts) and built["edges"] == rm.report.edges
+    assert sol.success_probability == solved["start_success_probability"]
+    assert (res.successes, res.collisions, res.timeouts, res.mean_cost) == \
+           (executed["successes"], executed["collisions"], executed["timeouts"], executed["mean_cost"])
+
+
 def test_the_snippet_returns_typed_objects_with_arrays(point):
     sc, rm, sol, res = point
     N, n = rm.nodes.shape
