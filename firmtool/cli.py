@@ -1,7 +1,9 @@
 """The ``firmtool`` command line: parse, call the library, print, exit.
 
-Exit codes: 0 success, 1 a run that failed on its own terms (unreachable goal, numerical failure),
-2 bad input (scenario, roadmap file or option). Errors are one line on stderr, never a traceback.
+Exit codes: 0 success, 1 a run that failed on its own terms (unreachable goal, numerical failure,
+disk full), 2 bad input (scenario, roadmap file, option or output path), 130 interrupted (Ctrl-C).
+Errors are one line on stderr, never a traceback; that includes usage errors (a bad option value, an
+unknown command, a missing argument), which click would print as a multi-line panel.
 """
 
 from __future__ import annotations
@@ -16,12 +18,53 @@ from typing import Any, Callable, Optional
 import click
 import numpy as np
 import typer
+from typer.core import TyperGroup
 
+from firmtool import console
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
 
 DEFAULT_SCENARIO = "scenarios/arm8_lightdark.toml"
+# The click that typer's commands raise from: recent typer vendors its own copy as typer._click,
+# whose exceptions are not the click package's.
+_click: Any = getattr(typer, "_click", click)
+_NoArgsIsHelp: type = getattr(_click.exceptions, "NoArgsIsHelpError", ())  # click >= 8.2
 
-app = typer.Typer(
+
+class _OneLineErrors(TyperGroup):
+    """The command group: usage errors in one line (``error: ...``, exit 2) instead of click's panel."""
+
+    def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, **extra: Any) -> Any:
+        try:
+            rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var, standalone_mode=False,
+                              **extra)
+            code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+        except _NoArgsIsHelp as exc:  # 'firmtool' alone: the help (typer's rich help printed itself already)
+            text = exc.format_message()
+            if text.strip():
+                typer.echo(text)
+            code = 0
+        except _click.exceptions.UsageError as exc:
+            where = f"{exc.ctx.command_path}: " if exc.ctx is not None else ""
+            hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+            typer.echo(f"error: {where}{_one_line(exc.format_message())}{hint}", err=True)
+            code = 2
+        except _click.exceptions.ClickException as exc:
+            typer.echo(f"error: {_one_line(exc.format_message())}", err=True)
+            code = exc.exit_code
+        except (typer.Abort, KeyboardInterrupt):
+            typer.echo("error: interrupted", err=True)
+            code = console.INTERRUPTED_EXIT
+        if standalone_mode:
+            sys.exit(code)
+        return code
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+app = typer.Typer(cls=_OneLineErrors,
     name="firmtool",
     help=("FIRM: graph-based stochastic control with constraints, in state space (perfect measurements) "
           "and belief space (imperfect measurements).\n\n"
@@ -33,7 +76,13 @@ app = typer.Typer(
 )
 
 JsonOpt = typer.Option(False, "--json", help="Print machine-readable results on stdout.")
-WorkersOpt = typer.Option(None, "--workers", "-w", min=1, help="Worker processes (default: all cores).")
+WorkersOpt = typer.Option(None, "--workers", "-w", min=1,
+                         help="Worker processes (default: all cores; at most 2 per core, and as many as memory allows).")
+ForceOpt = typer.Option(False, "--force", help="Replace an existing output file even if it is not a firmtool file "
+                                               "of the same kind.")
+MaxStepsOpt = typer.Option(1e8, "--max-total-steps", min=1.0,
+                           help="Refuse runs of more than this many control steps in the worst case "
+                                "(episodes x the scenario's execution.max_steps).")
 ExecutorOpt = typer.Option("process", "--executor", help="'process' (local) or 'dask' (dask.distributed).")
 CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
@@ -56,12 +105,13 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
-        from threadpoolctl import threadpool_limits
         try:
-            # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
-            with threadpool_limits(limits=1):
-                return fn(*args, **kwargs)
+            with console.interruptible():  # Ctrl-C raises here, so that the stage saves and cleans up
+                import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
+                from threadpoolctl import threadpool_limits
+                # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
+                with threadpool_limits(limits=1):
+                    return fn(*args, **kwargs)
         except InputError as exc:
             _fail(str(exc), 2)
         except KeyboardInterrupt as exc:
@@ -72,15 +122,19 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             _fail(str(exc), 1)
         except FirmtoolError as exc:  # pragma: no cover - every subclass is mapped above
             _fail(str(exc), 1)
-        except (typer.Exit, typer.Abort, click.exceptions.ClickException):
+        except (typer.Exit, typer.Abort, _click.exceptions.ClickException):
             raise
         except OSError as exc:
             if os.environ.get("FIRMTOOL_DEBUG") or not exc.filename:
                 raise
             # a file the user named that cannot be read or written (permissions, disk full, ...)
-            _fail(f"{exc.filename}: {exc.strerror or _first_line(exc)}", 2)
+            from firmtool.atomic import write_failure
+            failure = write_failure(exc.filename, exc)
+            _fail(str(failure), 1 if isinstance(failure, RunFailure) else 2)
         except MemoryError:
             _fail("out of memory; lower roadmap.nodes, estimation.particles or estimation.chunk", 1)
+        except RecursionError:
+            _fail("input nested too deeply to process (a bug in firmtool if it came from a checked file)", 1)
         except Exception as exc:
             if os.environ.get("FIRMTOOL_DEBUG"):
                 raise
@@ -93,17 +147,33 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 def _emit(report: dict, as_json: bool, human: Callable[[dict], str]) -> None:
     public = {k: v for k, v in report.items() if not k.startswith("_")}
     if as_json:
-        typer.echo(json.dumps(public, indent=2, default=_json_default))
+        typer.echo(to_json(public))
     else:
         typer.echo(human(public))
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
+def to_json(value: Any) -> str:
+    """RFC 8259 JSON: numpy values as plain ones, non-finite numbers as null (JSON has no NaN or
+    Infinity); ``allow_nan=False`` makes any that slipped through an error, not invalid output."""
+    return json.dumps(_plain(value), indent=2, allow_nan=False)
+
+
+def _plain(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_plain(v) for v in o]
     if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o).__name__)
+        return _plain(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    if o is None or isinstance(o, (str, int, float, bool)):
+        return o
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def _progress_factory(label: str) -> Callable[[int], Callable[[int], None]] | None:
@@ -138,13 +208,13 @@ def _check_exists(path: Path, what: str) -> None:
 @handles_errors
 def sample(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
            output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
-           as_json: bool = JsonOpt) -> None:
+           force: bool = ForceOpt, as_json: bool = JsonOpt) -> None:
     """Sample the nodes (start, goal, valid configurations at rest) into a new roadmap file.
 
     Example: firmtool sample scenarios/smoke.toml -o artifacts/smoke.h5
     """
     from firmtool.pipeline import sample_stage
-    _emit(sample_stage(scenario, output), as_json, lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
+    _emit(sample_stage(scenario, output, force=force), as_json, lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
 
 
 @app.command()
@@ -186,12 +256,12 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
 
 
 def _exit_on_failed_edges(report: dict) -> None:
+    """One line for any number of failed edges (each is listed in the --json report)."""
     failed = report.get("failed_edges") or []
-    for f in failed[:20]:
-        typer.echo(f"error: edge {f['edge']} ({f['source']} -> {f['target']}) failed twice: {f['error']}", err=True)
     if failed:
-        _fail(f"{len(failed)} edge(s) failed and were left out of {report['roadmap']}; run the same command "
-              "again to retry them", 1)
+        f = failed[0]
+        _fail(f"{report['roadmap']}: {len(failed)} edge(s) failed twice and were left out (first: edge {f['edge']} "
+              f"({f['source']} -> {f['target']}): {f['error']}); run the same command again to retry them", 1)
 
 
 def _build_human(r: dict) -> str:
@@ -222,7 +292,7 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
           add_nodes: Optional[int] = typer.Option(None, "--add-nodes", min=1,
                                                   help="Nodes added per densification round (default: a quarter "
                                                        "of the current count, at least 5)."),
-          as_json: bool = JsonOpt) -> None:
+          force: bool = ForceOpt, as_json: bool = JsonOpt) -> None:
     """Run the offline stages: sample, design, estimate (and, with --p-min, densify and solve).
 
     An existing roadmap at the output, sampled from the same scenario settings, is continued: an
@@ -236,7 +306,8 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
         raise InputError("--max-nodes: only meaningful with --p-min")
     report = build_roadmap(scenario, output, workers=workers, executor=executor, scheduler=scheduler,
                            progress_factory=_progress_factory("estimating edges"), fresh=fresh, p_min=p_min,
-                           max_nodes=max_nodes, add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds)
+                           max_nodes=max_nodes, add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds,
+                           force=force)
     _emit(report, as_json, _build_human)
     _exit_on_failed_edges(report)
     if "densify" in report and not report["densify"]["reached"]:
@@ -276,8 +347,9 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
 def _execute_human(r: dict) -> str:
     lo, hi = r["success_rate_ci95"]
     pred = r["predicted_success_probability"]
+    stuck = f", {r['stuck']} stuck (no policy edge or no controller to a node)" if r.get("stuck") else ""
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
-            f"{r['timeouts']} timeouts\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
+            f"{r['timeouts']} timeouts{stuck}\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
             f"predicted {pred if pred is None else round(pred, 4)}\n"
             f"mean steps {r['mean_steps']:.1f}, mean cost {r['mean_cost']:.2f}, replans {r['replans']}"
             + _execute_extra_human(r))
@@ -343,7 +415,7 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                 None, "--save-episodes",
                 help="Write every episode (true states, estimates, covariances, controls, nodes, events) to "
                      "this HDF5 file (atomic write)."),
-            as_json: bool = JsonOpt) -> None:
+            force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt, as_json: bool = JsonOpt) -> None:
     """Run closed-loop episodes of the policy on a simulated true system, with real-time replanning
     after large disturbances, and check the plan against what happened (predicted success probability
     with its interval from the edge counts, executed rate with its Wilson interval, per-edge landing
@@ -365,16 +437,22 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     from firmtool.execute import ReplanSettings, edge_counts_of, execute as run_episodes
     from firmtool.pipeline import design_of, problem_of
     from firmtool.nodes import START_INDEX
+    from firmtool.resources import check_execution
     from firmtool.roadmap import Roadmap
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
     if not (np.isfinite(replan_threshold) and replan_threshold > 0):
         raise InputError(f"--replan-threshold: expected a finite number > 0, found {replan_threshold}")
     start_state = _parse_start(start)
+    if save_episodes is not None:
+        from firmtool.episodes_io import check_output
+        check_output(save_episodes, force)  # before the episodes run, not after
     rm = Roadmap(roadmap)
     edge_key, prob_key = _policy_keys(policy_name)
+    problem = problem_of(rm)
     policy = rm.require("policy", edge_key, prob_key, "cost_to_go")
-    report = run_episodes(problem_of(rm), design_of(rm), policy[edge_key].astype(np.int64), episodes, seed,
+    check_execution(problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
+    report = run_episodes(problem, design_of(rm), _design_edges(rm, policy[edge_key]), episodes, seed,
                           predicted=None if start_state is not None else float(policy[prob_key][START_INDEX]),
                           cost_to_go=policy["cost_to_go"],
                           replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
@@ -387,9 +465,25 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         write_episodes(save_episodes, report["_episodes"],
                        {"roadmap": str(roadmap), "seed": seed, "policy": policy_name,
                         "disturbances": ";".join(report["disturbances"]), "replanning": not no_replan,
-                        "replan_threshold": replan_threshold})
+                        "replan_threshold": replan_threshold}, force=force)
         report["episodes_file"] = str(save_episodes)
     _emit(report, as_json, _execute_human)
+    _exit_if_all_stuck(report, roadmap)
+
+
+def _exit_if_all_stuck(report: dict, roadmap: Path) -> None:
+    """Exit 1 when no episode ran at all: every one ended before its first step."""
+    if report["episodes"] and report.get("stuck") == report["episodes"]:
+        _fail(f"{roadmap}: every episode was stuck at its start (no policy edge from the start node, or no "
+              "controller from the start to any node); the policy cannot be executed", 1)
+
+
+def _design_edges(rm: Any, policy_edges: np.ndarray) -> np.ndarray:
+    """A policy's edges (rows of /edges) as design edges (whose controllers execution runs): the same
+    indices unless some edges failed in the estimate stage and were left out of /edges."""
+    rows = rm.edge_rows()
+    e = np.asarray(policy_edges, dtype=np.int64)
+    return np.where(e >= 0, rows[np.maximum(e, 0)] if rows.size else -1, -1)
 
 
 def _policy_keys(name: str) -> tuple[str, str]:
@@ -409,7 +503,8 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
          seed: int = typer.Option(0, "--seed", min=0, help="Seed of the drawn episode (the first success from it on)."),
          episodes: int = typer.Option(0, "--episodes", "-n", min=0,
                                       help="Also run this many episodes per policy and show the executed rate."),
-         dpi: int = typer.Option(120, "--dpi", min=30, max=600)) -> None:
+         dpi: int = typer.Option(120, "--dpi", min=30, max=600), force: bool = ForceOpt,
+         max_total_steps: float = MaxStepsOpt) -> None:
     """Draw the paper's Fig. 1: obstacles, sensing field, goal, roadmap, policy path, and an executed
     episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip).
 
@@ -417,20 +512,24 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     """
     from firmtool.execute import Executor, execute as run_episodes
     from firmtool.pipeline import design_of, problem_of
-    from firmtool.plot import PanelData, plot_roadmap, save_figure
+    from firmtool.plot import PanelData, check_output, plot_roadmap, save_figure
+    from firmtool.resources import check_execution
     from firmtool.roadmap import Roadmap
     _check_exists(roadmap, "roadmap file")
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
         raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
+    out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
     rm = Roadmap(roadmap)
     problem, design_ = problem_of(rm), design_of(rm)
     J = rm.require("policy", "cost_to_go")["cost_to_go"]
+    if episodes:
+        check_execution(problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     panels = []
     for name in names[policy_name]:
         edge_key, prob_key = _policy_keys(name)
         pol = rm.require("policy", edge_key, prob_key)
-        edges, predicted = pol[edge_key].astype(np.int64), float(pol[prob_key][0])
+        edges, predicted = _design_edges(rm, pol[edge_key]), float(pol[prob_key][0])
         runner = Executor(problem, design_, edges, cost_to_go=J)
         episode, used = None, seed
         for i in range(seed, seed + 20):  # the first success, else the last try
@@ -444,8 +543,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
             executed = (r["success_rate"], *r["success_rate_ci95"])
         panels.append(PanelData(name=name, policy=edges, predicted=predicted, episode=episode,
                                 executed=executed, seed=used))
-    out = output or roadmap.with_suffix(".png")
-    save_figure(plot_roadmap(problem, design_, panels, dpi=dpi), out)
+    save_figure(plot_roadmap(problem, design_, panels, dpi=dpi), out, force=force)
     typer.echo(f"wrote {out}")
 
 
@@ -467,7 +565,8 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
         output: Optional[Path] = typer.Option(None, "--output", "-o"),
         episodes: int = typer.Option(200, "--episodes", "-n", min=1),
         seed: int = typer.Option(0, "--seed", min=0),
-        workers: Optional[int] = WorkersOpt, as_json: bool = JsonOpt) -> None:
+        workers: Optional[int] = WorkersOpt, force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt,
+        as_json: bool = JsonOpt) -> None:
     """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment).
 
     Example: firmtool run scenarios/smoke.toml --episodes 50
@@ -475,20 +574,29 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
     from firmtool.execute import execute as run_episodes
     from firmtool.nodes import START_INDEX
     from firmtool.pipeline import build as build_roadmap, design_of, problem_of, solve_stage
+    from firmtool.problem import build_problem
     from firmtool.roadmap import Roadmap
-    b = build_roadmap(scenario, output, workers=workers, progress_factory=_progress_factory("estimating edges"))
+    from firmtool.resources import check_execution
+    from firmtool.scenario import load_scenario
+    check_execution(build_problem(load_scenario(scenario)), episodes, max_total_steps=max_total_steps)
+    b = build_roadmap(scenario, output, workers=workers, progress_factory=_progress_factory("estimating edges"),
+                      force=force)
+    _exit_on_failed_edges(b)
     s = solve_stage(b["roadmap"])
     rm = Roadmap(b["roadmap"])
     policy = rm.require("policy", "edge", "success_probability")
-    e = run_episodes(problem_of(rm), design_of(rm), policy["edge"].astype(np.int64), episodes, seed,
+    e = run_episodes(problem_of(rm), design_of(rm), _design_edges(rm, policy["edge"]), episodes, seed,
                      predicted=float(policy["success_probability"][START_INDEX]))
     report = {"build": b, "solve": s, "execute": {k: v for k, v in e.items() if not k.startswith("_")}}
     _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
                                                   _execute_human(r["execute"])]))
 
 
-def main() -> None:  # pragma: no cover - console entry point
-    app()
+def main() -> None:
+    """Run the CLI on ``sys.argv`` and exit with its code (the console script is firmtool.console.main,
+    which installs the Ctrl-C handler before this module's imports)."""
+    console.install()
+    sys.exit(app(standalone_mode=False))
 
 
 if __name__ == "__main__":  # python -m firmtool.cli (tests run the CLI with the interpreter they use)

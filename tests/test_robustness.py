@@ -173,7 +173,7 @@ BROKEN_ROADMAPS = {
     "dataset_not_numeric": (_replace("nodes/kind", lambda a: np.array([b"x"] * a.size)), "solve", "not numeric"),
     "dataset_not_finite": (_replace("nodes/centers", lambda a: np.full(a.shape, np.nan)), "execute", "non-finite"),
     "state_dim_mismatch": (_replace("nodes/centers", lambda a: np.zeros((a.shape[0], 5))), "execute",
-                           "but 5 elsewhere in the file"),
+                           "'/nodes/centers' has state dimension 5"),
     "edge_index_out_of_range": (_replace("controllers/edge_source", lambda a: np.full_like(a, 999)), "execute",
                                 "outside [0, N)"),
     "outcome_code_out_of_range": (_replace("edges/outcome_code", lambda a: np.full_like(a, 999)), "solve",
@@ -310,9 +310,16 @@ def test_mutated_scenarios_are_accepted_or_refused_in_one_line(data, tmp_path):
 # --------------------------------------------------------------------------------------------------
 # Numerical faults are reported (exit 1), not hidden
 
-def test_probabilities_not_summing_to_one_exit_1(roadmap_copy):
-    _replace("edges/outcome_count", lambda a: a * 0 + 1)(roadmap_copy)
-    assert_clean_error(invoke("solve", roadmap_copy), 1, "outcome probabilities sum to")
+def test_probabilities_not_summing_to_one_exit_1():
+    """Probabilities computed in memory that do not sum to one are a numerical fault (a damaged file's
+    counts are refused by the reader first: exit 2, see BROKEN_ROADMAPS)."""
+    import scipy.sparse
+
+    from firmtool.errors import NumericalError
+    from firmtool.graph import solve_dp
+    landing = scipy.sparse.csr_matrix(np.array([[0.0, 0.5]]))
+    with pytest.raises(NumericalError, match="sum to"):
+        solve_dp(2, 1, np.array([0]), np.array([1.0]), landing, np.array([0.0]), 100.0)
 
 
 def test_riccati_failure_exit_1(roadmap_copy, monkeypatch):
