@@ -31,6 +31,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from firmtool import interrupts
 from firmtool.errors import OutputError, WriteFailure
 
 _UMASK = os.umask(0o022)
@@ -73,6 +74,7 @@ def replacing(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
         remove_dead_writers_files(path, suffix)
         fd, name = tempfile.mkstemp(prefix=f"{path.name}.{_HOST}.{os.getpid()}.", suffix=suffix, dir=path.parent)
+        interrupts.register_temporary(name)  # removed if Ctrl-C ends the process before the rename
         os.close(fd)
         tmp = Path(name)
     except OSError as exc:
@@ -97,6 +99,7 @@ def replacing(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
             pass
         except OSError:  # pragma: no cover - the folder became unwritable meanwhile
             pass
+        interrupts.unregister_temporary(tmp)
 
 
 def write_bytes(path: str | Path, data: bytes | memoryview) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 import typer
 from typer.core import TyperGroup
 
-from firmtool import console
+from firmtool import interrupts
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
 
 DEFAULT_SCENARIO = "scenarios/arm8_lightdark.toml"
@@ -54,7 +54,7 @@ class _OneLineErrors(TyperGroup):
             code = exc.exit_code
         except (typer.Abort, KeyboardInterrupt):
             typer.echo("error: interrupted", err=True)
-            code = console.INTERRUPTED_EXIT
+            code = interrupts.INTERRUPTED_EXIT
         if standalone_mode:
             sys.exit(code)
         return code
@@ -106,12 +106,11 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            with console.interruptible():  # Ctrl-C raises here, so that the stage saves and cleans up
-                import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
-                from threadpoolctl import threadpool_limits
-                # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
-                with threadpool_limits(limits=1):
-                    return fn(*args, **kwargs)
+            import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
+            from threadpoolctl import threadpool_limits
+            # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
+            with threadpool_limits(limits=1):
+                return fn(*args, **kwargs)
         except InputError as exc:
             _fail(str(exc), 2)
         except KeyboardInterrupt as exc:
@@ -593,9 +592,9 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
 
 
 def main() -> None:
-    """Run the CLI on ``sys.argv`` and exit with its code (the console script is firmtool.console.main,
-    which installs the Ctrl-C handler before this module's imports)."""
-    console.install()
+    """Run the CLI on ``sys.argv`` and exit with its code (the console script, firmtool.__main__, installs
+    the Ctrl-C handler before this module's imports)."""
+    interrupts.install()
     sys.exit(app(standalone_mode=False))
 
 

@@ -29,6 +29,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence
 
+from firmtool import interrupts
 from firmtool.design import Design
 from firmtool.edges import EdgeEstimate, estimate_edge
 from firmtool.errors import InputError
@@ -88,9 +89,9 @@ def die_with_parent(parent_pid: int) -> None:
 
 
 def _init_worker(job: EstimationJob, parent_pid: int | None = None) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C, then stops the workers
     if parent_pid is not None:
         die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C, then stops the workers
     from firmtool.locking import forget_inherited
     forget_inherited()  # the parent's writer lock must end with the parent, not with its workers
     # One BLAS thread per worker: parallelism is across edges; threaded small matmuls are slower.
@@ -106,8 +107,12 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list[EdgeEstimate]:
     """Estimate a batch of edges (indices into the design's edge arrays)."""
     problem, design, regions = _context(job)
     src, dst = design.edge_source, design.edge_target
-    return [estimate_edge(problem, design, regions, int(src[e]), int(dst[e]), job.particles, job.seed, job.chunk,
-                          job.engine) for e in edges]
+    out = []
+    for e in edges:
+        interrupts.check()  # a deferred Ctrl-C, between edges (in this process only)
+        out.append(estimate_edge(problem, design, regions, int(src[e]), int(dst[e]), job.particles, job.seed,
+                                 job.chunk, job.engine))
+    return out
 
 
 def _worker_batch(edges: Sequence[int]) -> list[EdgeEstimate]:
@@ -217,7 +222,9 @@ def _run_pool(job: EstimationJob, work: list[list[int]], workers: int) -> Iterat
                 pending[pool.submit(_worker_batch, b)] = (b, attempt)
             broken = False
             while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                # a timeout, so that a deferred Ctrl-C is seen while every worker is busy
+                done, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                interrupts.check()
                 for fut in done:
                     b, attempt = pending.pop(fut)
                     exc = fut.exception()

@@ -14,6 +14,7 @@ import scipy.sparse
 from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
+from firmtool import interrupts
 from firmtool.atomic import check_target
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.graph import shortest_path_policy, solve_dp, success_probability
@@ -156,9 +157,15 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     """
     if workers is not None:
         check_workers(workers)  # refused before anything is read (again with the memory per worker below)
+    _check_executor(executor)
     with writer_lock(path):
         return _estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
                                progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
+
+
+def _check_executor(executor: str) -> None:
+    if executor not in ("process", "dask"):
+        raise InputError(f"--executor: expected 'process' or 'dask', found {executor!r}")
 
 
 def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, scheduler: str | None,
@@ -205,15 +212,20 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
 
     last = time.monotonic()
     try:
-        for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress):
-            if r.error is not None:
-                failed[r.edges[0]] = r.error
-            for e, x in zip(r.edges, r.estimates):
-                est[e] = x
-                new.append(e)
-            if not saved or time.monotonic() - last >= checkpoint_seconds:  # first after the first batch
-                checkpoint()
-                last = time.monotonic()
+        # Ctrl-C (with the CLI's handler) is raised only between edges, where the finished ones can be saved
+        with interrupts.deferred():
+            for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler,
+                               progress=progress):
+                if r.error is not None:
+                    failed[r.edges[0]] = r.error
+                for e, x in zip(r.edges, r.estimates):
+                    est[e] = x
+                    new.append(e)
+                if not saved or time.monotonic() - last >= checkpoint_seconds:  # first after the first batch
+                    checkpoint()
+                    last = time.monotonic()
+                interrupts.check()
+            interrupts.check()
     except KeyboardInterrupt:
         checkpoint()
         raise EstimationInterrupted(f"{path}: interrupted; {saved} newly estimated edges saved "
@@ -403,6 +415,7 @@ def build(scenario_path: str | Path, output: str | Path | None, *, workers: int 
         raise InputError(f"--p-min: expected a probability in (0, 1], found {p_min}")
     if workers is not None:
         check_workers(workers)
+    _check_executor(executor)
     with writer_lock(out):
         return _build(scenario_path, scenario, out, workers=workers, executor=executor, scheduler=scheduler,
                       progress_factory=progress_factory, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
