@@ -276,6 +276,9 @@ class Roadmap:
             raise RoadmapError(f"{p}: no such roadmap file")
         if not p.is_file():
             raise RoadmapError(f"{p}: not a readable HDF5 roadmap file (not a regular file)")
+        if p.stat().st_size > MAX_READ_BYTES:  # bounds what any attribute (stored in the file) can hold
+            raise RoadmapError(f"{p}: a roadmap file larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged or "
+                               "not a roadmap)")
         try:
             f = h5py.File(p, "r")
         except (OSError, ValueError) as exc:
@@ -457,20 +460,23 @@ class Roadmap:
 
 
 def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any, where: str = "/") -> Any:
-    """An attribute's value, its size checked before it is read."""
+    """An attribute's value, its size checked before it is read (fixed-size data) or after (a
+    variable-length string, whose size HDF5 tells only by reading it; the file's size bounds it)."""
     if key not in attrs:
         return default
     try:
         size = attrs.get_id(key).get_storage_size()
     except (KeyError, OSError, ValueError):
         size = 0
+    too_large = f"{path}: attribute '{key}' of '{where}' is larger than {MAX_ATTRIBUTE_BYTES} bytes (file damaged)"
     if size > MAX_ATTRIBUTE_BYTES:
-        raise RoadmapError(f"{path}: attribute '{key}' of '{where}' is larger than {MAX_ATTRIBUTE_BYTES} bytes "
-                           "(file damaged)")
+        raise RoadmapError(too_large)
     try:
         value = attrs[key]
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise RoadmapError(f"{path}: attribute '{key}' of '{where}' is unreadable ({_short(exc)})") from None
+    if isinstance(value, (str, bytes)) and len(value) > MAX_ATTRIBUTE_BYTES:
+        raise RoadmapError(too_large)
     if isinstance(value, bytes):
         try:
             value = value.decode("utf-8")
@@ -688,14 +694,14 @@ def _check_policy(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[
             continue
         e = arrays[name]
         _index(at(name), e, -1, F, "F")
+        if goal is not None and np.any(e[goal] >= 0):
+            _fail(at(name), "gives a goal node an edge (goals are absorbing)")
         if source is not None:
             chosen = np.flatnonzero(e >= 0)
             wrong = chosen[source[e[chosen]] != chosen]
             if wrong.size:
                 _fail(at(name), f"gives node {int(wrong[0])} edge {int(e[wrong[0]])}, which leaves node "
                                 f"{int(source[e[wrong[0]]])}")
-        if goal is not None and np.any(e[goal] >= 0):
-            _fail(at(name), "gives a goal node an edge (goals are absorbing)")
     if "next_node" in arrays:
         nxt = arrays["next_node"]
         _index(at("next_node"), nxt, -1, N, "N")
