@@ -29,7 +29,8 @@ RATE = 3e6
 # Working arrays per particle of one chunk (true state, estimate, noise, proposals, outcomes...).
 ARRAYS_PER_PARTICLE = 12
 # Memory of one worker process before its chunk: the interpreter with numpy, scipy, numba and the
-# problem (measured ~170 MB resident on the reference machine), with a margin.
+# problem (measured: ~120 MB resident per worker of a smoke build, its parent ~200 MB), with a
+# margin for larger designs (the arm's).
 WORKER_BASE_BYTES = 300 * 2**20
 # More worker processes than this many per core only add memory and contention (the work is
 # CPU-bound and parallel across edges); at least MIN_WORKER_LIMIT are always allowed.
