@@ -29,7 +29,6 @@ from firmtool.roadmap import Roadmap
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "scenarios" / "smoke.toml"
-PACKAGE = ROOT / "firmtool"
 runner = CliRunner()
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals, fork and /proc")
@@ -102,7 +101,7 @@ def test_injected_disk_full_on_a_stage_rewrite_keeps_the_previous_file(smoke_roa
 def test_injected_disk_full_on_episodes_and_plots(smoke_roadmap, tmp_path, disk_full_after, what):
     out = tmp_path / ("e.h5" if what == "episodes" else "f.png")
     args = (["execute", smoke_roadmap[0], "-n", "3", "--save-episodes", out] if what == "episodes"
-            else ["plot", smoke_roadmap[0], "-o", out])
+            else ["plot", smoke_roadmap[0], "-n", "0", "-o", out])
     assert invoke(*args).exit_code == 0
     before = out.read_bytes()
     disk_full_after(512)
@@ -148,7 +147,7 @@ def test_real_disk_full_on_a_small_tmpfs(smoke_roadmap, small_tmpfs):
     runs = {"build": ["build", SMOKE, "-o", small_tmpfs / "new.h5", "-w", "1"],
             "solve": ["solve", keep, "--failure-cost", "70"],
             "episodes": ["execute", smoke_roadmap[0], "-n", "50", "--save-episodes", small_tmpfs / "e.h5"],
-            "plot": ["plot", smoke_roadmap[0], "-o", small_tmpfs / "f.png"]}
+            "plot": ["plot", smoke_roadmap[0], "-n", "0", "-o", small_tmpfs / "f.png"]}
     for name, args in runs.items():
         p = _cli(*args)
         out, err = p.communicate(timeout=300)

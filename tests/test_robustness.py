@@ -686,7 +686,7 @@ def test_a_firmtool_file_of_the_same_kind_is_replaced(smoke_roadmap, tmp_path):
     for _ in range(2):
         r = invoke("execute", smoke_roadmap[0], "-n", "2", "--save-episodes", ep)
         assert r.exit_code == 0, r.output
-        r = invoke("plot", smoke_roadmap[0], "-o", png)
+        r = invoke("plot", smoke_roadmap[0], "-n", "0", "-o", png)
         assert r.exit_code == 0, r.output
     assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["e.h5", "f.png", "r.h5"]
 
