@@ -809,6 +809,34 @@ def test_probabilities_not_summing_to_one_exit_1():
         solve_dp(2, 1, np.array([0]), np.array([1.0]), landing, np.array([0.0]), 100.0)
 
 
+def test_execute_with_no_way_out_of_the_start_is_exit_1_not_0(roadmap_copy):
+    """Every episode must end with an outcome, and 'stuck' is reported: a policy without an edge at the
+    start (the goal unreachable) does not give exit 0 with 0 successes, collisions and timeouts."""
+    with h5py.File(roadmap_copy, "r+") as f:
+        for name, value in (("edge", -1), ("next_node", -1), ("cost_to_go", np.inf), ("success_probability", 0.0)):
+            a = f[f"policy/{name}"][()]
+            a[0] = value
+            del f[f"policy/{name}"]
+            f[f"policy/{name}"] = a
+    r = invoke("execute", roadmap_copy, "-n", "4", "--json")
+    assert r.exit_code == 1
+    report, error = r.stdout, r.stderr.strip()
+    assert json.loads(report)["stuck"] == 4
+    assert "every episode was stuck" in error and "\n" not in error
+
+
+def test_a_closed_loop_policy_gives_probability_0_without_warnings(recwarn):
+    """(I - Q) singular (two nodes sending each other back, no exit): p = 0 there, and no
+    MatrixRankWarning on stderr (solve used to print two before its error)."""
+    import scipy.sparse
+
+    from firmtool.graph import success_probability
+    landing = scipy.sparse.csr_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]))
+    p = success_probability(3, 2, np.array([0, 1, -1]), landing)
+    assert p.tolist() == [0.0, 0.0, 1.0]
+    assert not [w for w in recwarn if "MatrixRankWarning" in type(w.message).__name__], [str(w) for w in recwarn]
+
+
 def test_riccati_failure_exit_1(roadmap_copy, monkeypatch):
     """A Riccati equation without a stabilising solution (controllers.py) is a numerical fault, exit 1."""
     import firmtool.controllers as controllers
