@@ -25,14 +25,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.atomic import replacing
 from firmtool.edges import FAILURE, TIMEOUT
 from firmtool.errors import InputError
 from firmtool.graph import SolveStatus
 from firmtool.nodes import GOAL, START_INDEX
 from firmtool.reports import BuildReport, SolveReport
 from firmtool.results import Outcome, Results
-from firmtool.roadmap import STAGES, create_roadmap, write_stage
+from firmtool.roadmap import STAGES, write_roadmap
 from firmtool.roadmap import Roadmap as RoadmapFile
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
@@ -252,13 +251,8 @@ class Roadmap:
         data = self._data
         stages = {name: data.stages[name] for name in STAGES if data.has(name)}
         stages.update(replace)
-        with replacing(path) as tmp:
-            create_roadmap(tmp, data.scenario_text, data.scenario_sha256, data.seed)
-            for name in STAGES:
-                if name in stages:
-                    arrays, attrs = stages[name]
-                    attrs = {k: v for k, v in attrs.items() if k not in ("encoding-type", "encoding-version")}
-                    write_stage(tmp, name, arrays, attrs, drop_later=False)
+        # one atomic write, built in memory: a failure names ``path``, never a temporary file
+        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
 
     def solution(self) -> "Solution":
         """The policy stored in the roadmap (``firmtool solve`` wrote it), as a :class:`Solution`.

@@ -42,6 +42,8 @@ _HOST = re.sub(r"[^A-Za-z0-9_-]", "_", socket.gethostname())[:40] or "host"
 # Failures of the environment (exit 1); any other OSError of a write is a path the user cannot
 # write there (exit 2).
 _ENVIRONMENT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EFBIG, errno.ENOMEM}
+# The write system call of write_bytes (a name of its own, so that a test can make the disk full here only).
+_os_write = os.write
 
 
 def write_failure(path: str | Path, exc: OSError) -> Exception:
@@ -120,7 +122,7 @@ def write_bytes(path: str | Path, data: bytes | memoryview) -> None:
             try:
                 done = 0
                 while done < len(view):
-                    done += os.write(fd, view[done:done + (1 << 24)])
+                    done += _os_write(fd, view[done:done + (1 << 24)])
             finally:
                 os.close(fd)
         except OSError as exc:

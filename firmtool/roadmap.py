@@ -115,6 +115,24 @@ def create_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, s
         _write_root(f, scenario_text, scenario_sha256, seed)
 
 
+def write_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int,
+                  stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]) -> None:
+    """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
+
+    Parameters
+    ----------
+    stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
+        ``scenario_sha256`` stamp included; one without gets the stored scenario's).
+    """
+    with _atomic_copy(Path(path), fresh=True) as f:
+        _write_root(f, scenario_text, scenario_sha256, seed)
+        for name in STAGES:
+            if name in stages:
+                arrays, attrs = stages[name]
+                _write_table(f, name, arrays, {k: v for k, v in attrs.items()
+                                               if k not in ("encoding-type", "encoding-version")})
+
+
 def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
     f.attrs["schema_version"] = SCHEMA_VERSION
     f.attrs["encoding-type"] = ENCODING_TYPE

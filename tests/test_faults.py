@@ -72,7 +72,7 @@ def disk_full_after(monkeypatch):
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
             return real(fd, data)
 
-        monkeypatch.setattr(firmtool.atomic.os, "write", write)
+        monkeypatch.setattr(firmtool.atomic, "_os_write", write)
 
     return install
 
@@ -95,6 +95,17 @@ def test_injected_disk_full_on_a_stage_rewrite_keeps_the_previous_file(smoke_roa
     r = invoke("solve", path, "--failure-cost", "50")
     assert r.exit_code == 1 and "No space left on device" in one_error_line(r.output)
     assert path.read_bytes() == before and not list(tmp_path.glob("*.tmp"))
+
+
+def test_injected_disk_full_on_the_api_save_names_the_users_path(smoke_roadmap, tmp_path, disk_full_after):
+    import firmtool as ft
+    from firmtool.errors import WriteFailure
+    rm = ft.open_roadmap(smoke_roadmap[0])
+    target = tmp_path / "copy.h5"
+    disk_full_after(1024)
+    with pytest.raises(WriteFailure, match=f"^{target}: cannot write \\(No space left on device\\)"):
+        rm.save(target)
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("what", ["episodes", "plot"])
