@@ -4,7 +4,8 @@ previous roadmap file intact and readable.
 A forked child rewrites the /edges stage of a small roadmap in a loop (version v: every dataset
 filled with v, attribute inputs_sha256 = "v<v>"); the parent kills it at a random moment and
 checks that the file still reads and holds one complete version, never older than the last one
-seen. The default run kills 100 times (a few seconds); FIRMTOOL_KILLS=N changes the count.
+seen. The default run kills until more than 25 writes completed and more than 25 kills landed
+mid-write (at most 400 kills, a few seconds); FIRMTOOL_KILLS=N scales both (N // 4, 4 N).
 """
 
 import hashlib
@@ -68,7 +69,12 @@ def test_sigkill_during_writes_never_corrupts_the_roadmap(tmp_path):
     span = max(0.03, 3 * one_write)
     last, advanced, interrupted, t0 = 0, 0, 0, time.monotonic()
     seen: set[str] = set()
-    for _ in range(kills):
+    # kill until both cases were seen often enough (a condition, not a time): a write that completed
+    # before the kill, and a kill in the middle of a write (while its temporary file exists)
+    target = kills // 4
+    for _ in range(4 * kills):
+        if advanced > target and interrupted > target:
+            break
         pid = os.fork()
         if pid == 0:
             _writer(path, last)
@@ -84,8 +90,8 @@ def test_sigkill_during_writes_never_corrupts_the_roadmap(tmp_path):
         leftovers = {p.name for p in tmp_path.glob("r.h5.*.tmp")}
         interrupted += len(leftovers - seen)
         seen |= leftovers
-    assert advanced > kills // 4, "the writer hardly ever completed a write: the test kills too early"
-    assert interrupted > kills // 4, "hardly any kill landed in the middle of a write"
+    assert advanced > target, "the writer hardly ever completed a write: the test kills too early"
+    assert interrupted > target, "hardly any kill landed in the middle of a write"
     _write(path, last + 1)
     assert _version(path) == last + 1 and not list(tmp_path.glob("r.h5.*.tmp"))
     assert time.monotonic() - t0 < 60
