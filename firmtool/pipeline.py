@@ -14,12 +14,12 @@ import scipy.sparse
 from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
-from firmtool.errors import FirmtoolError, RoadmapError, RunFailure
+from firmtool.errors import FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.graph import shortest_path_policy, solve_dp, success_probability
-from firmtool.kernels import engine_for
+from firmtool.kernels import engine_choice
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
-from firmtool.parallel import EstimationJob, default_workers, run_edges
-from firmtool.problem import Problem, build_problem
+from firmtool.parallel import EstimationJob, default_workers, job_extras, run_edges
+from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.resources import check_budget
 from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, read_edge_cache,
                               update_scenario, write_edge_cache, write_stage)
@@ -27,26 +27,52 @@ from firmtool.scenario import Scenario, load_scenario, parse_scenario
 
 # Seconds between checkpoints of the estimate stage (finished edges written to /edge_cache).
 CHECKPOINT_SECONDS = 10.0
+# /nodes attribute: the identity of the Python validity checker the roadmap was built with ("" none)
+VALIDITY_ATTR = "validity_checker"
 
 
 class EstimationInterrupted(FirmtoolError, KeyboardInterrupt):
     """Ctrl-C during the estimate stage, after the finished edges were saved (exit code 130)."""
 
 
-def nodes_inputs(scenario: Scenario) -> str:
+def nodes_inputs(scenario: Scenario, validity: str = "") -> str:
     """Identity of what the sampled nodes depend on: every section but the cost weights, the
-    estimation and execution settings and the name (changing those keeps the nodes)."""
-    return digest(scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
-                  scenario.roadmap, scenario.controller).hex()
+    estimation and execution settings and the name (changing those keeps the nodes), and the
+    identity of a user's validity checker (``validity``, "" without one)."""
+    parts = (scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
+             scenario.roadmap, scenario.controller) + ((validity,) if validity else ())
+    return digest(*parts).hex()
 
 
 def default_output(scenario: Scenario) -> Path:
     return Path("artifacts") / f"{scenario.name}.h5"
 
 
-def problem_of(roadmap: Roadmap) -> Problem:
-    """Rebuild the problem from the scenario text stored in the roadmap."""
-    return build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"))
+def problem_of(roadmap: Roadmap, validity: Callable | None = None, *, need_validity: bool = True) -> Problem:
+    """Rebuild the problem from the scenario text stored in the roadmap.
+
+    A roadmap built with a Python validity checker records the checker's identity (``/nodes``
+    attribute ``validity_checker``): the stage must be given the same checker (``validity``), or,
+    with ``need_validity`` (every stage that samples, designs, estimates or executes), it is refused
+    in one line rather than run on the scenario's geometry alone. A checker for a roadmap built
+    without one is refused too (its nodes were sampled without it)."""
+    recorded = str(roadmap.attrs("nodes").get(VALIDITY_ATTR, "")) if roadmap.has("nodes") else ""
+    scenario = parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml")
+    if validity is None and recorded and need_validity:
+        raise InputError(f"{roadmap.path}: built with a Python validity checker ({recorded[:23]}), which the "
+                         "command line cannot rebuild; run this stage from Python with the same checker "
+                         "(validity=...)")
+    problem = build_problem(scenario, validity=validity)
+    given = problem.validity.identity if problem.validity is not None else ""
+    if validity is not None and given != recorded:
+        raise InputError(f"{roadmap.path}: " + (f"built with another validity checker ({recorded[:23]}), not "
+                                                  f"this one ({given[:23]})" if recorded else
+                                                  "built without a validity checker; build a new roadmap with it"))
+    return problem
+
+
+def _validity_of(problem: Problem) -> str:
+    return problem.validity.identity if problem.validity is not None else ""
 
 
 def design_of(roadmap: Roadmap) -> Design:
@@ -58,19 +84,22 @@ def design_of(roadmap: Roadmap) -> Design:
                   edge_target=c["edge_target"].astype(np.int64), edge_steps=c["edge_steps"].astype(np.int64))
 
 
-def sample_stage(scenario_path: str | Path, output: str | Path | None) -> dict:
-    """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest)."""
+def sample_stage(scenario_path: str | Path, output: str | Path | None, *, validity: Callable | None = None) -> dict:
+    """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
+
+    ``validity``: a user's vectorised checker (see :func:`firmtool.problem.build_problem`); the
+    roadmap records its identity, and later stages need the same checker."""
     t0 = time.perf_counter()
     scenario = load_scenario(scenario_path)
-    problem = build_problem(scenario)
+    problem = build_problem(scenario, validity=validity)
     check_budget(problem)  # refuse up front what would take hours or exhaust memory
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
     centers, kinds = roadmap_nodes(problem, rng)
     out = Path(output) if output else default_output(scenario)
     create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
     write_stage(out, "nodes", {"centers": centers, "kind": kinds},
-                {"inputs_sha256": nodes_inputs(scenario), "densify_rounds": 0,
-                 "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL)})
+                {"inputs_sha256": nodes_inputs(scenario, _validity_of(problem)), "densify_rounds": 0,
+                 "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: _validity_of(problem)})
     return {"roadmap": str(out), "nodes": int(centers.shape[0]), "requested_nodes": scenario.roadmap.nodes,
             "seconds": time.perf_counter() - t0}
 
@@ -81,11 +110,11 @@ def controllers_inputs(roadmap: Roadmap) -> str:
     return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
 
 
-def design_stage(path: str | Path) -> dict:
+def design_stage(path: str | Path, *, validity: Callable | None = None) -> dict:
     """Design node stabilisers, node regions and edges (nominal trajectories)."""
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
     d = design(problem, centers, nodes["kind"])
@@ -104,28 +133,31 @@ def design_stage(path: str | Path) -> dict:
 def estimate_stage(path: str | Path, *, workers: int | None = None, executor: str = "process",
                    scheduler: str | None = None,
                    progress_factory: Callable[[int], Callable[[int], None]] | None = None,
-                   checkpoint_seconds: float = CHECKPOINT_SECONDS) -> dict:
+                   checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None) -> dict:
     """Monte Carlo estimation of every edge, in parallel; writes ``/edges``.
 
     Edges whose key (:func:`firmtool.edge_table.edge_keys`) matches a stored estimate, in ``/edges``
     or in ``/edge_cache``, are reused. Finished edges are checkpointed to ``/edge_cache`` every
     ``checkpoint_seconds`` and on Ctrl-C, so an interrupted run resumes where it stopped. An edge
-    that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges``.
+    that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges``. Where
+    the compiled engine was asked for but cannot run the problem (e.g. a Python validity checker),
+    the numpy engine runs and the report's ``notices`` say why.
     """
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, validity)
     d = design_of(roadmap)
     sc = problem.scenario
     E = d.edge_source.size
-    engine = engine_for(problem)  # chosen once: the keys record it, the workers run it
+    engine, notice = engine_choice(problem)  # chosen once: the keys record it, the workers run it
+    notices = [notice] if notice else []
     keys = edge_keys(problem, d, engine=engine)
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
         e = roadmap.require("edges", "particle_steps")
         return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0, workers or 0, executor,
-                                time.perf_counter() - t0, up_to_date=True)
+                                time.perf_counter() - t0, up_to_date=True, notices=notices)
     known: dict[bytes, EdgeEstimate] = from_arrays(roadmap.stages["edges"][0]) if roadmap.has("edges") else {}
     cache = read_edge_cache(path)
     known.update(from_arrays(cache))
@@ -136,7 +168,7 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     workers = workers or default_workers()
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
-                        engine=engine)
+                        engine=engine, **job_extras(problem))
     progress = progress_factory(len(todo)) if progress_factory and todo else None
     new: list[int] = []
     saved = 0
@@ -175,13 +207,15 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
                 for e in sorted(failed)]
     simulated = int(sum(est[e].particle_steps for e in new))  # type: ignore[union-attr]
     return _estimate_report(path, sc, E, len(new), reused, failures, int(arrays["particle_steps"].sum()), simulated,
-                            workers, executor, time.perf_counter() - t0)
+                            workers, executor, time.perf_counter() - t0, notices=notices)
 
 
 def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list, steps: int,
-                     simulated: int, workers: int, executor: str, seconds: float, up_to_date: bool = False) -> dict:
-    """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
-    return {"roadmap": str(path), "edges": E, "estimated_edges": estimated, "reused_edges": reused,
+                     simulated: int, workers: int, executor: str, seconds: float, up_to_date: bool = False,
+                     notices: list[str] | None = None) -> dict:
+    """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only;
+    ``notices``: one-line remarks the caller shows (e.g. why the numpy engine ran)."""
+    return {"roadmap": str(path), "edges": E, "estimated_edges": estimated, "reused_edges": reused, "notices": notices or [],
             "failed_edges": failures, "up_to_date": up_to_date, "particles_per_edge": sc.estimation.particles,
             "particle_steps": steps, "simulated_particle_steps": simulated,
             "particle_steps_per_second": simulated / seconds if seconds and simulated else 0.0,
@@ -212,7 +246,7 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     """
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     cost = edge_costs(roadmap.stages["edges"][0], problem.scenario.cost)
     landing, fail, timeout, _ = edge_probabilities(roadmap)
@@ -268,7 +302,7 @@ def policy_path(policy: np.ndarray, target: np.ndarray, start: int, goals: np.nd
     return path
 
 
-def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
+def _resumable(out: Path, scenario: Scenario, validity: str = "") -> Roadmap | None:
     """The roadmap at ``out`` if its nodes were sampled from the same inputs (so the build can go on
     from it), else None (a new roadmap replaces it)."""
     if not out.exists():
@@ -277,18 +311,19 @@ def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
         rm = Roadmap(out)
     except RoadmapError:
         return None  # damaged or foreign: replaced atomically by a fresh build
-    if rm.seed != scenario.seed or not rm.has("nodes") or rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario):
+    if rm.seed != scenario.seed or not rm.has("nodes") or \
+            rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario, validity):
         return None
     return rm
 
 
-def add_nodes_stage(path: str | Path, count: int) -> dict:
+def add_nodes_stage(path: str | Path, count: int, *, validity: Callable | None = None) -> dict:
     """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
     scenario's minimum separation from the others, from a random stream keyed by the seed and the
     round number (so a densified build is reproducible). Later stages are rebuilt by the caller."""
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     attrs = roadmap.attrs("nodes")
     rounds = int(attrs.get("densify_rounds", 0)) + 1
@@ -310,7 +345,7 @@ def build(scenario_path: str | Path, output: str | Path | None, *, workers: int 
           executor: str = "process", scheduler: str | None = None,
           progress_factory: Callable[[int], Callable[[int], None]] | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
-          checkpoint_seconds: float = CHECKPOINT_SECONDS) -> dict:
+          checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None) -> dict:
     """sample + design + estimate, going on from an existing roadmap at the output when it can.
 
     A roadmap whose nodes come from the same inputs (seed, model, measurement, world, task, roadmap
@@ -321,25 +356,32 @@ def build(scenario_path: str | Path, output: str | Path | None, *, workers: int 
     With ``p_min``: solve, and while the start node's success probability is below ``p_min`` and
     the roadmap has fewer than ``max_nodes`` nodes, add ``add_nodes`` nodes (default: a quarter of
     the current count, at least 5), re-design, estimate only the new edges and solve again.
+
+    ``validity``: a user's validity checker (:func:`firmtool.problem.build_problem`), used by every
+    stage; the roadmap records its identity.
     """
     scenario = load_scenario(scenario_path)
     out = Path(output) if output else default_output(scenario)
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
-    existing = None if fresh else _resumable(out, scenario)
+    checker = None if validity is None else ValidityChecker(validity)
+    existing = None if fresh else _resumable(out, scenario, checker.identity if checker else "")
     if existing is None:
-        s = sample_stage(scenario_path, out)
+        s = sample_stage(scenario_path, out, validity=checker)
         seconds["sample"] = s["seconds"]
     elif existing.scenario_sha256 != scenario.sha256:
         update_scenario(out, scenario.text, scenario.sha256)
     totals = {"estimated_edges": 0, "simulated_particle_steps": 0}
     failed: list[dict] = []
+    notices: list[str] = []
 
     def design_and_estimate() -> dict:
         rm = Roadmap(out)
         if not (rm.has("controllers") and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
-            seconds["design"] += design_stage(out)["seconds"]
+            seconds["design"] += design_stage(out, validity=checker)["seconds"]
         e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
-                           progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
+                           progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds,
+                           validity=checker)
+        notices.extend(n for n in e["notices"] if n not in notices)
         seconds["estimate"] += e["seconds"]
         totals["estimated_edges"] += e["estimated_edges"]
         totals["simulated_particle_steps"] += e["simulated_particle_steps"]
@@ -349,7 +391,7 @@ def build(scenario_path: str | Path, output: str | Path | None, *, workers: int 
     e = design_and_estimate()
     report: dict = {"roadmap": str(out), "resumed": existing is not None}
     if p_min is not None:
-        report["densify"] = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate)
+        report["densify"] = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate, checker)
         e = report["densify"].pop("_last_estimate", e)
     else:
         del seconds["solve"]
@@ -361,12 +403,12 @@ def build(scenario_path: str | Path, output: str | Path | None, *, workers: int 
                    "particles_per_edge": e["particles_per_edge"], "particle_steps": e["particle_steps"],
                    "simulated_particle_steps": totals["simulated_particle_steps"],
                    "particle_steps_per_second": rate, "workers": workers or default_workers(),
-                   "executor": executor, "seconds": seconds})
+                   "executor": executor, "seconds": seconds, "notices": notices})
     return report
 
 
 def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | None, seconds: dict,
-             design_and_estimate: Callable[[], dict]) -> dict:
+             design_and_estimate: Callable[[], dict], validity: Callable | None = None) -> dict:
     """The p_min loop of :func:`build`; returns its rounds and why it stopped."""
     rounds = []
     last = None
@@ -388,7 +430,7 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
                       f"probability is {p:.4f} < p_min {p_min:g}")
             break
         count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
-        added = add_nodes_stage(out, count)
+        added = add_nodes_stage(out, count, validity=validity)
         seconds["sample"] += added["seconds"]
         if added["added"] == 0:
             reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"
