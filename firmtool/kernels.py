@@ -88,11 +88,11 @@ def supports(problem) -> str | None:
 
     if numba is None:
         return "numba is not installed"
-    if type(problem.model) is not LinearGaussianModel:
-        return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
     robot = problem.robot
     if robot is None or robot.compiled_kinematics() is None:
         return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
+    if type(problem.model) is not LinearGaussianModel:
+        return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
     if problem.validity is not None:
         return "the problem has a Python validity checker, which the compiled engine does not compute"
     if not (problem.points_valid == robot.points_valid and problem.points == robot.points

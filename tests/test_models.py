@@ -144,6 +144,16 @@ def test_a_registered_noise_form_is_read_from_scenarios_and_runs_on_numpy(monkey
         parse_scenario(text.replace('noise = "test_quartic"', 'noise = "quartic"'), "q.toml")
 
 
+def test_linear_and_unicycle_models_are_models():
+    from firmtool.models.base import Model
+
+    for name in ("point_lightdark", "unicycle_lightdark", "arm8_lightdark"):
+        problem = build_problem(parse_scenario((ROOT / "scenarios" / f"{name}.toml").read_text(), f"{name}.toml"))
+        assert isinstance(problem.model, Model), name
+        X = problem.state_of(problem.config_lo[None] + 0.3 * (problem.config_hi - problem.config_lo))
+        assert problem.model.measurement_variance(X).shape == (1, problem.model.nz)
+
+
 def test_a_callable_noise_is_never_compiled():
     law = noise.CallableNoise(lambda s: 0.01 + 0.001 * s**2)
     np.testing.assert_allclose(law.variance(np.array([[1.0, 2.0]])), [[0.011, 0.014]])
