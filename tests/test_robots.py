@@ -44,7 +44,7 @@ def test_no_robot_name_or_holonomy_branch_outside_the_robots():
 
 
 def test_unknown_robot_names_the_known_ones():
-    with pytest.raises(ScenarioError, match=r"model\.robot: expected one of point, arm, unicycle.*found 'rover'"):
+    with pytest.raises(ScenarioError, match=r"model\.robot: expected one of arm, point, unicycle.*found 'rover'"):
         parse_scenario(SMOKE.replace('robot = "point"', 'robot = "rover"'), "bad.toml")
 
 

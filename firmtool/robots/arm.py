@@ -20,9 +20,9 @@ import numpy as np
 
 from firmtool.errors import ScenarioError
 from firmtool.models import planar_arm
-from firmtool.robots.base import CompiledKinematics
+from firmtool.robots.base import CompiledKinematics, register
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
-from firmtool.schema import INVALID, Errors, Field, valid
+from firmtool.schema import Errors, Field, valid
 
 
 class ArmRobot(LinearRobot):
@@ -144,3 +144,6 @@ class ArmRobot(LinearRobot):
         if type(self) is not ArmRobot:  # a subclass opts in by overriding this
             return None
         return CompiledKinematics("planar_chain", np.asarray(self.lengths, dtype=float), self_collision=True)
+
+
+register("arm", ArmRobot)

@@ -25,7 +25,8 @@ robot with a linear model, node stabilisers at rest and rest-to-rest nominals):
 
 Registry: :func:`register` (from Python), the entry-point group ``firmtool.robots`` (a separately
 installed package: ``[project.entry-points."firmtool.robots"] myrobot = "mypkg.robot:MyRobot"``),
-and the built-in ``point``, ``arm`` and ``unicycle``; :func:`get` looks a name up.
+and the built-in ``point``, ``arm`` and ``unicycle``, each registered by its own module of
+firmtool/robots (a new built-in robot is one new module there); :func:`get` looks a name up.
 """
 
 from __future__ import annotations
@@ -329,25 +330,46 @@ class Robot:
 # ---------------------------------------------------------------------------------------------------
 # the registry
 
-_BUILTIN = {"point": "firmtool.robots.point:PointRobot", "arm": "firmtool.robots.arm:ArmRobot",
-            "unicycle": "firmtool.robots.unicycle:UnicycleRobot"}
+_PACKAGE = "firmtool.robots"  # its modules register the built-in robots when imported
 _REGISTERED: dict[str, type[Robot]] = {}
+_builtins_loaded = False
+
+
+def _load_builtins() -> None:
+    """Import every module of firmtool/robots once: each robot module registers itself, so a new
+    built-in robot is one new module and nothing else."""
+    global _builtins_loaded
+    if _builtins_loaded:
+        return
+    _builtins_loaded = True
+    import pkgutil
+
+    package = importlib.import_module(_PACKAGE)
+    for info in pkgutil.iter_modules(package.__path__):
+        if info.name not in ("base", "linear"):
+            importlib.import_module(f"{_PACKAGE}.{info.name}")
+
+
+def _builtin(cls: type) -> bool:
+    return cls.__module__.startswith(_PACKAGE + ".")
 
 
 def register(name: str, cls: type[Robot], *, replace: bool = False) -> type[Robot]:
     """Register the robot class ``cls`` under ``name`` (what a scenario's ``model.robot`` says).
 
     Registering the same class again is harmless; another class under a taken name needs
-    ``replace=True``, and the built-in names cannot be taken. Returns ``cls`` (usable as a decorator
-    through ``functools.partial``).
+    ``replace=True``, and the built-in names cannot be taken. Returns ``cls``. (A built-in robot's
+    module registers it at the end of the module.)
     """
     if not isinstance(name, str) or not name or not all(ch.isalnum() or ch in "_-." for ch in name):
         raise InputError(f"robot name {name!r}: expected a name of letters, digits, '_', '-' or '.'")
     if not (isinstance(cls, type) and issubclass(cls, Robot)):
         raise InputError(f"robot {name!r}: expected a subclass of firmtool.robots.Robot, found {cls!r}")
-    if name in _BUILTIN:
-        raise InputError(f"robot {name!r} is built in; register yours under another name")
+    if not _builtin(cls):
+        _load_builtins()
     old = _REGISTERED.get(name)
+    if old is not None and old is not cls and _builtin(old):
+        raise InputError(f"robot {name!r} is built in; register yours under another name")
     if old is not None and old is not cls and not replace:
         raise InputError(f"robot {name!r} is already registered ({old.__module__}.{old.__qualname__}); "
                          "pass replace=True to replace it")
@@ -367,9 +389,9 @@ def get(name: str) -> type[Robot]:
     installed package's ``firmtool.robots`` entry point (InputError naming the known ones if none)."""
     if name in _REGISTERED:
         return _REGISTERED[name]
-    if name in _BUILTIN:
-        module, attr = _BUILTIN[name].split(":")
-        return getattr(importlib.import_module(module), attr)
+    _load_builtins()
+    if name in _REGISTERED:
+        return _REGISTERED[name]
     ep = _entry_points().get(name)
     if ep is not None:
         try:
@@ -388,14 +410,14 @@ def get(name: str) -> type[Robot]:
 
 def names() -> tuple[str, ...]:
     """The robot names known now: built in, registered, and installed entry points."""
-    return tuple(dict.fromkeys([*_BUILTIN, *_REGISTERED, *_entry_points()]))
+    _load_builtins()
+    builtin = sorted(n for n, c in _REGISTERED.items() if _builtin(c))
+    return tuple(dict.fromkeys([*builtin, *_REGISTERED, *_entry_points()]))
 
 
 def is_importable(cls: type[Robot]) -> bool:
     """Whether a fresh process finds ``cls`` by its name (built in or an entry point), so that a job
     for worker processes need not carry the class itself."""
-    for name, path in _BUILTIN.items():
-        module, attr = path.split(":")
-        if cls.__module__ == module and cls.__qualname__ == attr:
-            return True
+    if _builtin(cls) and "<locals>" not in cls.__qualname__:
+        return True
     return any(ep.value == f"{cls.__module__}:{cls.__qualname__}" for ep in _entry_points().values())

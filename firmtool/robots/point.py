@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.robots.base import CompiledKinematics
+from firmtool.robots.base import CompiledKinematics, register
 from firmtool.robots.linear import LinearRobot
 
 
@@ -34,3 +34,6 @@ class PointRobot(LinearRobot):
         if type(self) is not PointRobot or self.world_dim != 2:
             return None
         return CompiledKinematics("planar_point", np.zeros(0), self_collision=False)
+
+
+register("point", PointRobot)

@@ -26,7 +26,7 @@ import numpy as np
 
 from firmtool.errors import ScenarioError
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
-from firmtool.robots.base import Robot
+from firmtool.robots.base import Robot, register
 from firmtool.schema import Field
 
 
@@ -106,3 +106,6 @@ class UnicycleRobot(Robot):
     def runtime_nominal(self, problem, x0, xf, tries):
         """The same turn-drive-turn nominal (no speed to brake: the state has none)."""
         return self.nominal_trajectory(problem, x0, xf)
+
+
+register("unicycle", UnicycleRobot)
