@@ -37,10 +37,12 @@ class EstimationInterrupted(FirmtoolError, KeyboardInterrupt):
 
 def nodes_inputs(scenario: Scenario, validity: str = "") -> str:
     """Identity of what the sampled nodes depend on: every section but the cost weights, the
-    estimation and execution settings and the name (changing those keeps the nodes), and the
-    identity of a user's validity checker (``validity``, "" without one)."""
+    estimation and execution settings and the name (changing those keeps the nodes), the robot's
+    code and the identity of a user's validity checker (``validity``, "" without one)."""
+    from firmtool import robots
+
     parts = (scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
-             scenario.roadmap, scenario.controller) + ((validity,) if validity else ())
+             scenario.roadmap, scenario.controller, robots.get(scenario.model.robot).code_identity(), validity)
     return digest(*parts).hex()
 
 

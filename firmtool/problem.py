@@ -7,14 +7,13 @@ a new robot module, nothing here.
 
 from __future__ import annotations
 
-import hashlib
-import marshal
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from firmtool.errors import InputError, ScenarioError
+from firmtool.fingerprint import fingerprint
 from firmtool.models.base import Model
 from firmtool.scenario import Scenario
 
@@ -28,10 +27,9 @@ class ValidityChecker:
 
     Its :attr:`identity` enters the edge keys (estimates made with one checker are never reused
     with another or without it) and the roadmap: the checker's ``firmtool_key`` attribute if it has
-    one (a string the user changes when its behaviour changes), else a sha256 of the pickled
-    function (cloudpickle: its code, defaults, closure and the globals it uses) and of its code
-    object. It reaches worker processes and dask workers pickled with cloudpickle
-    (:attr:`pickled`).
+    one (a string the user changes when its behaviour changes), else a fingerprint of its code and
+    data (:func:`firmtool.fingerprint.fingerprint`: the same in every process and run for the same
+    source). It reaches worker processes and dask workers pickled with cloudpickle (:attr:`pickled`).
     """
 
     def __init__(self, fn: Callable[[np.ndarray], np.ndarray]) -> None:
@@ -58,14 +56,7 @@ class ValidityChecker:
     def identity(self) -> str:
         if self._identity is None:
             key = getattr(self.fn, "firmtool_key", None)
-            if key is not None:
-                self._identity = f"key:{key}"
-            else:
-                h = hashlib.sha256(self.pickled)
-                code = getattr(self.fn, "__code__", None) or getattr(getattr(self.fn, "__call__", None), "__code__", None)
-                if code is not None:
-                    h.update(marshal.dumps(code))
-                self._identity = "sha256:" + h.hexdigest()
+            self._identity = f"key:{key}" if key is not None else "sha256:" + fingerprint(self.fn)
         return self._identity
 
     def __call__(self, X: np.ndarray) -> np.ndarray:

@@ -110,7 +110,7 @@ def test_a_robot_from_an_installed_packages_entry_point(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     assert "test_rover" in robots.names()
     problem = build_problem(parse_scenario(SMOKE.replace('robot = "point"', 'robot = "test_rover"'), "r.toml"))
-    assert type(problem.robot).__name__ == "Rover" and problem.robot.identity.endswith("Rover:1")
+    assert type(problem.robot).__name__ == "Rover" and problem.robot.identity.startswith("fake_firmtool_robot.Rover:1")
     assert robots.base.is_importable(type(problem.robot))  # workers find it by name
     sys.modules.pop("fake_firmtool_robot", None)
 

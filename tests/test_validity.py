@@ -124,6 +124,45 @@ def test_edge_keys_carry_the_checker(smoke_design):
         build_problem(sc, validity=lambda X: np.ones(len(X)))  # numbers, not booleans
 
 
+SCRIPT = """
+import numpy as np
+from firmtool.problem import ValidityChecker
+from firmtool.robots.point import PointRobot
+
+class Checker:  # a callable instance of a class defined in __main__ (cloudpickle tags it randomly)
+    def __init__(self, center):
+        self.center = center
+
+    def __call__(self, X):
+        return np.linalg.norm(X[:, :2] - self.center, axis=1) >= RADIUS
+
+class Mine(PointRobot):
+    def points(self, X):
+        return np.asarray(X)[:, None, :2] * SCALE
+
+RADIUS, SCALE = {radius}, {scale}
+print(ValidityChecker(Checker(np.array([0.78, 1.2]))).identity, Mine.code_identity())
+"""
+
+
+def test_identities_are_stable_across_processes_and_follow_the_code(tmp_path):
+    import subprocess
+    import sys
+
+    def identities(radius=0.2, scale=1.0):
+        path = tmp_path / "ids.py"
+        path.write_text(SCRIPT.format(radius=radius, scale=scale))
+        p = subprocess.run([sys.executable, str(path)], capture_output=True, text=True, timeout=120,
+                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+        assert p.returncode == 0, p.stderr
+        return p.stdout.split()
+
+    first = identities()
+    assert identities() == first  # another process, the same source: the same identities
+    checker, robot = first
+    assert identities(radius=0.25)[0] != checker and identities(scale=2.0)[1] != robot
+
+
 def _table(path: Path) -> dict[str, np.ndarray]:
     with h5py.File(path, "r") as f:
         return {k: f["edges"][k][()] for k in f["edges"]}

@@ -74,6 +74,8 @@ class ArmRobot(LinearRobot):
 
     def __init__(self, scenario) -> None:
         spec = scenario.model
+        if scenario.world.dim != 2:
+            raise ScenarioError(scenario.path, "world.bounds", "expected a planar world (2 columns) for robot = 'arm'")
         self.lengths = planar_arm.validated_lengths(spec.link_lengths)
         super().__init__(scenario)
         L = self.lengths.size

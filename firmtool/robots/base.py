@@ -134,10 +134,19 @@ class Robot:
 
     @property
     def identity(self) -> str:
-        """Which code this robot is (edge keys include it): its class's module and name, and its
-        ``version`` attribute if it has one (raise it when the robot's behaviour changes)."""
-        cls = type(self)
-        return f"{cls.__module__}.{cls.__qualname__}:{getattr(cls, 'version', '')}"
+        """Which code this robot is (edge keys and a roadmap's nodes include it): :meth:`code_identity`."""
+        return type(self).code_identity()
+
+    @classmethod
+    def code_identity(cls) -> str:
+        """The class's module, name and ``version`` attribute (raise it when a packaged robot's
+        behaviour changes), and for a class of the user's own code (a script, a notebook, a module
+        outside site-packages) a fingerprint of its code (:mod:`firmtool.fingerprint`), so that
+        editing it re-estimates instead of reusing estimates of the old code."""
+        from firmtool.fingerprint import _by_reference, fingerprint
+
+        head = f"{cls.__module__}.{cls.__qualname__}:{getattr(cls, 'version', '')}"
+        return head if _by_reference(cls) else f"{head}:{fingerprint(cls)}"
 
     # -- kinematics, sensing, geometry ---------------------------------------------------------------
 
