@@ -15,6 +15,7 @@ import numpy as np
 import scipy.linalg
 
 from firmtool.errors import NumericalError
+from firmtool.models.base import Model
 from firmtool.models.linear import LinearGaussianModel
 
 
@@ -374,7 +375,7 @@ class PeriodicStabiliser:
         return self.u.shape[0]
 
 
-def weights(model: LinearGaussianModel, state_weight: float, velocity_weight: float,
+def weights(model: Model, state_weight: float, velocity_weight: float,
             control_weight: float, config_dim: int) -> tuple[np.ndarray, np.ndarray]:
     """Diagonal LQR weights: ``state_weight`` on configuration coordinates, ``velocity_weight`` on the rest."""
     wx = np.full(model.n, velocity_weight)
@@ -523,7 +524,7 @@ def _same_matrices(jacobians: list[tuple[np.ndarray, ...]]) -> bool:
     return all(all(a is b or np.array_equal(a, b) for a, b in zip(first, j)) for j in jacobians[1:])
 
 
-def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_nominal: np.ndarray,
+def plan_local_controller(model: Model, x_nominal: np.ndarray, u_nominal: np.ndarray,
                           P0: np.ndarray, target: NodeController, Wx: np.ndarray, Wu: np.ndarray,
                           stabiliser_steps: int, perfect: bool) -> LocalController:
     """Time-varying LQG along a nominal trajectory, then the target's stabiliser.
