@@ -7,26 +7,27 @@ with the distance from a lit wall at ``x = light_x``. The room (3-D boxes and a 
 sphere) is checked with python-fcl. A wall splits the room: the short way goes through a small
 window in the dark, the long one through a wide door next to the lit wall.
 
-Run it with no arguments (about a minute on 2 cores)::
+Run it with no arguments (about 15 s on 2 cores)::
 
-    python examples/custom_robot_3d.py            # writes custom_robot_3d.png next to this file
+    python examples/custom_robot_3d.py            # writes artifacts/custom_robot_3d.png
 
 What it shows: the ``Robot`` interface (``firmtool.robots``): a class with its ``[model]`` keys,
 its model, configuration space and key points, registered under a name the scenario uses; the
-library calls build, solve, simulate and plot it like the built-in robots. The robot class travels
-to the worker processes of the build pickled with cloudpickle (it is defined in ``__main__``).
+public API (``ft.build``, ``ft.solve``, ``ft.simulate``, ``ft.plot``) runs it like the built-in
+robots. The robot class travels to the worker processes of the build pickled with cloudpickle (it
+is defined in ``__main__``, which they cannot import).
 """
 
 from __future__ import annotations
 
 import sys
-import tempfile
 from pathlib import Path
 
 import control
+import matplotlib.pyplot as plt
 import numpy as np
 
-import firmtool.robots as robots
+import firmtool as ft
 from firmtool.robots import LinearRobot
 from firmtool.schema import Field
 
@@ -62,7 +63,7 @@ class Flyer(LinearRobot):
         return True  # rest-to-rest nominals of identical integrators follow the straight segment
 
 
-robots.register("flyer3d", Flyer)
+ft.robots.register("flyer3d", Flyer)
 
 SCENARIO = """
 [scenario]
@@ -128,42 +129,36 @@ failure_cost = 200.0
 
 
 def main(out_png: Path) -> int:
-    # The lowest-level library calls (the public ft.build / ft.solve / ft.simulate / ft.plot API of
-    # firmtool/__init__.py will replace them): pipeline stages on a roadmap file, then execution.
-    from firmtool.execute import edge_counts_of, execute
-    from firmtool.nodes import START_INDEX
-    from firmtool.pipeline import build, design_of, problem_of, solve_stage
-    from firmtool.plot import PanelData, plot_roadmap, save_figure
-    from firmtool.roadmap import Roadmap
+    sc = ft.Scenario.from_toml(SCENARIO, "custom_robot_3d.toml")  # or ft.load_scenario(path)
+    rm = ft.build(sc, workers=2)  # sample, design, estimate: the robot class travels to the workers
+    r = rm.report
+    print(f"roadmap: {len(rm.nodes)} nodes, {len(rm.edges)} edges x {rm.particles[0]} particles, "
+          f"built in {sum(r.seconds.values()):.1f} s")
+    for notice in r.notices:  # why the numpy Monte Carlo engine ran (no compiled 3-D kinematics)
+        print(f"notice: {notice}")
 
-    with tempfile.TemporaryDirectory() as tmp:
-        scenario = Path(tmp) / "custom_robot_3d.toml"
-        scenario.write_text(SCENARIO)
-        roadmap = Path(tmp) / "custom_robot_3d.h5"
-        b = build(scenario, roadmap, workers=2)
-        print(f"built {b['nodes']} nodes, {b['edges']} edges x {b['particles_per_edge']} particles "
-              f"in {sum(b['seconds'].values()):.1f} s")
-        for notice in b["notices"]:
-            print(f"notice: {notice}")
-        s = solve_stage(roadmap)
-        print(f"solve: {s['status']}, predicted success {s['start_success_probability']:.3f} "
-              f"(shortest path: {s['shortest_path_start_success_probability']:.3f}), path {s['path']}")
-        rm = Roadmap(roadmap)
-        problem, design = problem_of(rm), design_of(rm)
-        policy = rm.require("policy", "edge", "success_probability", "cost_to_go")
-        r = execute(problem, design, policy["edge"].astype(np.int64), 100, seed=0,
-                    predicted=float(policy["success_probability"][START_INDEX]), cost_to_go=policy["cost_to_go"],
-                    record=True, edge_counts=edge_counts_of(rm))
-        lo, hi = r["success_rate_ci95"]
-        print(f"executed 100 episodes: success {r['success_rate']:.2f} (95% CI {lo:.2f}-{hi:.2f})")
-        episode = next((e for e in r["_episodes"] if e.outcome == "success"), r["_episodes"][0])
-        panel = PanelData(name="FIRM policy (seen from above)", policy=policy["edge"].astype(np.int64),
-                          predicted=float(policy["success_probability"][START_INDEX]), episode=episode,
-                          executed=(r["success_rate"], lo, hi))
-        save_figure(plot_roadmap(problem, design, [panel]), out_png)
-        print(f"wrote {out_png}")
+    sol = ft.solve(rm)
+    lo, hi = sol.success_probability_ci95
+    print(f"policy: success probability {sol.success_probability:.3f} (95% {lo:.3f}-{hi:.3f}), "
+          f"path {sol.path()}; the shortest path's {sol.report.shortest_path_start_success_probability:.3f}")
+
+    res = ft.simulate(sol, episodes=100, seed=0)
+    lo, hi = res.ci95
+    print(f"executed: success {res.success_rate:.3f} (95% {lo:.3f}-{hi:.3f}) in {len(res.episodes)} episodes")
+    ep = res.episodes[0]
+    print(f"episode 0: {ep.outcome}, altitude {ep.states[0, 2]:.2f} -> {ep.states[-1, 2]:.2f} m, "
+          f"{len(ep.states) - 1} steps")
+
+    fig, ax = plt.subplots(figsize=(9, 5.5))
+    ft.plot(sol, res, ax=ax)  # a 3-D world is drawn from above
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=80)
+    print(f"wrote {out_png}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main(Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).with_suffix(".png")))
+    default = Path("artifacts") / "custom_robot_3d.png"
+    if len(sys.argv) == 1:
+        default.parent.mkdir(exist_ok=True)
+    sys.exit(main(Path(sys.argv[1]) if len(sys.argv) > 1 else default))

@@ -45,25 +45,38 @@ class _Params:
             raise AttributeError(f"{type(self).__name__} has no key {name!r}") from None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class ModelSpec(_Params):
     """``[model]``: the robot's name, the step, and the keys the robot declares (``params``, also
-    readable as attributes: ``spec.dynamics``)."""
+    readable as attributes: ``spec.dynamics``; ``dataclasses.replace(spec, link_lengths=...)`` and
+    ``ModelSpec(robot, dt, dynamics=...)`` set them by name)."""
 
     robot: str
     dt: float
-    params: dict[str, Any] = field(default_factory=dict)
+    params: dict[str, Any]
+
+    def __init__(self, robot: str, dt: float, params: Mapping[str, Any] | None = None, **more: Any) -> None:
+        object.__setattr__(self, "robot", robot)
+        object.__setattr__(self, "dt", dt)
+        object.__setattr__(self, "params", {**(params or {}), **more})
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class MeasurementSpec(_Params):
     """``[measurement]``: perfect or imperfect; the noise form, its keys (``params``, also readable
-    as attributes: ``spec.light_x``) and an optional observation matrix ``H``."""
+    and settable by name, like :class:`ModelSpec`'s) and an optional observation matrix ``H``."""
 
     kind: str  # "perfect" | "imperfect"
     noise: str  # a registered noise form (firmtool.models.noise); "constant" when perfect
-    H: np.ndarray | None = None  # optional observation matrix (default: the robot's)
-    params: dict[str, Any] = field(default_factory=dict)
+    H: np.ndarray | None  # optional observation matrix (default: the robot's)
+    params: dict[str, Any]
+
+    def __init__(self, kind: str, noise: str, H: np.ndarray | None = None, params: Mapping[str, Any] | None = None,
+                 **more: Any) -> None:
+        object.__setattr__(self, "kind", kind)
+        object.__setattr__(self, "noise", noise)
+        object.__setattr__(self, "H", H)
+        object.__setattr__(self, "params", {**(params or {}), **more})
 
 
 @dataclass(frozen=True)
@@ -527,3 +540,52 @@ def _read_task(errors: Errors, data: dict, robot_cls: type | None, world: WorldS
     if not valid(start, *values.values()):
         return None
     return TaskSpec(start=start, goal=values["goal"])
+
+
+# -- Scenarios from Python values, and back to TOML (the work is done in firmtool.scenario_io) ------
+# Attached here so that every Scenario has them, however it was made.
+
+def _from_dict(cls: type[Scenario], tables: dict, path: str = "<dict>") -> Scenario:
+    """A scenario from its TOML tables as Python values, validated as a file would be
+    (:func:`firmtool.scenario_io.scenario_from_dict`)."""
+    from firmtool.scenario_io import scenario_from_dict
+    return scenario_from_dict(tables, path)
+
+
+def _from_toml(cls: type[Scenario], text: str, path: str = "<string>") -> Scenario:
+    """A scenario from TOML text (:func:`parse_scenario`)."""
+    return parse_scenario(text, path)
+
+
+def _to_dict(self: Scenario) -> dict:
+    """The scenario's TOML tables as Python values (:func:`firmtool.scenario_io.scenario_to_dict`)."""
+    from firmtool.scenario_io import scenario_to_dict
+    return scenario_to_dict(self)
+
+
+def _to_toml(self: Scenario) -> str:
+    """The scenario as TOML text (:func:`firmtool.scenario_io.scenario_to_toml`)."""
+    from firmtool.scenario_io import scenario_to_toml
+    return scenario_to_toml(self)
+
+
+def _replace(self: Scenario, **changes: Any) -> Scenario:
+    """A copy with some settings changed, validated: ``sc.replace(seed=3, estimation={"particles": 100})``
+    (:func:`firmtool.scenario_io.replace_scenario`)."""
+    from firmtool.scenario_io import replace_scenario
+    return replace_scenario(self, **changes)
+
+
+def _eq(self: Scenario, other: object) -> bool:
+    """Two scenarios are equal when they say the same thing (name, seed, every section), whatever
+    their file name, text or comments (:func:`firmtool.scenario_io.same_settings`)."""
+    from firmtool.scenario_io import same_settings
+    return same_settings(self, other)
+
+
+Scenario.from_dict = classmethod(_from_dict)  # type: ignore[attr-defined]
+Scenario.from_toml = classmethod(_from_toml)  # type: ignore[attr-defined]
+Scenario.to_dict = _to_dict  # type: ignore[attr-defined]
+Scenario.to_toml = _to_toml  # type: ignore[attr-defined]
+Scenario.replace = _replace  # type: ignore[attr-defined]
+Scenario.__eq__ = _eq  # type: ignore[method-assign]

@@ -20,4 +20,4 @@ def test_custom_robot_3d_runs_with_its_robot_defined_in_the_script(tmp_path):
     p = subprocess.run([sys.executable, str(ROOT / "examples" / "custom_robot_3d.py"), str(out)], cwd=tmp_path,
                        capture_output=True, text=True, timeout=120, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
-    assert "predicted success" in p.stdout and "executed 100 episodes" in p.stdout and out.stat().st_size > 10_000
+    assert "policy: success probability" in p.stdout and "in 100 episodes" in p.stdout and out.stat().st_size > 10_000

@@ -180,7 +180,7 @@ def checked_roadmap(tmp_path_factory):
 
 def test_workers_and_the_roadmap_honour_the_checker(checked_roadmap, tmp_path):
     scenario, one, report = checked_roadmap
-    assert any("Python validity checker" in n for n in report["notices"])
+    assert any("Python validity checker" in n for n in report.notices)
     rm = Roadmap(one)
     assert rm.attrs("nodes")[VALIDITY_ATTR] == ValidityChecker(disc_checker()).identity
     centers = rm.require("nodes", "centers")["centers"]
@@ -190,7 +190,7 @@ def test_workers_and_the_roadmap_honour_the_checker(checked_roadmap, tmp_path):
     a, b = _table(one), _table(two)
     assert all(np.array_equal(a[k], b[k]) for k in a)
     # the same checker resumes (nothing re-estimated); another one is refused by the stages
-    assert build(scenario, two, workers=1, validity=disc_checker())["estimated_edges"] == 0
+    assert build(scenario, two, workers=1, validity=disc_checker()).estimated_edges == 0
     with pytest.raises(InputError, match="another validity checker"):
         problem_of(Roadmap(two), disc_checker(radius=0.3))
     with pytest.raises(InputError, match="Python validity checker"):
@@ -211,11 +211,11 @@ def test_execution_honours_the_checker(checked_roadmap, tmp_path):
     rep = execute(problem, design_of(rm), policy["edge"].astype(np.int64), 30, 0, cost_to_go=policy["cost_to_go"],
                   record=True)
     inside = lambda X: np.linalg.norm(X[:, :2] - DISC, axis=1) < RADIUS  # noqa: E731
-    for ep in rep["_episodes"]:
+    for ep in rep.episodes:
         assert not inside(ep.states[:-1]).any()  # a true state in the disc ends the episode,
         if inside(ep.states[-1:])[0]:
             assert ep.outcome == "collision"  # as a collision
-    assert rep["successes"] > 0
+    assert rep.successes > 0
 
 
 def test_the_command_line_refuses_what_it_cannot_rebuild(checked_roadmap, tmp_path):
@@ -256,6 +256,6 @@ def test_dask_workers_get_the_checker_and_a_robot_defined_here(tmp_path):
     from firmtool.pipeline import estimate_stage
 
     report = estimate_stage(dask, workers=2, executor="dask", validity=disc_checker())
-    assert report["estimated_edges"] == report["edges"] and report["failed_edges"] == []
+    assert report.estimated_edges == report.edges and report.failed_edges == ()
     a, b = _table(one), _table(dask)
     assert all(np.array_equal(a[k], b[k]) for k in a)

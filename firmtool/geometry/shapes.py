@@ -41,6 +41,15 @@ class Obstacle:
         """Lower and upper corners (D,) of the obstacle's axis-aligned bounding box."""
         raise NotImplementedError
 
+    def to_table(self) -> dict[str, Any]:
+        """The obstacle's scenario table (its keys; ``kind`` unless a box, the default kind)."""
+        table = {} if self.kind == "box" else {"kind": self.kind}
+        for f in self.fields:
+            value = getattr(self, f.name)
+            if value is not None:
+                table[f.name] = np.asarray(value).tolist() if f.type.endswith("array") else value
+        return table
+
 
 @dataclass(frozen=True)
 class Box(Obstacle):
@@ -140,6 +149,10 @@ class Mesh(Obstacle):
         edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
         _, counts = np.unique(edges, axis=0, return_counts=True)
         return bool(t.shape[0] > 0 and np.all(counts == 2))
+
+    def to_table(self) -> dict[str, Any]:
+        """Inline ``vertices`` and ``triangles`` (what was read, also from a file)."""
+        return {"kind": "mesh", "vertices": self.vertices.tolist(), "triangles": self.triangles.tolist()}
 
     def aabb(self) -> tuple[np.ndarray, np.ndarray]:
         used = self.vertices[np.unique(self.triangles)]
