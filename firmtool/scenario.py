@@ -10,6 +10,7 @@ hand-written file they are almost always typos.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import tomllib
@@ -31,10 +32,28 @@ __all__ = ["Box", "ControllerSpec", "CostSpec", "EstimationSpec", "ExecutionSpec
            "parse_scenario", "sections"]
 
 
+def _equal(a: Any, b: Any) -> bool:
+    """Equality of setting values, arrays by shape and value (``==`` of two dicts of arrays raises)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and \
+            bool(np.array_equal(a, b))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
 class _Params:
-    """Attribute access to the keys a plugin declared (``spec.link_lengths``), kept in ``params``."""
+    """Attribute access to the keys a plugin declared (``spec.link_lengths``), kept in ``params``;
+    equality of the settings, arrays included."""
 
     params: Mapping[str, Any]
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        return all(_equal(getattr(self, f.name), getattr(other, f.name)) for f in dataclasses.fields(self))
+
+    __hash__ = None  # type: ignore[assignment]  # settings hold arrays
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name == "params":
@@ -45,7 +64,7 @@ class _Params:
             raise AttributeError(f"{type(self).__name__} has no key {name!r}") from None
 
 
-@dataclass(frozen=True, init=False)
+@dataclass(frozen=True, init=False, eq=False)
 class ModelSpec(_Params):
     """``[model]``: the robot's name, the step, and the keys the robot declares (``params``, also
     readable as attributes: ``spec.dynamics``; ``dataclasses.replace(spec, link_lengths=...)`` and
@@ -61,7 +80,7 @@ class ModelSpec(_Params):
         object.__setattr__(self, "params", {**(params or {}), **more})
 
 
-@dataclass(frozen=True, init=False)
+@dataclass(frozen=True, init=False, eq=False)
 class MeasurementSpec(_Params):
     """``[measurement]``: perfect or imperfect; the noise form, its keys (``params``, also readable
     and settable by name, like :class:`ModelSpec`'s) and an optional observation matrix ``H``."""
