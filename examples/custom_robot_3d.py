@@ -28,8 +28,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import firmtool as ft
-from firmtool.robots import LinearRobot
-from firmtool.schema import Field
+from firmtool.robots import Field, LinearRobot
 
 
 class Flyer(LinearRobot):
