@@ -103,6 +103,20 @@ def test_a_robot_given_by_a_statespace_builds_the_scenarios_model():
     assert kernels.supports(mine) is not None  # a subclass opts in to the compiled kinematics itself
 
 
+class DeafPoint(PointRobot):
+    """A StateSpace whose second axis has no input: (A, B) is not stabilisable."""
+
+    def statespace(self):
+        A, B, C = _double_integrator(2)
+        return control.ss(A, B[:, :1], C, 0), B, 0.01 * np.eye(2)
+
+
+def test_a_statespace_robots_model_errors_name_the_robot():
+    register("test_deaf_point", DeafPoint, replace=True)
+    with pytest.raises(ScenarioError, match=r"model\.robot \(DeafPoint\.statespace\): \(A, B\) is not stabilisable"):
+        build_problem(parse_scenario(POINT.replace('robot = "point"', 'robot = "test_deaf_point"'), "p.toml"))
+
+
 @pytest.mark.parametrize("form, params, law", [
     ("lightdark_std", dict(light_x=1.5, eta=0.2, sigma_b=0.01), lambda d: (0.2 * abs(d) + 0.01) ** 2),
     ("lightdark_variance", dict(light_x=1.5, a=0.3, c=0.02), lambda d: 0.3 * d * d + 0.02),

@@ -192,6 +192,10 @@ class LinearRobot(Robot):
         return self.statespace() is None and self.scenario.model.dynamics in INTEGRATORS
 
     def check(self, problem: "Problem") -> None:
+        if self.statespace() is not None:  # the matrices are the robot's code, not scenario keys
+            where = f"model.robot ({type(self).__name__}.statespace)"
+            check_linear_model(problem, dynamics_field=where, equilibrium_field=where, noise_field=where)
+            return
         check_linear_model(problem, noise_field="model.G/Q" if self.scenario.model.params.get("dynamics") == "matrices"
                            else "model.process_noise_std")
 
@@ -225,27 +229,29 @@ def _uncontrollable_modes(A: np.ndarray, C: np.ndarray, unstable_only: bool) -> 
     return bad
 
 
-def check_linear_model(problem: "Problem", noise_field: str = "model.process_noise_std") -> None:
+def check_linear_model(problem: "Problem", noise_field: str = "model.process_noise_std",
+                       dynamics_field: str = "model.A/B", equilibrium_field: str = "model.A") -> None:
     """Input errors (not numerical failures later) for a linear model the planner cannot use:
     (A, B) not stabilisable or not controllable (node stabilisers and rest-to-rest nominals),
-    configurations at rest that are no equilibrium, (A, H) not detectable (the Kalman filter)."""
+    configurations at rest that are no equilibrium, (A, H) not detectable (the Kalman filter).
+    The ``*_field`` arguments name where the user gave what is wrong."""
     sc, model = problem.scenario, problem.model
     A, B = np.asarray(model.A, dtype=float), np.asarray(model.B, dtype=float)
     text = lambda modes: ", ".join(f"{z.real:.4g}" + (f"{z.imag:+.4g}j" if abs(z.imag) > 1e-12 else "")  # noqa: E731
                                    for z in modes[:3])
     bad = _uncontrollable_modes(A, B, unstable_only=True)
     if bad:
-        raise ScenarioError(sc.path, "model.A/B", f"(A, B) is not stabilisable: discretised mode(s) {text(bad)} "
+        raise ScenarioError(sc.path, dynamics_field, f"(A, B) is not stabilisable: discretised mode(s) {text(bad)} "
                                                   "on or outside the unit circle cannot be controlled")
     bad = _uncontrollable_modes(A, B, unstable_only=False)
     if bad:
-        raise ScenarioError(sc.path, "model.A/B", f"(A, B) is not controllable: mode(s) {text(bad)} cannot be "
+        raise ScenarioError(sc.path, dynamics_field, f"(A, B) is not controllable: mode(s) {text(bad)} cannot be "
                                                   "steered (rest-to-rest nominal trajectories need every state)")
     d = problem.config_dim
     drift = (A - np.eye(A.shape[0]))[:, :d]
     if np.linalg.matrix_rank(np.hstack([B, drift]), tol=1e-9 * max(1.0, np.abs(A).max())) > \
             np.linalg.matrix_rank(B, tol=1e-9 * max(1.0, np.abs(B).max())):
-        raise ScenarioError(sc.path, "model.A", "expected every configuration at rest to be an equilibrium "
+        raise ScenarioError(sc.path, equilibrium_field, "expected every configuration at rest to be an equilibrium "
                                                 "(A v + B u = v solvable for u), so nodes can be held")
     if not sc.perfect:
         H = np.asarray(model.H, dtype=float)
