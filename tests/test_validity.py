@@ -233,6 +233,10 @@ def test_the_command_line_refuses_what_it_cannot_rebuild(checked_roadmap, tmp_pa
         assert "built with a Python validity checker" in out and "cannot rebuild" in out
         assert copy.read_bytes() == before
     assert runner.invoke(app, ["solve", str(copy)]).exit_code in (0, 1)  # the DP needs no geometry
+    import json
+
+    r = runner.invoke(app, ["inspect", str(copy), "--json"])
+    assert json.loads(r.stdout)["validity_checker"] == ValidityChecker(disc_checker()).identity
 
 
 def test_dask_workers_get_the_checker_and_a_robot_defined_here(tmp_path):
