@@ -88,6 +88,8 @@ def supports(problem) -> str | None:
 
     if numba is None:
         return "numba is not installed"
+    if len(problem.scenario.world.lo) != 2:
+        return f"the compiled engine is planar, this world is {len(problem.scenario.world.lo)}-D"
     robot = problem.robot
     if robot is None or robot.compiled_kinematics() is None:
         return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
