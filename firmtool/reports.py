@@ -268,6 +268,8 @@ class RoadmapSummary(Report):
         (``start_cost_to_go`` None when the goal is unreachable from the start).
     validity_checker : the identity of the Python validity checker the roadmap was built with
         (None without one; the command line cannot rebuild such a roadmap's problem).
+    stale_stages : stages computed from another scenario text than the stored one (a build with
+        the current scenario, or the stage's command, recomputes them).
     """
 
     roadmap: str
@@ -290,3 +292,4 @@ class RoadmapSummary(Report):
     start_success_probability: float | None = None
     start_cost_to_go: float | None = None
     validity_checker: str | None = None
+    stale_stages: tuple[str, ...] = ()

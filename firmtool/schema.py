@@ -26,6 +26,9 @@ from firmtool.errors import ScenarioError
 # the model overflow, and an integer must fit the roadmap file's int64 attributes.
 MAX_MAGNITUDE = 1e12
 MAX_INTEGER = 2**63 - 1
+# Largest state dimension (matrices model; arm: 2 x links): dense n x n covariances per node and
+# per step of every edge make larger ones impractical long before the planner could use them.
+MAX_STATE_DIM = 64
 
 
 class _Required:

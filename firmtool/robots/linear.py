@@ -21,15 +21,12 @@ import numpy as np
 from firmtool.errors import InputError, ScenarioError
 from firmtool.models.linear import LinearGaussianModel, discretize, discretize_statespace, noise_factor
 from firmtool.robots.base import Robot
-from firmtool.schema import INVALID, Errors, Field, shape_text, valid
+from firmtool.schema import INVALID, MAX_STATE_DIM, Errors, Field, shape_text, valid
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.problem import Problem
     from firmtool.scenario import Scenario
 
-# Largest state dimension (matrices model; arm: 2 x links): dense n x n covariances per node and
-# per step of every edge make larger ones impractical long before the planner could use them.
-MAX_STATE_DIM = 64
 INTEGRATORS = ("single_integrator", "double_integrator")
 
 
