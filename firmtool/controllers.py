@@ -15,6 +15,7 @@ import scipy.linalg
 
 from firmtool._jit import cached_njit
 from firmtool.errors import NumericalError
+from firmtool.models.base import Model
 from firmtool.models.linear import LinearGaussianModel
 
 # compiled, cached on disk by a key that covers the compiled functions each calls (firmtool._jit)
@@ -397,7 +398,7 @@ class PeriodicStabiliser:
         return self.u.shape[0]
 
 
-def weights(model: LinearGaussianModel, state_weight: float, velocity_weight: float,
+def weights(model: Model, state_weight: float, velocity_weight: float,
             control_weight: float, config_dim: int) -> tuple[np.ndarray, np.ndarray]:
     """Diagonal LQR weights: ``state_weight`` on configuration coordinates, ``velocity_weight`` on the rest."""
     wx = np.full(model.n, velocity_weight)
@@ -546,7 +547,7 @@ def _same_matrices(jacobians: list[tuple[np.ndarray, ...]]) -> bool:
     return all(all(a is b or np.array_equal(a, b) for a, b in zip(first, j)) for j in jacobians[1:])
 
 
-def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_nominal: np.ndarray,
+def plan_local_controller(model: Model, x_nominal: np.ndarray, u_nominal: np.ndarray,
                           P0: np.ndarray, target: NodeController, Wx: np.ndarray, Wu: np.ndarray,
                           stabiliser_steps: int, perfect: bool) -> LocalController:
     """Time-varying LQG along a nominal trajectory, then the target's stabiliser.

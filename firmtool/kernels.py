@@ -1,8 +1,8 @@
 """Compiled Monte Carlo engine: the whole edge step in one numba kernel (plain loops, no temporaries).
 
-:func:`simulate` is a drop-in twin of :func:`firmtool.edges.simulate` for the models it knows:
-a :class:`~firmtool.models.linear.LinearGaussianModel` on the ``point`` or ``arm`` robot with the
-numpy or numba collision geometry. Per step and per live particle it does, in this order, exactly
+:func:`simulate` is a drop-in twin of :func:`firmtool.edges.simulate` for the problems it knows:
+a :class:`~firmtool.models.linear.LinearGaussianModel` on a robot whose compiled hook names one of
+its two planar kinematics (a point; a chain of links) with the numpy or numba collision geometry. Per step and per live particle it does, in this order, exactly
 what the numpy path does:
 
     control from the estimate -> true-state step with process noise -> kinematics (once) ->
@@ -51,9 +51,11 @@ Node membership
     nodes (all nodes, as in the tree query) are nearer in that metric.
 
 Selection: :func:`firmtool.edges.simulate` dispatches here when :func:`engine_for` says so: the
-environment variable ``FIRMTOOL_ENGINE=numpy|numba`` forces an engine (``numba`` raises if the
-problem is not supported); unset or ``auto`` uses this kernel whenever numba is importable and the
-problem is supported, and the numpy path otherwise (nonlinear models, other robots, fcl geometry).
+environment variable ``FIRMTOOL_ENGINE=numpy`` forces the numpy path; unset, ``auto`` or ``numba``
+use this kernel whenever numba is importable and the kernel computes exactly the problem's Monte
+Carlo (:func:`supports`: the robot's compiled hook, a linear model, a compiled noise form, planar
+box geometry of numpy/numba, no user's validity checker), and the numpy path otherwise, with a
+one-line notice saying why (:func:`engine_choice`).
 """
 
 from __future__ import annotations
@@ -69,7 +71,9 @@ except ImportError:  # pragma: no cover
 
 FAILURE, TIMEOUT = -1, -2  # same codes as firmtool.edges
 ROBOT_POINT, ROBOT_ARM = 0, 1
+KINEMATICS = {"planar_point": ROBOT_POINT, "planar_chain": ROBOT_ARM}  # robots' compiled hooks
 NOISE_FORMS = {"lightdark_std": 0, "lightdark_variance": 1, "constant": 2}
+COMPILED_BACKENDS = ("numpy", "numba")  # the collision geometry the kernel reproduces exactly
 # Steps are run in segments; per segment the local controller's filter recursion is run as far as
 # the segment's end (lazily: particles mostly stop within a few steps of the edge's end, long before
 # the controller's ~edge + 200 steps) and the node candidates of its steps are computed at once.
@@ -86,38 +90,62 @@ ENGINE_ENV = "FIRMTOOL_ENGINE"
 
 
 def supports(problem) -> str | None:
-    """None if the compiled engine can run ``problem``, else the reason it cannot."""
+    """None if the compiled engine computes exactly ``problem``'s Monte Carlo, else why it cannot.
+
+    The robot says whether its kinematics are one of the kernel's kinds (its compiled hook,
+    :meth:`firmtool.robots.Robot.compiled_kinematics`); the kernel also needs a linear model, a
+    noise form with a compiled twin, and the problem's validity to be exactly the scenario's planar
+    geometry (numpy/numba backend, boxes, the robot's own test, no user's checker)."""
     from firmtool.models.linear import LinearGaussianModel
 
     if numba is None:
         return "numba is not installed"
+    if len(problem.scenario.world.lo) != 2:
+        return f"the compiled engine is planar, this world is {len(problem.scenario.world.lo)}-D"
+    robot = problem.robot
+    if robot is None or robot.compiled_kinematics() is None:
+        return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
     if type(problem.model) is not LinearGaussianModel:
         return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
-    sc = problem.scenario
-    if sc.model.robot not in ("point", "arm"):
-        return f"robot {sc.model.robot!r} has no compiled kinematics"
-    if sc.world.collision_backend not in ("numpy", "numba"):
-        return f"collision backend {sc.world.collision_backend!r} is not compiled (numpy/numba geometry only)"
-    if problem.model.noise.form not in NOISE_FORMS:
-        return f"measurement noise {problem.model.noise.form!r} is not compiled"
+    if problem.validity is not None:
+        return "the problem has a Python validity checker, which the compiled engine does not compute"
+    if not (problem.points_valid == robot.points_valid and problem.points == robot.points
+            and problem.sensing_from_points == robot.sensing_from_points):
+        return "the problem's key points, sensing or validity are not its robot's own"
+    w = problem.scenario.world
+    if w.collision_backend not in COMPILED_BACKENDS:
+        return f"collision backend {w.collision_backend!r} is not compiled (numpy/numba geometry only)"
+    if len(w.lo) != 2 or any(o.kind != "box" for o in w.obstacles):
+        return "the compiled engine's geometry is planar boxes only"
+    noise = problem.model.noise
+    if getattr(noise, "compiled", None) not in NOISE_FORMS:
+        return f"measurement noise {getattr(noise, 'form', type(noise).__name__)!r} is not compiled"
     return None
 
 
-def engine_for(problem) -> str:
-    """``"numba"`` or ``"numpy"`` for this problem, honouring ``FIRMTOOL_ENGINE``."""
+def engine_choice(problem) -> tuple[str, str | None]:
+    """``("numba" | "numpy", notice)`` for this problem, honouring ``FIRMTOOL_ENGINE``.
+
+    The compiled engine runs only where it computes exactly the problem's Monte Carlo
+    (:func:`supports`); where it was asked for (``auto`` with numba installed, or ``numba``) but
+    cannot, the numpy engine runs and ``notice`` says why, in one line (else None)."""
     from firmtool.errors import InputError
 
     choice = os.environ.get(ENGINE_ENV, "auto").strip().lower() or "auto"
     if choice not in ("auto", "numpy", "numba"):
         raise InputError(f"{ENGINE_ENV}: expected 'auto', 'numpy' or 'numba' but found {choice!r}")
     if choice == "numpy":
-        return "numpy"
+        return "numpy", None
     reason = supports(problem)
     if reason is None:
-        return "numba"
-    if choice == "numba":
-        raise InputError(f"{ENGINE_ENV}=numba: the compiled engine cannot run this problem: {reason}")
-    return "numpy"
+        return "numba", None
+    asked = f"{ENGINE_ENV}=numba" if choice == "numba" else "the compiled Monte Carlo engine"
+    return "numpy", f"numpy Monte Carlo engine: {asked} cannot run this problem ({reason})"
+
+
+def engine_for(problem) -> str:
+    """``"numba"`` or ``"numpy"`` for this problem (:func:`engine_choice` without its notice)."""
+    return engine_choice(problem)[0]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -132,13 +160,14 @@ class _ProblemData:
         self.mats = tuple(np.ascontiguousarray(M, dtype=float) for M in (model.A, model.B, model.F, model.H))
         self.r, self.nz = model.F.shape[1], model.nz
         nm = model.noise
-        self.noise = (NOISE_FORMS[nm.form], float(nm.light_x), float(nm.eta), float(nm.sigma_b), float(nm.a),
-                      float(nm.c), float(nm.std))
+        p = nm.compiled_params()
+        self.noise = (NOISE_FORMS[nm.compiled], *(float(p.get(k, 0.0)) for k in ("light_x", "eta", "sigma_b", "a", "c",
+                                                                              "std")))
         w = sc.world
-        if sc.model.robot == "arm":
-            self.robot, self.lengths, self.self_collision = ROBOT_ARM, np.asarray(sc.model.link_lengths, float), True
-        else:
-            self.robot, self.lengths, self.self_collision = ROBOT_POINT, np.zeros(0), False
+        hook = problem.robot.compiled_kinematics()
+        self.robot = KINEMATICS[hook.kind]
+        self.lengths = np.asarray(hook.link_lengths, dtype=float).reshape(-1)
+        self.self_collision = bool(hook.self_collision)
         C = np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2)
         Hs = np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2)
         ang = np.array([getattr(o, "angle", 0.0) for o in w.obstacles], dtype=float)

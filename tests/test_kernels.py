@@ -159,15 +159,20 @@ def test_engine_selection(monkeypatch):
     monkeypatch.setenv(kernels.ENGINE_ENV, "fortran")
     with pytest.raises(InputError, match="FIRMTOOL_ENGINE"):
         kernels.engine_for(problem)
-    # a problem the kernel does not know (python-fcl geometry) falls back, or is refused when forced
+    # a problem the kernel does not compute exactly (python-fcl geometry) runs on the numpy engine,
+    # with a one-line notice naming why, even when the compiled one is forced; calling the kernel
+    # on it directly is refused
     fcl_text = open_world().replace("[world]", '[world]\ncollision_backend = "fcl"')
     pytest.importorskip("fcl")
     fcl_problem = build_problem(parse_scenario(fcl_text, "test.toml"))
-    monkeypatch.setenv(kernels.ENGINE_ENV, "auto")
-    assert kernels.engine_for(fcl_problem) == "numpy"
-    monkeypatch.setenv(kernels.ENGINE_ENV, "numba")
+    for choice in ("auto", "numba"):
+        monkeypatch.setenv(kernels.ENGINE_ENV, choice)
+        engine, notice = kernels.engine_choice(fcl_problem)
+        assert engine == "numpy" and "collision backend 'fcl'" in notice and "\n" not in notice
+    assert "FIRMTOOL_ENGINE=numba" in notice
+    assert kernels.engine_choice(problem) == ("numba", None)
     with pytest.raises(InputError, match="collision backend"):
-        kernels.engine_for(fcl_problem)
+        kernels.simulate(fcl_problem, None, None, np.zeros((1, 4)), np.zeros((1, 4)), np.random.default_rng(0))
 
 
 def test_unsupported_model_falls_back_to_numpy(monkeypatch):
