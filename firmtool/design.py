@@ -13,7 +13,7 @@ import numpy as np
 
 from firmtool.controllers import LocalController, NodeController, plan_local_controller, weights
 from firmtool.errors import NumericalError
-from firmtool.nodes import GOAL, NodeRegions, trajectory_is_valid, valid_pairs
+from firmtool.nodes import GOAL, START, NodeRegions, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
 
 
@@ -38,8 +38,19 @@ class Design:
         return NodeController(self.centers[j], self.u_eq[j], self.K[j], self.S[j], self.L[j], self.P[j], self.Sigma[j])
 
     def regions(self, problem: Problem) -> NodeRegions:
+        """The node regions (the stopping region Psi of every local controller): the nodes' own, with a
+        goal ball's region instead of the goal nodes', and without a start node whose start belief the
+        task gives (it is left, never landed in)."""
         c = problem.scenario.controller
-        return NodeRegions(self.centers, self.P, self.scale, c.node_radius, c.covariance_tolerance, problem.perfect)
+        excluded = np.zeros(self.centers.shape[0], dtype=bool)
+        goals = None
+        if problem.goal_region is not None:
+            goals = self.kinds == GOAL
+            excluded |= goals
+        if problem.start_covariance is not None:
+            excluded |= self.kinds == START
+        return NodeRegions(self.centers, self.P, self.scale, c.node_radius, c.covariance_tolerance, problem.perfect,
+                           goal=problem.goal_region, excluded=excluded if excluded.any() else None, goal_nodes=goals)
 
 
 def lqr_weights(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
@@ -82,13 +93,16 @@ def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tupl
 def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
 
-    No edge leaves a goal node (goals are absorbing).
+    No edge leaves a goal node (goals are absorbing), and none enters a start node whose start belief
+    the task gives (that node is never landed in: :meth:`Design.regions`).
 
     Returns
     -------
     source, target, steps : (E,) int64 arrays sorted by (source, target).
     """
-    directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
+    belief_start = problem.start_covariance is not None
+    directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i))
+                      if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START))
     src, dst, steps = [], [], []
     # A nominal along the straight configuration segment was checked above with its node pair;
     # other nominals may bend and are checked along their states.
@@ -113,15 +127,26 @@ def design(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> Design:
                   Sigma=Sigma, scale=region_scale(Sigma), edge_source=src, edge_target=dst, edge_steps=steps)
 
 
+def start_covariance(problem: Problem, design_: Design, source: int) -> np.ndarray:
+    """The covariance the particles of an edge from ``source`` start with: the task's start belief's
+    for the start node when the task gives one, else the node's stationary covariance."""
+    if problem.start_covariance is not None and design_.kinds[source] == START:
+        return problem.start_covariance
+    return design_.P[source]
+
+
 def local_controller(problem: Problem, design_: Design, source: int, target: int,
                      start_state: np.ndarray | None = None, start_P: np.ndarray | None = None) -> LocalController:
     """Edge controller from ``source`` (or from an arbitrary belief) to ``target``, then its stabiliser.
 
     With ``start_state``/``start_P`` given (execution: initial controller, replanning), the nominal
-    runs from that state instead of the source node's centre.
+    runs from that state instead of the source node's centre. From a start node whose start belief
+    the task gives (``task.start_covariance``) the filter starts from that belief's covariance.
     """
     x0 = design_.centers[source] if start_state is None else start_state
-    P0 = design_.P[source] if start_P is None else start_P
+    if start_P is None:
+        start_P = start_covariance(problem, design_, source)
+    P0 = start_P
     x, u = nominal_trajectory(problem, x0, design_.centers[target])
     Wx, Wu = lqr_weights(problem)
     return plan_local_controller(problem.model, x, u, P0, node_controller(problem, design_, target), Wx, Wu,

@@ -8,6 +8,12 @@ where ``s_j`` (n,) is the per-coordinate stationary spread of the estimate under
 stabiliser (so that a node is hit in a few steps even in 16 dimensions, and a node in the light is
 smaller than one in the dark) and ``rms`` is the root mean square over coordinates. With perfect
 measurements ``P = 0`` and the covariance test always passes.
+
+A task with a goal ball (``[task] goal_radius``) replaces the goal nodes' regions by the goal region
+(:class:`firmtool.goal.GoalRegion`): the beliefs whose mean's task point is in the ball and which
+put at least the task's confidence on the true task point being in it, tested at every step of an
+edge (:meth:`NodeRegions.goal_landing`). A start belief the task gives (``start_covariance``) is not
+its node's stationary belief: that node is only left, never landed in.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from firmtool.errors import RunFailure, ScenarioError
+from firmtool.goal import GoalRegion
 from firmtool.problem import Problem
 
 REGULAR, START, GOAL = 0, 1, 2
@@ -215,7 +222,7 @@ def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixe
 
 def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, existing: np.ndarray,
                        batches: int = 200) -> np.ndarray:
-    """More goal nodes: valid configurations at rest whose last key point (the tip) lies in the goal disc.
+    """More goal nodes: valid configurations at rest whose task point (the tip) lies in the goal ball.
 
     A goal region reached through different passages needs one goal node per way in: the arm's
     tip can reach the disc with its body through either passage.
@@ -224,12 +231,13 @@ def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, e
     d = problem.config_dim
     min_sep = problem.scenario.roadmap.min_separation
     found: list[np.ndarray] = []
+    task_point = problem.robot.task_point
     for _ in range(batches):
         if len(found) >= count:
             break
         q = rng.uniform(problem.config_lo, problem.config_hi, size=(4096, d))
         X = problem.state_of(q)
-        inside = np.linalg.norm(problem.points(X)[:, -1] - center, axis=1) < radius
+        inside = np.linalg.norm(task_point(X) - center, axis=1) < radius
         X = X[inside]
         X = X[problem.is_valid(X)]
         for x in X:
@@ -251,6 +259,9 @@ class NodeRegions:
     radius: float
     cov_tol: float
     perfect: bool
+    goal: GoalRegion | None = None  # the goal region of a goal ball (it replaces the goal nodes' regions)
+    excluded: np.ndarray | None = None  # (N,) bool: nodes never landed in by the ordinary test
+    goal_nodes: np.ndarray | None = None  # (N,) bool: the goal nodes (with a goal ball)
 
     def __post_init__(self) -> None:
         # Prefilter in one metric that no node region exceeds: the largest spread per coordinate.
@@ -268,11 +279,22 @@ class NodeRegions:
         """Which nodes' covariance test each covariance passes: (T, n, n) -> bool (T, N)."""
         T = P_steps.shape[0]
         if self.perfect:
-            return np.ones((T, self.count), dtype=bool)
-        flat = P_steps.reshape(T, -1)
-        own = np.einsum("ij,ij->i", flat, flat)
-        dist2 = own[:, None] + self._P_norm2[None, :] - 2.0 * flat @ self._P_flat.T
-        return dist2 <= (self.cov_tol**2) * self._P_norm2[None, :]
+            out = np.ones((T, self.count), dtype=bool)
+        else:
+            flat = P_steps.reshape(T, -1)
+            own = np.einsum("ij,ij->i", flat, flat)
+            dist2 = own[:, None] + self._P_norm2[None, :] - 2.0 * flat @ self._P_flat.T
+            out = dist2 <= (self.cov_tol**2) * self._P_norm2[None, :]
+        if self.excluded is not None:
+            out &= ~self.excluded[None, :]
+        return out
+
+    def goal_landing(self, xhat: np.ndarray, P: np.ndarray | None) -> np.ndarray:
+        """Whether each belief ``(xhat_i, P)`` lies in the goal region (M, n) -> bool (M,) (all False
+        without a goal ball: then the goal nodes' own regions are the goal)."""
+        if self.goal is None:
+            return np.zeros(np.atleast_2d(xhat).shape[0], dtype=bool)
+        return self.goal.contains(xhat, P)
 
     def locate(self, xhat: np.ndarray, candidates: np.ndarray, k: int = 8) -> np.ndarray:
         """Node whose region holds each estimate, or -1.
@@ -304,10 +326,16 @@ class NodeRegions:
         return np.where(hit, idx[np.arange(len(xhat)), first], -1)
 
     def contains(self, node: int, xhat: np.ndarray, P: np.ndarray | None) -> bool:
-        """Whether one belief lies in the region of ``node``."""
+        """Whether one belief lies in the region of ``node`` (of a goal node under a goal ball: in the
+        goal region; of an excluded node: never)."""
+        if self.excluded is not None and self.excluded[node]:
+            return self.goal is not None and bool(self.goal.contains(xhat[None], P)[0]) and self._is_goal(node)
         d = np.sqrt(np.mean(((xhat - self.centers[node]) / self.scale[node]) ** 2))
         if d >= self.radius:
             return False
         if self.perfect or P is None:
             return True
         return bool(np.linalg.norm(P - self.P[node]) <= self.cov_tol * np.linalg.norm(self.P[node]))
+
+    def _is_goal(self, node: int) -> bool:
+        return self.goal_nodes is not None and bool(self.goal_nodes[node])

@@ -17,9 +17,9 @@ import scipy.sparse
 
 from firmtool import interrupts
 from firmtool.atomic import check_target
-from firmtool.design import Design, design
+from firmtool.design import Design, design, start_covariance
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
-from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
+from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.graph import SolveStatus, shortest_path_policy, solve_dp, success_probability
 from firmtool.kernels import engine_choice
@@ -179,8 +179,13 @@ def _check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: 
     d = design(problem, centers[keep], kinds[keep])
     regions = d.regions(problem)
     start = int(np.flatnonzero(keep == START_INDEX)[0])
+    P0 = start_covariance(problem, d, start)
     inside = [int(keep[g]) for g in np.flatnonzero(d.kinds == GOAL)
-              if regions.contains(int(g), d.centers[start], d.P[start])]
+              if regions.contains(int(g), d.centers[start], P0)]
+    if inside and problem.goal_region is not None:
+        raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
+                         "belief already meets it (its mean's task point lies in the goal ball, with probability "
+                         f">= task.goal_confidence {problem.scenario.task.goal_confidence:g} that the true one does)")
     if inside:
         raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
                          f"lies inside the region of goal node {inside[0]} (controller.node_radius "
@@ -324,7 +329,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     arrays = to_arrays([est[e] for e in done], keys[done], sc.cost)
     write_stage(path, "edges", arrays,
                 {"inputs_sha256": table_hash if not failed else "incomplete",
-                 "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT,
+                 "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT, "goal_miss_code": GOAL_MISS,
                  "engine_version": ENGINE_VERSION, "failed_edges": len(failed)})
     failures = [FailedEdge(edge=e, source=int(d.edge_source[e]), target=int(d.edge_target[e]), error=failed[e])
                 for e in sorted(failed)]
@@ -346,17 +351,22 @@ def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, fa
 
 
 def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
-    """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``."""
+    """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``.
+
+    Failure includes the goal misses (:data:`firmtool.edges.GOAL_MISS`: the belief declared arrival in
+    a goal ball that the true task point was outside of), so that the DP and the success
+    probabilities are for success judged on the true state."""
     e = roadmap.require("edges", "source", "particles", "outcome_edge", "outcome_code", "outcome_count")
     N = roadmap.require("nodes", "centers")["centers"].shape[0]
     E = e["source"].size
     n = e["particles"].astype(float)
     edge, code, count = e["outcome_edge"], e["outcome_code"], e["outcome_count"].astype(float)
-    if np.any(code >= N) or np.any(code < TIMEOUT):
+    if np.any(code >= N) or np.any(code < GOAL_MISS):
         raise RoadmapError(f"{roadmap.path}: /edges holds outcome codes outside the node range")
     land = code >= 0
     landing = scipy.sparse.csr_matrix((count[land] / n[edge[land]], (edge[land], code[land])), shape=(E, N))
-    fail = np.bincount(edge[code == FAILURE], weights=count[code == FAILURE], minlength=E) / n
+    failed = (code == FAILURE) | (code == GOAL_MISS)
+    fail = np.bincount(edge[failed], weights=count[failed], minlength=E) / n
     timeout = np.bincount(edge[code == TIMEOUT], weights=count[code == TIMEOUT], minlength=E) / n
     return landing, fail, timeout, e["particles"]
 
