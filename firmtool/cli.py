@@ -364,9 +364,11 @@ def _execute_human(r: dict) -> str:
     lo, hi = r["success_rate_ci95"]
     pred = r["predicted_success_probability"]
     stuck = f", {r['stuck']} stuck (no policy edge or no controller to a node)" if r.get("stuck") else ""
+    missed = (f", {r['goal_misses']} goal misses (arrival declared, the true state not in the goal)"
+              if r.get("goal_misses") else "")
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
-            f"{r['timeouts']} timeouts{stuck}\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
-            f"predicted {pred if pred is None else round(pred, 4)}\n"
+            f"{r['timeouts']} timeouts{stuck}{missed}\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}; "
+            f"judged on the true state); predicted {pred if pred is None else round(pred, 4)}\n"
             f"mean steps {r['mean_steps']:.1f}, mean cost {r['mean_cost']:.2f}, replans {r['replans']}"
             + _execute_extra_human(r))
 

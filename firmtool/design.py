@@ -13,7 +13,7 @@ import numpy as np
 
 from firmtool.controllers import LocalController, NodeController, plan_local_controller, weights
 from firmtool.errors import NumericalError
-from firmtool.nodes import GOAL, START, NodeRegions, trajectory_is_valid, valid_pairs
+from firmtool.nodes import GOAL, START, START_INDEX, NodeRegions, start_belief_targets, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
 
 
@@ -42,15 +42,22 @@ class Design:
         goal ball's region instead of the goal nodes', and without a start node whose start belief the
         task gives (it is left, never landed in)."""
         c = problem.scenario.controller
+        goals = self.kinds == GOAL
         excluded = np.zeros(self.centers.shape[0], dtype=bool)
-        goals = None
         if problem.goal_region is not None:
-            goals = self.kinds == GOAL
             excluded |= goals
         if problem.start_covariance is not None:
             excluded |= self.kinds == START
         return NodeRegions(self.centers, self.P, self.scale, c.node_radius, c.covariance_tolerance, problem.perfect,
-                           goal=problem.goal_region, excluded=excluded if excluded.any() else None, goal_nodes=goals)
+                           goal=problem.goal_region, excluded=excluded if excluded.any() else None, goal_nodes=goals,
+                           true_scale=true_scale(self.Sigma, self.P))
+
+
+def true_scale(Sigma: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Per-node, per-coordinate stationary std of the TRUE state under the stabiliser (N, n): the
+    estimate's covariance plus the error's (uncorrelated in the stationary filter), floored like
+    :func:`region_scale`."""
+    return region_scale(Sigma + P)
 
 
 def lqr_weights(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
@@ -94,15 +101,19 @@ def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[n
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
 
     No edge leaves a goal node (goals are absorbing), and none enters a start node whose start belief
-    the task gives (that node is never landed in: :meth:`Design.regions`).
+    the task gives (that node is never landed in: :meth:`Design.regions`); from such a start, edges
+    go to more candidates than its neighbours (:func:`firmtool.nodes.start_belief_targets`).
 
     Returns
     -------
     source, target, steps : (E,) int64 arrays sorted by (source, target).
     """
     belief_start = problem.start_covariance is not None
-    directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i))
-                      if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START))
+    directed = {p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i))
+                if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START)}
+    if belief_start:
+        directed |= {(START_INDEX, j) for j in start_belief_targets(problem, centers)}
+    directed = sorted(directed)
     src, dst, steps = [], [], []
     # A nominal along the straight configuration segment was checked above with its node pair;
     # other nominals may bend and are checked along their states.

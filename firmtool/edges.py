@@ -5,10 +5,11 @@ process noise -> constraint test of the true state -> observation with R at the 
 filter update with the precomputed gain -> the goal region of a goal ball (every step) -> node
 membership (from the stabiliser phase on).
 Each particle ends landed in a node, failed (constraint violation) or timed out. A particle whose
-belief lands in the goal region of a goal ball (:mod:`firmtool.goal`) ends in a goal node if its TRUE
-task point lies in the ball, else with :data:`GOAL_MISS` (the policy would declare an arrival the
-environment refutes): the DP and the success probabilities count it as a failure, so that they
-predict success judged on the true state.
+belief lands in the goal (the goal region of a goal ball, :mod:`firmtool.goal`, or a goal node)
+ends there only if its TRUE state is where the goal is (:meth:`firmtool.nodes.NodeRegions.true_arrival`),
+else with :data:`GOAL_MISS` (the policy would declare an arrival the environment refutes): the DP
+and the success probabilities count it as a failure, so that they predict success judged on the
+true state.
 """
 
 from __future__ import annotations
@@ -158,6 +159,10 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
         if k + 1 >= lc.edge_steps and candidates[k].any():
             node = regions.locate(xhat_a, candidates[k])
             landed = (node >= 0) & ~done
+            at_goal = np.flatnonzero(landed)[regions.goal_nodes[node[landed]]] if regions.goal_nodes is not None \
+                else np.zeros(0, dtype=np.int64)
+            if at_goal.size:  # a goal state's node: judged on the true state too
+                node[at_goal] = np.where(regions.true_arrival(node[at_goal], x_a[at_goal]), node[at_goal], GOAL_MISS)
             outcome[alive[landed]] = node[landed]
             done |= landed
         steps[alive[done]] = k + 1

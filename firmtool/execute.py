@@ -65,14 +65,15 @@ from firmtool import disturbances as dist_mod
 from firmtool import kernels
 from firmtool.controllers import LocalController, plan_local_controller
 from firmtool.design import Design, local_controller, lqr_weights, node_controller
-from firmtool.edges import FAILURE, TIMEOUT as EDGE_TIMEOUT, control_and_move, filter_update, simulate
+from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT as EDGE_TIMEOUT, control_and_move, filter_update, simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.graph import success_probability
-from firmtool.nodes import GOAL, START_INDEX, NodeRegions, segment_is_valid
+from firmtool.nodes import GOAL, GOAL_INDEX, START_INDEX, NodeRegions, segment_is_valid
 from firmtool.problem import Problem
 from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
 
 SUCCESS, COLLISION, TIMEOUT, STUCK = Outcome.SUCCESS, Outcome.COLLISION, Outcome.TIMEOUT, Outcome.STUCK
+GOAL_MISSED = Outcome.GOAL_MISS
 EPISODE_KEY, CI_KEY = 0xE7EC, 0xC1B0  # stable keys of the episode and prediction-interval streams
 
 DEFAULT_REPLAN_THRESHOLD = 3.0  # rms-scaled deviation (node regions use 1.5 by default)
@@ -430,8 +431,9 @@ class Executor:
     def start_belief(self, start: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """The initial belief: the start node's, or at a given state the stationary filter's there."""
         d, problem = self.design, self.problem
-        if start is None:
-            P0 = np.zeros_like(d.P[START_INDEX]) if problem.perfect else d.P[START_INDEX]
+        if start is None:  # the start node's: the task's start belief when it gives one
+            P0 = (np.zeros_like(d.P[START_INDEX]) if problem.perfect else problem.start_covariance
+                  if problem.start_covariance is not None else d.P[START_INDEX])
             return d.centers[START_INDEX].copy(), P0
         start = np.asarray(start, dtype=float)
         if problem.perfect:
@@ -468,9 +470,11 @@ class Executor:
         xhat = xhat0[None].copy()
         if perfect:
             x = xhat.copy()
-        else:
+        else:  # the true start: drawn from the start belief (the draw is made either way: same streams)
             chol = np.linalg.cholesky(P + 1e-15 * np.eye(model.n))
             x = xhat0[None] + rng.standard_normal((1, model.n)) @ chol.T
+            if start is None and problem.true_start is not None:
+                x = problem.true_start[None].copy()
         total, cost = 0, 0.0
         ep = Episode(outcome=TIMEOUT, steps=0, cost=0.0)
         step_times: list[float] = []
@@ -478,6 +482,7 @@ class Executor:
         controls: list[np.ndarray] = []
 
         test_nis = self._innovation
+        goal = self.regions.goal  # a goal ball's region: tested at every step
         W = settings.window
         nis = np.zeros(W)  # moving window of normalised innovation squares
         nus = np.zeros((W, model.nz))
@@ -501,9 +506,14 @@ class Executor:
 
         while ep.outcome != STUCK:
             if run is None:  # at a node: the policy's edge
-                if d.kinds[node] == GOAL:
-                    ep.outcome = SUCCESS
-                    ep.events.append(Event(total, EV_GOAL, node))
+                if d.kinds[node] == GOAL:  # the policy declares arrival; the true state decides
+                    if self.regions.true_arrival(np.array([node]), x)[0]:
+                        ep.outcome = SUCCESS
+                        ep.events.append(Event(total, EV_GOAL, node))
+                    else:
+                        ep.outcome = GOAL_MISSED
+                        ep.events.append(Event(total, EventKind.GOAL_MISS, node,
+                                               detail="arrival declared; the true state is not in the goal"))
                     break
                 edge = int(self.policy[node])
                 if edge < 0:
@@ -533,7 +543,9 @@ class Executor:
                 cost += a_cov * trP[k] + a_time
                 if a_u:
                     cost += a_u * float(u[0] @ u[0])
-                if valid and k + 1 >= run.land_from and cand[k].any():
+                if valid and goal is not None and goal.contains(xhat, lc.P[k + 1])[0]:
+                    landed = run.target if d.kinds[run.target] == GOAL else GOAL_INDEX
+                elif valid and k + 1 >= run.land_from and cand[k].any():
                     landed = self._locate(xhat, cand[k])
                 deviate, alarm = False, False
                 if (landed < 0 and valid and settings.enabled and ep.replans < settings.max_per_episode
@@ -558,8 +570,9 @@ class Executor:
                         ep.traversals.append((run.edge, FAILURE))
                     break
                 if landed >= 0:
-                    if clean:
-                        ep.traversals.append((run.edge, landed))
+                    if clean:  # as the Monte Carlo counts it: a goal landing judged on the true state
+                        truly = d.kinds[landed] != GOAL or self.regions.true_arrival(np.array([landed]), x)[0]
+                        ep.traversals.append((run.edge, landed if truly else GOAL_MISS))
                     break
                 if alarm or deviate:
                     t0 = clock()
@@ -767,7 +780,7 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
            for i in range(episodes)]
     seconds = time.perf_counter() - t0
     count = lambda o: sum(e.outcome == o for e in eps)  # noqa: E731
-    successes = count(SUCCESS)
+    successes, misses = count(SUCCESS), count(GOAL_MISSED)
     lo, hi = wilson_interval(successes, episodes)
     steps = np.array([e.steps for e in eps], dtype=float)
     step_times = np.concatenate([e.step_times for e in eps]) if eps else np.zeros(0)
@@ -799,7 +812,9 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
         replan_time_us_max=us(replan_times, np.max),
         replans_per_episode=replans / episodes if episodes else 0.0,
         calibration=edge_calibration(eps, edge_counts) if edge_counts is not None else None,
-        policy=policy_name)
+        policy=policy_name, goal_misses=misses,
+        estimate_success_rate=(successes + misses) / episodes if episodes else 0.0,
+        estimate_success_rate_ci95=wilson_interval(successes + misses, episodes))
 
 
 def edge_counts_of(roadmap) -> EdgeCounts:

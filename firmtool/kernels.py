@@ -264,17 +264,37 @@ _NO_GOAL_CENTER = np.zeros(2)
 _NO_GOAL_P = np.zeros((1, 1, 1))
 
 
-def _goal_group(goal_region, P_steps: np.ndarray, k_end: int, d_cfg: int, perfect: bool, goal_node: int) -> tuple:
-    """The kernel's goal group for steps up to ``k_end`` (module notes): inactive without a goal ball."""
+_node_goal_cache: dict[int, tuple[object, tuple]] = {}
+
+
+def _node_goal_data(regions) -> tuple:
+    """``(is_goal (N,) bool, true_scale (N, n))`` of ``regions`` (once per regions object)."""
+    hit = _node_goal_cache.get(id(regions))
+    if hit is not None and hit[0] is regions:
+        return hit[1]
+    N = regions.count
+    is_goal = np.zeros(N, dtype=np.bool_) if regions.goal_nodes is None else np.asarray(regions.goal_nodes, dtype=np.bool_)
+    scale = regions.true_scale if regions.true_scale is not None else regions.scale
+    data = (np.ascontiguousarray(is_goal), np.ascontiguousarray(scale, dtype=float))
+    if len(_node_goal_cache) > 8:
+        _node_goal_cache.clear()
+    _node_goal_cache[id(regions)] = (regions, data)
+    return data
+
+
+def _goal_group(regions, P_steps: np.ndarray, k_end: int, d_cfg: int, perfect: bool, goal_node: int) -> tuple:
+    """The kernel's goal group for steps up to ``k_end`` (module notes): the ball inactive without one."""
+    is_goal, true_scale = _node_goal_data(regions)
+    goal_region = regions.goal
     if goal_region is None:
-        return (False, _NO_GOAL_CENTER, 1.0, 0.5, 1.0, _NO_GOAL_P, -1)
+        return (False, _NO_GOAL_CENTER, 1.0, 0.5, 1.0, _NO_GOAL_P, -1, is_goal, true_scale)
     from scipy.stats import chi2
 
     Pcfg = (np.zeros((k_end + 1, d_cfg, d_cfg)) if perfect
             else np.ascontiguousarray(P_steps[:k_end + 1, :d_cfg, :d_cfg], dtype=float))
     conf = float(goal_region.confidence)
     return (True, np.ascontiguousarray(goal_region.center, dtype=float), float(goal_region.radius), conf,
-            float(chi2.ppf(conf, 2)), Pcfg, int(goal_node))
+            float(chi2.ppf(conf, 2)), Pcfg, int(goal_node), is_goal, true_scale)
 
 
 def _robot_group(pd: _ProblemData) -> tuple:
@@ -348,9 +368,11 @@ PLANAR_POINT, PLANAR_CHAIN = ROBOT_POINT, ROBOT_ARM  # the kernel's two kinemati
 #              the key point whose x sets measurement j's noise
 #   world      (lo, hi, C, Hs, cs, sn, blo, bhi, radius): bounds, boxes (centre, half size, rotation,
 #              bounding box) and the robot's capsule radius
-#   goal       (active, center, radius, confidence, q_conf, Pcfg, goal_node): the goal ball (active 0:
-#              none), chi2_2.ppf(confidence), the configuration block of the filter covariance per step
-#              (Pcfg[k + 1] after step k's update; zeros with perfect measurements), the landing's code
+#   goal       (active, center, radius, confidence, q_conf, Pcfg, goal_node, is_goal, true_scale): the goal
+#              ball (active False: none), chi2_2.ppf(confidence), the configuration block of the filter
+#              covariance per step (Pcfg[k + 1] after step k's update; zeros with perfect measurements),
+#              the landing's code; the goal nodes (N,) and the true state's spread at each node (N, n)
+#              (a goal state's landing is judged on the true state: NodeRegions.true_arrival)
 if numba is not None:
     from firmtool._jit import cached_njit
     from firmtool.controllers import mat_rows
@@ -801,7 +823,7 @@ if numba is not None:
         ``(x_tip_x, x_tip_y)`` its task point (for a chain's cheap necessary condition). Twin of
         :meth:`firmtool.goal.GoalRegion.contains`; pinned by
         tests/test_goal.py::test_kernel_goal_landing_is_the_numpy_one."""
-        active, center, r, conf, q_conf, Pcfg, goal_node = goal
+        active, center, r, conf, q_conf, Pcfg, goal_node, is_goal, true_scale = goal
         cx, cy = center[0], center[1]
         if kind == PLANAR_CHAIN:
             L = lengths.shape[0]
@@ -1003,6 +1025,14 @@ if numba is not None:
                         node = goal_node if ex * ex + ey * ey < goal[2] * goal[2] else GOAL_MISS
                 if node == -1 and test_nodes and not failed:
                     node = locate(xh1, cand_ptr[k], cand_ptr[k + 1], cand_idx, cand_key, regions)
+                    if node >= 0 and goal[7][node]:  # a goal state's node: judged on the true state too
+                        centers, tscale = regions[0], goal[8]
+                        s_ = 0.0
+                        for j in range(n):
+                            z_ = (X[j, a] - centers[node, j]) / tscale[node, j]
+                            s_ += z_ * z_
+                        if s_ / n >= regions[3]:
+                            node = GOAL_MISS
                 if failed or node != -1:
                     outcome[i] = FAILURE if failed else node
                     steps[i] = k + 1
@@ -1081,7 +1111,6 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     ensemble = (alive, X, Xh, outcome, steps, effort)
     model, membership, robot = pd.mats, _locate_data(regions), _robot_group(pd)
     first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
-    goal_region = regions.goal
     d_cfg = 2 if pd.robot == PLANAR_POINT else pd.lengths.size
     cand_ptr = np.zeros(T + 1, dtype=np.int64)
     cand_idx, cand_key = np.zeros(0, dtype=np.int64), np.zeros(0)
@@ -1102,7 +1131,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
             cand_ptr[:] = 0
             cand_ptr[lo_t:k_end + 1] = ptr
             cand_ptr[k_end + 1:] = ptr[-1]
-        goal = _goal_group(goal_region, P_, k_end, d_cfg, perfect, goal_node)
+        goal = _goal_group(regions, P_, k_end, d_cfg, perfect, goal_node)
         groups = (model, (x_ref, u_ref, K_, Ld), (cand_ptr, cand_idx, cand_key), membership, pd.noise, robot, pd.world,
                   bool(perfect), goal)
         if not numpy_noise:

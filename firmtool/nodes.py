@@ -14,6 +14,13 @@ A task with a goal ball (``[task] goal_radius``) replaces the goal nodes' region
 put at least the task's confidence on the true task point being in it, tested at every step of an
 edge (:meth:`NodeRegions.goal_landing`). A start belief the task gives (``start_covariance``) is not
 its node's stationary belief: that node is only left, never landed in.
+
+Success is judged on the TRUE state (:meth:`NodeRegions.true_arrival`): in a goal ball, the true
+task point must lie in the ball; at a goal node of a goal state, the true state must lie in the
+node's region's mean test scaled by the true state's stationary spread under the stabiliser,
+``rms((x - v_j) / t_j) < radius`` with ``t_j = sqrt(diag(Sigma_j + P_s^j))`` (the estimate's
+covariance ``Sigma_j`` plus the error's ``P_s^j``: the two are uncorrelated in the stationary filter),
+the test an estimate passes, on the state the estimate stands for.
 """
 
 from __future__ import annotations
@@ -147,6 +154,24 @@ def valid_pairs(problem: Problem, centers: np.ndarray, cache: dict | None = None
     return out
 
 
+START_CANDIDATES_PER_NEIGHBOR = 4  # a start belief's candidate targets: this many times roadmap.neighbors
+
+
+def start_belief_targets(problem: Problem, centers: np.ndarray) -> list[int]:
+    """The nodes an edge from a start belief the task gives (``task.start_covariance``) may go to: the
+    ``4 * roadmap.neighbors`` nearest within ``roadmap.max_edge_length`` whose segment from the start is
+    collision-free. The DP chooses among them by eq. 12 with each edge's Monte Carlo from the start
+    belief (the initial controller of the paper's III-E): a wide start belief may do best far from
+    its mean (in the light), so the candidates are more than a node's neighbours."""
+    spec = problem.scenario.roadmap
+    d, N = problem.config_dim, centers.shape[0]
+    k = min(START_CANDIDATES_PER_NEIGHBOR * spec.neighbors + 1, N)
+    dist, idx = cKDTree(centers[:, :d]).query(centers[START_INDEX, :d], k=k)
+    dist, idx = np.atleast_1d(dist), np.atleast_1d(idx)
+    keep = (idx != START_INDEX) & (idx < N) & (dist <= spec.max_edge_length)
+    return [int(j) for j in idx[keep] if segment_is_valid(problem, centers[START_INDEX], centers[j])]
+
+
 def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget: int,
                 rng: np.random.Generator, per_round: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """Add nodes between the start's component and goal components that it does not reach.
@@ -261,7 +286,8 @@ class NodeRegions:
     perfect: bool
     goal: GoalRegion | None = None  # the goal region of a goal ball (it replaces the goal nodes' regions)
     excluded: np.ndarray | None = None  # (N,) bool: nodes never landed in by the ordinary test
-    goal_nodes: np.ndarray | None = None  # (N,) bool: the goal nodes (with a goal ball)
+    goal_nodes: np.ndarray | None = None  # (N,) bool: the goal nodes
+    true_scale: np.ndarray | None = None  # (N, n): the true state's spread under each node's stabiliser
 
     def __post_init__(self) -> None:
         # Prefilter in one metric that no node region exceeds: the largest spread per coordinate.
@@ -288,6 +314,19 @@ class NodeRegions:
         if self.excluded is not None:
             out &= ~self.excluded[None, :]
         return out
+
+    def true_arrival(self, node: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Whether the TRUE states ``x`` (M, n) of beliefs that landed in the goal nodes ``node`` (M,)
+        are where the goal is (module notes): in a goal ball, the true task point in the ball; at a
+        goal state, the true state in the node's mean test scaled by ``true_scale``. Without
+        ``true_scale`` (perfect measurements need none) the estimate's scale is used."""
+        x = np.atleast_2d(x)
+        node = np.asarray(node, dtype=np.int64)
+        if self.goal is not None:
+            return self.goal.true_inside(x)
+        scale = self.true_scale if self.true_scale is not None else self.scale
+        z = (x - self.centers[node]) / scale[node]
+        return np.mean(z * z, axis=1) < self.radius**2
 
     def goal_landing(self, xhat: np.ndarray, P: np.ndarray | None) -> np.ndarray:
         """Whether each belief ``(xhat_i, P)`` lies in the goal region (M, n) -> bool (M,) (all False
