@@ -495,7 +495,8 @@ class Solution:
     def report(self) -> SolveReport:
         """The summary ``firmtool solve --json`` prints."""
         rm = self.roadmap
-        return pipeline.solve_report(rm.path, self._group(), rm.edges[:, 1], rm.goals)
+        return pipeline.solve_report(rm.path, self._group(), rm.edges[:, 1], rm.goals,
+                                     pipeline.node_task_points(rm._data))
 
     def to_dict(self) -> dict[str, Any]:
         """:attr:`report` as plain JSON types."""

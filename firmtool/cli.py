@@ -331,6 +331,9 @@ def _solve_human(r: dict) -> str:
     lines = [f"solve: {r['status']} after {r['iterations']} iterations (residual {r['residual']:.2e})",
              f"start: cost-to-go {r['start_cost_to_go']}, success probability {p:.4f}",
              f"most likely path: {' -> '.join(map(str, r['path']))}"]
+    if r.get("path_task_points"):
+        lines.append("  in the task space: " + " -> ".join("(" + ", ".join(f"{v:.2f}" for v in q) + ")"
+                                                          for q in r["path_task_points"]))
     if r["unreachable_nodes"]:
         lines.append(f"{len(r['unreachable_nodes'])} nodes cannot reach the goal: {r['unreachable_nodes'][:20]}")
     return "\n".join(lines)

@@ -288,13 +288,11 @@ def _goal_group(regions, P_steps: np.ndarray, k_end: int, d_cfg: int, perfect: b
     goal_region = regions.goal
     if goal_region is None:
         return (False, _NO_GOAL_CENTER, 1.0, 0.5, 1.0, _NO_GOAL_P, -1, is_goal, true_scale)
-    from scipy.stats import chi2
-
     Pcfg = (np.zeros((k_end + 1, d_cfg, d_cfg)) if perfect
             else np.ascontiguousarray(P_steps[:k_end + 1, :d_cfg, :d_cfg], dtype=float))
     conf = float(goal_region.confidence)
     return (True, np.ascontiguousarray(goal_region.center, dtype=float), float(goal_region.radius), conf,
-            float(chi2.ppf(conf, 2)), Pcfg, int(goal_node), is_goal, true_scale)
+            -2.0 * math.log1p(-conf), Pcfg, int(goal_node), is_goal, true_scale)  # chi2_2.ppf(conf)
 
 
 def _robot_group(pd: _ProblemData) -> tuple:
@@ -816,28 +814,49 @@ if numba is not None:
                 break
         return p >= conf
 
+    @step
+    def goal_gate(X, XH, PX, PY, tip, kind, lengths, goal, E, bound, GG, na):
+        """``GG[a] = 1`` where :func:`goal_test` could pass for particle a (all particles at once, so
+        that it vectorises): a point robot's estimate in the ball; a chain's true tip within the ball
+        grown by ``sum_l l_l |e_l|`` (``e_l`` the estimate's error of link l's absolute angle). Elsewhere
+        ``goal_test`` returns False (``E``, ``bound``: work arrays)."""
+        center, r = goal[1], goal[2]
+        cx, cy = center[0], center[1]
+        if kind == PLANAR_CHAIN:
+            for a in range(na):
+                E[a] = 0.0
+                bound[a] = 0.0
+            for l in range(lengths.shape[0]):
+                ll = lengths[l]
+                for a in range(na):
+                    E[a] += XH[l, a] - X[l, a]
+                    bound[a] += ll * abs(E[a])
+            for a in range(na):
+                ex, ey = PX[tip, a] - cx, PY[tip, a] - cy
+                reach = r + bound[a]
+                GG[a] = ex * ex + ey * ey < reach * reach
+        else:
+            r2 = r * r
+            for a in range(na):
+                ex, ey = XH[0, a] - cx, XH[1, a] - cy
+                GG[a] = ex * ex + ey * ey < r2
+
     @njit
-    def goal_test(xh, x_tip_x, x_tip_y, xt, k, kind, lengths, goal):
+    def goal_test(xh, k, kind, lengths, goal, cs):
         """Whether the belief ``(xh (n,), Pcfg[k + 1])`` of a particle lies in the goal region of the goal
-        ball (mean's task point in the ball, chance constraint met); ``xt`` (n,) the true state and
-        ``(x_tip_x, x_tip_y)`` its task point (for a chain's cheap necessary condition). Twin of
-        :meth:`firmtool.goal.GoalRegion.contains`; pinned by
+        ball (mean's task point in the ball, chance constraint met); ``cs`` (2, L) a work array (a
+        chain's cos and sin of the absolute link angles, shared by the tip and its Jacobian). Called
+        where :func:`goal_gate` passed. Twin of :meth:`firmtool.goal.GoalRegion.contains`; pinned by
         tests/test_goal.py::test_kernel_goal_landing_is_the_numpy_one."""
         active, center, r, conf, q_conf, Pcfg, goal_node, is_goal, true_scale = goal
         cx, cy = center[0], center[1]
         if kind == PLANAR_CHAIN:
             L = lengths.shape[0]
-            bound, e = 0.0, 0.0
-            for l in range(L):
-                e += xh[l] - xt[l]
-                bound += lengths[l] * abs(e)
-            ex, ey = x_tip_x - cx, x_tip_y - cy
-            if np.sqrt(ex * ex + ey * ey) - bound >= r:
-                return False
             tx, ty, phi = 0.0, 0.0, 0.0
             for l in range(L):
                 phi += xh[l]
                 sp, cp = sincos(phi)
+                cs[0, l], cs[1, l] = cp, sp
                 tx += lengths[l] * cp
                 ty += lengths[l] * sp
         else:
@@ -857,12 +876,9 @@ if numba is not None:
         if kind == PLANAR_CHAIN:
             # J[:, j] = sum_{l >= j} l_l (-sin phi_l, cos phi_l); S = J P J'
             jx, jy = np.empty(L), np.empty(L)
-            phi = 0.0
             for l in range(L):
-                phi += xh[l]
-                sp, cp = sincos(phi)
-                jx[l] = -lengths[l] * sp
-                jy[l] = lengths[l] * cp
+                jx[l] = -lengths[l] * cs[1, l]
+                jy[l] = lengths[l] * cs[0, l]
             for l in range(L - 2, -1, -1):
                 jx[l] += jx[l + 1]
                 jy[l] += jy[l + 1]
@@ -976,10 +992,12 @@ if numba is not None:
         n_seg, seg_offset = robot_segments(robot)
         n_pts = n_seg + seg_offset
         PX, PY, PHI = np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty(N)
-        px, py, xh1, xt1 = np.empty(n_pts), np.empty(n_pts), np.empty(n), np.empty(n)
+        px, py, xh1 = np.empty(n_pts), np.empty(n_pts), np.empty(n)
+        CS = np.empty((2, max(lengths.shape[0], 1)))
         goal_on = goal[0]
         goal_node = goal[6]
         tip = n_pts - 1  # the task point: a chain's last key point, a point robot's only one
+        GG, EE, BB = np.zeros(N, dtype=np.uint8), np.empty(N), np.empty(N)
         na = N
         while k < k_end and na > 0:
             if stream:
@@ -1000,6 +1018,8 @@ if numba is not None:
                 filter_update(A, B, H, L[k], X, XH, U, W, PX, sensor, sensing, PRED, HZ, INN, TMP, na)
             control_effort(U, E, na)
             collision_gate(PX, PY, na, n_seg, seg_offset, world, self_collision, half, G)
+            if goal_on:
+                goal_gate(X, XH, PX, PY, tip, kind, lengths, goal, EE, BB, GG, na)
             # per particle: constraints on the true state, node membership, compaction (order kept)
             test_nodes = cand_ptr[k + 1] > cand_ptr[k]
             kept = 0
@@ -1013,13 +1033,12 @@ if numba is not None:
                         py[p] = PY[p, a]
                     failed = collides(px, py, n_seg, seg_offset, world, self_collision, half)
                 node = -1
-                if (test_nodes or goal_on) and not failed:
+                gated = goal_on and GG[a] and not failed
+                if (test_nodes or gated) and not failed:
                     for j in range(n):
                         xh1[j] = XH[j, a]
-                if goal_on and not failed:
-                    for j in range(n):
-                        xt1[j] = X[j, a]
-                    if goal_test(xh1, PX[tip, a], PY[tip, a], xt1, k, kind, lengths, goal):
+                if gated:
+                    if goal_test(xh1, k, kind, lengths, goal, CS):
                         cx, cy = goal[1][0], goal[1][1]
                         ex, ey = PX[tip, a] - cx, PY[tip, a] - cy
                         node = goal_node if ex * ex + ey * ey < goal[2] * goal[2] else GOAL_MISS

@@ -438,9 +438,11 @@ def write_policy(path: str | Path, group: PolicyGroup) -> None:
 
 
 def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_target: np.ndarray,
-                 goals: np.ndarray) -> SolveReport:
-    """The summary of a solved policy (what ``firmtool solve --json`` prints)."""
+                 goals: np.ndarray, task_points: np.ndarray | None = None) -> SolveReport:
+    """The summary of a solved policy (what ``firmtool solve --json`` prints); ``task_points`` (N, D):
+    the nodes' task points, for the path's."""
     a, at = group.arrays, group.attrs
+    path = tuple(policy_path(a["edge"], edge_target, START_INDEX, goals))
     return SolveReport(roadmap=None if roadmap_path is None else str(roadmap_path),
                        status=SolveStatus[str(at["status"])], iterations=int(at["iterations"]),
                        residual=float(at["residual"]), failure_cost=float(at["failure_cost"]),
@@ -448,8 +450,9 @@ def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_targe
                        start_success_probability=float(a["success_probability"][START_INDEX]),
                        shortest_path_start_success_probability=float(
                            a["shortest_path_success_probability"][START_INDEX]),
-                       unreachable_nodes=tuple(int(i) for i in a["unreachable"]),
-                       path=tuple(policy_path(a["edge"], edge_target, START_INDEX, goals)), seconds=group.seconds)
+                       unreachable_nodes=tuple(int(i) for i in a["unreachable"]), path=path, seconds=group.seconds,
+                       path_task_points=() if task_points is None else
+                       tuple(tuple(float(v) for v in task_points[j]) for j in path))
 
 
 def unreachable_failure(roadmap_path: str | Path | None, unreachable: int, nodes: int) -> RunFailure:
@@ -474,7 +477,21 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     if not np.isfinite(J[START_INDEX]):
         raise unreachable_failure(path, len(group.arrays["unreachable"]), J.size)
     goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
-    return solve_report(path, group, roadmap.require("edges", "target")["target"], goals)
+    return solve_report(path, group, roadmap.require("edges", "target")["target"], goals, node_task_points(roadmap))
+
+
+def node_task_points(roadmap: Roadmap) -> np.ndarray | None:
+    """The nodes' task points (N, D) (:meth:`firmtool.robots.Robot.task_point`; the robot alone is
+    built, not the problem), or None when the robot cannot be built here (a robot class the
+    roadmap's process had and this one has not)."""
+    from firmtool import robots
+
+    try:
+        scenario = parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml")
+        robot = robots.get(scenario.model.robot)(scenario)
+    except FirmtoolError:
+        return None
+    return robot.task_point(roadmap.require("nodes", "centers")["centers"])
 
 
 def _finite_or_none(x: float) -> float | None:

@@ -235,6 +235,8 @@ class SolveReport(Report):
     unreachable_nodes : nodes (goal excluded) that cannot reach the goal.
     path : the policy's most likely node sequence from the start.
     seconds : wall time of the solve.
+    path_task_points : the task point (a point robot's position, the arm's tip) of each node of
+        ``path``, where the caller knows the robot (empty otherwise).
     """
 
     roadmap: str | None
@@ -249,6 +251,7 @@ class SolveReport(Report):
     unreachable_nodes: tuple[int, ...]
     path: tuple[int, ...]
     seconds: float
+    path_task_points: tuple[tuple[float, ...], ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
