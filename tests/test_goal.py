@@ -303,3 +303,20 @@ def test_a_configuration_covariance_is_completed_by_the_stationary_velocity_bloc
 
 def test_failure_codes_stay_apart():
     assert len({FAILURE, GOAL_MISS, -2}) == 3 and GOAL_MISS < 0
+
+
+def test_a_goal_states_true_test_holds_the_stationary_true_state_with_the_chi_square_probability():
+    """At a goal given as a state the environment tests the true state by the node's mean test scaled
+    by its stationary spread sqrt(diag(Sigma + P_s)): for a true state drawn from that stationary law
+    with a diagonal covariance, the test passes with probability chi2_n.cdf(n radius^2)."""
+    from scipy.stats import chi2
+
+    problem, d, regions = _setup(SMOKE)
+    goal = int(np.flatnonzero(d.kinds == GOAL)[0])
+    n = d.centers.shape[1]
+    rng = np.random.default_rng(4)
+    x = d.centers[goal] + regions.true_scale[goal] * rng.standard_normal((200_000, n))
+    frac = regions.true_arrival(np.full(x.shape[0], goal), x).mean()
+    expected = chi2.cdf(n * regions.radius**2, n)
+    assert abs(frac - expected) < 5 * np.sqrt(expected * (1 - expected) / x.shape[0])
+    np.testing.assert_allclose(regions.true_scale[goal] ** 2, np.diag(d.Sigma[goal] + d.P[goal]), rtol=1e-12)
