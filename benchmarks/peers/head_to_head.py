@@ -103,7 +103,9 @@ def table(rows: list[dict]) -> str:
     lines = [head, "-" * len(head)]
     for r in rows:
         lo, hi = r["success_ci95"]
-        cpu = (f"{r['step_cpu_us_mean'] / 1000:>11.3f} ms {r['step_cpu_us_p99'] / 1000:>7.2f} ms"
+        p99 = r.get("step_cpu_us_p99", float("nan"))
+        p99_text = f"{p99 / 1000:>7.2f} ms" if math.isfinite(p99) else f"{'n/a':>10}"  # firmtool: CPU per episode only
+        cpu = (f"{r['step_cpu_us_mean'] / 1000:>11.3f} ms {p99_text}"
                if "step_cpu_us_mean" in r else f"{'':>14} {'':>10}")
         lines.append(f"{r['system']:<34} {r['success_rate']:.3f} ({lo:.3f}-{hi:.3f})   {r['steps_mean']:>6.1f} {cpu} "
                      f"{r['step_wall_us_mean'] / 1000:>12.3f} ms {r['step_wall_us_p99'] / 1000:>7.2f} ms "
@@ -158,18 +160,27 @@ def main(argv: list[str] | None = None) -> None:
     cpu_peer: dict[str, list[float]] = {}
     wall_peer: dict[str, list[float]] = {}
     upd_peer: dict[str, list[float]] = {}
-    for i in range(args.episodes):  # interleaved: one episode of each system in turn
-        results["firmtool"].append(firm.episode(i))
-        for s in peers:
-            name = peer_name(s)
-            ep = run_episode(problem, s, i)
-            results.setdefault(name, []).append({"success": ep.success, "declared": ep.declared, "steps": ep.steps,
-                                                 "max_x": float(max(p[0] for p in ep.path))})
-            cpu_peer.setdefault(name, []).extend(ep.plan_seconds)
-            wall_peer.setdefault(name, []).extend(ep.plan_wall)
-            upd_peer.setdefault(name, []).extend(ep.update_seconds)
-        done = ", ".join(f"{k}: {sum(e['success'] for e in v)}/{len(v)}" for k, v in results.items())
-        print(f"episode {i + 1}/{args.episodes}: {done}", flush=True)
+    completed = 0
+    try:
+        for i in range(args.episodes):  # interleaved: one episode of each system in turn
+            # a round is kept only whole, so that an interrupted run (Ctrl-C) still compares the
+            # systems on the same episodes
+            round_firm = firm.episode(i)
+            round_peers = [(peer_name(s), run_episode(problem, s, i)) for s in peers]
+            results["firmtool"].append(round_firm)
+            for name, ep in round_peers:
+                results.setdefault(name, []).append({"success": ep.success, "declared": ep.declared, "steps": ep.steps,
+                                                     "max_x": float(max(p[0] for p in ep.path))})
+                cpu_peer.setdefault(name, []).extend(ep.plan_seconds)
+                wall_peer.setdefault(name, []).extend(ep.plan_wall)
+                upd_peer.setdefault(name, []).extend(ep.update_seconds)
+            completed += 1
+            done = ", ".join(f"{k}: {sum(e['success'] for e in v)}/{len(v)}" for k, v in results.items())
+            print(f"episode {i + 1}/{args.episodes}: {done}", flush=True)
+    except KeyboardInterrupt:
+        print(f"interrupted: the table covers the {completed} whole rounds", flush=True)
+    if completed == 0:
+        return
 
     f_eps = results["firmtool"]
     f_wall = np.concatenate([e["step_wall"] for e in f_eps])
