@@ -107,6 +107,10 @@ class Robot:
     bounds_name: ClassVar[str] = "world.bounds"
     #: what a node state's coordinates past the configuration must be, in messages
     rest_state_text: ClassVar[str] = "expected zero velocity (nodes are states at rest)"
+    #: the tables of a small scenario for this robot that builds as it is, in seconds (``firmtool init
+    #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario_docs.template`);
+    #: ``[scenario]`` is added; None: no template
+    template: ClassVar[dict[str, dict[str, Any]] | None] = None
 
     model: "Model"
     config_dim: int
