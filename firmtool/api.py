@@ -616,7 +616,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
 
 
 def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" = None, *,
-         policy: str | None = None, episode: int | None = None) -> "Axes":
+         policy: str | None = None, episode: int | None = None, unit: str = "m", legend: bool = True) -> "Axes":
     """Draw one panel of the paper's Fig. 1 for a policy: obstacles, sensing field, goal, roadmap,
     the policy's nominal path, the robot at the start, and with ``results`` their success rate and
     one executed episode's estimated mean with 3-sigma ellipses of the followed point (the arm's tip).
@@ -633,6 +633,10 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
         Default: the policy of ``results``, else ``"firm"``.
     episode : int, optional
         Index of the episode of ``results`` to draw (default: the first success, else the first).
+    unit : str
+        The length unit of the scenario's world, for the axis labels.
+    legend : bool
+        Draw the legend under the axes.
 
     Returns
     -------
@@ -664,15 +668,16 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
     if ax is None:
         import matplotlib.pyplot as plt
 
-        _, ax = plt.subplots(figsize=(6.0, 6.0))
+        _, ax = plt.subplots(figsize=(6.0, 6.0), layout="constrained")
     rm = solution.roadmap
     panel(ax, rm.problem, rm.execution_design,
-          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label))
+          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label),
+          unit=unit, legend=legend)
     return ax
 
 
 def plot_policies(solution: Solution, results: Sequence[Results | None], policies: Sequence[str], *,
-                  dpi: int = 120) -> "Figure":
+                  dpi: int = 120, unit: str = "m") -> "Figure":
     """Panels side by side, one :func:`plot` per policy (``firmtool plot``), on a bare matplotlib
     Figure (no pyplot, no backend; write it with :func:`firmtool.figures.save_figure`).
 
@@ -682,14 +687,18 @@ def plot_policies(solution: Solution, results: Sequence[Results | None], policie
     results : one Results (or None) per policy.
     policies : the policies' names.
     dpi : resolution of the figure.
+    unit : the length unit of the axes.
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.0 * len(policies), 6.0), dpi=dpi)
+    from firmtool.figures import legend_below
+
+    sc = solution.roadmap.scenario
+    ratio = (sc.world.hi[1] - sc.world.lo[1]) / (sc.world.hi[0] - sc.world.lo[0])  # panels are drawn to scale
+    fig = Figure(figsize=(6.0 * len(policies), 4.7 * ratio + 2.3), dpi=dpi, layout="constrained")
     axes = fig.subplots(1, len(policies), squeeze=False)[0]
     for ax, res, name in zip(axes, results, policies):
-        plot(solution, res, ax, policy=name)
-    sc = solution.roadmap.scenario
+        plot(solution, res, ax, policy=name, unit=unit, legend=False)
+    legend_below(fig, axes[0])
     fig.suptitle(f"{sc.name} ({sc.measurement.kind} measurements)")
-    fig.tight_layout()
     return fig

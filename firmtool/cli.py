@@ -109,7 +109,7 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        console.configure(quiet=bool(kwargs.get("quiet", False)))
+        console.configure(quiet=bool(kwargs.get("quiet", False)), json=bool(kwargs.get("as_json", False)))
         try:
             import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
             from threadpoolctl import threadpool_limits
@@ -553,36 +553,37 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                                       help="Episodes run per policy: the panel shows their success rate and draws "
                                            "the first successful one (0: the roadmap and the policy only)."),
          dpi: int = typer.Option(120, "--dpi", min=30, max=600), force: bool = ForceOpt,
+         kind: str = typer.Option("paths", "--kind", help="'paths' (the paper's Fig. 1) or 'calibration' (predicted "
+                                                          "vs executed probabilities of the policy edges)."),
+         unit: str = typer.Option("m", "--unit", help="The length unit of the scenario's world (axis labels)."),
          max_total_steps: float = MaxStepsOpt, quiet: bool = QuietOpt) -> None:
     """Draw the paper's Fig. 1: obstacles, sensing field, goal, roadmap, policy path, and an executed
-    episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip).
+    episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip); or,
+    with --kind calibration, the predicted vs executed probabilities of the policy edges.
 
-    Example: firmtool plot artifacts/arm8_lightdark.h5 -o fig.png --episodes 100
+    Examples:
+
+      firmtool plot artifacts/arm8_lightdark.h5 -o fig.png --episodes 100
+
+      firmtool plot artifacts/point_lightdark.h5 --kind calibration -n 400 -o calibration.png
     """
     import firmtool.api as ft
-    from firmtool.figures import check_output, save_figure
+    from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
     from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
         raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
+    if kind not in FIGURE_KINDS:
+        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
     rm = ft.open_roadmap(roadmap)
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
-    sol = rm.solution()
-    bar = console.progress()
-    results = [ft.simulate(sol, episodes, seed, policy=name, progress=_relabel(bar, f"plot: {name} episodes"))
-               if episodes else None for name in names[policy_name]]
-    save_figure(ft.plot_policies(sol, results, names[policy_name], dpi=dpi), out, force=force)
+    options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
+                            progress=console.progress())
+    save_figure(make_figure(kind, rm.solution(), options), out, force=force)
     console.next_step(str(out))
-
-
-def _relabel(progress: Any, stage: str) -> Any:
-    """A progress callback that reports under another stage name (e.g. episodes run for a figure)."""
-    if progress is None:
-        return None
-    return lambda _stage, done, total: progress(stage, done, total)
 
 
 @app.command()

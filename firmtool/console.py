@@ -7,7 +7,7 @@ Only :mod:`firmtool.cli` uses this module (the library never prints). What it de
 - a progress bar per stage (:class:`ProgressBar`, a :data:`firmtool.progress.ProgressCallback`) is
   drawn on stderr only when stderr is a terminal, outside CI and without ``--quiet``;
 - after a command, one line on stderr names what was written and the natural next command
-  (:func:`next_step`), unless ``--quiet``.
+  (:func:`next_step`), unless ``--quiet`` or ``--json``.
 """
 
 from __future__ import annotations
@@ -21,13 +21,13 @@ import typer
 
 from firmtool.progress import ProgressCallback
 
-_state = {"quiet": False}
+_state = {"quiet": False, "json": False}
 _bar: "ProgressBar | None" = None
 
 
-def configure(*, quiet: bool = False) -> None:
-    """Set the output mode of the running command (``--quiet``)."""
-    _state["quiet"] = bool(quiet)
+def configure(*, quiet: bool = False, json: bool = False) -> None:
+    """Set the output mode of the running command (``--quiet``, ``--json``)."""
+    _state["quiet"], _state["json"] = bool(quiet), bool(json)
 
 
 def quiet() -> bool:
@@ -155,8 +155,9 @@ def close_progress() -> None:
 # -- what was written, and what to do next ---------------------------------------------------------------
 
 def next_step(wrote: str | None = None, command: str | None = None) -> None:
-    """One line on stderr: ``wrote FILE; next: COMMAND`` (either part may be absent); not with --quiet."""
-    if quiet() or not (wrote or command):
+    """One line on stderr: ``wrote FILE; next: COMMAND`` (either part may be absent); not with --quiet,
+    nor with --json (a script reads the report)."""
+    if quiet() or _state["json"] or not (wrote or command):
         return
     parts = ([f"wrote {wrote}"] if wrote else []) + ([f"next: {command}"] if command else [])
     close_progress()

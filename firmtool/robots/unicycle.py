@@ -76,6 +76,10 @@ class UnicycleRobot(Robot):
         """The robot's position: states (M, 3) -> (M, 1, 2)."""
         return np.asarray(X)[:, None, :2]
 
+    def heading(self, X: np.ndarray) -> np.ndarray:
+        """The heading, the state's third coordinate: states (M, 3) -> (M,)."""
+        return np.asarray(X, dtype=float)[:, 2]
+
     def is_valid(self, X: np.ndarray) -> np.ndarray:
         """Nodes and nominals keep the node orbit's reach clear around the robot's disc."""
         P = self.points(X)
