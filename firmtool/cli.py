@@ -597,7 +597,7 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
     from firmtool import inspect as inspect_module
     _check_exists(roadmap, "roadmap file")
     report = inspect_module.summarize(roadmap).to_dict()
-    _emit(report, as_json, lambda r: "\n".join(f"{k.replace('_', ' ')}: {console.value(v)}" for k, v in r.items()
+    _emit(report, as_json, lambda r: "\n".join(f"{k.replace('_', ' ')}: {console.value(v, k)}" for k, v in r.items()
                                                if v is not None and v != []))
     stages = report.get("stages") or []
     stale = report.get("stale_stages") or []

@@ -88,12 +88,17 @@ def items(values: Iterable[Any], limit: int = 12) -> str:
     return text or "none"
 
 
-def value(v: Any) -> str:
-    """Any report value as text: numbers rounded, lists and dicts as text, not Python reprs."""
+def value(v: Any, key: str = "") -> str:
+    """Any report value as text: probabilities with three decimals, large counts with thousands
+    separators, other numbers rounded, lists and dicts as text (never Python reprs)."""
     if isinstance(v, (list, tuple)):
         return items(v)
     if isinstance(v, dict):
-        return ", ".join(f"{k} {value(x)}" for k, x in v.items()) or "none"
+        return ", ".join(f"{k} {value(x, k)}" for k, x in v.items()) or "none"
+    if isinstance(v, float) and "probability" in key:
+        return prob(v)
+    if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 10_000:
+        return f"{v:,}"
     if isinstance(v, (int, float)) or v is None:
         return num(v)
     return str(v)

@@ -273,14 +273,21 @@ def reference(robots: Iterable[str] | None = None) -> list[SectionDoc]:
     from firmtool import robots as robot_registry
     from firmtool.geometry.shapes import KIND_FIELD, KINDS
     from firmtool.models import noise
-    from firmtool.scenario import OPTIONAL_SECTIONS, sections
+    from firmtool.scenario import GOAL_REGION_FIELDS, OPTIONAL_SECTIONS, sections
 
     robots = builtin_robots() if robots is None else tuple(robots)
     shipped = _shipped_values()
     out: list[SectionDoc] = []
     for name, fields in sections().items():
-        keys = tuple(key_doc(name, f, (name,), shipped) for f in fields)
+        region = [f for f in fields if name == "task" and f in GOAL_REGION_FIELDS]
+        keys = tuple(key_doc(name, f, (name,), shipped) for f in fields if f not in region)
         out.append(SectionDoc(name, "", SECTION_DOCS.get(name, ""), name not in OPTIONAL_SECTIONS, keys))
+        if region:  # robots whose goal may be a region of their last key point give it instead of goal
+            with_region = [r for r in robots if robot_registry.get(r).goal_region]
+            out.append(SectionDoc("task", "a goal region, instead of goal", "for a robot with goal regions ("
+                                  + ", ".join(f"robot = {json.dumps(r)}" for r in with_region) + "), a ball its last "
+                                  "key point (the arm's tip) must reach, instead of a goal state", False,
+                                  tuple(key_doc(name, f, (name,), shipped) for f in region)))
         if name == "model":
             for robot in robots:
                 cls = robot_registry.get(robot)
@@ -334,7 +341,7 @@ def reference_markdown(robots: Iterable[str] | None = None, level: int = 2) -> s
     directive renders)."""
     lines: list[str] = []
     for s in reference(robots):
-        title = f"`[{s.table}]`" + (f" with `{s.when}`" if s.when else "")
+        title = f"`[{s.table}]`" + ((f" with `{s.when}`" if "=" in s.when else f": {s.when}") if s.when else "")
         if s.table == "world.obstacles":
             title = f"`[[world.obstacles]]` with `{s.when}`"
         depth = level if not s.when else level + 1
