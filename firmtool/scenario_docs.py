@@ -430,7 +430,7 @@ def template(name: str, robot: str = DEFAULT_ROBOT) -> str:
     """
     from firmtool import robots as robot_registry
     from firmtool.errors import InputError
-    from firmtool.geometry.shapes import KINDS
+    from firmtool.geometry.shapes import KIND_FIELD, KINDS
     from firmtool.models import noise
     from firmtool.scenario import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, _name_problem, sections
 
@@ -465,9 +465,10 @@ def template(name: str, robot: str = DEFAULT_ROBOT) -> str:
             lines += _key_lines(noise.get(form).fields, given)
         elif section == "world":
             lines += _key_lines(fields, given, skip=("obstacles",))
-            kinds = "; ".join(f"{k}: " + ", ".join(f.name for f in cls.fields) for k, cls in KINDS.items())
-            lines += [f"# obstacles: the obstacles, one inline table each, kind = box (the default), sphere, "
-                      "capsule or mesh (3-D)", f"# with the keys: {kinds}"]
+            kinds = "; ".join(f"{k}" + (" (the default)" if k == KIND_FIELD.default else "") + ": "
+                              + ", ".join(f.name for f in cls.fields) for k, cls in KINDS.items())
+            lines += ["# obstacles: the obstacles, one inline table each with its kind and that kind's keys:",
+                      f"# {kinds}"]
             obstacles = given.get("obstacles", [])
             lines.append("obstacles = [" + ("" if not obstacles else "\n" + "".join(
                 f"  {toml_value(o)},\n" for o in obstacles)) + "]")
