@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.controllers import LocalController, NodeController, plan_local_controller, weights
+from firmtool.controllers import (LocalController, NodeController, plan_local_controller, plan_local_controllers,
+                                  weights)
 from firmtool.errors import NumericalError
 from firmtool.nodes import GOAL, NodeRegions, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
@@ -126,3 +127,28 @@ def local_controller(problem: Problem, design_: Design, source: int, target: int
     Wx, Wu = lqr_weights(problem)
     return plan_local_controller(problem.model, x, u, P0, node_controller(problem, design_, target), Wx, Wu,
                                  problem.scenario.controller.max_steps, problem.perfect)
+
+
+def local_controllers(problem: Problem, design_: Design, pairs: list[tuple[int, int]],
+                      filter_steps_past_edge: int | None = None) -> list[LocalController]:
+    """:func:`local_controller` of many edges ``(source, target)`` from their source nodes, designed
+    together: the nominals of one length at once (:meth:`~firmtool.robots.Robot.nominal_trajectories`)
+    and the gains by :func:`~firmtool.controllers.plan_local_controllers`. Every array equals the
+    single-edge function's bit for bit (tests/test_controllers.py), so an estimate does not depend on
+    how its edges were batched.
+
+    ``filter_steps_past_edge``: run each edge's Kalman recursion this many steps past the edge now,
+    all edges in one compiled call (the Monte Carlo's first segment), instead of lazily one by one.
+    """
+    if not pairs:
+        return []
+    src = np.array([p[0] for p in pairs], dtype=np.int64)
+    dst = np.array([p[1] for p in pairs], dtype=np.int64)
+    nominals = problem.robot.nominal_trajectories(problem, design_.centers[src], design_.centers[dst])
+    Wx, Wu = lqr_weights(problem)
+    targets: dict[int, NodeController] = {}
+    for j in np.unique(dst).tolist():
+        targets[j] = node_controller(problem, design_, j)
+    return plan_local_controllers(problem.model, nominals, [design_.P[s] for s in src.tolist()],
+                                  [targets[t] for t in dst.tolist()], Wx, Wu, problem.scenario.controller.max_steps,
+                                  problem.perfect, filter_steps_past_edge)

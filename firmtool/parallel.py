@@ -32,9 +32,10 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence
 
 from firmtool import interrupts
-from firmtool.design import Design
+from firmtool.design import Design, local_controllers
 from firmtool.edges import EdgeEstimate, estimate_edge
 from firmtool.errors import InputError
+from firmtool.kernels import engine_for
 from firmtool.problem import Problem, build_problem
 from firmtool.scenario import parse_scenario
 
@@ -142,11 +143,19 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list[EdgeEstimate]:
     """Estimate a batch of edges (indices into the design's edge arrays)."""
     problem, design, regions = _context(job)
     src, dst = design.edge_source, design.edge_target
+    pairs = [(int(src[e]), int(dst[e])) for e in edges]
+    # the batch's controllers designed together (bit for bit the single-edge ones), with the filter
+    # recursion of the compiled engine's first segment run for all of them in one call
+    from firmtool.kernels import FIRST_SEGMENT_PAST_EDGE
+
+    engine = job.engine or engine_for(problem)
+    controllers = local_controllers(problem, design, pairs,
+                                    FIRST_SEGMENT_PAST_EDGE if engine == "numba" else None)
     out = []
-    for e in edges:
+    for (s, t), lc in zip(pairs, controllers):
         interrupts.check()  # a deferred Ctrl-C, between edges (in this process only)
-        out.append(estimate_edge(problem, design, regions, int(src[e]), int(dst[e]), job.particles, job.seed,
-                                 job.chunk, job.engine))
+        out.append(estimate_edge(problem, design, regions, s, t, job.particles, job.seed, job.chunk, job.engine,
+                                 controller=lc))
     return out
 
 
