@@ -41,22 +41,86 @@ def sample_nodes(problem: Problem, count: int, rng: np.random.Generator, *,
     centers : (k, n) states at rest, ``k <= count`` (fewer if the attempts run out).
     """
     lo, hi, d = problem.config_lo, problem.config_hi, problem.config_dim
-    accepted: list[np.ndarray] = [] if existing is None else [c[:d] for c in existing]
-    first_new = len(accepted)
+    accepted = _Points(d, [] if existing is None else [np.asarray(existing)[:, :d]])
+    first_new = accepted.count
     attempts = 0
     max_attempts = max_attempts or 200 * count + 10_000
-    while len(accepted) - first_new < count and attempts < max_attempts:
+    while accepted.count - first_new < count and attempts < max_attempts:
         batch = rng.uniform(lo, hi, size=(256, d))
         attempts += batch.shape[0]
         batch = batch[problem.is_valid(problem.state_of(batch))]
-        for q in batch:  # greedy separation over accepted nodes (not particles)
-            if min_separation > 0 and accepted:
-                if np.min(np.linalg.norm(np.asarray(accepted) - q, axis=1)) < min_separation:
-                    continue
-            accepted.append(q)
-            if len(accepted) - first_new == count:
-                break
-    return problem.state_of(np.asarray(accepted[first_new:]).reshape(-1, d))
+        # greedy separation, in order: each candidate against the accepted nodes and the candidates
+        # of this batch accepted before it (what a loop over the candidates would do, batched)
+        keep = accepted.separated(batch, min_separation) if min_separation > 0 else np.ones(len(batch), bool)
+        taken = _greedy(batch, keep, min_separation, count - (accepted.count - first_new))
+        accepted.add(batch[taken])
+    return problem.state_of(accepted.array[first_new:].reshape(-1, d))
+
+
+class _Points:
+    """Accepted configurations (k, d) in a growing buffer, with the separation test of candidates.
+
+    :meth:`separated` finds the accepted points within the separation by a k-d tree query (a bound
+    a little wider than the separation, so no neighbour is missed through the tree's own rounding),
+    then decides with the same norm a loop over the candidates computed (``np.linalg.norm(accepted -
+    q, axis=1)``, row by row the same value), so the accepted nodes are bit for bit the same."""
+
+    def __init__(self, d: int, parts: list[np.ndarray]) -> None:
+        start = np.concatenate([np.asarray(p, dtype=float).reshape(-1, d) for p in parts]) if parts else np.zeros((0, d))
+        self._buf = np.empty((max(64, 2 * start.shape[0]), d))
+        self._buf[:start.shape[0]] = start
+        self.count = start.shape[0]
+        self._tree: cKDTree | None = None
+        self._tree_count = -1
+
+    @property
+    def array(self) -> np.ndarray:
+        return self._buf[:self.count]
+
+    def add(self, points: np.ndarray) -> None:
+        k = points.shape[0]
+        if self.count + k > self._buf.shape[0]:
+            grown = np.empty((max(2 * self._buf.shape[0], self.count + k), self._buf.shape[1]))
+            grown[:self.count] = self.array
+            self._buf = grown
+        self._buf[self.count:self.count + k] = points
+        self.count += k
+
+    def separated(self, candidates: np.ndarray, separation: float) -> np.ndarray:
+        """bool (k,): candidates at least ``separation`` from every accepted point."""
+        ok = np.ones(candidates.shape[0], dtype=bool)
+        if self.count == 0 or candidates.shape[0] == 0:
+            return ok
+        if self._tree_count != self.count:
+            self._tree, self._tree_count = cKDTree(self.array), self.count
+        near = self._tree.query_ball_point(candidates, separation * (1 + 1e-9) + 1e-300)
+        pts = self.array
+        for i in np.flatnonzero([len(idx) > 0 for idx in near]):  # the few with a neighbour that close
+            if np.min(np.linalg.norm(pts[near[i]] - candidates[i], axis=1)) < separation:
+                ok[i] = False
+        return ok
+
+
+def _greedy(batch: np.ndarray, keep: np.ndarray, separation: float, room: int) -> np.ndarray:
+    """Indices of the candidates a loop in batch order accepts: those in ``keep`` (clear of the
+    accepted nodes) and at least ``separation`` from every candidate accepted before them, at most
+    ``room`` of them."""
+    cand = np.flatnonzero(keep)
+    if separation <= 0 or cand.size <= 1:
+        return cand[:room]
+    pts = batch[cand]
+    close = cKDTree(pts).query_pairs(separation * (1 + 1e-9) + 1e-300, output_type="ndarray")
+    if close.size == 0:
+        return cand[:room]
+    rivals: dict[int, list[int]] = {}
+    for a, b in close.tolist():  # a < b: a candidate is checked against the earlier ones near it
+        rivals.setdefault(b, []).append(a)
+    accepted = np.ones(cand.size, dtype=bool)  # a candidate without a close earlier one is accepted
+    for i in sorted(rivals):  # in order: its earlier rivals are decided already
+        earlier = [a for a in rivals[i] if accepted[a]]
+        if earlier and np.min(np.linalg.norm(pts[earlier] - pts[i], axis=1)) < separation:
+            accepted[i] = False
+    return cand[np.flatnonzero(accepted)[:room]]
 
 
 def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -109,6 +173,36 @@ def segment_is_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> bool:
     return bool(np.all(problem.is_valid(q0[None] + t[:, None] * (q1 - q0)[None])))
 
 
+# States one validity call of segments_valid checks at most (bounds its memory).
+SEGMENT_BATCH_STATES = 65536
+
+
+def segments_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """:func:`segment_is_valid` of many segments (``q0``, ``q1`` (K, n)) -> bool (K,), in few validity
+    calls: each segment's checked states are the single-segment function's, bit for bit (its
+    length by the same norm, the same ``linspace``, the same interpolation), and a state's validity
+    does not depend on the other states of the call."""
+    d = problem.config_dim
+    K = q0.shape[0]
+    out = np.ones(K, dtype=bool)
+    if K == 0:
+        return out
+    spacing = SEGMENT_CHECK_SPACING * problem.scenario.world.robot_radius / problem.workspace_gain
+    counts = np.array([max(2, int(np.ceil(float(np.linalg.norm(b[:d] - a[:d])) / spacing)) + 1)
+                       for a, b in zip(q0, q1)], dtype=np.int64)
+    t_of = {int(c): np.linspace(0.0, 1.0, int(c)) for c in np.unique(counts)}
+    start = 0
+    while start < K:  # segments in groups of at most SEGMENT_BATCH_STATES states
+        stop = start + max(1, int(np.searchsorted(np.cumsum(counts[start:]), SEGMENT_BATCH_STATES, side="right")))
+        group = np.arange(start, min(stop, K))
+        states = np.concatenate([q0[e][None] + t_of[int(counts[e])][:, None] * (q1[e] - q0[e])[None] for e in group])
+        ok = problem.is_valid(states)
+        ends = np.cumsum(counts[group])
+        out[group] = np.logical_and.reduceat(ok, ends - counts[group])
+        start = int(group[-1]) + 1
+    return out
+
+
 def trajectory_is_valid(problem: Problem, x: np.ndarray) -> bool:
     """Whether a state trajectory (T, n) is collision-free, checked densely between its states."""
     return all(segment_is_valid(problem, a, b) for a, b in zip(x[:-1], x[1:]))
@@ -130,14 +224,15 @@ def neighbour_pairs(problem: Problem, centers: np.ndarray) -> list[tuple[int, in
 def valid_pairs(problem: Problem, centers: np.ndarray, cache: dict | None = None) -> list[tuple[int, int]]:
     """The neighbour pairs whose segment is collision-free (``cache`` keeps results between calls)."""
     cache = {} if cache is None else cache
-    out = []
-    for i, j in neighbour_pairs(problem, centers):  # loop over node pairs, not particles
-        key = (centers[i].tobytes(), centers[j].tobytes())
-        if key not in cache:
-            cache[key] = segment_is_valid(problem, centers[i], centers[j])
-        if cache[key]:
-            out.append((i, j))
-    return out
+    pairs = neighbour_pairs(problem, centers)
+    node_key = [c.tobytes() for c in centers]
+    keys = [(node_key[i], node_key[j]) for i, j in pairs]
+    todo = [k for k, key in enumerate(keys) if key not in cache]
+    if todo:  # the unchecked segments in one batch of validity checks
+        ij = np.array([pairs[k] for k in todo], dtype=np.int64)
+        for k, ok in zip(todo, segments_valid(problem, centers[ij[:, 0]], centers[ij[:, 1]]).tolist()):
+            cache[keys[k]] = ok
+    return [p for p, key in zip(pairs, keys) if cache[key]]
 
 
 def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget: int,
@@ -194,23 +289,22 @@ def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixe
     spec = problem.scenario.roadmap
     d = problem.config_dim
     # one tree per goal node, grown in turn, so that every way into the goal region gets nodes
-    trees = [[x[:d]] for x in fixed[1:]]  # fixed = start, goal, extra goals
-    accepted = [x[:d] for x in fixed]
-    grown: list[np.ndarray] = []
+    trees = [_Points(d, [x[None, :d]]) for x in fixed[1:]]  # fixed = start, goal, extra goals
+    accepted = _Points(d, [fixed[:, :d]])
+    first = accepted.count
     attempts, max_attempts = 0, max_attempts or 400 * count
-    while len(grown) < count and attempts < max_attempts:
+    while accepted.count - first < count and attempts < max_attempts:
         tree = trees[(attempts // 64) % len(trees)]
-        base = np.asarray(tree)[rng.integers(len(tree), size=64)]
+        base = tree.array[rng.integers(tree.count, size=64)]
         q = np.clip(base + spec.bias_step * rng.standard_normal(base.shape), problem.config_lo, problem.config_hi)
         attempts += q.shape[0]
         q = q[problem.is_valid(problem.state_of(q))]
         for x in q[:1]:  # at most one node per batch, so the trees grow evenly
-            if np.min(np.linalg.norm(np.asarray(accepted) - x, axis=1)) < spec.min_separation:
+            if np.min(np.linalg.norm(accepted.array - x, axis=1)) < spec.min_separation:
                 continue
-            accepted.append(x)
-            tree.append(x)
-            grown.append(x)
-    return problem.state_of(np.asarray(grown).reshape(-1, d))
+            accepted.add(x[None])
+            tree.add(x[None])
+    return problem.state_of(accepted.array[first:].reshape(-1, d))
 
 
 def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, existing: np.ndarray,
@@ -223,6 +317,7 @@ def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, e
     center, radius = problem.goal_disc
     d = problem.config_dim
     min_sep = problem.scenario.roadmap.min_separation
+    placed = _Points(d, [existing[:, :d]])
     found: list[np.ndarray] = []
     for _ in range(batches):
         if len(found) >= count:
@@ -232,12 +327,11 @@ def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, e
         inside = np.linalg.norm(problem.points(X)[:, -1] - center, axis=1) < radius
         X = X[inside]
         X = X[problem.is_valid(X)]
-        for x in X:
-            others = np.concatenate([existing[:, :d]] + [f[None, :d] for f in found])
-            if np.min(np.linalg.norm(others - x[:d], axis=1)) >= min_sep:
-                found.append(x)
-                if len(found) >= count:
-                    break
+        # greedy separation in order, from the existing nodes and those found before
+        keep = placed.separated(X[:, :d], min_sep) if min_sep > 0 else np.ones(X.shape[0], dtype=bool)
+        taken = _greedy(X[:, :d], keep, min_sep, count - len(found))
+        placed.add(X[taken, :d])
+        found.extend(X[taken])
     return np.asarray(found).reshape(-1, problem.model.n)
 
 
