@@ -262,11 +262,9 @@ def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget
         here = np.flatnonzero(label == label[START_INDEX])
         for comp in stranded:
             there = np.flatnonzero(label == comp)
-            gap = np.linalg.norm(centers[here, None, :d] - centers[None, there, :d], axis=2)
-            flat = np.argsort(gap, axis=None)[:per_round]
-            hi, ti = np.unravel_index(flat, gap.shape)
+            hi, ti, gap = _closest_pairs(centers[here, :d], centers[there, :d], per_round)
             mid = 0.5 * (centers[here[hi], :d] + centers[there[ti], :d])
-            spread = gap[hi, ti][:, None] / 3.0
+            spread = gap[:, None] / 3.0
             q = np.clip(mid + spread * rng.standard_normal(mid.shape), problem.config_lo, problem.config_hi)
             new.append(q[problem.is_valid(problem.state_of(q))])
         q = np.concatenate(new)[: budget - added]
@@ -276,6 +274,21 @@ def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget
         kinds = np.concatenate([kinds, np.full(q.shape[0], REGULAR, dtype=np.int8)])
         added += q.shape[0]
     return centers, kinds
+
+
+def _closest_pairs(A: np.ndarray, B: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``k`` closest pairs (row of ``A``, row of ``B``), nearest first: ``(ia, ib, distance)``.
+
+    What sorting the whole distance matrix gives (``np.argsort(norm(A[:, None] - B[None]), axis=None)``),
+    without forming it: each of the k closest pairs has its ``A`` row among the k nearest of its
+    ``B`` row (a k-d tree query), and the candidates' distances are the same norms."""
+    kk = min(k, A.shape[0])
+    _, idx = cKDTree(A).query(B, k=kk)
+    ia = idx.reshape(B.shape[0], kk).ravel()
+    ib = np.repeat(np.arange(B.shape[0]), kk)
+    gap = np.linalg.norm(A[ia] - B[ib], axis=1)
+    order = np.lexsort((ia * B.shape[0] + ib, gap))[:k]  # ties as the flat argsort would meet them
+    return ia[order], ib[order], gap[order]
 
 
 def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixed: np.ndarray,
@@ -351,22 +364,54 @@ class NodeRegions:
         object.__setattr__(self, "_outer", self.scale.max(axis=0))
         object.__setattr__(self, "_tree", cKDTree(self.centers / self._outer))
         flat = self.P.reshape(self.P.shape[0], -1)
-        object.__setattr__(self, "_P_flat", flat)
         object.__setattr__(self, "_P_norm2", np.einsum("ij,ij->i", flat, flat))
+        # The covariance test on the upper triangles (off-diagonal entries weighted by sqrt 2: the same
+        # Frobenius products of symmetric matrices, at half the work), and the nodes in the order of
+        # their ||P_j|| (the reverse triangle inequality leaves a window of them: covariance_candidates).
+        n = self.P.shape[1]
+        iu = np.triu_indices(n)
+        weight = np.where(iu[0] == iu[1], 1.0, np.sqrt(2.0))
+        object.__setattr__(self, "_upper", (iu, weight))
+        object.__setattr__(self, "_P_upper", np.ascontiguousarray(self.P[:, iu[0], iu[1]] * weight))
+        by_norm = np.argsort(self._P_norm2, kind="stable")
+        object.__setattr__(self, "_by_norm", by_norm)
+        object.__setattr__(self, "_sorted_norm", np.sqrt(self._P_norm2[by_norm]))
 
     @property
     def count(self) -> int:
         return self.centers.shape[0]
 
     def covariance_candidates(self, P_steps: np.ndarray) -> np.ndarray:
-        """Which nodes' covariance test each covariance passes: (T, n, n) -> bool (T, N)."""
+        """Which nodes' covariance test each covariance passes: (T, n, n) -> bool (T, N).
+
+        ``||P - P_j||^2 = ||P||^2 + ||P_j||^2 - 2 <P, P_j>`` (Frobenius, the inner products over the
+        upper triangles of the symmetric matrices), evaluated only for the nodes that can pass: by the
+        reverse triangle inequality ``| ||P|| - ||P_j|| | <= tol ||P_j||``, i.e. ``||P_j||`` within
+        ``[||P|| / (1 + tol), ||P|| / (1 - tol)]`` (widened by 1e-9 for rounding). Decisions are those of
+        the full product (tests/test_sampling.py); only a covariance within rounding of a region's
+        boundary could tell them apart, as any change of summation order could."""
         T = P_steps.shape[0]
+        N = self.count
         if self.perfect:
-            return np.ones((T, self.count), dtype=bool)
-        flat = P_steps.reshape(T, -1)
-        own = np.einsum("ij,ij->i", flat, flat)
-        dist2 = own[:, None] + self._P_norm2[None, :] - 2.0 * flat @ self._P_flat.T
-        return dist2 <= (self.cov_tol**2) * self._P_norm2[None, :]
+            return np.ones((T, N), dtype=bool)
+        (i0, i1), weight = self._upper
+        U = P_steps[:, i0, i1] * weight
+        own = np.einsum("ij,ij->i", U, U)
+        out = np.zeros((T, N), dtype=bool)
+        if T == 0 or N == 0:
+            return out
+        tol = self.cov_tol
+        norm = np.sqrt(own)
+        lo = float(norm.min()) / (1.0 + tol) * (1.0 - 1e-9)
+        hi = float(norm.max()) / (1.0 - tol) * (1.0 + 1e-9) if tol < 1.0 else np.inf
+        a, b = np.searchsorted(self._sorted_norm, lo, side="left"), np.searchsorted(self._sorted_norm, hi, side="right")
+        if a >= b:
+            return out
+        cols = self._by_norm[a:b]
+        norm2 = self._P_norm2[cols]
+        dist2 = own[:, None] + norm2[None, :] - 2.0 * U @ self._P_upper[cols].T
+        out[:, cols] = dist2 <= (tol**2) * norm2[None, :]
+        return out
 
     def locate(self, xhat: np.ndarray, candidates: np.ndarray, k: int = 8) -> np.ndarray:
         """Node whose region holds each estimate, or -1.
