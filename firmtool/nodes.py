@@ -190,16 +190,28 @@ def segments_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> np.ndarr
     spacing = SEGMENT_CHECK_SPACING * problem.scenario.world.robot_radius / problem.workspace_gain
     counts = np.array([max(2, int(np.ceil(float(np.linalg.norm(b[:d] - a[:d])) / spacing)) + 1)
                        for a, b in zip(q0, q1)], dtype=np.int64)
-    t_of = {int(c): np.linspace(0.0, 1.0, int(c)) for c in np.unique(counts)}
-    start = 0
-    while start < K:  # segments in groups of at most SEGMENT_BATCH_STATES states
-        stop = start + max(1, int(np.searchsorted(np.cumsum(counts[start:]), SEGMENT_BATCH_STATES, side="right")))
-        group = np.arange(start, min(stop, K))
-        states = np.concatenate([q0[e][None] + t_of[int(counts[e])][:, None] * (q1[e] - q0[e])[None] for e in group])
-        ok = problem.is_valid(states)
-        ends = np.cumsum(counts[group])
-        out[group] = np.logical_and.reduceat(ok, ends - counts[group])
-        start = int(group[-1]) + 1
+    step = q1 - q0
+    # blocks of the segments with c checks each (their states built at once), gathered into calls of
+    # at most SEGMENT_BATCH_STATES states
+    blocks: list[tuple[np.ndarray, int, np.ndarray]] = []
+    for c in np.unique(counts).tolist():
+        t = np.linspace(0.0, 1.0, c)
+        same = np.flatnonzero(counts == c)
+        per_block = max(1, SEGMENT_BATCH_STATES // c)
+        for a in range(0, same.size, per_block):
+            group = same[a:a + per_block]
+            states = q0[group][:, None, :] + t[None, :, None] * step[group][:, None, :]
+            blocks.append((group, c, states.reshape(-1, q0.shape[1])))
+    while blocks:
+        call, size = [], 0
+        while blocks and (not call or size + blocks[0][2].shape[0] <= SEGMENT_BATCH_STATES):
+            call.append(blocks.pop(0))
+            size += call[-1][2].shape[0]
+        ok = problem.is_valid(np.concatenate([states for _, _, states in call]))
+        at = 0
+        for group, c, states in call:
+            out[group] = ok[at:at + states.shape[0]].reshape(group.size, c).all(axis=1)
+            at += states.shape[0]
     return out
 
 
@@ -218,7 +230,8 @@ def neighbour_pairs(problem: Problem, centers: np.ndarray) -> list[tuple[int, in
     ok = (idx != np.arange(N)[:, None]) & (idx < N) & (dist <= spec.max_edge_length)
     i, j = np.nonzero(ok)
     a, b = np.minimum(i, idx[i, j]), np.maximum(i, idx[i, j])
-    return sorted(set(zip(a.tolist(), b.tolist())))
+    pair = np.unique(a.astype(np.int64) * N + b)  # sorted by (a, b), each pair once
+    return list(zip((pair // N).tolist(), (pair % N).tolist()))
 
 
 def valid_pairs(problem: Problem, centers: np.ndarray, cache: dict | None = None) -> list[tuple[int, int]]:

@@ -39,6 +39,7 @@ import ctypes
 import multiprocessing
 import os
 import pickle
+import queue
 import re
 import shutil
 import signal
@@ -49,7 +50,7 @@ import time
 import traceback
 import uuid
 from collections import deque
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
 
@@ -503,32 +504,44 @@ class Workers:
 
         retries = _Retries(work, retry)
         token, path = self._publish(job)
+        # Finished futures arrive on a queue (a done callback each): O(1) per task. (concurrent.futures'
+        # wait() installs and removes a waiter on every pending future at each call: with hundreds of
+        # tasks that was most of this process's CPU during the estimate stage.)
+        finished: queue.SimpleQueue = queue.SimpleQueue()
         try:
             while retries.queue:
                 if self._pool is None:  # a worker died and broke the pool: the rest runs in a fresh one
                     self._start_pool()
                 pool = self._pool
                 pending: dict[Future, tuple[Any, int, int]] = {}
+
+                def submit(b, attempt, task) -> None:
+                    fut = pool.submit(_pool_task, fn, token, path, b)
+                    pending[fut] = (b, attempt, task)
+                    fut.add_done_callback(finished.put)
+
                 while retries.queue:
-                    b, attempt, task = retries.queue.popleft()
-                    pending[pool.submit(_pool_task, fn, token, path, b)] = (b, attempt, task)
+                    submit(*retries.queue.popleft())
                 broken = False
                 while pending:
-                    # a timeout, so that a deferred Ctrl-C is seen while every worker is busy
-                    done, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                    try:  # a timeout, so that a deferred Ctrl-C is seen while every worker is busy
+                        fut = finished.get(timeout=0.2)
+                    except queue.Empty:
+                        interrupts.check()
+                        continue
                     interrupts.check()
-                    for fut in done:
-                        b, attempt, task = pending.pop(fut)
-                        exc = fut.exception()
-                        if exc is None:
-                            yield BatchResult(b, fut.result(), task=task)
-                            continue
-                        broken |= isinstance(exc, BrokenProcessPool)
-                        yield from retries.failed(b, attempt, exc)
-                        if not broken:  # the pool still works: retry right away
-                            while retries.queue:
-                                rb, ra, rt = retries.queue.popleft()
-                                pending[pool.submit(_pool_task, fn, token, path, rb)] = (rb, ra, rt)
+                    if fut not in pending:  # a future of an earlier (broken) pool
+                        continue
+                    b, attempt, task = pending.pop(fut)
+                    exc = fut.exception()
+                    if exc is None:
+                        yield BatchResult(b, fut.result(), task=task)
+                        continue
+                    broken |= isinstance(exc, BrokenProcessPool)
+                    yield from retries.failed(b, attempt, exc)
+                    if not broken:  # the pool still works: retry right away
+                        while retries.queue:
+                            submit(*retries.queue.popleft())
                 if broken:
                     pool.shutdown(wait=True)
                     self._pool = None
