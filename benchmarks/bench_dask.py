@@ -14,7 +14,12 @@ estimate stage runs it) three ways, the order alternating between rounds:
 
 Before the rounds, the cluster's first use is timed alone (``cluster_first``: its workers build the
 problem and load the compiled kernel). Throughputs are particle-steps per wall second; ratios are
-per round (dask / process), medians over rounds. Load average before and after is printed.
+per round (dask / process), medians over rounds. On shared cores the wall ratio depends on what
+else runs, so each run also records the workers' CPU seconds (local processes: ``RUSAGE_CHILDREN``;
+the cluster's workers: ``getrusage`` in each, through ``client.run``) and the client's, and
+``cpu_rate`` = particle-steps per worker CPU second (the work and the per-task overhead the
+workers carry). Then the cluster's per-task overhead: the same edges in tasks of 1 edge and of 16
+(``--overhead-edges``), interleaved. Load average before and after is printed.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import signal
 import statistics
@@ -72,6 +78,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--edges", type=int, default=1200)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--overhead-edges", type=int, default=160)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     one_blas_thread()
@@ -93,16 +100,38 @@ def main(argv=None) -> dict:
         remember_problem(j, problem)
         return j
 
-    def once(executor: str, scheduler: str | None) -> float:
+    def cluster_cpu(address: str) -> float:
+        from dask.distributed import Client
+
+        def used() -> float:
+            import resource as r
+            u = r.getrusage(r.RUSAGE_SELF)
+            return u.ru_utime + u.ru_stime
+
+        with Client(address, timeout="60s") as c:
+            return sum(c.run(used).values())
+
+    def cpu(who) -> float:
+        u = resource.getrusage(who)
+        return u.ru_utime + u.ru_stime
+
+    def once(executor: str, scheduler: str | None, per_batch: int | None = None) -> dict:
+        w0 = cluster_cpu(scheduler) if scheduler else cpu(resource.RUSAGE_CHILDREN)
+        m0 = cpu(resource.RUSAGE_SELF)
         t0 = time.perf_counter()
         with Workers(args.workers, executor, scheduler) as session:
             ps = sum(e.particle_steps for r in run_edges(job(), edges, workers=args.workers, executor=executor,
-                                                         scheduler=scheduler, session=session) for e in r.estimates)
-        return ps / (time.perf_counter() - t0)
+                                                         scheduler=scheduler, session=session, per_batch=per_batch)
+                     for e in r.estimates)
+        wall = time.perf_counter() - t0
+        worker = (cluster_cpu(scheduler) if scheduler else cpu(resource.RUSAGE_CHILDREN)) - w0
+        return {"rate": ps / wall, "wall": wall, "worker_cpu": worker, "client_cpu": cpu(resource.RUSAGE_SELF) - m0,
+                "cpu_rate": ps / worker if worker > 0 else float("nan")}
 
     once("process", None)  # warm-up: this process's caches and the kernel
     load0 = os.getloadavg()
-    rows: dict[str, list[float]] = {"process": [], "cluster": [], "local_cluster": []}
+    rows: dict[str, list[dict]] = {"process": [], "cluster": [], "local_cluster": []}
+    overhead: dict[int, list[float]] = {1: [], 16: []}
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         address, procs = start_cluster(args.workers, Path(tmp))
@@ -112,29 +141,46 @@ def main(argv=None) -> dict:
             kinds = [("process", None), ("cluster", address), ("local_cluster", None)]
             for r in range(args.rounds):
                 for name, sched in (kinds if r % 2 == 0 else kinds[::-1]):
-                    rate = once("process" if name == "process" else "dask", sched)
-                    rows[name].append(rate)
-                    print(f"round {r} {name}: {rate / 1e6:.3f} M particle-steps/s", flush=True)
+                    row = once("process" if name == "process" else "dask", sched)
+                    rows[name].append(row)
+                    print(f"round {r} {name}: {row['rate'] / 1e6:.3f} M particle-steps/s, worker CPU "
+                          f"{row['worker_cpu']:.2f} s ({row['cpu_rate'] / 1e6:.3f} M per CPU s), client CPU "
+                          f"{row['client_cpu']:.2f} s", flush=True)
+            small = edges[:args.overhead_edges]
+            for r in range(args.rounds):
+                for per_batch in ((1, 16) if r % 2 == 0 else (16, 1)):
+                    t = time.perf_counter()
+                    with Workers(args.workers, "dask", address) as session:
+                        n = sum(1 for _ in run_edges(job(), small, workers=args.workers, executor="dask",
+                                                     scheduler=address, session=session, per_batch=per_batch))
+                    overhead[per_batch].append(time.perf_counter() - t)
         finally:
             stop_cluster(procs)
     load1 = os.getloadavg()
-    med = {k: statistics.median(v) for k, v in rows.items()}
-    res = {"edges": len(edges), "workers": args.workers, "median_rate": med, "cluster_first_rate": first,
+    med = {k: {q: statistics.median(x[q] for x in v) for q in v[0]} for k, v in rows.items()}
+    extra = len(small) - -(-len(small) // 16)
+    per_task = (statistics.median(overhead[1]) - statistics.median(overhead[16])) / extra
+    res = {"edges": len(edges), "workers": args.workers, "median": med, "cluster_first": first,
            "cluster_start_s": cluster_start,
-           "cluster_over_process": statistics.median(a / b for a, b in zip(rows["cluster"], rows["process"])),
-           "local_cluster_over_process": statistics.median(a / b for a, b in zip(rows["local_cluster"], rows["process"])),
-           "load_before": load0, "load_after": load1, "runs": rows}
+           "cluster_over_process": statistics.median(a["rate"] / b["rate"] for a, b in zip(rows["cluster"], rows["process"])),
+           "cluster_over_process_cpu": statistics.median(a["cpu_rate"] / b["cpu_rate"]
+                                                         for a, b in zip(rows["cluster"], rows["process"])),
+           "local_cluster_over_process": statistics.median(a["rate"] / b["rate"]
+                                                           for a, b in zip(rows["local_cluster"], rows["process"])),
+           "cluster_task_overhead_ms": 1e3 * per_task, "load_before": load0, "load_after": load1, "runs": rows}
     if args.json:
         print(json.dumps(res, indent=1))
         return res
-    print(f"{len(edges)} arm edges, {args.workers} workers: process {med['process'] / 1e6:.3f} M/s, dask cluster "
-          f"{med['cluster'] / 1e6:.3f} M/s (x{res['cluster_over_process']:.2f}; its first use {first / 1e6:.3f} M/s), "
-          f"dask LocalCluster incl. start-up {med['local_cluster'] / 1e6:.3f} M/s "
-          f"(x{res['local_cluster_over_process']:.2f}); cluster start-up {cluster_start:.1f} s; load "
-          f"{load0[0]:.2f} -> {load1[0]:.2f}")
-    print("RESULT " + " ".join(f"{k}_rate={v}" for k, v in med.items()) +
-          f" cluster_over_process={res['cluster_over_process']} local_cluster_over_process={res['local_cluster_over_process']}"
-          f" cluster_first_rate={first}")
+    print(f"{len(edges)} arm edges, {args.workers} workers: process {med['process']['rate'] / 1e6:.3f} M/s, dask cluster "
+          f"{med['cluster']['rate'] / 1e6:.3f} M/s (x{res['cluster_over_process']:.2f}; per worker CPU second "
+          f"x{res['cluster_over_process_cpu']:.2f}; its first use {first['rate'] / 1e6:.3f} M/s), dask LocalCluster "
+          f"incl. start-up {med['local_cluster']['rate'] / 1e6:.3f} M/s (x{res['local_cluster_over_process']:.2f}); "
+          f"cluster start-up {cluster_start:.1f} s; cluster per-task overhead {res['cluster_task_overhead_ms']:.1f} ms "
+          f"({len(small)} edges in 1- vs 16-edge tasks); load {load0[0]:.2f} -> {load1[0]:.2f}")
+    print("RESULT " + " ".join(f"{k}_rate={v['rate']} {k}_cpu_rate={v['cpu_rate']}" for k, v in med.items()) +
+          f" cluster_over_process={res['cluster_over_process']} cluster_over_process_cpu={res['cluster_over_process_cpu']}"
+          f" local_cluster_over_process={res['local_cluster_over_process']} cluster_first_rate={first['rate']}"
+          f" cluster_task_overhead_ms={res['cluster_task_overhead_ms']}")
     return res
 
 
