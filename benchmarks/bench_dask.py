@@ -82,9 +82,22 @@ def main(argv=None) -> dict:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     one_blas_thread()
+    import contextlib
+
+    from firmtool import parallel
     from firmtool.kernels import engine_choice
-    from firmtool.parallel import EstimationJob, Workers, job_extras, remember_problem, run_edges
+    from firmtool.parallel import EstimationJob, job_extras, run_edges
     from firmtool.roadmap import Roadmap
+
+    @contextlib.contextmanager
+    def session_of(executor: str, scheduler: str | None):
+        """run_edges' session argument: a Workers session, or nothing for a tree without one (before
+        issue 19: run_edges then starts its pool or joins the cluster itself)."""
+        if not hasattr(parallel, "Workers"):
+            yield {}
+            return
+        with parallel.Workers(args.workers, executor, scheduler) as session:
+            yield {"session": session}
 
     problem, d, _ = load("arm")
     sc = problem.scenario
@@ -97,7 +110,8 @@ def main(argv=None) -> dict:
         j = EstimationJob(scenario_text=rm.scenario_text, scenario_path=sc.path, design=d,
                           particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed, engine=engine,
                           **job_extras(problem))
-        remember_problem(j, problem)
+        if hasattr(parallel, "remember_problem"):
+            parallel.remember_problem(j, problem)
         return j
 
     def cluster_cpu(address: str) -> float:
@@ -119,9 +133,9 @@ def main(argv=None) -> dict:
         w0 = cluster_cpu(scheduler) if scheduler else cpu(resource.RUSAGE_CHILDREN)
         m0 = cpu(resource.RUSAGE_SELF)
         t0 = time.perf_counter()
-        with Workers(args.workers, executor, scheduler) as session:
+        with session_of(executor, scheduler) as session:
             ps = sum(e.particle_steps for r in run_edges(job(), edges, workers=args.workers, executor=executor,
-                                                         scheduler=scheduler, session=session, per_batch=per_batch)
+                                                         scheduler=scheduler, per_batch=per_batch, **session)
                      for e in r.estimates)
         wall = time.perf_counter() - t0
         worker = (cluster_cpu(scheduler) if scheduler else cpu(resource.RUSAGE_CHILDREN)) - w0
@@ -150,9 +164,9 @@ def main(argv=None) -> dict:
             for r in range(args.rounds):
                 for per_batch in ((1, 16) if r % 2 == 0 else (16, 1)):
                     t = time.perf_counter()
-                    with Workers(args.workers, "dask", address) as session:
+                    with session_of("dask", address) as session:
                         n = sum(1 for _ in run_edges(job(), small, workers=args.workers, executor="dask",
-                                                     scheduler=address, session=session, per_batch=per_batch))
+                                                     scheduler=address, per_batch=per_batch, **session))
                     overhead[per_batch].append(time.perf_counter() - t)
         finally:
             stop_cluster(procs)
