@@ -335,13 +335,14 @@ class BatchResult:
 
 
 def batches(edges: Sequence[int], workers: int, per_batch: int | None = None, *, most: int = 16,
-            per_worker: int = 4) -> list[list[int]]:
+            per_worker: int = 4, least: int = 1) -> list[list[int]]:
     """Split items into batches: at least ``per_worker`` per worker so that the load balances, at most
-    ``most`` items each (the per-task overhead is then small against the work)."""
+    ``most`` items each (the per-task overhead is then small against the work), and at least ``least``
+    (on a large cluster, tasks that cost the scheduler more than they compute help nobody)."""
     edges = list(edges)
     if not edges:
         return []
-    per_batch = per_batch or max(1, min(most, len(edges) // (per_worker * max(1, workers)) or 1))
+    per_batch = per_batch or max(least, 1, min(most, len(edges) // (per_worker * max(1, workers)) or 1))
     return [edges[i:i + per_batch] for i in range(0, len(edges), per_batch)]
 
 
@@ -412,6 +413,11 @@ class Workers:
         if self.executor == "dask" and self._client is not None:
             return max(1, sum(self._client.nthreads().values()))
         return self.requested
+
+    def task_sizes(self, most: int) -> dict:
+        """``batches`` keywords for this executor: local processes up to ``most`` items a task; dask
+        tasks up to 4x larger and at least 8 items (its per-task cost is paid at one scheduler)."""
+        return {"most": 4 * most, "least": 8} if self.executor == "dask" else {"most": most}
 
     @property
     def parallel(self) -> bool:
@@ -629,9 +635,9 @@ def run_edges(job: EstimationJob, edges: Sequence[int], *, workers: int, executo
     try:
         if executor == "dask" and session._client is None and per_batch is None:
             session._connect()  # the cluster's size sets the batches
-        # a dask task costs more to schedule and ship (~4 ms measured, against < 1 ms for a local
-        # process): larger tasks there, still at least 4 per worker
-        work = batches(edges, session.size, per_batch, most=64 if session.executor == "dask" else 16)
+        # a dask task costs more to schedule and ship (~1 ms at the scheduler by dask's documentation,
+        # ~4 ms measured here under load, against < 1 ms for a local process): larger tasks there
+        work = batches(edges, session.size, per_batch, **session.task_sizes(16))
         yield from session.run(job, run_batch, work, retry=True, progress=progress)
     finally:
         if own:
@@ -703,20 +709,20 @@ def parallel_design(problem: Problem, centers: np.ndarray, kinds: np.ndarray, se
     # nodes
     job = problem_job(problem, centers=centers)
     nodes: list[NodeController | None] = [None] * N
-    for r in session.run(job, node_stabilisers, batches(range(N), size, most=32), progress=progress):
+    for r in session.run(job, node_stabilisers, batches(range(N), size, **session.task_sizes(32)), progress=progress):
         for j, nc in zip(r.edges, r.estimates):
             nodes[j] = nc
     # neighbour pairs whose segment is free, then the edges (both directions, none from a goal)
     pairs = np.array(neighbour_pairs(problem, centers), dtype=np.int64).reshape(-1, 2)
     job = problem_job(problem, centers=centers, pairs=pairs)
     free = np.zeros(pairs.shape[0], dtype=bool)
-    for r in session.run(job, pairs_valid, batches(range(pairs.shape[0]), size, most=64)):
+    for r in session.run(job, pairs_valid, batches(range(pairs.shape[0]), size, **session.task_sizes(64))):
         free[r.edges] = r.estimates
     directed = sorted(p for i, j in pairs[free].tolist() for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
     edges = np.array(directed, dtype=np.int64).reshape(-1, 2)
     job = problem_job(problem, centers=centers, pairs=edges)
     steps = np.zeros(edges.shape[0], dtype=np.int64)
-    for r in session.run(job, nominal_lengths, batches(range(edges.shape[0]), size, most=128)):
+    for r in session.run(job, nominal_lengths, batches(range(edges.shape[0]), size, **session.task_sizes(128))):
         steps[r.edges] = r.estimates
     keep = steps > 0
     return _assemble(problem, centers, kinds, nodes, edges[keep, 0], edges[keep, 1], steps[keep])
