@@ -165,7 +165,7 @@ def main(argv=None) -> dict:
                 for per_batch in ((1, 16) if r % 2 == 0 else (16, 1)):
                     t = time.perf_counter()
                     with session_of("dask", address) as session:
-                        n = sum(1 for _ in run_edges(job(), small, workers=args.workers, executor="dask",
+                        sum(1 for _ in run_edges(job(), small, workers=args.workers, executor="dask",
                                                      scheduler=address, per_batch=per_batch, **session))
                     overhead[per_batch].append(time.perf_counter() - t)
         finally:

@@ -42,7 +42,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     one_blas_thread()
     from firmtool.design import local_controller
-    from firmtool.edges import edge_seed_sequence, estimate_edge, initial_ensemble, simulate
+    from firmtool.edges import edge_seed_sequence, initial_ensemble, simulate
     from firmtool.parallel import EstimationJob, run_batch
     from firmtool.roadmap import Roadmap
 

@@ -475,14 +475,17 @@ class Workers:
 
     def _run_here(self, job, fn, work, retry) -> Iterator[BatchResult]:
         retries = _Retries(work, retry)
-        while retries.queue:
-            b, attempt, task = retries.queue.popleft()
-            try:
-                out = fn(job, b)
-            except Exception as exc:  # noqa: BLE001 - any failure of one edge must not stop the build
-                yield from retries.failed(b, attempt, exc)
-                continue
-            yield BatchResult(b, out, task=task)
+        try:
+            while retries.queue:
+                b, attempt, task = retries.queue.popleft()
+                try:
+                    out = fn(job, b)
+                except Exception as exc:  # noqa: BLE001 - any failure of one edge must not stop the build
+                    yield from retries.failed(b, attempt, exc)
+                    continue
+                yield BatchResult(b, out, task=task)
+        finally:
+            _contexts.pop(id(job), None)  # the job's derived objects (a design's regions) end with the stage
 
     # -- local processes
 
@@ -701,7 +704,7 @@ def parallel_design(problem: Problem, centers: np.ndarray, kinds: np.ndarray, se
     """:func:`firmtool.design.design` on ``session``'s workers: the node stabilisers, the collision
     checks of the neighbour pairs and the nominal lengths of the edges, in tasks. The same design
     (every array bit for bit: each item is computed by the function the serial design uses)."""
-    from firmtool.design import connect, design
+    from firmtool.design import design
 
     if not session.parallel:
         return design(problem, centers, kinds)
