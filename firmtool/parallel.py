@@ -41,7 +41,6 @@ import os
 import pickle
 import queue
 import re
-import shutil
 import signal
 import sys
 import tempfile
@@ -404,7 +403,6 @@ class Workers:
         self.executor, self.scheduler, self.requested = executor, scheduler, max(1, int(workers))
         self._pool: ProcessPoolExecutor | None = None
         self._pool_jobs: set[str] = set()  # tokens the current pool's workers inherited at their fork
-        self._folder: str | None = None
         self._client = None
         self._cluster = None
 
@@ -441,9 +439,6 @@ class Workers:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
-        if self._folder is not None:
-            shutil.rmtree(self._folder, ignore_errors=True)
-            self._folder = None
 
     def abort(self) -> None:
         """Stop at once (Ctrl-C, an error): local workers are ended, not waited for."""
@@ -501,10 +496,10 @@ class Workers:
             self._start_pool()  # forked now: the workers inherit the job
         if token in self._pool_jobs:
             return token, None
-        if self._folder is None:
-            self._folder = tempfile.mkdtemp(prefix="firmtool-jobs-")
-        path = os.path.join(self._folder, f"{token}.pickle")
-        with open(path, "wb") as f:
+        # removed at the end of the run, and by the Ctrl-C handler if the process ends first
+        fd, path = tempfile.mkstemp(prefix="firmtool-job-", suffix=".pickle")
+        interrupts.register_temporary(path)
+        with os.fdopen(fd, "wb") as f:
             pickle.dump(job, f, protocol=pickle.HIGHEST_PROTOCOL)
         return token, path
 
@@ -566,6 +561,7 @@ class Workers:
                     os.unlink(path)
                 except OSError:
                     pass
+                interrupts.unregister_temporary(path)
 
     # -- dask
 
