@@ -13,20 +13,21 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-import click
 import numpy as np
 import typer
 
+from firmtool import __version__
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
 
-DEFAULT_SCENARIO = "scenarios/arm8_lightdark.toml"
+DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 
 app = typer.Typer(
     name="firmtool",
     help=("FIRM: graph-based stochastic control with constraints, in state space (perfect measurements) "
           "and belief space (imperfect measurements).\n\n"
           "Typical use:\n\n"
-          "  firmtool build scenarios/point_lightdark.toml\n\n"
+          "  firmtool scenarios\n\n"
+          "  firmtool build point_lightdark\n\n"
           "  firmtool solve artifacts/point_lightdark.h5\n\n"
           "  firmtool execute artifacts/point_lightdark.h5 --episodes 200 --json"),
     no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
@@ -39,6 +40,19 @@ CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
 SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
                             "without it --executor dask starts a LocalCluster.")
+SCENARIO_HELP = "Scenario: a TOML file, or the name of a shipped scenario (see 'firmtool scenarios')."
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"firmtool {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                          help="Print firmtool's version and exit.")) -> None:
+    """Options of every command (the help text is the app's)."""
 
 
 def _fail(message: str, code: int) -> None:
@@ -72,7 +86,7 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             _fail(str(exc), 1)
         except FirmtoolError as exc:  # pragma: no cover - every subclass is mapped above
             _fail(str(exc), 1)
-        except (typer.Exit, typer.Abort, click.exceptions.ClickException):
+        except (typer.Exit, typer.Abort):
             raise
         except OSError as exc:
             if os.environ.get("FIRMTOOL_DEBUG") or not exc.filename:
@@ -90,9 +104,16 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def _emit(report: dict, as_json: bool, human: Callable[[dict], str]) -> None:
+def _emit(report: dict, as_json: bool, human: Callable[[dict], str], roadmap: bool = True) -> None:
+    """Print ``report`` (its keys without a leading underscore) as text, or as JSON stamped with
+    ``firmtool_version`` and, for a command that reads or writes a roadmap, its ``schema_version``."""
     public = {k: v for k, v in report.items() if not k.startswith("_")}
     if as_json:
+        stamp: dict[str, Any] = {"firmtool_version": __version__}
+        if roadmap:
+            from firmtool.roadmap import SCHEMA_VERSION
+            stamp["schema_version"] = SCHEMA_VERSION  # inspect reports the file's own version instead
+        public = {**stamp, **public}
         typer.echo(json.dumps(public, indent=2, default=_json_default))
     else:
         typer.echo(human(public))
@@ -136,12 +157,12 @@ def _check_exists(path: Path, what: str) -> None:
 
 @app.command()
 @handles_errors
-def sample(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
+def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
            output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
            as_json: bool = JsonOpt) -> None:
     """Sample the nodes (start, goal, valid configurations at rest) into a new roadmap file.
 
-    Example: firmtool sample scenarios/smoke.toml -o artifacts/smoke.h5
+    Example: firmtool sample smoke -o artifacts/smoke.h5
     """
     from firmtool.pipeline import sample_stage
     _emit(sample_stage(scenario, output), as_json, lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
@@ -209,7 +230,7 @@ def _build_human(r: dict) -> str:
 
 @app.command()
 @handles_errors
-def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
+def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
           output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
           workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
           scheduler: Optional[str] = SchedulerOpt, checkpoint_seconds: float = CheckpointOpt,
@@ -229,7 +250,7 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
     interrupted build resumes, and edges whose inputs did not change are not estimated again
     (changing only cost weights re-estimates nothing). --fresh starts over.
 
-    Example: firmtool build scenarios/point_lightdark.toml --workers 2 --p-min 0.8 --max-nodes 120
+    Example: firmtool build point_lightdark --workers 2 --p-min 0.8 --max-nodes 120
     """
     from firmtool.pipeline import build as build_roadmap
     if max_nodes is not None and p_min is None:
@@ -463,14 +484,14 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
 
 @app.command()
 @handles_errors
-def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario TOML file."),
+def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
         output: Optional[Path] = typer.Option(None, "--output", "-o"),
         episodes: int = typer.Option(200, "--episodes", "-n", min=1),
         seed: int = typer.Option(0, "--seed", min=0),
         workers: Optional[int] = WorkersOpt, as_json: bool = JsonOpt) -> None:
     """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment).
 
-    Example: firmtool run scenarios/smoke.toml --episodes 50
+    Example: firmtool run smoke --episodes 50
     """
     from firmtool.execute import execute as run_episodes
     from firmtool.nodes import START_INDEX
@@ -485,6 +506,22 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
     report = {"build": b, "solve": s, "execute": {k: v for k, v in e.items() if not k.startswith("_")}}
     _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
                                                   _execute_human(r["execute"])]))
+
+
+@app.command()
+@handles_errors
+def scenarios(as_json: bool = JsonOpt) -> None:
+    """List the shipped scenarios, one a line: name and description. Every command that takes a
+    scenario accepts one of these names as well as a TOML file (an existing file wins).
+
+    Example: firmtool build point_lightdark
+    """
+    from firmtool.scenario import scenario_description, shipped_scenarios
+    shipped = [{"name": name, "description": scenario_description(path), "path": str(path)}
+               for name, path in shipped_scenarios().items()]
+    width = max((len(s["name"]) for s in shipped), default=0)
+    _emit({"scenarios": shipped}, as_json,
+          lambda r: "\n".join(f"{s['name']:<{width}}  {s['description']}" for s in r["scenarios"]), roadmap=False)
 
 
 def main() -> None:  # pragma: no cover - console entry point
