@@ -60,6 +60,11 @@ def _fail(message: str, code: int) -> None:
     raise typer.Exit(code)
 
 
+def _say_compiling() -> None:
+    typer.echo("firmtool: compiling the Monte Carlo engine, once per install (10-30 s; later runs load it)",
+               err=True)
+
+
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip()
     return text.splitlines()[0][:300] if text else type(exc).__name__
@@ -72,6 +77,9 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
         from threadpoolctl import threadpool_limits
+
+        from firmtool import warmup
+        warmup.set_notifier(_say_compiling)
         try:
             # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
             with threadpool_limits(limits=1):

@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse
 
+from firmtool import warmup
 from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
@@ -133,6 +134,11 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     reused = sum(x is not None for x in est)
     todo = [e for e in range(E) if est[e] is None]
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
+    if todo:  # on a cold numba cache: compiled once (or by build's earlier start), before the workers
+        warmup.start(engine)
+        warmup.wait()
+    else:
+        warmup.stop()
     workers = workers or default_workers()
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
@@ -323,6 +329,8 @@ def build(scenario_path: str | Path, output: str | Path | None, *, workers: int 
     the current count, at least 5), re-design, estimate only the new edges and solve again.
     """
     scenario = load_scenario(scenario_path)
+    if not warmup.engine_is_cached():  # a fresh install: compile the engine while sampling and designing
+        warmup.start(engine_for(build_problem(scenario)))
     out = Path(output) if output else default_output(scenario)
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
     existing = None if fresh else _resumable(out, scenario)
