@@ -267,12 +267,15 @@ def shipped_scenarios() -> dict[str, Path]:
     Returns
     -------
     dict of str to Path
-        Empty if the scenario package is missing (a broken install).
+        Empty if the scenario package is missing (a broken install) and there is no source tree's
+        ``scenarios/`` folder next to the ``firmtool`` package.
     """
     try:
         folder = importlib.resources.files(SHIPPED_PACKAGE)
-    except ModuleNotFoundError:
-        return {}
+    except ModuleNotFoundError:  # a source tree used without installing it: the repository's folder
+        folder = Path(__file__).resolve().parents[1] / "scenarios"
+        if not folder.is_dir():
+            return {}
     files = sorted((Path(str(f)) for f in folder.iterdir() if f.name.endswith(".toml")), key=lambda f: f.stem)
     return {f.stem: f for f in files}
 

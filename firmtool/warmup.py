@@ -21,6 +21,7 @@ import os
 import subprocess
 import sys
 import threading
+from pathlib import Path
 from typing import Callable
 
 # The background process's reports (one line each on its stdout).
@@ -45,9 +46,12 @@ class _Warmup:
 
     def __init__(self) -> None:
         debug = bool(os.environ.get("FIRMTOOL_DEBUG"))
-        self.process = subprocess.Popen([sys.executable, "-m", "firmtool.warmup"], stdin=subprocess.DEVNULL,
-                                        stdout=subprocess.PIPE, stderr=None if debug else subprocess.DEVNULL,
-                                        text=True)
+        # -m puts the working folder first on sys.path: the folder holding this firmtool, so that the
+        # process compiles (and caches) this one, not a source tree in the caller's folder
+        home = Path(__file__).resolve().parents[1]
+        self.process = subprocess.Popen([sys.executable, "-m", "firmtool.warmup"], cwd=home,
+                                        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                        stderr=None if debug else subprocess.DEVNULL, text=True)
         self.reader = threading.Thread(target=self._read, name="firmtool-warmup", daemon=True)
         self.reader.start()
 

@@ -48,10 +48,15 @@ print(sorted(set(compiled)))
 """
 
 
-def _run(args, cache: Path, cwd: Path) -> subprocess.CompletedProcess:
+def _env(cache: Path) -> dict:
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "CI": "1"}
     env.pop("FIRMTOOL_ENGINE", None)
-    return subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, cwd=cwd, timeout=1800)
+    return env
+
+
+def _run(args, cache: Path, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, env=_env(cache), cwd=cwd,
+                          timeout=1800)
 
 
 def test_a_cold_cache_is_compiled_once_announced_and_reused(tmp_path):
@@ -59,7 +64,11 @@ def test_a_cold_cache_is_compiled_once_announced_and_reused(tmp_path):
     cached = [sys.executable, "-c", "from firmtool import warmup; print(warmup.engine_is_cached())"][1:]
     assert _run(cached, cache, tmp_path).stdout.strip() == "False"
 
-    cold = _run(["-m", "firmtool.cli", "build", "smoke", "-o", "a.h5", "--workers", "2", "--json"], cache, tmp_path)
+    # the console script from the repository root, as the README says (a source tree in the working
+    # folder must not be what the background process compiles, nor where it looks for 'smoke')
+    firmtool = Path(sys.executable).parent / "firmtool"
+    cold = subprocess.run([firmtool, "build", "smoke", "-o", tmp_path / "a.h5", "--workers", "2", "--json"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=1800, env=_env(cache))
     assert cold.returncode == 0, cold.stderr
     assert MESSAGE in cold.stderr and cold.stderr.count(MESSAGE) == 1
     report = json.loads(cold.stdout)  # the message is not on stdout
