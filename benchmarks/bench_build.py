@@ -25,9 +25,9 @@ def build_times(workers: int, repeat: int, eng: str | None, scenario: str = "arm
     with engine(eng), tempfile.TemporaryDirectory() as tmp:
         for i in range(repeat):
             r = build(SCENARIOS[scenario], Path(tmp) / f"b{i}.h5", workers=workers)
-            s = r["seconds"]
-            runs.append({**s, "total": sum(s.values()), "particle_steps_per_second": r["particle_steps_per_second"],
-                         "edges": r["edges"], "nodes": r["nodes"], "particle_steps": r["particle_steps"]})
+            s = dict(r.seconds)
+            runs.append({**s, "total": sum(s.values()), "particle_steps_per_second": r.particle_steps_per_second,
+                         "edges": r.edges, "nodes": r.nodes, "particle_steps": r.particle_steps})
     med = {k: statistics.median(run[k] for run in runs) for k in runs[0]}
     return {"median": med, "runs": runs, "workers": workers, "engine": eng or "auto"}
 

@@ -39,7 +39,7 @@ def online(scenario: str, episodes: int, repeat: int, push: str) -> dict:
         r = execute(problem, d, pol["edge"].astype(np.int64), episodes, i,
                     predicted=float(pol["success_probability"][START_INDEX]),
                     cost_to_go=pol["cost_to_go"], disturbances=parse_disturbances([push]))
-        runs.append({k: r[k] for k in ("step_time_us_mean", "step_time_us_p99", "replan_time_us_mean", "replans",
+        runs.append({k: getattr(r, k) for k in ("step_time_us_mean", "step_time_us_p99", "replan_time_us_mean", "replans",
                                        "success_rate", "mean_steps")})
     med = {k: statistics.median(x[k] for x in runs if x[k] is not None) if any(x[k] is not None for x in runs) else None
            for k in runs[0]}

@@ -1,3 +1,84 @@
-"""firmtool: FIRM (graph-based stochastic control with constraints) in state and belief space."""
+"""firmtool: FIRM (graph-based stochastic control with constraints) in state and belief space.
+
+The public API, NumPy arrays in and out::
+
+    import firmtool as ft
+    sc = ft.load_scenario("point_lightdark")      # a shipped name or a path -> ft.Scenario
+    rm = ft.build(sc, workers=2)                   # -> ft.Roadmap: nodes, edges, outcome counts
+    sol = ft.solve(rm)                             # -> ft.Solution: policy, cost-to-go, success probability
+    res = ft.simulate(sol, episodes=200, seed=0)   # -> ft.Results: success rate, episodes
+    ft.plot(sol, res, ax=ax)                       # -> matplotlib Axes
+
+The ``firmtool`` command line is a thin layer over these calls. Names are imported on first use,
+so ``import firmtool`` stays cheap (the Monte Carlo engine and matplotlib load when needed).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+# public name -> module that defines it
+_EXPORTS = {
+    "load_scenario": "firmtool.api",
+    "build": "firmtool.api",
+    "open_roadmap": "firmtool.api",
+    "solve": "firmtool.api",
+    "simulate": "firmtool.api",
+    "plot": "firmtool.api",
+    "Roadmap": "firmtool.api",
+    "Solution": "firmtool.api",
+    "Scenario": "firmtool.scenario",
+    "Results": "firmtool.results",
+    "Episode": "firmtool.results",
+    "Event": "firmtool.results",
+    "EventKind": "firmtool.results",
+    "Outcome": "firmtool.results",
+    "Calibration": "firmtool.results",
+    "EdgeCheck": "firmtool.results",
+    "ReplanSettings": "firmtool.execute",
+    "Disturbance": "firmtool.disturbances",
+    "SolveStatus": "firmtool.graph",
+    "SampleReport": "firmtool.reports",
+    "DesignReport": "firmtool.reports",
+    "EstimateReport": "firmtool.reports",
+    "BuildReport": "firmtool.reports",
+    "DensifyReport": "firmtool.reports",
+    "SolveReport": "firmtool.reports",
+    "FailedEdge": "firmtool.reports",
+    "RoadmapSummary": "firmtool.reports",
+    "FirmtoolError": "firmtool.errors",
+    "InputError": "firmtool.errors",
+    "ScenarioError": "firmtool.errors",
+    "RoadmapError": "firmtool.errors",
+    "NumericalError": "firmtool.errors",
+    "RunFailure": "firmtool.errors",
+}
+
+__all__ = sorted(_EXPORTS) + ["__version__"]
+
+if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
+    from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, plot, simulate, solve
+    from firmtool.disturbances import Disturbance
+    from firmtool.errors import FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError
+    from firmtool.execute import ReplanSettings
+    from firmtool.graph import SolveStatus
+    from firmtool.reports import (BuildReport, DensifyReport, DesignReport, EstimateReport, FailedEdge,
+                                  RoadmapSummary, SampleReport, SolveReport)
+    from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
+    from firmtool.scenario import Scenario
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'firmtool' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # once loaded, a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(__all__) | {name for name in globals() if name.startswith("__")})

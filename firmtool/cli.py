@@ -172,8 +172,10 @@ def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
 
     Example: firmtool sample smoke -o artifacts/smoke.h5
     """
+    from firmtool.api import load_scenario
     from firmtool.pipeline import sample_stage
-    _emit(sample_stage(scenario, output), as_json, lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
+    _emit(sample_stage(load_scenario(scenario), output).to_dict(), as_json,
+          lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
 
 
 @app.command()
@@ -186,7 +188,8 @@ def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled n
     """
     from firmtool.pipeline import design_stage
     _check_exists(roadmap, "roadmap file")
-    _emit(design_stage(roadmap), as_json, lambda r: f"designed {r['nodes']} node stabilisers and {r['edges']} edges")
+    _emit(design_stage(roadmap).to_dict(), as_json,
+          lambda r: f"designed {r['nodes']} node stabilisers and {r['edges']} edges")
 
 
 @app.command()
@@ -206,7 +209,7 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
     _check_exists(roadmap, "roadmap file")
     report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
                             progress_factory=_progress_factory("estimating edges"),
-                            checkpoint_seconds=checkpoint_seconds)
+                            checkpoint_seconds=checkpoint_seconds).to_dict()
     _emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
                                       f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
                                       f"{r['simulated_particle_steps']:,} particle-steps, {r['seconds']:.1f} s, "
@@ -229,7 +232,7 @@ def _build_human(r: dict) -> str:
             f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
             f"{r['simulated_particle_steps']:,} particle-steps simulated; sample {s['sample']:.1f} s, "
             f"design {s['design']:.1f} s, estimate {s['estimate']:.1f} s on {r['workers']} workers")
-    if "densify" in r:
+    if r.get("densify"):
         text += "\n" + "\n".join(f"  {x['nodes']} nodes: start success probability {x['start_success_probability']:.4f}"
                                   for x in r["densify"]["rounds"])
         text += f"\n{r['densify']['reason']}"
@@ -260,15 +263,18 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
 
     Example: firmtool build point_lightdark --workers 2 --p-min 0.8 --max-nodes 120
     """
-    from firmtool.pipeline import build as build_roadmap
+    import firmtool.api as ft
+    from firmtool.pipeline import default_output
     if max_nodes is not None and p_min is None:
         raise InputError("--max-nodes: only meaningful with --p-min")
-    report = build_roadmap(scenario, output, workers=workers, executor=executor, scheduler=scheduler,
-                           progress_factory=_progress_factory("estimating edges"), fresh=fresh, p_min=p_min,
-                           max_nodes=max_nodes, add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds)
+    sc = ft.load_scenario(scenario)
+    rm = ft.build(sc, output=output or default_output(sc), workers=workers, executor=executor, scheduler=scheduler,
+                  progress=_progress_factory("estimating edges"), fresh=fresh, p_min=p_min, max_nodes=max_nodes,
+                  add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds)
+    report = rm.report.to_dict()
     _emit(report, as_json, _build_human)
     _exit_on_failed_edges(report)
-    if "densify" in report and not report["densify"]["reached"]:
+    if report["densify"] and not report["densify"]["reached"]:
         _fail(report["densify"]["reason"], 1)
 
 
@@ -292,14 +298,18 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
 
     Example: firmtool solve artifacts/smoke.h5 --failure-cost 500
     """
-    from firmtool.pipeline import solve_stage
+    import firmtool.api as ft
+    from firmtool.pipeline import unreachable_failure
     _check_exists(roadmap, "roadmap file")
     if method not in ("value", "policy"):
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
-    report = solve_stage(roadmap, failure_cost=failure_cost, method=method)
-    _emit(report, as_json, _solve_human)
+    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method)
+    sol.save()
+    if not sol.start_reachable:
+        raise unreachable_failure(roadmap, sol.unreachable_nodes.size, sol.cost_to_go.size)
+    _emit(sol.to_dict(), as_json, _solve_human)
 
 
 def _execute_human(r: dict) -> str:
@@ -390,30 +400,23 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
 
       firmtool execute artifacts/point_lightdark.h5 --start 6.0,1.0
     """
+    import firmtool.api as ft
     from firmtool.disturbances import parse_disturbances
-    from firmtool.execute import ReplanSettings, edge_counts_of, execute as run_episodes
-    from firmtool.pipeline import design_of, problem_of
-    from firmtool.nodes import START_INDEX
-    from firmtool.roadmap import Roadmap
+    from firmtool.execute import ReplanSettings
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
     if not (np.isfinite(replan_threshold) and replan_threshold > 0):
         raise InputError(f"--replan-threshold: expected a finite number > 0, found {replan_threshold}")
     start_state = _parse_start(start)
-    rm = Roadmap(roadmap)
-    edge_key, prob_key = _policy_keys(policy_name)
-    policy = rm.require("policy", edge_key, prob_key, "cost_to_go")
-    report = run_episodes(problem_of(rm), design_of(rm), policy[edge_key].astype(np.int64), episodes, seed,
-                          predicted=None if start_state is not None else float(policy[prob_key][START_INDEX]),
-                          cost_to_go=policy["cost_to_go"],
-                          replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
-                          disturbances=dists, start=start_state, record=save_episodes is not None,
-                          edge_counts=edge_counts_of(rm),
-                          failure_cost=rm.attrs("policy").get("failure_cost"))  # J_F the policy was solved with
-    report["policy"] = policy_name
+    _check_policy(policy_name)
+    sol = ft.open_roadmap(roadmap).solution()
+    res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
+                      replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
+                      record=save_episodes is not None)
+    report = res.to_dict()
     if save_episodes is not None:
         from firmtool.episodes_io import save_episodes as write_episodes
-        write_episodes(save_episodes, report["_episodes"],
+        write_episodes(save_episodes, res.episodes,
                        {"roadmap": str(roadmap), "seed": seed, "policy": policy_name,
                         "disturbances": ";".join(report["disturbances"]), "replanning": not no_replan,
                         "replan_threshold": replan_threshold})
@@ -421,13 +424,9 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     _emit(report, as_json, _execute_human)
 
 
-def _policy_keys(name: str) -> tuple[str, str]:
-    """Datasets of /policy holding the chosen edges and success probabilities of a named policy."""
-    keys = {"firm": ("edge", "success_probability"),
-            "shortest-path": ("shortest_path_edge", "shortest_path_success_probability")}
-    if name not in keys:
+def _check_policy(name: str) -> None:
+    if name not in ("firm", "shortest-path"):
         raise InputError(f"--policy: expected 'firm' or 'shortest-path', found {name!r}")
-    return keys[name]
 
 
 @app.command()
@@ -435,46 +434,26 @@ def _policy_keys(name: str) -> tuple[str, str]:
 def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
          output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG file (default: next to the roadmap)."),
          policy_name: str = typer.Option("both", "--policy", help="'both' (side by side), 'firm' or 'shortest-path'."),
-         seed: int = typer.Option(0, "--seed", min=0, help="Seed of the drawn episode (the first success from it on)."),
-         episodes: int = typer.Option(0, "--episodes", "-n", min=0,
-                                      help="Also run this many episodes per policy and show the executed rate."),
+         seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
+         episodes: int = typer.Option(20, "--episodes", "-n", min=0,
+                                      help="Episodes run per policy: the panel shows their success rate and draws "
+                                           "the first successful one (0: the roadmap and the policy only)."),
          dpi: int = typer.Option(120, "--dpi", min=30, max=600)) -> None:
     """Draw the paper's Fig. 1: obstacles, sensing field, goal, roadmap, policy path, and an executed
     episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip).
 
     Example: firmtool plot artifacts/arm8_lightdark.h5 -o fig.png --episodes 100
     """
-    from firmtool.execute import Executor, execute as run_episodes
-    from firmtool.pipeline import design_of, problem_of
-    from firmtool.plot import PanelData, plot_roadmap, save_figure
-    from firmtool.roadmap import Roadmap
+    import firmtool.api as ft
+    from firmtool.figures import save_figure
     _check_exists(roadmap, "roadmap file")
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
         raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
-    rm = Roadmap(roadmap)
-    problem, design_ = problem_of(rm), design_of(rm)
-    J = rm.require("policy", "cost_to_go")["cost_to_go"]
-    panels = []
-    for name in names[policy_name]:
-        edge_key, prob_key = _policy_keys(name)
-        pol = rm.require("policy", edge_key, prob_key)
-        edges, predicted = pol[edge_key].astype(np.int64), float(pol[prob_key][0])
-        runner = Executor(problem, design_, edges, cost_to_go=J)
-        episode, used = None, seed
-        for i in range(seed, seed + 20):  # the first success, else the last try
-            episode = runner.run_episode(np.random.default_rng(np.random.SeedSequence([i, 0xE7EC, 0])), record=True)
-            used = i
-            if episode.outcome == "success":
-                break
-        executed = None
-        if episodes:
-            r = run_episodes(problem, design_, edges, episodes, seed, cost_to_go=J)
-            executed = (r["success_rate"], *r["success_rate_ci95"])
-        panels.append(PanelData(name=name, policy=edges, predicted=predicted, episode=episode,
-                                executed=executed, seed=used))
+    sol = ft.open_roadmap(roadmap).solution()
+    results = [ft.simulate(sol, episodes, seed, policy=name) if episodes else None for name in names[policy_name]]
     out = output or roadmap.with_suffix(".png")
-    save_figure(plot_roadmap(problem, design_, panels, dpi=dpi), out)
+    save_figure(ft.plot_policies(sol, results, names[policy_name], dpi=dpi), out)
     typer.echo(f"wrote {out}")
 
 
@@ -485,9 +464,10 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
 
     Example: firmtool inspect artifacts/smoke.h5 --json
     """
-    from firmtool.inspect import summarize
+    from firmtool import inspect as inspect_module
     _check_exists(roadmap, "roadmap file")
-    _emit(summarize(roadmap), as_json, lambda r: "\n".join(f"{k}: {v}" for k, v in r.items()))
+    _emit(inspect_module.summarize(roadmap).to_dict(), as_json,
+          lambda r: "\n".join(f"{k}: {v}" for k, v in r.items() if v is not None))
 
 
 @app.command()
@@ -497,21 +477,22 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
         episodes: int = typer.Option(200, "--episodes", "-n", min=1),
         seed: int = typer.Option(0, "--seed", min=0),
         workers: Optional[int] = WorkersOpt, as_json: bool = JsonOpt) -> None:
-    """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment).
+    """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment):
+    the same calls, and the same numbers, as 'firmtool build', 'solve' and 'execute' one by one.
 
     Example: firmtool run smoke --episodes 50
     """
-    from firmtool.execute import execute as run_episodes
-    from firmtool.nodes import START_INDEX
-    from firmtool.pipeline import build as build_roadmap, design_of, problem_of, solve_stage
-    from firmtool.roadmap import Roadmap
-    b = build_roadmap(scenario, output, workers=workers, progress_factory=_progress_factory("estimating edges"))
-    s = solve_stage(b["roadmap"])
-    rm = Roadmap(b["roadmap"])
-    policy = rm.require("policy", "edge", "success_probability")
-    e = run_episodes(problem_of(rm), design_of(rm), policy["edge"].astype(np.int64), episodes, seed,
-                     predicted=float(policy["success_probability"][START_INDEX]))
-    report = {"build": b, "solve": s, "execute": {k: v for k, v in e.items() if not k.startswith("_")}}
+    import firmtool.api as ft
+    from firmtool.pipeline import default_output, unreachable_failure
+    sc = ft.load_scenario(scenario)
+    out = output or default_output(sc)
+    rm = ft.build(sc, output=out, workers=workers, progress=_progress_factory("estimating edges"))
+    sol = ft.solve(rm)
+    sol.save()
+    if not sol.start_reachable:
+        raise unreachable_failure(out, sol.unreachable_nodes.size, sol.cost_to_go.size)
+    res = ft.simulate(sol, episodes, seed, record=False)
+    report = {"build": rm.report.to_dict(), "solve": sol.to_dict(), "execute": res.to_dict()}
     _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
                                                   _execute_human(r["execute"])]))
 

@@ -39,12 +39,13 @@ EVENT_DTYPE = np.dtype([("step", np.int64), ("kind", "S24"), ("node", np.int64),
 def _events_array(events: list) -> np.ndarray:
     out = np.zeros(len(events), dtype=EVENT_DTYPE)
     for i, ev in enumerate(events):
-        out[i] = (ev.step, ev.kind.encode()[:24], ev.node, ev.value, ev.detail.encode()[:96])
+        out[i] = (ev.step, str(ev.kind).encode()[:24], ev.node, ev.value, ev.detail.encode()[:96])
     return out
 
 
 def save_episodes(path: str | Path, episodes: list, attrs: dict[str, Any]) -> None:
-    """Write recorded episodes (``Executor.run_episode(record=True)``) atomically to ``path``."""
+    """Write recorded episodes (:class:`firmtool.results.Episode`, from ``firmtool.simulate(...,
+    record=True)``) atomically to ``path``."""
     with replacing(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs["format"], f.attrs["format_version"] = FORMAT, FORMAT_VERSION
         for k, v in attrs.items():
@@ -55,7 +56,8 @@ def save_episodes(path: str | Path, episodes: list, attrs: dict[str, Any]) -> No
                 raise ValueError("episode was not recorded (run_episode(record=True))")
             g = group.create_group(f"{i:06d}")
             for k in ("outcome", "steps", "cost", "replans", "replan_failures", "disturbances"):
-                g.attrs[k] = getattr(ep, k)
+                v = getattr(ep, k)
+                g.attrs[k] = str(v) if isinstance(v, str) else v  # an Outcome enum as its plain text
             opts = {"compression": "gzip", "shuffle": True}
             g.create_dataset("states", data=ep.states, **opts)
             g.create_dataset("estimates", data=ep.estimates, **opts)

@@ -54,7 +54,7 @@ happened (``disturbance``, ``replan``, ``node``, ``collision``, ``goal``, ...).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse
@@ -70,8 +70,9 @@ from firmtool.errors import InputError, NumericalError
 from firmtool.graph import success_probability
 from firmtool.nodes import GOAL, START_INDEX, NodeRegions, segment_is_valid
 from firmtool.problem import Problem
+from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
 
-SUCCESS, COLLISION, TIMEOUT, STUCK = "success", "collision", "timeout", "stuck"
+SUCCESS, COLLISION, TIMEOUT, STUCK = Outcome.SUCCESS, Outcome.COLLISION, Outcome.TIMEOUT, Outcome.STUCK
 EPISODE_KEY, CI_KEY = 0xE7EC, 0xC1B0  # stable keys of the episode and prediction-interval streams
 
 DEFAULT_REPLAN_THRESHOLD = 3.0  # rms-scaled deviation (node regions use 1.5 by default)
@@ -85,49 +86,13 @@ RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at 
 INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
 INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
 
-# Event kinds of an episode
+# Event kinds of an episode (firmtool.results.EventKind)
 EV_START, EV_INITIAL, EV_NODE, EV_DISTURBANCE, EV_REPLAN, EV_REPLAN_FAILED = (
-    "start", "initial_controller", "node", "disturbance", "replan", "replan_failed")
-EV_COLLISION, EV_TIMEOUT, EV_GOAL, EV_STUCK = "collision", "timeout", "goal", "stuck"
-EV_INNOVATION = "innovation_alarm"
-EV_KEEP = "kept_controller"
-
-
-@dataclass
-class Event:
-    """Something that happened at a step: ``node`` is the node involved (or -1), ``value`` a size
-    (push length, deviation) and ``detail`` a short text."""
-
-    step: int
-    kind: str
-    node: int = -1
-    value: float = float("nan")
-    detail: str = ""
-
-
-@dataclass
-class Episode:
-    """One closed-loop run."""
-
-    outcome: str
-    steps: int
-    cost: float
-    nodes: list[int] = field(default_factory=list)
-    edges: list[int] = field(default_factory=list)
-    replans: int = 0
-    replan_failures: int = 0
-    disturbances: int = 0
-    events: list[Event] = field(default_factory=list)
-    # Policy edges run from their source node to the end without replan or disturbance:
-    # (edge, outcome) with outcome a node id, edges.FAILURE or edges.TIMEOUT (calibration).
-    traversals: list[tuple[int, int]] = field(default_factory=list)
-    step_times: np.ndarray | None = None  # (steps,) seconds of compute per control step
-    replan_times: list[float] = field(default_factory=list)  # seconds per replan (design included)
-    # Filled when recording: (T+1, n) true states and estimates, (T+1, n, n) covariances, (T, m) controls.
-    states: np.ndarray | None = None
-    estimates: np.ndarray | None = None
-    covariances: np.ndarray | None = None
-    controls: np.ndarray | None = None
+    EventKind.START, EventKind.INITIAL_CONTROLLER, EventKind.NODE, EventKind.DISTURBANCE, EventKind.REPLAN,
+    EventKind.REPLAN_FAILED)
+EV_COLLISION, EV_TIMEOUT, EV_GOAL, EV_STUCK = EventKind.COLLISION, EventKind.TIMEOUT, EventKind.GOAL, EventKind.STUCK
+EV_INNOVATION = EventKind.INNOVATION_ALARM
+EV_KEEP = EventKind.KEPT_CONTROLLER
 
 
 @dataclass(frozen=True)
@@ -741,7 +706,7 @@ def predicted_interval(counts: EdgeCounts, n_nodes: int, goals: np.ndarray, poli
 
 
 def edge_calibration(episodes: list[Episode], counts: EdgeCounts,
-                     min_traversals: int = MIN_EDGE_TRAVERSALS) -> dict:
+                     min_traversals: int = MIN_EDGE_TRAVERSALS) -> Calibration:
     """Executed vs estimated outcome frequencies of the policy edges the episodes took.
 
     Only traversals run from the edge's source node to their end with no replan and no disturbance
@@ -766,22 +731,21 @@ def edge_calibration(episodes: list[Episode], counts: EdgeCounts,
         target = int(counts.target[e])
         est = {"target": int(cnt[code == target].sum()), "failure": int(cnt[code < 0].sum())}
         exe = {"target": int((out == target).sum()), "failure": int((out < 0).sum())}
-        row = {"edge": e, "target": target, "traversals": n_exec, "particles": n_est}
+        row: dict = {}
         bad = []
         for name in ("target", "failure"):
             ci_x, ci_e = wilson_interval(exe[name], n_exec), wilson_interval(est[name], n_est)
             row[f"{name}_executed"] = exe[name] / n_exec
             row[f"{name}_estimated"] = est[name] / n_est
-            row[f"{name}_executed_ci95"] = list(ci_x)
-            row[f"{name}_estimated_ci95"] = list(ci_e)
+            row[f"{name}_executed_ci95"] = ci_x
+            row[f"{name}_estimated_ci95"] = ci_e
             if ci_x[1] < ci_e[0] or ci_e[1] < ci_x[0]:
                 bad.append(name)
-        row["flagged"] = bad
-        checked.append(row)
+        checked.append(EdgeCheck(edge=e, target=target, traversals=n_exec, particles=n_est, flagged=tuple(bad), **row))
         if bad:
             flagged.append(e)
-    return {"min_traversals": min_traversals, "edges_taken": len(per_edge), "edges_checked": len(checked),
-            "flagged_edges": flagged, "ok": not flagged, "edges": checked}
+    return Calibration(min_traversals=min_traversals, edges_taken=len(per_edge), edges_checked=len(checked),
+                       flagged_edges=tuple(flagged), ok=not flagged, edges=tuple(checked))
 
 
 # -- the run -------------------------------------------------------------------------------------------
@@ -789,13 +753,32 @@ def edge_calibration(episodes: list[Episode], counts: EdgeCounts,
 def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int, seed: int,
             predicted: float | None = None, *, cost_to_go: np.ndarray | None = None,
             replan: ReplanSettings | None = None, disturbances: tuple = (), start: np.ndarray | None = None,
-            record: bool = False, edge_counts: EdgeCounts | None = None, ci_samples: int = 1000,
-            failure_cost: float | None = None) -> dict:
-    """Run ``episodes`` episodes and summarise them (counts, rates with Wilson 95% intervals,
-    replans, compute time per step and per replan, and with ``edge_counts`` the calibration checks).
+            record: bool = False, edge_counts: EdgeCounts | None = None,
+            predicted_ci95: tuple[float, float] | None = None, failure_cost: float | None = None,
+            policy_name: str | None = None) -> Results:
+    """Run ``episodes`` episodes of ``policy`` and summarise them.
 
-    Episode ``i`` draws from ``SeedSequence([seed, 0xE7EC, i])`` and its disturbances from
-    ``SeedSequence([seed, 0xD157, i, ...])``: reproducible and independent of the order.
+    Parameters
+    ----------
+    problem, design_ : the roadmap's problem and design.
+    policy : (N,) int, the edge to take at each node (-1: none).
+    episodes : number of episodes.
+    seed : episode ``i`` draws from ``SeedSequence([seed, 0xE7EC, i])`` and its disturbances from
+        ``SeedSequence([seed, 0xD157, i, ...])``: reproducible and independent of the order.
+    predicted : the plan's success probability from the start node (reported next to the rate).
+    cost_to_go : (N,) the policy's cost-to-go (for replanning; see :class:`Executor`).
+    replan, disturbances, failure_cost : see :class:`Executor`.
+    start : (config_dim,) or (n,) start configuration or state instead of the start node.
+    record : keep every episode's states, estimates, covariances and controls.
+    edge_counts : the roadmap's outcome counts: with them, the calibration check of the edges taken.
+    predicted_ci95 : the prediction's interval (:func:`predicted_interval`), reported as it is.
+    policy_name : the policy's name, reported as it is.
+
+    Returns
+    -------
+    Results
+        Counts, rates with Wilson 95% intervals, replans, compute time per step and per replan, the
+        calibration check, and the episodes.
     """
     runner = Executor(problem, design_, policy, cost_to_go=cost_to_go, replan=replan, disturbances=disturbances,
                       failure_cost=failure_cost)
@@ -822,40 +805,31 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
     kinds: dict[str, int] = {}
     for e in eps:
         for ev in e.events:
-            kinds[ev.kind] = kinds.get(ev.kind, 0) + 1
+            kinds[str(ev.kind)] = kinds.get(str(ev.kind), 0) + 1
     settings = runner.replan
-    report = {
-        "episodes": episodes, "successes": successes, "collisions": count(COLLISION),
-        "timeouts": count(TIMEOUT), "stuck": count(STUCK),
-        "success_rate": successes / episodes if episodes else 0.0, "success_rate_ci95": [lo, hi],
-        "predicted_success_probability": predicted,
-        "prediction_within_ci95": None if predicted is None else bool(lo <= predicted <= hi),
-        "predicted_success_probability_ci95": None,
-        "mean_steps": float(steps.mean()) if episodes else 0.0,
-        "mean_cost": float(np.mean([e.cost for e in eps])) if episodes else 0.0,
-        "replans": int(sum(e.replans for e in eps)),
-        "replan_failures": int(sum(e.replan_failures for e in eps)),
-        "replanning": settings.enabled, "replan_threshold": settings.threshold,
-        "disturbances": [str(x) for x in runner.disturbances],
-        "disturbances_applied": int(sum(e.disturbances for e in eps)),
-        "start": None if start is None else start.tolist(),
-        "events": kinds,
-        "seed": seed, "seconds": seconds,
-        "step_time_us_mean": 1e6 * float(step_times.mean()) if step_times.size else 0.0,
-        "step_time_us_p99": 1e6 * float(np.percentile(step_times, 99)) if step_times.size else 0.0,
-        "replan_time_us_mean": 1e6 * float(replan_times.mean()) if replan_times.size else None,
-        "replan_time_us_p99": 1e6 * float(np.percentile(replan_times, 99)) if replan_times.size else None,
-        "replan_time_us_max": 1e6 * float(replan_times.max()) if replan_times.size else None,
-        "replans_per_episode": float(sum(e.replans for e in eps)) / episodes if episodes else 0.0,
-    }
-    if edge_counts is not None:
-        goals = np.flatnonzero(design_.kinds == GOAL)
-        if start is None and predicted is not None:
-            ci = predicted_interval(edge_counts, design_.centers.shape[0], goals, policy, seed, ci_samples)
-            report["predicted_success_probability_ci95"] = list(ci)
-        report["calibration"] = edge_calibration(eps, edge_counts)
-    report["_episodes"] = eps
-    return report
+    replans = int(sum(e.replans for e in eps))
+    us = lambda a, f: 1e6 * float(f(a)) if a.size else None  # noqa: E731
+    return Results(
+        episodes=eps, successes=successes, collisions=count(COLLISION), timeouts=count(TIMEOUT), stuck=count(STUCK),
+        success_rate=successes / episodes if episodes else 0.0, success_rate_ci95=(float(lo), float(hi)),
+        predicted_success_probability=predicted,
+        prediction_within_ci95=None if predicted is None else bool(lo <= predicted <= hi),
+        predicted_success_probability_ci95=None if predicted is None else predicted_ci95,
+        mean_steps=float(steps.mean()) if episodes else 0.0,
+        mean_cost=float(np.mean([e.cost for e in eps])) if episodes else 0.0,
+        replans=replans, replan_failures=int(sum(e.replan_failures for e in eps)),
+        replanning=settings.enabled, replan_threshold=settings.threshold,
+        disturbances=tuple(str(x) for x in runner.disturbances),
+        disturbances_applied=int(sum(e.disturbances for e in eps)),
+        start=start, event_counts=kinds, seed=seed, seconds=seconds,
+        step_time_us_mean=us(step_times, np.mean) or 0.0,
+        step_time_us_p99=us(step_times, lambda a: np.percentile(a, 99)) or 0.0,
+        replan_time_us_mean=us(replan_times, np.mean),
+        replan_time_us_p99=us(replan_times, lambda a: np.percentile(a, 99)),
+        replan_time_us_max=us(replan_times, np.max),
+        replans_per_episode=replans / episodes if episodes else 0.0,
+        calibration=edge_calibration(eps, edge_counts) if edge_counts is not None else None,
+        policy=policy_name)
 
 
 def edge_counts_of(roadmap) -> EdgeCounts:

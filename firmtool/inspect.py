@@ -1,4 +1,4 @@
-"""A summary of what a roadmap file holds."""
+"""A summary of what a roadmap file holds (``firmtool inspect``)."""
 
 from __future__ import annotations
 
@@ -7,17 +7,22 @@ from pathlib import Path
 import numpy as np
 
 from firmtool.nodes import START_INDEX
+from firmtool.reports import RoadmapSummary
 from firmtool.roadmap import STAGES, Roadmap, read_edge_cache
 from firmtool.scenario import parse_scenario
 
 
-def summarize(path: str | Path) -> dict:
-    """Stages present, sizes, and the solve status of a roadmap file."""
+def summarize(path: str | Path) -> RoadmapSummary:
+    """Stages present, sizes, and the solve status of the roadmap file at ``path``.
+
+    Raises
+    ------
+    RoadmapError, ScenarioError
+        A file that is not a valid roadmap, or whose stored scenario is invalid.
+    """
     rm = Roadmap(path)
     scenario = parse_scenario(rm.scenario_text, f"{path}:scenario_toml")
-    out: dict = {"roadmap": str(path), "schema_version": rm.schema_version, "scenario": scenario.name,
-                 "measurement": scenario.measurement.kind, "seed": rm.seed, "created": rm.created,
-                 "stages": [s for s in STAGES if rm.has(s)]}
+    out: dict = {}
     if rm.has("nodes"):
         c = rm.require("nodes", "centers")["centers"]
         out["nodes"], out["state_dim"] = int(c.shape[0]), int(c.shape[1])
@@ -40,4 +45,6 @@ def summarize(path: str | Path) -> dict:
         out["start_success_probability"] = float(p["success_probability"][START_INDEX])
         j = float(p["cost_to_go"][START_INDEX])
         out["start_cost_to_go"] = j if np.isfinite(j) else None
-    return out
+    return RoadmapSummary(roadmap=str(path), schema_version=rm.schema_version, scenario=scenario.name,
+                          measurement=scenario.measurement.kind, seed=rm.seed, created=rm.created,
+                          stages=tuple(s for s in STAGES if rm.has(s)), **out)

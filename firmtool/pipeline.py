@@ -1,12 +1,16 @@
-"""The offline stages as library calls: sample, design, estimate, solve. Each reads the roadmap file
-the previous stage wrote and adds its own group; each returns a plain dict report (the CLI prints it).
+"""The offline stages as library calls on a roadmap file: sample, design, estimate, solve.
+
+Each reads the roadmap file the previous stage wrote and adds its own group, and returns a typed
+report (:mod:`firmtool.reports`; the command line prints its ``to_dict()``). The DP itself works on a
+roadmap in memory (:func:`solve_policy`), so that :func:`firmtool.solve` needs no file.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse
@@ -16,15 +20,18 @@ from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
 from firmtool.errors import FirmtoolError, RoadmapError, RunFailure
-from firmtool.graph import shortest_path_policy, solve_dp, success_probability
+from firmtool.graph import SolveStatus, shortest_path_policy, solve_dp, success_probability
 from firmtool.kernels import engine_for
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
+from firmtool.reports import (AddNodesReport, BuildReport, DensifyReport, DensifyRound, DesignReport, EstimateReport,
+                              FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget
 from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, read_edge_cache,
                               update_scenario, write_edge_cache, write_stage)
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
+from firmtool.scenario_io import synced
 
 # Seconds between checkpoints of the estimate stage (finished edges written to /edge_cache).
 CHECKPOINT_SECONDS = 10.0
@@ -59,10 +66,44 @@ def design_of(roadmap: Roadmap) -> Design:
                   edge_target=c["edge_target"].astype(np.int64), edge_steps=c["edge_steps"].astype(np.int64))
 
 
-def sample_stage(scenario_path: str | Path, output: str | Path | None) -> dict:
-    """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest)."""
+def execution_design(roadmap: Roadmap) -> Design:
+    """The design with one edge row per row of ``/edges`` (the edges a policy indexes).
+
+    A policy's edge indices are rows of the estimated edge table, which lacks the designed edges
+    whose Monte Carlo failed; execution looks its controllers up by those indices, so it must see
+    the design's edges in that table's order (the same arrays when no edge failed).
+    """
+    d = design_of(roadmap)
+    e = roadmap.require("edges", "source", "target")
+    source, target = e["source"].astype(np.int64), e["target"].astype(np.int64)
+    if np.array_equal(source, d.edge_source) and np.array_equal(target, d.edge_target):
+        return d
+    row = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(d.edge_source, d.edge_target))}
+    try:
+        rows = np.array([row[(int(i), int(j))] for i, j in zip(source, target)], dtype=np.int64)
+    except KeyError as exc:
+        raise RoadmapError(f"{roadmap.path}: /edges holds edge {exc.args[0]} that the design does not have "
+                           "(file damaged)") from None
+    return dataclasses.replace(d, edge_source=source, edge_target=target, edge_steps=d.edge_steps[rows])
+
+
+def as_scenario(scenario: Scenario | str | Path) -> Scenario:
+    """A scenario, or the one in the file at a path; a scenario whose fields no longer say what its
+    text says (changed with :func:`dataclasses.replace`) gets the text of its fields
+    (:func:`firmtool.scenario_io.synced`), since the roadmap stores the text."""
+    return synced(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
+
+
+def sample_stage(scenario: Scenario | str | Path, output: str | Path | None) -> SampleReport:
+    """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
+
+    Parameters
+    ----------
+    scenario : a scenario, or the path of a scenario file.
+    output : the roadmap file to create (replaced atomically); default ``artifacts/NAME.h5``.
+    """
     t0 = time.perf_counter()
-    scenario = load_scenario(scenario_path)
+    scenario = as_scenario(scenario)
     problem = build_problem(scenario)
     check_budget(problem)  # refuse up front what would take hours or exhaust memory
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
@@ -72,8 +113,8 @@ def sample_stage(scenario_path: str | Path, output: str | Path | None) -> dict:
     write_stage(out, "nodes", {"centers": centers, "kind": kinds},
                 {"inputs_sha256": nodes_inputs(scenario), "densify_rounds": 0,
                  "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL)})
-    return {"roadmap": str(out), "nodes": int(centers.shape[0]), "requested_nodes": scenario.roadmap.nodes,
-            "seconds": time.perf_counter() - t0}
+    return SampleReport(roadmap=str(out), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
+                        seconds=time.perf_counter() - t0)
 
 
 def controllers_inputs(roadmap: Roadmap) -> str:
@@ -82,7 +123,7 @@ def controllers_inputs(roadmap: Roadmap) -> str:
     return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
 
 
-def design_stage(path: str | Path) -> dict:
+def design_stage(path: str | Path) -> DesignReport:
     """Design node stabilisers, node regions and edges (nominal trajectories)."""
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
@@ -98,20 +139,29 @@ def design_stage(path: str | Path) -> dict:
                 {"inputs_sha256": controllers_inputs(roadmap),
                  "node_radius": problem.scenario.controller.node_radius,
                  "covariance_tolerance": problem.scenario.controller.covariance_tolerance})
-    return {"roadmap": str(path), "nodes": int(centers.shape[0]), "edges": int(d.edge_source.size),
-            "mean_edge_steps": float(d.edge_steps.mean()), "seconds": time.perf_counter() - t0}
+    return DesignReport(roadmap=str(path), nodes=int(centers.shape[0]), edges=int(d.edge_source.size),
+                        mean_edge_steps=float(d.edge_steps.mean()), seconds=time.perf_counter() - t0)
 
 
 def estimate_stage(path: str | Path, *, workers: int | None = None, executor: str = "process",
                    scheduler: str | None = None,
                    progress_factory: Callable[[int], Callable[[int], None]] | None = None,
-                   checkpoint_seconds: float = CHECKPOINT_SECONDS) -> dict:
+                   checkpoint_seconds: float = CHECKPOINT_SECONDS) -> EstimateReport:
     """Monte Carlo estimation of every edge, in parallel; writes ``/edges``.
 
     Edges whose key (:func:`firmtool.edge_table.edge_keys`) matches a stored estimate, in ``/edges``
     or in ``/edge_cache``, are reused. Finished edges are checkpointed to ``/edge_cache`` every
     ``checkpoint_seconds`` and on Ctrl-C, so an interrupted run resumes where it stopped. An edge
     that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges``.
+
+    Parameters
+    ----------
+    path : a roadmap file with designed controllers.
+    workers : worker processes (default: all cores).
+    executor : ``"process"`` (local) or ``"dask"`` (dask.distributed, ``scheduler`` its address).
+    progress_factory : called with the number of edges to estimate; returns a callback that is
+        told how many more edges finished.
+    checkpoint_seconds : seconds between checkpoints.
     """
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
@@ -124,6 +174,7 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
+        warmup.stop()  # nothing to estimate: no compile to wait for
         e = roadmap.require("edges", "particle_steps")
         return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0, workers or 0, executor,
                                 time.perf_counter() - t0, up_to_date=True)
@@ -177,21 +228,23 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
                 {"inputs_sha256": table_hash if not failed else "incomplete",
                  "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT,
                  "engine_version": ENGINE_VERSION, "failed_edges": len(failed)})
-    failures = [{"edge": e, "source": int(d.edge_source[e]), "target": int(d.edge_target[e]), "error": failed[e]}
+    failures = [FailedEdge(edge=e, source=int(d.edge_source[e]), target=int(d.edge_target[e]), error=failed[e])
                 for e in sorted(failed)]
     simulated = int(sum(est[e].particle_steps for e in new))  # type: ignore[union-attr]
     return _estimate_report(path, sc, E, len(new), reused, failures, int(arrays["particle_steps"].sum()), simulated,
                             workers, executor, time.perf_counter() - t0)
 
 
-def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list, steps: int,
-                     simulated: int, workers: int, executor: str, seconds: float, up_to_date: bool = False) -> dict:
+def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list[FailedEdge],
+                     steps: int, simulated: int, workers: int, executor: str, seconds: float,
+                     up_to_date: bool = False) -> EstimateReport:
     """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
-    return {"roadmap": str(path), "edges": E, "estimated_edges": estimated, "reused_edges": reused,
-            "failed_edges": failures, "up_to_date": up_to_date, "particles_per_edge": sc.estimation.particles,
-            "particle_steps": steps, "simulated_particle_steps": simulated,
-            "particle_steps_per_second": simulated / seconds if seconds and simulated else 0.0,
-            "workers": workers, "executor": executor, "seconds": seconds}
+    return EstimateReport(roadmap=str(path), edges=E, estimated_edges=estimated, reused_edges=reused,
+                          failed_edges=tuple(failures), up_to_date=up_to_date,
+                          particles_per_edge=sc.estimation.particles, particle_steps=steps,
+                          simulated_particle_steps=simulated,
+                          particle_steps_per_second=simulated / seconds if seconds and simulated else 0.0,
+                          workers=workers, executor=executor, seconds=seconds)
 
 
 def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
@@ -210,14 +263,35 @@ def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.nd
     return landing, fail, timeout, e["particles"]
 
 
-def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: str = "value") -> dict:
-    """Solve the constrained graph DP (eq. 12) and the success probabilities; writes ``/policy``.
+@dataclasses.dataclass(frozen=True)
+class PolicyGroup:
+    """The ``/policy`` group of a roadmap, as :func:`solve_policy` computes it and a file stores it.
 
-    Timeouts count as failures. Raises :class:`RunFailure` (after writing the policy) if the goal is
-    unreachable from the start node.
+    Attributes
+    ----------
+    arrays : ``cost_to_go``, ``edge``, ``next_node``, ``success_probability``, ``unreachable``,
+        ``shortest_path_edge``, ``shortest_path_success_probability`` (N,) (``unreachable``: node ids).
+    attrs : ``inputs_sha256``, ``status`` (a :class:`SolveStatus` name), ``iterations``, ``residual``,
+        ``failure_cost``, ``method``.
+    seconds : wall time of the solve (0 for a group read from a file).
+    """
+
+    arrays: dict[str, np.ndarray]
+    attrs: dict[str, Any]
+    seconds: float = 0.0
+
+
+def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value") -> PolicyGroup:
+    """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
+    baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
+
+    Parameters
+    ----------
+    roadmap : a roadmap with estimated edges.
+    failure_cost : J_F (default: the scenario's ``cost.failure_cost``).
+    method : ``"value"`` (value iteration) or ``"policy"`` (policy iteration).
     """
     t0 = time.perf_counter()
-    roadmap = Roadmap(path)
     problem = problem_of(roadmap)
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     cost = edge_costs(roadmap.stages["edges"][0], problem.scenario.cost)
@@ -234,27 +308,58 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     length = np.linalg.norm(centers[edges["target"]] - centers[edges["source"]], axis=1)
     sp = shortest_path_policy(N, goals, edges["source"], edges["target"], length)
     p_sp = success_probability(N, goals, sp, landing)
-    write_stage(path, "policy",
-                {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
-                 "success_probability": p, "unreachable": res.unreachable,
-                 "shortest_path_edge": sp, "shortest_path_success_probability": p_sp},
-                {"inputs_sha256": inputs_hash(roadmap.attrs("edges")["inputs_sha256"], JF, method,
-                                              digest(problem.scenario.cost).hex()),
-                 "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
-                 "failure_cost": JF, "method": method})
-    report = {"roadmap": str(path), "status": res.status.name, "iterations": int(res.iterations),
-              "residual": float(res.residual), "failure_cost": JF, "method": method,
-              "start_cost_to_go": _finite_or_none(res.cost_to_go[START_INDEX]),
-              "start_success_probability": float(p[START_INDEX]),
-              "shortest_path_start_success_probability": float(p_sp[START_INDEX]),
-              "unreachable_nodes": [int(i) for i in res.unreachable],
-              "path": policy_path(res.policy, edges["target"], START_INDEX, goals),
-              "seconds": time.perf_counter() - t0}
-    if not np.isfinite(res.cost_to_go[START_INDEX]):
-        raise RunFailure(f"{path}: the goal is unreachable from the start node under the estimated edges "
-                         f"({len(res.unreachable)} of {N} nodes cannot reach it); add nodes or neighbours",
-                         ) from None
-    return report
+    arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
+              "success_probability": p, "unreachable": res.unreachable,
+              "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
+    attrs = {"inputs_sha256": inputs_hash(roadmap.attrs("edges")["inputs_sha256"], JF, method,
+                                          digest(problem.scenario.cost).hex()),
+             "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
+             "failure_cost": JF, "method": method}
+    return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
+
+
+def write_policy(path: str | Path, group: PolicyGroup) -> None:
+    """Store a solved policy as the ``/policy`` group of the roadmap file at ``path`` (atomically)."""
+    write_stage(path, "policy", group.arrays, group.attrs)
+
+
+def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_target: np.ndarray,
+                 goals: np.ndarray) -> SolveReport:
+    """The summary of a solved policy (what ``firmtool solve --json`` prints)."""
+    a, at = group.arrays, group.attrs
+    return SolveReport(roadmap=None if roadmap_path is None else str(roadmap_path),
+                       status=SolveStatus[str(at["status"])], iterations=int(at["iterations"]),
+                       residual=float(at["residual"]), failure_cost=float(at["failure_cost"]),
+                       method=str(at["method"]), start_cost_to_go=_finite_or_none(a["cost_to_go"][START_INDEX]),
+                       start_success_probability=float(a["success_probability"][START_INDEX]),
+                       shortest_path_start_success_probability=float(
+                           a["shortest_path_success_probability"][START_INDEX]),
+                       unreachable_nodes=tuple(int(i) for i in a["unreachable"]),
+                       path=tuple(policy_path(a["edge"], edge_target, START_INDEX, goals)), seconds=group.seconds)
+
+
+def unreachable_failure(roadmap_path: str | Path | None, unreachable: int, nodes: int) -> RunFailure:
+    """The error of a solve whose goal cannot be reached from the start node."""
+    return RunFailure(f"{roadmap_path or 'roadmap'}: the goal is unreachable from the start node under the estimated "
+                      f"edges ({unreachable} of {nodes} nodes cannot reach it); add nodes or neighbours")
+
+
+def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: str = "value") -> SolveReport:
+    """Solve the roadmap file at ``path`` (:func:`solve_policy`) and write ``/policy``.
+
+    Raises
+    ------
+    RunFailure
+        After writing the policy, if the goal is unreachable from the start node.
+    """
+    roadmap = Roadmap(path)
+    group = solve_policy(roadmap, failure_cost=failure_cost, method=method)
+    write_policy(path, group)
+    J = group.arrays["cost_to_go"]
+    if not np.isfinite(J[START_INDEX]):
+        raise unreachable_failure(path, len(group.arrays["unreachable"]), J.size)
+    goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
+    return solve_report(path, group, roadmap.require("edges", "target")["target"], goals)
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -288,7 +393,7 @@ def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
     return rm
 
 
-def add_nodes_stage(path: str | Path, count: int) -> dict:
+def add_nodes_stage(path: str | Path, count: int) -> AddNodesReport:
     """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
     scenario's minimum separation from the others, from a random stream keyed by the seed and the
     round number (so a densified build is reproducible). Later stages are rebuilt by the caller."""
@@ -309,15 +414,16 @@ def add_nodes_stage(path: str | Path, count: int) -> dict:
     write_stage(path, "nodes", {"centers": centers, "kind": kinds},
                 {**{k: v for k, v in attrs.items() if k not in ("encoding-type", "encoding-version")},
                  "densify_rounds": rounds})
-    return {"added": int(new.shape[0]), "nodes": int(centers.shape[0]), "seconds": time.perf_counter() - t0}
+    return AddNodesReport(added=int(new.shape[0]), nodes=int(centers.shape[0]), seconds=time.perf_counter() - t0)
 
 
-def build(scenario_path: str | Path, output: str | Path | None, *, workers: int | None = None,
+def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers: int | None = None,
           executor: str = "process", scheduler: str | None = None,
           progress_factory: Callable[[int], Callable[[int], None]] | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
-          checkpoint_seconds: float = CHECKPOINT_SECONDS) -> dict:
-    """sample + design + estimate, going on from an existing roadmap at the output when it can.
+          checkpoint_seconds: float = CHECKPOINT_SECONDS) -> BuildReport:
+    """sample + design + estimate into the roadmap file ``output``, going on from an existing roadmap
+    there when it can.
 
     A roadmap whose nodes come from the same inputs (seed, model, measurement, world, task, roadmap
     and controller settings) keeps its nodes and designs; its edges are reused by key, so an
@@ -327,67 +433,72 @@ def build(scenario_path: str | Path, output: str | Path | None, *, workers: int 
     With ``p_min``: solve, and while the start node's success probability is below ``p_min`` and
     the roadmap has fewer than ``max_nodes`` nodes, add ``add_nodes`` nodes (default: a quarter of
     the current count, at least 5), re-design, estimate only the new edges and solve again.
+
+    Parameters
+    ----------
+    scenario : a scenario, or the path of a scenario file.
+    output : the roadmap file (default ``artifacts/NAME.h5``).
+    workers, executor, scheduler, progress_factory, checkpoint_seconds : see :func:`estimate_stage`.
     """
-    scenario = load_scenario(scenario_path)
+    scenario = as_scenario(scenario)
     if not warmup.engine_is_cached():  # a fresh install: compile the engine while sampling and designing
         warmup.start(engine_for(build_problem(scenario)))
     out = Path(output) if output else default_output(scenario)
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
     existing = None if fresh else _resumable(out, scenario)
     if existing is None:
-        s = sample_stage(scenario_path, out)
-        seconds["sample"] = s["seconds"]
+        seconds["sample"] = sample_stage(scenario, out).seconds
     elif existing.scenario_sha256 != scenario.sha256:
         update_scenario(out, scenario.text, scenario.sha256)
     totals = {"estimated_edges": 0, "simulated_particle_steps": 0}
-    failed: list[dict] = []
+    failed: list[FailedEdge] = []
 
-    def design_and_estimate() -> dict:
+    def design_and_estimate() -> EstimateReport:
         rm = Roadmap(out)
         if not (rm.has("controllers") and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
-            seconds["design"] += design_stage(out)["seconds"]
+            seconds["design"] += design_stage(out).seconds
         e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
                            progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
-        seconds["estimate"] += e["seconds"]
-        totals["estimated_edges"] += e["estimated_edges"]
-        totals["simulated_particle_steps"] += e["simulated_particle_steps"]
-        failed[:] = e["failed_edges"]
+        seconds["estimate"] += e.seconds
+        totals["estimated_edges"] += e.estimated_edges
+        totals["simulated_particle_steps"] += e.simulated_particle_steps
+        failed[:] = e.failed_edges
         return e
 
     e = design_and_estimate()
-    report: dict = {"roadmap": str(out), "resumed": existing is not None}
+    densify = None
     if p_min is not None:
-        report["densify"] = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate)
-        e = report["densify"].pop("_last_estimate", e)
+        densify, last = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate)
+        e = last or e
     else:
         del seconds["solve"]
     rm = Roadmap(out)
     nodes = rm.require("nodes", "centers")["centers"].shape[0]
     rate = totals["simulated_particle_steps"] / seconds["estimate"] if seconds["estimate"] else 0.0
-    report.update({"nodes": int(nodes), "edges": e["edges"], "estimated_edges": totals["estimated_edges"],
-                   "reused_edges": e["reused_edges"], "failed_edges": failed,
-                   "particles_per_edge": e["particles_per_edge"], "particle_steps": e["particle_steps"],
-                   "simulated_particle_steps": totals["simulated_particle_steps"],
-                   "particle_steps_per_second": rate, "workers": workers or default_workers(),
-                   "executor": executor, "seconds": seconds})
-    return report
+    return BuildReport(roadmap=str(out), resumed=existing is not None, nodes=int(nodes), edges=e.edges,
+                       estimated_edges=totals["estimated_edges"], reused_edges=e.reused_edges,
+                       failed_edges=tuple(failed), particles_per_edge=e.particles_per_edge,
+                       particle_steps=e.particle_steps, simulated_particle_steps=totals["simulated_particle_steps"],
+                       particle_steps_per_second=rate, workers=workers or default_workers(), executor=executor,
+                       seconds=seconds, densify=densify)
 
 
 def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | None, seconds: dict,
-             design_and_estimate: Callable[[], dict]) -> dict:
-    """The p_min loop of :func:`build`; returns its rounds and why it stopped."""
+             design_and_estimate: Callable[[], EstimateReport]) -> tuple[DensifyReport, EstimateReport | None]:
+    """The p_min loop of :func:`build`: its report, and the last round's estimate report (None if
+    no round added nodes)."""
     rounds = []
     last = None
     while True:
         try:
             sol = solve_stage(out)
-            p = sol["start_success_probability"]
-            seconds["solve"] += sol["seconds"]
+            p = sol.start_success_probability
+            seconds["solve"] += sol.seconds
         except RunFailure:  # the goal is not reachable yet: that is what densification is for
             p = 0.0
         nodes = Roadmap(out).require("nodes", "centers")["centers"].shape[0]
-        rounds.append({"nodes": int(nodes), "start_success_probability": float(p),
-                       "estimated_edges": last["estimated_edges"] if last else None})
+        rounds.append(DensifyRound(nodes=int(nodes), start_success_probability=float(p),
+                                   estimated_edges=last.estimated_edges if last else None))
         if p >= p_min:
             reason = f"reached p_min: start success probability {p:.4f} >= {p_min:g} with {nodes} nodes"
             break
@@ -397,13 +508,11 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
             break
         count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
         added = add_nodes_stage(out, count)
-        seconds["sample"] += added["seconds"]
-        if added["added"] == 0:
+        seconds["sample"] += added.seconds
+        if added.added == 0:
             reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"
             break
         last = design_and_estimate()
-    result = {"p_min": p_min, "max_nodes": max_nodes, "reached": p >= p_min, "reason": reason, "rounds": rounds,
-              "start_success_probability": float(p)}
-    if last is not None:
-        result["_last_estimate"] = last
-    return result
+    report = DensifyReport(p_min=p_min, max_nodes=max_nodes, reached=p >= p_min, reason=reason, rounds=tuple(rounds),
+                           start_success_probability=float(p))
+    return report, last

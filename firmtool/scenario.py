@@ -556,3 +556,52 @@ def _read_execution(t: _Table) -> ExecutionSpec:
     spec = ExecutionSpec(max_steps=t.number("max_steps", 5000, integer=True, positive=True))
     t.finish()
     return spec
+
+
+# -- Scenarios from Python values, and back to TOML (the work is done in firmtool.scenario_io) ------
+# Attached here so that every Scenario has them, however it was made.
+
+def _from_dict(cls: type[Scenario], tables: dict, path: str = "<dict>") -> Scenario:
+    """A scenario from its TOML tables as Python values, validated as a file would be
+    (:func:`firmtool.scenario_io.scenario_from_dict`)."""
+    from firmtool.scenario_io import scenario_from_dict
+    return scenario_from_dict(tables, path)
+
+
+def _from_toml(cls: type[Scenario], text: str, path: str = "<string>") -> Scenario:
+    """A scenario from TOML text (:func:`parse_scenario`)."""
+    return parse_scenario(text, path)
+
+
+def _to_dict(self: Scenario) -> dict:
+    """The scenario's TOML tables as Python values (:func:`firmtool.scenario_io.scenario_to_dict`)."""
+    from firmtool.scenario_io import scenario_to_dict
+    return scenario_to_dict(self)
+
+
+def _to_toml(self: Scenario) -> str:
+    """The scenario as TOML text (:func:`firmtool.scenario_io.scenario_to_toml`)."""
+    from firmtool.scenario_io import scenario_to_toml
+    return scenario_to_toml(self)
+
+
+def _replace(self: Scenario, **changes: Any) -> Scenario:
+    """A copy with some settings changed, validated: ``sc.replace(seed=3, estimation={"particles": 100})``
+    (:func:`firmtool.scenario_io.replace_scenario`)."""
+    from firmtool.scenario_io import replace_scenario
+    return replace_scenario(self, **changes)
+
+
+def _eq(self: Scenario, other: object) -> bool:
+    """Two scenarios are equal when they say the same thing (name, seed, every section), whatever
+    their file name, text or comments (:func:`firmtool.scenario_io.same_settings`)."""
+    from firmtool.scenario_io import same_settings
+    return same_settings(self, other)
+
+
+Scenario.from_dict = classmethod(_from_dict)  # type: ignore[attr-defined]
+Scenario.from_toml = classmethod(_from_toml)  # type: ignore[attr-defined]
+Scenario.to_dict = _to_dict  # type: ignore[attr-defined]
+Scenario.to_toml = _to_toml  # type: ignore[attr-defined]
+Scenario.replace = _replace  # type: ignore[attr-defined]
+Scenario.__eq__ = _eq  # type: ignore[method-assign]

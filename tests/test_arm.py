@@ -71,5 +71,5 @@ def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     assert min_x["shortest_path_edge"] > -0.3  # baseline: the shorter right passage
     firm = execute(problem, design, pol["edge"], 100, 1, predicted=float(pol["success_probability"][0]))
     base = execute(problem, design, pol["shortest_path_edge"], 100, 1)
-    assert firm["success_rate_ci95"][0] > base["success_rate_ci95"][1]
-    assert firm["prediction_within_ci95"]
+    assert firm.success_rate_ci95[0] > base.success_rate_ci95[1]
+    assert firm.prediction_within_ci95

@@ -14,8 +14,8 @@ from firmtool.edges import initial_ensemble, simulate
 from firmtool.episodes_io import load_episodes
 from firmtool.errors import InputError
 from firmtool.execute import (EV_DISTURBANCE, EV_REPLAN, Executor, ReplanSettings, edge_counts_of, execute,
-                              wilson_interval)
-from firmtool.nodes import START_INDEX
+                              predicted_interval, wilson_interval)
+from firmtool.nodes import GOAL, START_INDEX
 from firmtool.pipeline import design_of, problem_of
 from firmtool.roadmap import Roadmap
 
@@ -32,9 +32,12 @@ def smoke(smoke_roadmap):
 
 def run(smoke, episodes=30, seed=1, **kw):
     _, rm, problem, design, pol = smoke
-    return execute(problem, design, pol["edge"].astype(np.int64), episodes, seed,
-                   predicted=float(pol["success_probability"][START_INDEX]), cost_to_go=pol["cost_to_go"],
-                   edge_counts=edge_counts_of(rm), ci_samples=200, **kw)
+    counts, edges = edge_counts_of(rm), pol["edge"].astype(np.int64)
+    ci = None if kw.get("start") is not None else \
+        predicted_interval(counts, design.centers.shape[0], np.flatnonzero(design.kinds == GOAL), edges, seed, 200)
+    return execute(problem, design, edges, episodes, seed,
+                   predicted=None if kw.get("start") is not None else float(pol["success_probability"][START_INDEX]),
+                   cost_to_go=pol["cost_to_go"], edge_counts=counts, predicted_ci95=ci, **kw)
 
 
 # -- disturbance specifications -------------------------------------------------------------------
@@ -113,19 +116,19 @@ def test_executor_membership_is_the_node_regions_one(smoke):
 def test_push_triggers_counted_replans_and_no_replan_gives_none(smoke):
     dists = parse_disturbances(["push:8:1.0"])
     on = run(smoke, disturbances=dists)
-    assert on["disturbances_applied"] > 0 and on["replans"] > 0
-    events = [ev for ep in on["_episodes"] for ev in ep.events]
-    assert on["replans"] == sum(ev.kind == EV_REPLAN for ev in events) == sum(ep.replans for ep in on["_episodes"])
+    assert on.disturbances_applied > 0 and on.replans > 0
+    events = [ev for ep in on.episodes for ev in ep.events]
+    assert on.replans == sum(ev.kind == EV_REPLAN for ev in events) == sum(ep.replans for ep in on.episodes)
     assert all(ev.value == pytest.approx(1.0) for ev in events if ev.kind == EV_DISTURBANCE)
-    assert on["replan_time_us_mean"] > 0
+    assert on.replan_time_us_mean > 0
     off = run(smoke, disturbances=dists, replan=ReplanSettings(enabled=False))
-    assert off["replans"] == 0 and off["replan_time_us_mean"] is None
-    assert off["disturbances_applied"] == on["disturbances_applied"] or off["disturbances_applied"] > 0
+    assert off.replans == 0 and off.replan_time_us_mean is None
+    assert off.disturbances_applied == on.disturbances_applied or off.disturbances_applied > 0
 
 
 def test_kidnap_ends_with_a_clear_event(smoke):
     rep = run(smoke, episodes=10, disturbances=parse_disturbances(["kidnap:5"]))
-    for ep in rep["_episodes"]:
+    for ep in rep.episodes:
         kinds = [ev.kind for ev in ep.events]
         if "disturbance" in kinds:
             assert kinds[-1] in ("goal", "collision", "timeout", "stuck")
@@ -141,9 +144,9 @@ def test_same_seed_same_results(smoke):
     dists = parse_disturbances(["push:random:0.6:0.05", "kidnap:random:0.01"])
     a, b = run(smoke, episodes=10, seed=7, disturbances=dists), run(smoke, episodes=10, seed=7, disturbances=dists)
     keys = ("successes", "collisions", "mean_steps", "mean_cost", "replans", "disturbances_applied")
-    assert [a[k] for k in keys] == [b[k] for k in keys]
-    assert [[(e.step, e.kind, e.node) for e in ep.events] for ep in a["_episodes"]] == \
-           [[(e.step, e.kind, e.node) for e in ep.events] for ep in b["_episodes"]]
+    assert [getattr(a, k) for k in keys] == [getattr(b, k) for k in keys]
+    assert [[(e.step, e.kind, e.node) for e in ep.events] for ep in a.episodes] == \
+           [[(e.step, e.kind, e.node) for e in ep.events] for ep in b.episodes]
 
 
 def test_step_time_is_reported_in_microseconds(smoke):
@@ -152,17 +155,17 @@ def test_step_time_is_reported_in_microseconds(smoke):
     t0 = time.perf_counter()
     rep = run(smoke, episodes=5)
     wall_us = 1e6 * (time.perf_counter() - t0)
-    steps = sum(ep.step_times.size for ep in rep["_episodes"])
-    assert steps > 0 and 0.1 < rep["step_time_us_mean"] <= rep["step_time_us_p99"]
-    assert rep["step_time_us_mean"] * steps <= wall_us
+    steps = sum(ep.step_times.size for ep in rep.episodes)
+    assert steps > 0 and 0.1 < rep.step_time_us_mean <= rep.step_time_us_p99
+    assert rep.step_time_us_mean * steps <= wall_us
 
 
 def test_initial_controller_from_a_start_in_no_node(smoke):
     _, _, problem, design, _ = smoke
     rep = run(smoke, episodes=5, start=np.array([0.5, 2.5]))
-    starts = [ep.events[1].kind for ep in rep["_episodes"]]
-    assert all(k == "initial_controller" for k in starts) and rep["predicted_success_probability_ci95"] is None
-    assert rep["successes"] >= 3
+    starts = [ep.events[1].kind for ep in rep.episodes]
+    assert all(k == "initial_controller" for k in starts) and rep.predicted_success_probability_ci95 is None
+    assert rep.successes >= 3
     with pytest.raises(InputError, match="collision"):
         run(smoke, episodes=1, start=np.array([2.0, 1.2]))  # inside the obstacle
 
@@ -190,16 +193,16 @@ def test_saved_episodes_are_readable_with_the_right_shapes(smoke, tmp_path):
 
 def test_calibration_passes_on_undisturbed_smoke(smoke):
     rep = run(smoke, episodes=150, seed=3)
-    cal = rep["calibration"]
-    assert cal["edges_checked"] >= 1 and cal["ok"], cal["flagged_edges"]
-    lo, hi = rep["predicted_success_probability_ci95"]
+    cal = rep.calibration
+    assert cal.edges_checked >= 1 and cal.ok, cal.flagged_edges
+    lo, hi = rep.predicted_success_probability_ci95
     # the posterior keeps failure possible on every policy edge: with no failure in the counts the point
     # estimate (1.0) may sit just above the interval; the executed rate's interval must overlap it
-    assert 0 < lo <= hi <= 1 and hi >= rep["predicted_success_probability"] - 0.02
-    x_lo, x_hi = rep["success_rate_ci95"]
+    assert 0 < lo <= hi <= 1 and hi >= rep.predicted_success_probability - 0.02
+    x_lo, x_hi = rep.success_rate_ci95
     assert x_lo <= hi and lo <= x_hi
     # few false alarms without disturbances (the smoke single integrator sits near the default threshold)
-    assert rep["replans"] <= 0.2 * rep["episodes"]
+    assert rep.replans <= 0.2 * len(rep.episodes)
 
 
 # -- replanning: the belief reset, valid estimates, the Monte Carlo choice of node -----------------------
@@ -257,10 +260,10 @@ def test_monte_carlo_score_charges_failures(smoke):
 def test_replans_are_scored_by_monte_carlo_unless_disabled(smoke):
     dists = parse_disturbances(["push:8:1.0"])
     on = run(smoke, episodes=10, disturbances=dists)
-    details = [ev.detail for ep in on["_episodes"] for ev in ep.events if ev.kind == EV_REPLAN]
+    details = [ev.detail for ep in on.episodes for ev in ep.events if ev.kind == EV_REPLAN]
     assert details and all("scored" in t for t in details)
     cheap = run(smoke, episodes=10, disturbances=dists, replan=ReplanSettings(risk_particles=0))
-    details = [ev.detail for ep in cheap["_episodes"] for ev in ep.events if ev.kind == EV_REPLAN]
+    details = [ev.detail for ep in cheap.episodes for ev in ep.events if ev.kind == EV_REPLAN]
     assert details and not any("scored" in t for t in details)
     with pytest.raises(InputError, match="risk_particles"):
         ReplanSettings(risk_particles=-1)
@@ -271,7 +274,7 @@ def test_keeping_the_running_controller_is_a_scored_choice(smoke):
     replan is considered for a window of steps."""
     rep = run(smoke, episodes=20, disturbances=parse_disturbances(["push:30:1.5", "kidnap:20"]))
     kept = scored = 0
-    for ep in rep["_episodes"]:
+    for ep in rep.episodes:
         for ev in ep.events:
             if ev.kind == "kept_controller":
                 kept += 1
@@ -290,7 +293,7 @@ def test_replan_after_an_alarm_starts_near_the_true_state(smoke):
     refuted: the estimate error at the replan is well below the error a step before."""
     rep = run(smoke, episodes=20, disturbances=parse_disturbances(["push:30:1.5"]), record=True)
     before, after = [], []
-    for ep in rep["_episodes"]:
+    for ep in rep.episodes:
         alarms = {ev.step for ev in ep.events if ev.kind == "innovation_alarm"}
         err = np.linalg.norm(ep.states[:, :2] - ep.estimates[:, :2], axis=1)
         for ev in ep.events:
@@ -338,8 +341,8 @@ def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
     np.testing.assert_allclose(P, periodic_node(problem, start).P)
     assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0)
     rep = execute(problem, d, policy, 3, 0, cost_to_go=np.array([1.0, 0.0]), start=start)
-    assert all(ep.events[1].kind == "initial_controller" for ep in rep["_episodes"])
-    assert rep["successes"] >= 2
+    assert all(ep.events[1].kind == "initial_controller" for ep in rep.episodes)
+    assert rep.successes >= 2
 
 
 def test_unicycle_task_heading_error_names_the_heading():

@@ -75,7 +75,7 @@ def test_two_workers_give_the_one_worker_table(designed, tmp_path):
     copy = tmp_path / "two.h5"
     shutil.copyfile(path, copy)
     report = estimate_stage(copy, workers=2)
-    assert report["estimated_edges"] == reference["source"].size and report["failed_edges"] == []
+    assert report.estimated_edges == reference["source"].size and report.failed_edges == ()
     _assert_same_tables(_edges(copy), reference)
 
 
@@ -115,7 +115,7 @@ def test_the_engine_is_chosen_once_keyed_and_run_by_every_worker(designed, tmp_p
     estimate_stage(copy, workers=1)
     monkeypatch.setenv(ENGINE_ENV, "numpy")
     report = estimate_stage(copy, workers=1)
-    assert report["estimated_edges"] == reference["source"].size and report["reused_edges"] == 0
+    assert report.estimated_edges == reference["source"].size and report.reused_edges == 0
 
 
 def test_batch_size_does_not_change_results(designed, tmp_path):
@@ -194,7 +194,7 @@ def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, si
     E = rm.require("controllers", "edge_source")["edge_source"].size
     assert cached <= E
     report = build(scenario, out, workers=2)
-    assert report["resumed"] and report["reused_edges"] == cached and report["estimated_edges"] == E - cached
+    assert report.resumed and report.reused_edges == cached and report.estimated_edges == E - cached
     clean = tmp_path / "clean.h5"
     build(scenario, clean, workers=1)
     _assert_same_tables(_edges(out), _edges(clean))
@@ -207,10 +207,10 @@ def test_a_complete_build_is_not_redone(tmp_path):
     build(scenario, out, workers=1)
     solve_stage(out)
     again = build(scenario, out, workers=1)
-    assert again["resumed"] and again["estimated_edges"] == 0 and again["simulated_particle_steps"] == 0
+    assert again.resumed and again.estimated_edges == 0 and again.simulated_particle_steps == 0
     assert Roadmap(out).has("policy")  # nothing changed: the policy is still valid
     fresh = build(scenario, out, workers=1, fresh=True)
-    assert not fresh["resumed"] and fresh["estimated_edges"] == fresh["edges"]
+    assert not fresh.resumed and fresh.estimated_edges == fresh.edges
 
 
 def test_cost_weights_resolve_without_reestimating(tmp_path):
@@ -221,9 +221,9 @@ def test_cost_weights_resolve_without_reestimating(tmp_path):
     reweighted = _scenario(tmp_path, "b.toml", **{"alpha_time = 0.1": "alpha_time = 2.5",
                                                   "failure_cost = 100.0": "failure_cost = 400.0"})
     report = build(reweighted, out, workers=1)
-    assert report["resumed"] and report["estimated_edges"] == 0 and report["reused_edges"] == report["edges"]
+    assert report.resumed and report.estimated_edges == 0 and report.reused_edges == report.edges
     after = solve_stage(out)
-    assert after["failure_cost"] == 400.0 and after["start_cost_to_go"] > before["start_cost_to_go"]
+    assert after.failure_cost == 400.0 and after.start_cost_to_go > before.start_cost_to_go
     e = _edges(out)
     np.testing.assert_allclose(e["cost_mean"], e["cost_terms_mean"] @ np.array([1.0, 2.5, 0.0]))
     # independent truth: a fresh build with the new weights simulates the same particles
@@ -232,14 +232,14 @@ def test_cost_weights_resolve_without_reestimating(tmp_path):
     f = _edges(fresh)
     np.testing.assert_allclose(e["cost_mean"], f["cost_mean"], rtol=1e-12)
     np.testing.assert_allclose(e["cost_std"], f["cost_std"], rtol=1e-9)
-    assert solve_stage(fresh)["start_cost_to_go"] == pytest.approx(after["start_cost_to_go"], rel=1e-12)
+    assert solve_stage(fresh).start_cost_to_go == pytest.approx(after.start_cost_to_go, rel=1e-12)
 
 
 def test_more_particles_reestimate_every_edge(tmp_path):
     out = tmp_path / "p.h5"
     build(_scenario(tmp_path, "a.toml"), out, workers=1)
     report = build(_scenario(tmp_path, "b.toml", **{"particles = 100": "particles = 120"}), out, workers=1)
-    assert report["resumed"] and report["estimated_edges"] == report["edges"] and report["reused_edges"] == 0
+    assert report.resumed and report.estimated_edges == report.edges and report.reused_edges == 0
 
 
 def _edge_pairs(path: Path) -> set[tuple[int, int]]:
@@ -255,17 +255,17 @@ def test_densification_estimates_only_new_edges_and_stops_on_its_budget(tmp_path
     first_nodes = Roadmap(out).require("nodes", "centers")["centers"].shape[0]
     first_pairs = _edge_pairs(out)
     report = build(scenario, out, workers=1, p_min=0.999, max_nodes=first_nodes + 8, add_nodes=4)
-    dens = report["densify"]
-    assert [r["nodes"] for r in dens["rounds"]] == [first_nodes, first_nodes + 4, first_nodes + 8]
-    assert not dens["reached"] and "node budget spent" in dens["reason"]
-    assert dens["start_success_probability"] < 0.999
+    dens = report.densify
+    assert [r.nodes for r in dens.rounds] == [first_nodes, first_nodes + 4, first_nodes + 8]
+    assert not dens.reached and "node budget spent" in dens.reason
+    assert dens.start_success_probability < 0.999
     # the last round estimated exactly the edges with an endpoint among its new nodes, reused the rest
     pairs = _edge_pairs(out)
     last_batch = set(range(first_nodes + 4, first_nodes + 8))
     touching = {p for p in pairs if last_batch & set(p)}
-    assert dens["rounds"][-1]["estimated_edges"] == len(touching) > 0
-    assert report["reused_edges"] == len(pairs - touching) > 0
-    assert report["estimated_edges"] == sum(r["estimated_edges"] for r in dens["rounds"][1:])
+    assert dens.rounds[-1].estimated_edges == len(touching) > 0
+    assert report.reused_edges == len(pairs - touching) > 0
+    assert report.estimated_edges == sum(r.estimated_edges for r in dens.rounds[1:])
     # adding nodes never creates an edge between two old nodes (k nearest neighbours only lose members)
     first_batch = set(range(first_nodes, first_nodes + 4))
     assert {p for p in pairs if not (first_batch | last_batch) & set(p)} <= first_pairs
@@ -286,7 +286,7 @@ def test_densification_cli_reports_reached_or_budget(tmp_path):
     dens = json.loads(r.stdout)["densify"]
     assert dens["reached"] and dens["start_success_probability"] >= 0.5
     assert dens["rounds"][-1]["start_success_probability"] == dens["start_success_probability"]
-    assert solve_stage(out)["start_success_probability"] == pytest.approx(dens["start_success_probability"])
+    assert solve_stage(out).start_success_probability == pytest.approx(dens["start_success_probability"])
     r = runner.invoke(app, ["build", str(scenario), "-o", str(out), "-w", "1", "--p-min", "1.0",
                             "--max-nodes", str(dens["rounds"][-1]["nodes"])])
     assert r.exit_code == 1 and "node budget spent" in r.output
@@ -316,15 +316,15 @@ def test_failing_edge_is_retried_once_then_reported(designed, tmp_path, monkeypa
     bad = (int(reference["source"][3]), int(reference["target"][3]))
     monkeypatch.setattr(firmtool.parallel, "estimate_edge", _flaky(tmp_path, bad, "always"))
     report = estimate_stage(copy, workers=workers)
-    (failure,) = report["failed_edges"]
-    assert (failure["source"], failure["target"]) == bad and failure["edge"] == 3
-    assert "FloatingPointError: injected failure" in failure["error"] and "test_parallel.py" in failure["error"]
+    (failure,) = report.failed_edges
+    assert (failure.source, failure.target) == bad and failure.edge == 3
+    assert "FloatingPointError: injected failure" in failure.error and "test_parallel.py" in failure.error
     e = _edges(copy)
     assert e["source"].size == reference["source"].size - 1 and bad not in set(zip(e["source"], e["target"]))
     # the others are exactly what a clean run gives; a re-run estimates only the missing edge
     monkeypatch.setattr(firmtool.parallel, "estimate_edge", real_estimate_edge)
     again = estimate_stage(copy, workers=1)
-    assert again["estimated_edges"] == 1 and again["failed_edges"] == []
+    assert again.estimated_edges == 1 and again.failed_edges == ()
     _assert_same_tables(_edges(copy), reference)
 
 
@@ -336,7 +336,7 @@ def test_transient_failure_and_dead_worker_are_retried(designed, tmp_path, monke
     bad = (int(reference["source"][5]), int(reference["target"][5]))
     monkeypatch.setattr(firmtool.parallel, "estimate_edge", _flaky(tmp_path, bad, mode))
     report = estimate_stage(copy, workers=workers)
-    assert report["failed_edges"] == [] and (tmp_path / f"failed-{bad[0]}-{bad[1]}").exists()
+    assert report.failed_edges == () and (tmp_path / f"failed-{bad[0]}-{bad[1]}").exists()
     _assert_same_tables(_edges(copy), reference)
 
 
@@ -368,10 +368,10 @@ def test_dask_failing_edge_is_retried_once_then_reported(designed, tmp_path, mon
         report = estimate_stage(copy, workers=2, executor="dask", scheduler=cluster.scheduler_address)
     assert (tmp_path / f"failed-{bad[0]}-{bad[1]}").exists()
     if mode == "once":
-        assert report["failed_edges"] == []
+        assert report.failed_edges == ()
         _assert_same_tables(_edges(copy), reference)
         return
-    (failure,) = report["failed_edges"]
-    assert (failure["source"], failure["target"]) == bad and "FloatingPointError: injected failure" in failure["error"]
+    (failure,) = report.failed_edges
+    assert (failure.source, failure.target) == bad and "FloatingPointError: injected failure" in failure.error
     e = _edges(copy)
     assert e["source"].size == reference["source"].size - 1 and bad not in set(zip(e["source"], e["target"]))

@@ -7,7 +7,7 @@ from typer.testing import CliRunner
 
 from firmtool.cli import app
 from firmtool.models import planar_arm
-from firmtool.plot import point_covariance, point_jacobian
+from firmtool.figures import point_covariance, point_jacobian
 from firmtool.problem import build_problem
 from firmtool.scenario import load_scenario
 from conftest import ROOT

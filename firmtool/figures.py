@@ -1,5 +1,10 @@
 """Figures of a roadmap, its policies and executed episodes (the paper's Fig. 1), for any robot.
 
+:func:`panel` draws one panel into a matplotlib Axes; the public calls are :func:`firmtool.plot`
+(one panel) and :func:`firmtool.api.plot_policies` (panels side by side, ``firmtool plot``). Nothing
+here selects a matplotlib backend, so a notebook keeps its own. (Named ``figures``, not ``plot``: a
+submodule ``firmtool.plot`` would replace the function ``firmtool.plot`` as soon as it was imported.)
+
 Only :attr:`Problem.points` is used to draw the robot (a polyline of its key points; the last one,
 the arm's tip or the point robot itself, is the one followed), so a new robot needs no change here.
 The belief of the followed point is drawn as its mean path with 3-sigma ellipses of the covariance
@@ -11,18 +16,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle, Ellipse, Rectangle
 
-matplotlib.use("Agg")  # headless: figures are files
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
-from matplotlib.patches import Circle, Ellipse, Rectangle  # noqa: E402
-
-from firmtool.atomic import replacing  # noqa: E402
-from firmtool.design import Design  # noqa: E402
-from firmtool.nodes import GOAL, START_INDEX  # noqa: E402
-from firmtool.problem import Problem  # noqa: E402
+from firmtool.atomic import replacing
+from firmtool.design import Design
+from firmtool.nodes import GOAL, START_INDEX
+from firmtool.problem import Problem
+from firmtool.results import Episode
 
 OBSTACLE_COLOR = "#8c564b"  # brown, as in the paper
 GOAL_COLOR = "#9467bd"  # purple
@@ -36,9 +39,9 @@ class PanelData:
     name: str
     policy: np.ndarray  # (N,) edge per node
     predicted: float | None
-    episode: object | None = None  # execute.Episode with states/estimates/covariances recorded
+    episode: Episode | None = None  # with states/estimates/covariances recorded
     executed: tuple[float, float, float] | None = None  # (rate, lo, hi)
-    seed: int | None = None
+    label: str | None = None  # which episode is drawn, e.g. "episode 3 of seed 0"
 
 
 def point_jacobian(problem: Problem, X: np.ndarray, eps: float = 1e-6) -> np.ndarray:
@@ -104,7 +107,10 @@ def _robot(ax, problem: Problem, state: np.ndarray, color: str, label: str, lw: 
         ax.plot(pts[:, 0], pts[:, 1], "-o", color=color, lw=lw, ms=3, zorder=6, label=label)
 
 
-def _panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
+def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
+    """Draw one panel into ``ax``: obstacles, sensing field, goal, roadmap, the policy's path, the
+    robot at the start, and the episode's belief of the followed point. ``design``'s edge arrays
+    must be the ones ``data.policy`` indexes."""
     from firmtool.pipeline import policy_path
 
     _background(ax, problem)
@@ -141,27 +147,17 @@ def _panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
     if data.executed is not None:
         rate, lo, hi = data.executed
         title += f", executed {rate:.3f} [{lo:.3f}, {hi:.3f}]"
-    if ep is not None and data.seed is not None:
-        title += f"\nepisode seed {data.seed}: {ep.outcome}, {ep.steps} steps"
+    if ep is not None and data.label is not None:
+        title += f"\n{data.label}: {ep.outcome}, {ep.steps} steps"
     ax.set_title(title, fontsize=9)
     ax.legend(loc="lower left", fontsize=6, framealpha=0.8)
 
 
-def plot_roadmap(problem: Problem, design: Design, panels: list[PanelData], *, dpi: int = 120) -> plt.Figure:
-    """One panel per policy, side by side: obstacles, sensing field, goal, roadmap, policy path,
-    the robot at the start, and the executed episode's belief of the followed point."""
-    fig, axes = plt.subplots(1, len(panels), figsize=(6.0 * len(panels), 6.0), dpi=dpi, squeeze=False)
-    for ax, data in zip(axes[0], panels):
-        _panel(ax, problem, design, data)
-    fig.suptitle(f"{problem.scenario.name} ({problem.scenario.measurement.kind} measurements)")
-    fig.tight_layout()
-    return fig
-
-
-def save_figure(fig: plt.Figure, path: str | Path) -> None:
+def save_figure(fig: Figure, path: str | Path) -> None:
     """Write a PNG atomically (temporary file in the same folder, then rename)."""
-    try:
-        with replacing(path, suffix=".png") as tmp:
-            fig.savefig(tmp, format="png")
-    finally:
+    with replacing(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    if fig.canvas.manager is not None:  # a pyplot figure: let pyplot forget it
+        import matplotlib.pyplot as plt
+
         plt.close(fig)

@@ -1,0 +1,284 @@
+"""Typed reports of the offline stages (sample, design, estimate, build, solve) and their one JSON form.
+
+Every stage returns a frozen dataclass; ``report.to_dict()`` is what ``firmtool ... --json`` prints,
+built by :func:`to_jsonable` for every report and result type of the package (execution results in
+:mod:`firmtool.results` use it too), so the command line and the library cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from firmtool.graph import SolveStatus
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Plain JSON types from a report value.
+
+    Dataclasses become dicts of their fields (or their own ``to_dict()``), enums their value when it
+    is a string (event kinds, outcomes) and their name otherwise (``SolveStatus.CONVERGED`` ->
+    ``"CONVERGED"``), arrays and tuples lists, NumPy scalars Python numbers, paths strings.
+    Non-finite floats are left as they are (the command line decides how to print them).
+    """
+    if hasattr(obj, "to_dict") and dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return obj.to_dict()
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, enum.Enum):
+        return obj.value if isinstance(obj, str) else obj.name
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, Mapping):
+        return {str(to_jsonable(k)): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    return obj
+
+
+class Report:
+    """Base of the typed reports: ``to_dict()`` gives the JSON-ready dict of the fields.
+
+    A subclass may rename fields in its JSON form (``_json_names``) or leave some out
+    (``_json_skip``), e.g. arrays that belong to the library object but not to a summary.
+    """
+
+    _json_names: ClassVar[Mapping[str, str]] = {}
+    _json_skip: ClassVar[frozenset[str]] = frozenset()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as plain JSON types (what ``--json`` prints)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            if f.name in self._json_skip:
+                continue
+            out[self._json_names.get(f.name, f.name)] = to_jsonable(getattr(self, f.name))
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleReport(Report):
+    """The sample stage: a new roadmap file with its nodes.
+
+    Attributes
+    ----------
+    roadmap : the roadmap file written.
+    nodes : nodes sampled (start and goal nodes included).
+    requested_nodes : the scenario's ``roadmap.nodes``.
+    seconds : wall time of the stage.
+    """
+
+    roadmap: str
+    nodes: int
+    requested_nodes: int
+    seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class DesignReport(Report):
+    """The design stage: node stabilisers and edges.
+
+    Attributes
+    ----------
+    roadmap : the roadmap file.
+    nodes, edges : sizes of the design (edges: directed, collision-free nominal trajectories).
+    mean_edge_steps : mean nominal length of the edges, in control steps.
+    seconds : wall time of the stage.
+    """
+
+    roadmap: str
+    nodes: int
+    edges: int
+    mean_edge_steps: float
+    seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class FailedEdge(Report):
+    """An edge whose Monte Carlo failed twice: left out of ``/edges`` (its index is the design's)."""
+
+    edge: int
+    source: int
+    target: int
+    error: str
+
+
+@dataclasses.dataclass(frozen=True)
+class EstimateReport(Report):
+    """The estimate stage: Monte Carlo outcome counts of every edge.
+
+    Attributes
+    ----------
+    roadmap : the roadmap file.
+    edges : designed edges.
+    estimated_edges : edges estimated by this run.
+    reused_edges : edges whose stored estimate (same key) was reused.
+    failed_edges : edges that failed twice and were left out.
+    up_to_date : True when the stored edge table already matched and nothing ran.
+    particles_per_edge : the scenario's ``estimation.particles``.
+    particle_steps : particle-steps of the whole edge table.
+    simulated_particle_steps : particle-steps simulated by this run.
+    particle_steps_per_second : ``simulated_particle_steps`` over ``seconds`` (0 when nothing ran).
+    workers, executor : how the Monte Carlo ran.
+    seconds : wall time of the stage.
+    """
+
+    roadmap: str
+    edges: int
+    estimated_edges: int
+    reused_edges: int
+    failed_edges: tuple[FailedEdge, ...]
+    up_to_date: bool
+    particles_per_edge: int
+    particle_steps: int
+    simulated_particle_steps: int
+    particle_steps_per_second: float
+    workers: int
+    executor: str
+    seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class AddNodesReport(Report):
+    """One densification round's new nodes (paper III-E)."""
+
+    added: int
+    nodes: int
+    seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class DensifyRound(Report):
+    """The roadmap after a densification round: its size, the start's success probability, and the
+    edges that round estimated (None for the first, which is the build's own estimate stage)."""
+
+    nodes: int
+    start_success_probability: float
+    estimated_edges: int | None
+
+
+@dataclasses.dataclass(frozen=True)
+class DensifyReport(Report):
+    """The ``p_min`` loop of a build: its rounds and why it stopped."""
+
+    p_min: float
+    max_nodes: int | None
+    reached: bool
+    reason: str
+    rounds: tuple[DensifyRound, ...]
+    start_success_probability: float
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildReport(Report):
+    """sample + design + estimate (+ densification): what a build did.
+
+    Attributes
+    ----------
+    roadmap : the roadmap file, or None for a roadmap kept in memory (:func:`firmtool.build`
+        without ``output``).
+    resumed : True when an existing roadmap at the output was continued.
+    nodes, edges : sizes of the roadmap.
+    estimated_edges, reused_edges, failed_edges : as in :class:`EstimateReport`, over all rounds.
+    particles_per_edge, particle_steps, simulated_particle_steps, particle_steps_per_second :
+        Monte Carlo work (``particle_steps``: of the whole table; ``simulated_...``: of this build).
+    workers, executor : how the Monte Carlo ran.
+    seconds : wall time per stage (``sample``, ``design``, ``estimate``, and ``solve`` when densifying).
+    densify : the densification loop, when ``p_min`` was given.
+    """
+
+    roadmap: str | None
+    resumed: bool
+    nodes: int
+    edges: int
+    estimated_edges: int
+    reused_edges: int
+    failed_edges: tuple[FailedEdge, ...]
+    particles_per_edge: int
+    particle_steps: int
+    simulated_particle_steps: int
+    particle_steps_per_second: float
+    workers: int
+    executor: str
+    seconds: Mapping[str, float]
+    densify: DensifyReport | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveReport(Report):
+    """The solve stage's summary (the per-node arrays are in :class:`firmtool.Solution`).
+
+    Attributes
+    ----------
+    roadmap : the roadmap file, or None for a roadmap in memory.
+    status : how the DP ended (:class:`SolveStatus`).
+    iterations, residual : sweeps (or policy improvements) and the last residual.
+    failure_cost : J_F the policy was solved with.
+    method : ``"value"`` or ``"policy"`` iteration.
+    start_cost_to_go : J at the start node, None when the goal is unreachable from it.
+    start_success_probability : success probability of the policy from the start node.
+    shortest_path_start_success_probability : the same for the shortest-path baseline.
+    unreachable_nodes : nodes (goal excluded) that cannot reach the goal.
+    path : the policy's most likely node sequence from the start.
+    seconds : wall time of the solve.
+    """
+
+    roadmap: str | None
+    status: SolveStatus
+    iterations: int
+    residual: float
+    failure_cost: float
+    method: str
+    start_cost_to_go: float | None
+    start_success_probability: float
+    shortest_path_start_success_probability: float
+    unreachable_nodes: tuple[int, ...]
+    path: tuple[int, ...]
+    seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class RoadmapSummary(Report):
+    """What a roadmap file holds (``firmtool inspect``). Fields of stages not yet run are None.
+
+    Attributes
+    ----------
+    roadmap : the file.
+    schema_version, scenario, measurement, seed, created : from the file's root.
+    stages : the stages present, in order.
+    nodes, state_dim : size of ``/nodes``.
+    edges : designed edges (``/controllers``).
+    particles_per_edge, particle_steps, estimated_edges, densify_rounds : of ``/edges``.
+    cached_edges : estimates an interrupted estimate stage left for reuse (``/edge_cache``).
+    solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
+        (``start_cost_to_go`` None when the goal is unreachable from the start).
+    """
+
+    roadmap: str
+    schema_version: int
+    scenario: str
+    measurement: str
+    seed: int
+    created: str
+    stages: tuple[str, ...]
+    nodes: int | None = None
+    state_dim: int | None = None
+    edges: int | None = None
+    particles_per_edge: int | None = None
+    particle_steps: int | None = None
+    estimated_edges: int | None = None
+    densify_rounds: int | None = None
+    cached_edges: int | None = None
+    solve_status: str | None = None
+    solve_iterations: int | None = None
+    start_success_probability: float | None = None
+    start_cost_to_go: float | None = None

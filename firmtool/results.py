@@ -1,0 +1,238 @@
+"""Results of closed-loop execution: episodes, their events, the calibration checks, and the summary.
+
+These types are what :func:`firmtool.simulate` returns and what ``firmtool execute --json`` prints
+(:meth:`Results.to_dict`). They hold plain arrays and know nothing of how the episodes were run, so
+that an executor of another kind (a real robot, another simulator) can fill them too.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from firmtool.reports import Report
+
+
+class Outcome(enum.StrEnum):
+    """How an episode ended."""
+
+    SUCCESS = "success"  # reached a goal node
+    COLLISION = "collision"  # the true state violated a constraint
+    TIMEOUT = "timeout"  # a controller ran out of steps, or the episode hit its step limit
+    STUCK = "stuck"  # no controller could be designed from the start belief
+
+
+class EventKind(enum.StrEnum):
+    """What happened at a step of an episode (see :class:`Event`)."""
+
+    START = "start"  # step 0; node: the start node, or -1 when the start lies in no node
+    INITIAL_CONTROLLER = "initial_controller"  # a controller designed from a start in no node
+    NODE = "node"  # the belief entered a node
+    DISTURBANCE = "disturbance"  # a push or kidnap of the true state (value: its size)
+    REPLAN = "replan"  # a controller designed at run time replaced the running one
+    REPLAN_FAILED = "replan_failed"  # a replan was due but no controller could be designed
+    KEPT_CONTROLLER = "kept_controller"  # a replan was due but the running controller scored best
+    INNOVATION_ALARM = "innovation_alarm"  # the measurements contradicted the belief (value: the test statistic)
+    COLLISION = "collision"
+    TIMEOUT = "timeout"
+    GOAL = "goal"
+    STUCK = "stuck"
+
+
+@dataclass
+class Event:
+    """Something that happened at a step.
+
+    Attributes
+    ----------
+    step : control step (0 at the start).
+    kind : :class:`EventKind`.
+    node : the node involved, or -1.
+    value : a size (push length, deviation, test statistic), NaN when none.
+    detail : a short text (which controller, why).
+    """
+
+    step: int
+    kind: EventKind
+    node: int = -1
+    value: float = float("nan")
+    detail: str = ""
+
+
+@dataclass
+class Episode:
+    """One closed-loop run.
+
+    Attributes
+    ----------
+    outcome : :class:`Outcome`.
+    steps : control steps taken (``T``).
+    cost : accumulated cost (eq. 16).
+    nodes : the nodes reached, in order (the start node first, unless the start lay in no node).
+    edges : the policy edges taken.
+    replans, replan_failures, disturbances : counts.
+    events : what happened, in order (:class:`Event`).
+    traversals : ``(edge, outcome)`` of policy edges run from their source node to their end with no
+        replan or disturbance; outcome a node id, or ``firmtool.edges.FAILURE`` / ``TIMEOUT``
+        (compared with the edge estimates by the calibration check).
+    step_times : (T,) seconds of compute per control step.
+    replan_times : seconds per replan (design included).
+    states, estimates : (T + 1, n) true states and filter estimates, row 0 the start (when recorded).
+    covariances : (T + 1, n, n) filter covariances (when recorded).
+    controls : (T, m) applied controls (when recorded).
+    """
+
+    outcome: Outcome
+    steps: int
+    cost: float
+    nodes: list[int] = field(default_factory=list)
+    edges: list[int] = field(default_factory=list)
+    replans: int = 0
+    replan_failures: int = 0
+    disturbances: int = 0
+    events: list[Event] = field(default_factory=list)
+    traversals: list[tuple[int, int]] = field(default_factory=list)
+    step_times: np.ndarray | None = None
+    replan_times: list[float] = field(default_factory=list)
+    states: np.ndarray | None = None
+    estimates: np.ndarray | None = None
+    covariances: np.ndarray | None = None
+    controls: np.ndarray | None = None
+
+    @property
+    def recorded(self) -> bool:
+        """True when the episode's states, estimates, covariances and controls were kept."""
+        return self.states is not None
+
+
+@dataclass(frozen=True)
+class EdgeCheck(Report):
+    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.execute.edge_calibration`).
+
+    ``target_*``: landing in the edge's target node; ``failure_*``: collision or timeout. Each with
+    its Wilson 95% interval; ``flagged`` names the frequencies whose two intervals do not overlap.
+    """
+
+    edge: int
+    target: int
+    traversals: int
+    particles: int
+    target_executed: float
+    target_estimated: float
+    target_executed_ci95: tuple[float, float]
+    target_estimated_ci95: tuple[float, float]
+    failure_executed: float
+    failure_estimated: float
+    failure_executed_ci95: tuple[float, float]
+    failure_estimated_ci95: tuple[float, float]
+    flagged: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Calibration(Report):
+    """The calibration check of the policy edges the episodes took.
+
+    Attributes
+    ----------
+    min_traversals : clean traversals an edge needs to be checked.
+    edges_taken, edges_checked : policy edges taken, and checked.
+    flagged_edges : edges whose executed frequencies disagree with their estimates.
+    ok : no edge flagged.
+    edges : one :class:`EdgeCheck` per checked edge.
+    """
+
+    min_traversals: int
+    edges_taken: int
+    edges_checked: int
+    flagged_edges: tuple[int, ...]
+    ok: bool
+    edges: tuple[EdgeCheck, ...]
+
+
+@dataclass(frozen=True)
+class Results(Report):
+    """Closed-loop episodes of a policy and their summary (what :func:`firmtool.simulate` returns).
+
+    Attributes
+    ----------
+    episodes : the :class:`Episode` list (its arrays when recorded). In ``to_dict()`` (the JSON of
+        ``firmtool execute``) only their number appears, as ``episodes``.
+    successes, collisions, timeouts, stuck : outcome counts.
+    success_rate : successes / episodes.
+    success_rate_ci95 : Wilson 95% interval of the success rate (also :attr:`ci95`).
+    predicted_success_probability : the plan's success probability from the start (None for a
+        start state given by the caller).
+    prediction_within_ci95 : whether the prediction lies in ``success_rate_ci95``.
+    predicted_success_probability_ci95 : 95% interval of the prediction from the edge counts.
+    mean_steps, mean_cost : per episode.
+    replans, replan_failures : totals.
+    replanning, replan_threshold : the replanning settings.
+    disturbances : the disturbance specifications (``push:40:2.0``, ...).
+    disturbances_applied : total disturbances applied.
+    start : the start state given by the caller, or None (the start node).
+    event_counts : events per kind over all episodes (``events`` in ``to_dict()``).
+    seed : seed of the simulated true system.
+    seconds : wall time of the episodes.
+    step_time_us_mean, step_time_us_p99 : compute per control step.
+    replan_time_us_mean, replan_time_us_p99, replan_time_us_max : compute per replan (None without).
+    replans_per_episode : mean.
+    calibration : executed vs estimated edge frequencies (None without the edge counts).
+    policy : the policy's name (``"firm"`` or ``"shortest-path"``), None when run on a bare edge array.
+    """
+
+    episodes: list[Episode]
+    successes: int
+    collisions: int
+    timeouts: int
+    stuck: int
+    success_rate: float
+    success_rate_ci95: tuple[float, float]
+    predicted_success_probability: float | None
+    prediction_within_ci95: bool | None
+    predicted_success_probability_ci95: tuple[float, float] | None
+    mean_steps: float
+    mean_cost: float
+    replans: int
+    replan_failures: int
+    replanning: bool
+    replan_threshold: float
+    disturbances: tuple[str, ...]
+    disturbances_applied: int
+    start: np.ndarray | None
+    event_counts: dict[str, int]
+    seed: int
+    seconds: float
+    step_time_us_mean: float
+    step_time_us_p99: float
+    replan_time_us_mean: float | None
+    replan_time_us_p99: float | None
+    replan_time_us_max: float | None
+    replans_per_episode: float
+    calibration: Calibration | None = None
+    policy: str | None = None
+
+    _json_names: ClassVar[dict[str, str]] = {"event_counts": "events"}
+
+    def __repr__(self) -> str:
+        lo, hi = self.success_rate_ci95
+        p = self.predicted_success_probability
+        return (f"<firmtool.Results {self.policy or 'policy'}: {self.successes} of {len(self.episodes)} episodes "
+                f"succeeded, rate {self.success_rate:.3f} (95% {lo:.3f}-{hi:.3f}), predicted "
+                f"{'-' if p is None else f'{p:.4f}'}>")
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        """Wilson 95% interval of the success rate (the same as :attr:`success_rate_ci95`)."""
+        return self.success_rate_ci95
+
+    def to_dict(self) -> dict[str, Any]:
+        """The summary as plain JSON types; ``episodes`` is their number (the arrays stay here)."""
+        out = super().to_dict()
+        out["episodes"] = len(self.episodes)
+        return out
+
+
+__all__ = ["Calibration", "EdgeCheck", "Episode", "Event", "EventKind", "Outcome", "Results"]

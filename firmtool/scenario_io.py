@@ -1,0 +1,247 @@
+"""Scenarios from Python values, and back to the TOML text a roadmap stores.
+
+A :class:`~firmtool.scenario.Scenario` is validated by one reader only, the TOML one
+(:func:`~firmtool.scenario.parse_scenario`): a scenario made in Python is written as TOML text
+(with ``tomli-w``, the maintained writer of the ``tomllib`` format) and read back, so it gets the
+same checks and error messages as a file, and the text it carries is what a roadmap stores and
+what worker processes rebuild the problem from.
+
+- :func:`scenario_from_dict`: TOML tables as Python values (arrays may be NumPy arrays).
+- :func:`replace_scenario`: a copy with some settings changed (``seed=3``,
+  ``estimation={"particles": 100}``), validated.
+- :func:`scenario_to_dict` / :func:`scenario_to_toml`: the tables of a scenario, and their TOML text.
+  They start from the tables of its own text (so keys the typed scenario does not keep, such as
+  ``scenario.description``, survive) and write over them every typed setting that differs from what
+  the text says, which is what makes a scenario changed with :func:`dataclasses.replace` (whose
+  ``text`` is stale) safe: :func:`synced` gives it a text that says what its fields say. The stages
+  store ``scenario.text`` of a synced scenario in the roadmap: a file's own text (with its comments),
+  or for a scenario made or changed in Python the text :func:`scenario_to_toml` wrote.
+- :func:`same_settings`: equality of the settings (not of the file name, text or comments);
+  ``Scenario.__eq__`` is this.
+
+The typed fields map to TOML keys by name, section by section; the exceptions are listed in
+:data:`_KEYS` (``world.lo``/``hi`` are the rows of ``world.bounds``) and :data:`_ALIASES`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import tomllib
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from firmtool.errors import ScenarioError
+from firmtool.scenario import Scenario, parse_scenario
+
+SECTIONS = ("model", "measurement", "world", "task", "roadmap", "controller", "estimation", "cost", "execution")
+_TOP = ("name", "seed")  # Scenario fields kept in the [scenario] table
+_NOT_SETTINGS = ("path", "text", "sha256")  # where a scenario came from, not what it says
+# (section, field) -> TOML key, where they differ; both rows of world.bounds come from lo and hi.
+_KEYS = {("world", "lo"): "bounds", ("world", "hi"): "bounds"}
+# Keys that spell the same setting another way: removed when the canonical key is written.
+_ALIASES = {("model", "link_lengths"): ("links", "link_length")}
+
+
+def toml_value(obj: Any) -> Any:
+    """``obj`` as TOML types: arrays and tuples as lists, NumPy scalars as numbers, dataclasses as
+    tables of their non-None fields."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: toml_value(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if getattr(obj, f.name) is not None}
+    if isinstance(obj, np.ndarray):
+        return toml_value(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Mapping):
+        return {str(k): toml_value(v) for k, v in obj.items() if v is not None}
+    if isinstance(obj, (list, tuple)):
+        return [toml_value(v) for v in obj]
+    return obj
+
+
+def _dumps(tables: Mapping[str, Any], path: str) -> str:
+    try:
+        return tomli_w.dumps(toml_value(tables))
+    except TypeError as exc:
+        raise ScenarioError(path, "", f"cannot be written as TOML ({exc})") from None
+
+
+def scenario_from_dict(tables: Mapping[str, Any], path: str = "<dict>") -> Scenario:
+    """A scenario from its TOML tables given as Python values.
+
+    Parameters
+    ----------
+    tables : mapping
+        ``{"scenario": {"name": ..., "seed": ...}, "model": {...}, "measurement": {...}, ...}``: the
+        tables and keys of a scenario file (see the README); arrays may be lists or NumPy arrays.
+    path : str
+        A name for error messages (there is no file).
+
+    Returns
+    -------
+    Scenario
+        Validated as a file would be; its ``text`` is the TOML written from ``tables``.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the field and what was expected.
+
+    Examples
+    --------
+    >>> sc = scenario_from_dict({"scenario": {"name": "tiny"}, "model": {...}, ...})  # doctest: +SKIP
+    """
+    return parse_scenario(_dumps(tables, path), path)
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equality of setting values: arrays by shape and value, dataclasses field by field."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape \
+            and bool(np.array_equal(a, b))
+    if dataclasses.is_dataclass(a) and not isinstance(a, type):
+        return type(a) is type(b) and all(_same(getattr(a, f.name), getattr(b, f.name))
+                                           for f in dataclasses.fields(a))
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b)
+
+
+def same_settings(a: Scenario, b: object) -> bool:
+    """True when two scenarios say the same thing (name, seed and every section), whatever their
+    file name, text or comments."""
+    if not isinstance(b, Scenario):
+        return NotImplemented  # type: ignore[return-value]
+    return all(_same(getattr(a, f.name), getattr(b, f.name))
+               for f in dataclasses.fields(a) if f.name not in _NOT_SETTINGS)
+
+
+def _write(tables: dict[str, Any], section: str, field: str, spec: Any) -> None:
+    """Write the typed value of ``section.field`` (from ``spec``) over ``tables``."""
+    table = tables.setdefault(section, {})
+    key = _KEYS.get((section, field), field)
+    if key == "bounds":
+        table[key] = toml_value([spec.lo, spec.hi])
+        return
+    value = getattr(spec, field)
+    if value is None:
+        table.pop(key, None)
+    else:
+        table[key] = toml_value(value)
+    for alias in _ALIASES.get((section, field), ()):
+        table.pop(alias, None)
+
+
+def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
+    """The TOML tables of ``scenario`` as Python values.
+
+    The tables of its text, with every typed setting that differs from what the text says written
+    over them (keys the typed scenario does not keep, such as ``scenario.description``, stay).
+    ``scenario_from_dict(scenario_to_dict(sc)) == sc``.
+    """
+    try:
+        tables = tomllib.loads(scenario.text)
+        said = parse_scenario(scenario.text, scenario.path)
+    except (tomllib.TOMLDecodeError, ScenarioError):
+        tables, said = {}, None  # a text that no longer parses: every setting is written from the fields
+    for name in _TOP:
+        if said is None or not _same(getattr(said, name), getattr(scenario, name)):
+            tables.setdefault("scenario", {})[name] = toml_value(getattr(scenario, name))
+    for section in SECTIONS:
+        spec = getattr(scenario, section)
+        old = getattr(said, section) if said is not None else None
+        for f in dataclasses.fields(spec):
+            if old is None or not _same(getattr(old, f.name), getattr(spec, f.name)):
+                _write(tables, section, f.name, spec)
+    return tables
+
+
+def scenario_to_toml(scenario: Scenario) -> str:
+    """TOML text of ``scenario`` written by ``tomli-w`` from :func:`scenario_to_dict` (comments of
+    its file are not kept): ``parse_scenario(scenario_to_toml(sc)) == sc``."""
+    return _dumps(scenario_to_dict(scenario), scenario.path)
+
+
+def is_synced(scenario: Scenario) -> bool:
+    """True when ``scenario.text`` parses to ``scenario``'s settings and ``sha256`` is its hash."""
+    if hashlib.sha256(scenario.text.encode()).hexdigest() != scenario.sha256:
+        return False
+    try:
+        return same_settings(parse_scenario(scenario.text, scenario.path), scenario)
+    except ScenarioError:
+        return False
+
+
+def synced(scenario: Scenario) -> Scenario:
+    """``scenario`` if its text says what its fields say, else the scenario read back from the text
+    of its fields (e.g. after :func:`dataclasses.replace`, which keeps the old text).
+
+    Raises
+    ------
+    ScenarioError
+        If the changed fields do not make a valid scenario.
+    """
+    if is_synced(scenario):
+        return scenario
+    return parse_scenario(scenario_to_toml(scenario), _modified(scenario.path))
+
+
+def _modified(path: str) -> str:
+    return path if path.endswith("(modified)") else f"{path} (modified)"
+
+
+def replace_scenario(scenario: Scenario, **changes: Any) -> Scenario:
+    """A copy of ``scenario`` with some settings changed, validated.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    **changes
+        ``name=`` and ``seed=`` set the ``[scenario]`` table's keys; a section's name
+        (``model``, ``measurement``, ``world``, ``task``, ``roadmap``, ``controller``, ``estimation``,
+        ``cost``, ``execution``) takes a mapping of its TOML keys to new values, merged into the
+        section (a value of None removes the key: its default applies again).
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    ScenarioError
+        If a change is not a valid setting (named as ``FILE (modified): section.key: ...``).
+    TypeError
+        For a keyword that is neither ``name``, ``seed`` nor a section.
+
+    Examples
+    --------
+    >>> import firmtool as ft
+    >>> sc = ft.load_scenario("smoke")
+    >>> ft.Scenario.replace(sc, seed=7, estimation={"particles": 50}).estimation.particles
+    50
+    """
+    tables = scenario_to_dict(scenario)
+    for key, value in changes.items():
+        if key in _TOP:
+            tables.setdefault("scenario", {})[key] = value
+        elif key in SECTIONS:
+            if not isinstance(value, Mapping):
+                raise TypeError(f"replace: {key}= expects a mapping of its TOML keys to values, "
+                                f"found {type(value).__name__}")
+            table = tables.setdefault(key, {})
+            for k, v in value.items():
+                if v is None:
+                    table.pop(k, None)
+                else:
+                    table[k] = v
+        else:
+            raise TypeError(f"replace: unknown setting {key!r}; expected name, seed or one of {', '.join(SECTIONS)}")
+    path = _modified(scenario.path)
+    return parse_scenario(_dumps(tables, path), path)
