@@ -89,11 +89,11 @@ def _disk_cached(dispatcher) -> bool:
     everything cached costs one short process).
     """
     try:
-        cache = dispatcher._cache
+        cache = dispatcher._cache  # numba's FunctionCache (firmtool._jit's, whose key covers the callees)
         index = cache._cache_file._load_index()
         codegen = dispatcher.targetctx.codegen()
-        return any(key[1] == codegen.magic_tuple() and key[2] == cache._index_key(key[0], codegen)[2]
-                   for key in index)
+        # an entry whose whole key (CPU, bytecode, callees' sources) is what this process would look up
+        return any(cache._index_key(key[0], codegen) == key for key in index)
     except Exception:  # noqa: BLE001 - numba internals: unknown means compile
         return False
 

@@ -146,11 +146,12 @@ def test_the_snippet_returns_typed_objects_with_arrays(point):
 
 def test_build_without_output_writes_nothing_in_the_working_folder(tmp_path, monkeypatch):
     import tempfile
-    work, temp = tmp_path / "work", tmp_path / "temp"
-    work.mkdir()
-    temp.mkdir()
+
+    work, temp = tmp_path / "work", tmp_path / "tmp"
+    work.mkdir(), temp.mkdir()
     monkeypatch.chdir(work)
-    # a temporary folder of this test's own: other processes on the machine make and remove theirs in /tmp
+    # a private temporary folder: other processes' firmtool-* folders in the shared one cannot
+    # change this test's verdict
     monkeypatch.setattr(tempfile, "tempdir", str(temp))
     rm = ft.build("smoke", workers=1)
     assert list(work.iterdir()) == []
