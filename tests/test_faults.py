@@ -279,12 +279,20 @@ def test_sigint_at_random_moments_gives_one_line_and_130(tmp_path):
               (0.25, False)] + [(rnd.uniform(0.0, 0.5 * working), True) for _ in range(7)]
     outcomes = []
     for i, (delay, after_lock) in enumerate(delays):
-        out = tmp_path / f"r{i}.h5"
-        p = start_and_wait_for_lock(out)[0] if after_lock else _cli("build", scenario, "-o", out, "-w", "2")
-        time.sleep(delay)
-        workers = _children(p.pid)
-        p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=120)
+        # After the lock, firmtool's handler is installed and the build is under way: an interrupt there
+        # must give 130. Should the load have dropped so much that the build finished before the signal
+        # (a legitimate outcome, but one that tests nothing), the same case is run again with a quarter
+        # of the delay, down to none: the verdict does not depend on how fast this machine is today.
+        for attempt in range(6):
+            out = tmp_path / f"r{i}.{attempt}.h5"
+            p = start_and_wait_for_lock(out)[0] if after_lock else _cli("build", scenario, "-o", out, "-w", "2")
+            time.sleep(delay)
+            workers = _children(p.pid)
+            p.send_signal(signal.SIGINT)
+            _, err = p.communicate(timeout=120)
+            if not (after_lock and p.returncode == 0):
+                break
+            delay = delay / 4 if attempt < 4 else 0.0
         if p.returncode == 130:
             line = one_error_line(err)
             assert "interrupted" in line
@@ -311,7 +319,8 @@ def test_sigint_at_random_moments_gives_one_line_and_130(tmp_path):
         while any(_alive(w) for w in workers) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not [w for w in workers if _alive(w)], "worker processes outlived the interrupted build"
-    assert outcomes.count("130") >= len(delays) // 2, list(zip(delays, outcomes))
+    after_lock_outcomes = [o for (_, after_lock), o in zip(delays, outcomes) if after_lock]
+    assert after_lock_outcomes == ["130"] * len(after_lock_outcomes), list(zip(delays, outcomes))
 
 
 # --------------------------------------------------------------------------------------------------
