@@ -581,10 +581,12 @@ class Workers:
             raise InputError(f"--scheduler: cannot reach the dask scheduler {self.scheduler!r} ({_cause(exc)})") from None
 
     def _run_dask(self, job, fn, work, retry) -> Iterator[BatchResult]:
-        from dask.distributed import as_completed
-
         if self._client is None:
             self._connect()
+        try:  # importable once _connect succeeded; guarded all the same (the extra is optional)
+            from dask.distributed import as_completed
+        except ImportError:
+            raise InputError("--executor dask needs dask.distributed: pip install 'firmtool[dask]'") from None
         client = self._client
         futures: dict[Any, tuple[Any, int, int]] = {}
         try:
