@@ -15,7 +15,7 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
-from firmtool import interrupts
+from firmtool import interrupts, warmup
 from firmtool.atomic import check_target
 from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
@@ -25,9 +25,10 @@ from firmtool.graph import SolveStatus, shortest_path_policy, solve_dp, success_
 from firmtool.kernels import engine_choice
 from firmtool.locking import writer_lock
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
-from firmtool.parallel import EstimationJob, default_workers, job_extras, run_edges
+from firmtool.parallel import (EstimationJob, Workers, default_workers, job_extras, parallel_design,
+                               parallel_validity, remember_problem, run_edges)
 from firmtool.problem import Problem, ValidityChecker, build_problem
-from firmtool.progress import ESTIMATE, SOLVE, Counter, ProgressCallback
+from firmtool.progress import DESIGN_NODES, ESTIMATE, SOLVE, Counter, ProgressCallback
 from firmtool.reports import (AddNodesReport, BuildReport, DensifyReport, DensifyRound, DesignReport, EstimateReport,
                               FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget, check_workers
@@ -142,7 +143,8 @@ def as_scenario(scenario: Scenario | str | Path) -> Scenario:
 
 
 def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False, *,
-                 validity: Callable | None = None, progress: ProgressCallback | None = None) -> SampleReport:
+                 validity: Callable | None = None, session: Workers | None = None,
+                 progress: ProgressCallback | None = None) -> SampleReport:
     """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
 
     Parameters
@@ -152,6 +154,8 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     force : replace an existing file there even if it is not a firmtool roadmap.
     validity : a user's vectorised checker (:func:`firmtool.problem.build_problem`); the roadmap
         records its identity, and the later stages need the same checker.
+    session : workers (:class:`firmtool.parallel.Workers`) that check large batches of states
+        (the collision checks of node pairs); the nodes are the same without them.
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the nodes sampled.
     """
     t0 = time.perf_counter()
@@ -162,7 +166,8 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
         raise InputError(f"{scenario.path}: task.goal: expected a goal apart from the start, found the start itself")
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
-    centers, kinds = roadmap_nodes(problem, rng, progress=progress)
+    centers, kinds = roadmap_nodes(parallel_validity(problem, session) if session else problem, rng,
+                                   progress=progress)
     _check_start_apart_from_goals(problem, centers, kinds)
     with writer_lock(out):
         create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
@@ -195,23 +200,40 @@ def controllers_inputs(roadmap: Roadmap) -> str:
     return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
 
 
-def design_stage(path: str | Path, *, validity: Callable | None = None,
+def design_stage(path: str | Path, *, validity: Callable | None = None, workers: int | None = None,
+                 executor: str = "process", scheduler: str | None = None, session: Workers | None = None,
                  progress: ProgressCallback | None = None) -> DesignReport:
     """Design node stabilisers, node regions and edges (nominal trajectories); ``validity``: the
-    roadmap's Python validity checker, if it was built with one; ``progress``: told of the nodes
+    roadmap's Python validity checker, if it was built with one.
+
+    The node stabilisers, the collision checks of node pairs and the edges' nominals run on the
+    workers of ``session`` (a :class:`firmtool.parallel.Workers` of the calling command), or of
+    ``workers`` / ``executor`` / ``scheduler`` as in :func:`estimate_stage` (default: in this
+    process). The design is the same, bit for bit, however it runs. ``progress``: told of the nodes
     and edges designed (:mod:`firmtool.progress`)."""
+    if workers is not None:
+        check_workers(workers)
+    _check_executor(executor)
     with writer_lock(path):
-        return _design_stage(path, validity, progress)
+        if session is not None:
+            return _design_stage(path, validity, session, progress)
+        with Workers(workers or 1, executor, scheduler) as own:
+            return _design_stage(path, validity, own, progress)
 
 
-def _design_stage(path: str | Path, validity: Callable | None = None,
+def _design_stage(path: str | Path, validity: Callable | None = None, session: Workers | None = None,
                   progress: ProgressCallback | None = None) -> DesignReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
-    d = design(problem, centers, nodes["kind"], progress=progress)
+    if session is not None and session.parallel:
+        counter = Counter(progress, DESIGN_NODES, int(centers.shape[0])).start()
+        d = parallel_design(problem, centers, nodes["kind"], session, counter.callback())
+        counter.finish()
+    else:
+        d = design(problem, centers, nodes["kind"], progress=progress)
     if d.edge_source.size == 0:
         raise RunFailure(f"{path}: no collision-free edge between any two nodes; add nodes or neighbours")
     arrays = {name: getattr(d, name) for name in ("u_eq", "K", "S", "L", "P", "Sigma", "scale",
@@ -225,8 +247,10 @@ def _design_stage(path: str | Path, validity: Callable | None = None,
 
 
 def estimate_stage(path: str | Path, *, workers: int | None = None, executor: str = "process",
-                   scheduler: str | None = None, progress: ProgressCallback | None = None,
-                   checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None) -> EstimateReport:
+                   scheduler: str | None = None,
+                   progress: ProgressCallback | None = None,
+                   checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None,
+                   session: Workers | None = None) -> EstimateReport:
     """Monte Carlo estimation of every edge, in parallel; writes ``/edges``.
 
     Edges whose key (:func:`firmtool.edge_table.edge_keys`) matches a stored estimate, in ``/edges``
@@ -245,6 +269,8 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
         estimated (``total``: the edges this run estimates).
     checkpoint_seconds : seconds between checkpoints (the first comes after the first batch).
     validity : the roadmap's Python validity checker, if it was built with one.
+    session : the :class:`firmtool.parallel.Workers` of the calling command (a build keeps one for
+        all its stages); ``workers`` and ``executor`` are then its own.
     """
     if workers is not None:
         check_workers(workers)  # refused before anything is read (again with the memory per worker below)
@@ -252,7 +278,7 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     with writer_lock(path):
         return _estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
                                progress=progress, checkpoint_seconds=checkpoint_seconds,
-                               validity=validity)
+                               validity=validity, session=session)
 
 
 def _check_executor(executor: str) -> None:
@@ -262,7 +288,8 @@ def _check_executor(executor: str) -> None:
 
 def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, scheduler: str | None,
                     progress: ProgressCallback | None,
-                    checkpoint_seconds: float, validity: Callable | None = None) -> EstimateReport:
+                    checkpoint_seconds: float, validity: Callable | None = None,
+                    session: Workers | None = None) -> EstimateReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap, validity)
@@ -275,6 +302,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
+        warmup.stop()  # nothing to estimate: no compile to wait for
         e = roadmap.require("edges", "particle_steps", fresh=False)
         if "edges" in roadmap.stale_stages():  # the same inputs under a new scenario text (e.g. a comment)
             restamp(path, ("edges",))
@@ -287,20 +315,28 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     reused = sum(x is not None for x in est)
     todo = [e for e in range(E) if est[e] is None]
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
+    if todo and engine == "numba":  # on a cold cache: compiled once (or by build's start), before the workers
+        warmup.start(engine)
+        warmup.wait()
+    else:
+        warmup.stop()
     workers = check_workers(workers or default_workers(), problem)
-    job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
+    job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=sc.path, design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
                         engine=engine, **job_extras(problem))
+    remember_problem(job, problem)  # in-process and forked workers use this problem as it is
     counter = Counter(progress, ESTIMATE, len(todo)).start() if todo else None
     new: list[int] = []
     saved = 0
+    converted: dict[str, np.ndarray] = {}  # the table of the edges checkpointed so far (grows by the new ones)
     failed: dict[int, str] = {}
 
     def checkpoint() -> None:
-        nonlocal saved
+        nonlocal saved, converted
         if len(new) > saved:
-            fresh = to_arrays([est[e] for e in new], keys[new], sc.cost)
-            write_edge_cache(path, concat_edge_tables(cache, fresh), {"controllers_sha256": table_hash})
+            batch = new[saved:]
+            converted = concat_edge_tables(converted, to_arrays([est[e] for e in batch], keys[batch], sc.cost))
+            write_edge_cache(path, concat_edge_tables(cache, converted), {"controllers_sha256": table_hash})
             saved = len(new)
 
     last = time.monotonic()
@@ -308,7 +344,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
         # Ctrl-C (with the CLI's handler) is raised only between edges, where the finished ones can be saved
         with interrupts.deferred():
             for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler,
-                               progress=counter.callback() if counter else None):
+                               progress=counter.callback() if counter else None, session=session):
                 if r.error is not None:
                     failed[r.edges[0]] = r.error
                 for e, x in zip(r.edges, r.estimates):
@@ -580,23 +616,30 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     if workers is not None:
         check_workers(workers)
     _check_executor(executor)
-    with writer_lock(out):
+    # one set of workers for every stage of the build (local processes start on first use, a dask
+    # cluster is joined once)
+    with writer_lock(out), Workers(workers or default_workers(), executor, scheduler) as session:
+        # a fresh install: compile the engine while sampling and designing (a user's validity checker
+        # runs the numpy engine: nothing to compile)
+        if validity is None and not warmup.engine_is_cached():
+            warmup.start(engine_choice(build_problem(scenario))[0])
         return _build(scenario, out, workers=workers, executor=executor, scheduler=scheduler,
                       progress=progress, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
                       add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds,
                       validity=None if validity is None else (validity if isinstance(validity, ValidityChecker)
-                                                              else ValidityChecker(validity)))
+                                                              else ValidityChecker(validity)),
+                      session=session)
 
 
 def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str, scheduler: str | None,
            progress: ProgressCallback | None, fresh: bool, p_min: float | None,
            max_nodes: int | None, add_nodes: int | None, checkpoint_seconds: float,
-           validity: ValidityChecker | None = None) -> BuildReport:
+           validity: ValidityChecker | None = None, session: Workers | None = None) -> BuildReport:
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
     existing = None if fresh else _resumable(out, scenario, validity.identity if validity else "")
     if existing is None:
         seconds["sample"] = sample_stage(scenario, out, force=True, validity=validity,  # check_output passed
-                                         progress=progress).seconds
+                                         session=session, progress=progress).seconds
     elif existing.scenario_sha256 != scenario.sha256:
         # the nodes' inputs are unchanged (_resumable); so are the controllers if their inputs hash matches
         keep = ("nodes",) + (("controllers",) if existing.has("controllers") and
@@ -611,10 +654,10 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
         rm = Roadmap(out)
         if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
                 and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
-            seconds["design"] += design_stage(out, validity=validity, progress=progress).seconds
+            seconds["design"] += design_stage(out, validity=validity, session=session, progress=progress).seconds
         e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
-                           progress=progress, checkpoint_seconds=checkpoint_seconds,
-                           validity=validity)
+                           progress=progress,
+                           checkpoint_seconds=checkpoint_seconds, validity=validity, session=session)
         notices.extend(n for n in e.notices if n not in notices)
         seconds["estimate"] += e.seconds
         totals["estimated_edges"] += e.estimated_edges
