@@ -70,6 +70,7 @@ from firmtool.errors import InputError, NumericalError
 from firmtool.graph import success_probability
 from firmtool.nodes import GOAL, START_INDEX, NodeRegions, segment_is_valid
 from firmtool.problem import Problem
+from firmtool.progress import EXECUTE, Counter, ProgressCallback
 from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
 
 SUCCESS, COLLISION, TIMEOUT, STUCK = Outcome.SUCCESS, Outcome.COLLISION, Outcome.TIMEOUT, Outcome.STUCK
@@ -727,7 +728,7 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
             replan: ReplanSettings | None = None, disturbances: tuple = (), start: np.ndarray | None = None,
             record: bool = False, edge_counts: EdgeCounts | None = None,
             predicted_ci95: tuple[float, float] | None = None, failure_cost: float | None = None,
-            policy_name: str | None = None) -> Results:
+            policy_name: str | None = None, progress: ProgressCallback | None = None) -> Results:
     """Run ``episodes`` episodes of ``policy`` and summarise them.
 
     Parameters
@@ -745,6 +746,7 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
     edge_counts : the roadmap's outcome counts: with them, the calibration check of the edges taken.
     predicted_ci95 : the prediction's interval (:func:`predicted_interval`), reported as it is.
     policy_name : the policy's name, reported as it is.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the episodes run.
 
     Returns
     -------
@@ -764,9 +766,12 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
         if not problem.is_valid(start[None])[0]:
             raise InputError(f"start {np.array2string(start, precision=3)} is in collision or out of bounds")
     t0 = time.perf_counter()
-    eps = [runner.run_episode(np.random.default_rng(np.random.SeedSequence([seed, EPISODE_KEY, i])), record,
-                              start=start, disturbance_seed=(seed, dist_mod.DISTURBANCE_KEY, i))
-           for i in range(episodes)]
+    counter = Counter(progress, EXECUTE, episodes).start()
+    eps = []
+    for i in range(episodes):
+        eps.append(runner.run_episode(np.random.default_rng(np.random.SeedSequence([seed, EPISODE_KEY, i])), record,
+                                      start=start, disturbance_seed=(seed, dist_mod.DISTURBANCE_KEY, i)))
+        counter.advance()
     seconds = time.perf_counter() - t0
     count = lambda o: sum(e.outcome == o for e in eps)  # noqa: E731
     successes = count(SUCCESS)

@@ -22,6 +22,7 @@ import scipy.sparse.csgraph
 
 from firmtool.errors import RunFailure, ScenarioError
 from firmtool.problem import Problem
+from firmtool.progress import SAMPLE, ProgressCallback, report
 
 REGULAR, START, GOAL = 0, 1, 2
 SEGMENT_CHECK_SPACING = 0.5  # validity checks per robot radius of workspace motion along a segment
@@ -123,8 +124,10 @@ def _greedy(batch: np.ndarray, keep: np.ndarray, separation: float, room: int) -
     return cand[np.flatnonzero(accepted)[:room]]
 
 
-def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Start node, goal node, then sampled regular nodes.
+def roadmap_nodes(problem: Problem, rng: np.random.Generator,
+                  progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Start node, goal node, then sampled regular nodes (``progress``: told of the nodes found,
+    phase by phase, :mod:`firmtool.progress`).
 
     Returns
     -------
@@ -136,11 +139,15 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
         If no valid configuration can be found (empty free space).
     """
     spec = problem.scenario.roadmap
+    total = spec.nodes + 1 + spec.goal_nodes + spec.bridge_nodes  # at most; the bridges may need fewer
+    report(progress, SAMPLE, 0, total)
     fixed = np.stack([problem.start, problem.goal])
     extra_goals = _goal_region_nodes(problem, spec.goal_nodes - 1, rng, fixed) if problem.goal_disc else fixed[:0]
     fixed = np.concatenate([fixed, extra_goals])
+    report(progress, SAMPLE, fixed.shape[0], total)
     biased = int(round(spec.goal_bias * spec.nodes))
     grown = grow_from_goals(problem, biased, rng, fixed) if biased else fixed[:0]
+    report(progress, SAMPLE, fixed.shape[0] + grown.shape[0], total)
     sampled = sample_nodes(problem, spec.nodes - grown.shape[0], rng, min_separation=spec.min_separation,
                            existing=np.concatenate([fixed, grown]))
     sampled = np.concatenate([grown, sampled])
@@ -154,8 +161,10 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
     kinds = np.full(centers.shape[0], REGULAR, dtype=np.int8)
     kinds[START_INDEX], kinds[GOAL_INDEX] = START, GOAL
     kinds[2:2 + extra_goals.shape[0]] = GOAL
+    report(progress, SAMPLE, centers.shape[0], total)
     if spec.bridge_nodes:
         centers, kinds = add_bridges(problem, centers, kinds, spec.bridge_nodes, rng)
+    report(progress, SAMPLE, centers.shape[0], centers.shape[0])
     return centers, kinds
 
 

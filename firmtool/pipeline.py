@@ -28,6 +28,7 @@ from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nod
 from firmtool.parallel import (EstimationJob, Workers, default_workers, job_extras, parallel_design,
                                parallel_validity, remember_problem, run_edges)
 from firmtool.problem import Problem, ValidityChecker, build_problem
+from firmtool.progress import DESIGN_NODES, ESTIMATE, SOLVE, Counter, ProgressCallback
 from firmtool.reports import (AddNodesReport, BuildReport, DensifyReport, DensifyRound, DesignReport, EstimateReport,
                               FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget, check_workers
@@ -142,7 +143,8 @@ def as_scenario(scenario: Scenario | str | Path) -> Scenario:
 
 
 def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False, *,
-                 validity: Callable | None = None, session: Workers | None = None) -> SampleReport:
+                 validity: Callable | None = None, session: Workers | None = None,
+                 progress: ProgressCallback | None = None) -> SampleReport:
     """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
 
     Parameters
@@ -154,6 +156,7 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
         records its identity, and the later stages need the same checker.
     session : workers (:class:`firmtool.parallel.Workers`) that check large batches of states
         (the collision checks of node pairs); the nodes are the same without them.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the nodes sampled.
     """
     t0 = time.perf_counter()
     scenario = as_scenario(scenario)
@@ -163,7 +166,8 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
         raise InputError(f"{scenario.path}: task.goal: expected a goal apart from the start, found the start itself")
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
-    centers, kinds = roadmap_nodes(parallel_validity(problem, session) if session else problem, rng)
+    centers, kinds = roadmap_nodes(parallel_validity(problem, session) if session else problem, rng,
+                                   progress=progress)
     _check_start_apart_from_goals(problem, centers, kinds)
     with writer_lock(out):
         create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
@@ -198,39 +202,38 @@ def controllers_inputs(roadmap: Roadmap) -> str:
 
 def design_stage(path: str | Path, *, validity: Callable | None = None, workers: int | None = None,
                  executor: str = "process", scheduler: str | None = None, session: Workers | None = None,
-                 progress_factory: Callable[[int], Callable[[int], None]] | None = None) -> DesignReport:
+                 progress: ProgressCallback | None = None) -> DesignReport:
     """Design node stabilisers, node regions and edges (nominal trajectories); ``validity``: the
     roadmap's Python validity checker, if it was built with one.
 
     The node stabilisers, the collision checks of node pairs and the edges' nominals run on the
     workers of ``session`` (a :class:`firmtool.parallel.Workers` of the calling command), or of
     ``workers`` / ``executor`` / ``scheduler`` as in :func:`estimate_stage` (default: in this
-    process). The design is the same, bit for bit, however it runs. ``progress_factory``: called
-    with the number of nodes; its callback is told how many more were designed."""
+    process). The design is the same, bit for bit, however it runs. ``progress``: told of the nodes
+    and edges designed (:mod:`firmtool.progress`)."""
     if workers is not None:
         check_workers(workers)
     _check_executor(executor)
     with writer_lock(path):
         if session is not None:
-            return _design_stage(path, validity, session, progress_factory)
+            return _design_stage(path, validity, session, progress)
         with Workers(workers or 1, executor, scheduler) as own:
-            return _design_stage(path, validity, own, progress_factory)
+            return _design_stage(path, validity, own, progress)
 
 
 def _design_stage(path: str | Path, validity: Callable | None = None, session: Workers | None = None,
-                  progress_factory: Callable[[int], Callable[[int], None]] | None = None) -> DesignReport:
+                  progress: ProgressCallback | None = None) -> DesignReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
-    progress = progress_factory(int(centers.shape[0])) if progress_factory else None
     if session is not None and session.parallel:
-        d = parallel_design(problem, centers, nodes["kind"], session, progress)
+        counter = Counter(progress, DESIGN_NODES, int(centers.shape[0])).start()
+        d = parallel_design(problem, centers, nodes["kind"], session, counter.callback())
+        counter.finish()
     else:
-        d = design(problem, centers, nodes["kind"])
-        if progress:
-            progress(int(centers.shape[0]))
+        d = design(problem, centers, nodes["kind"], progress=progress)
     if d.edge_source.size == 0:
         raise RunFailure(f"{path}: no collision-free edge between any two nodes; add nodes or neighbours")
     arrays = {name: getattr(d, name) for name in ("u_eq", "K", "S", "L", "P", "Sigma", "scale",
@@ -245,7 +248,7 @@ def _design_stage(path: str | Path, validity: Callable | None = None, session: W
 
 def estimate_stage(path: str | Path, *, workers: int | None = None, executor: str = "process",
                    scheduler: str | None = None,
-                   progress_factory: Callable[[int], Callable[[int], None]] | None = None,
+                   progress: ProgressCallback | None = None,
                    checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None,
                    session: Workers | None = None) -> EstimateReport:
     """Monte Carlo estimation of every edge, in parallel; writes ``/edges``.
@@ -262,8 +265,8 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     path : a roadmap file with designed controllers.
     workers : worker processes (default: all cores).
     executor : ``"process"`` (local) or ``"dask"`` (dask.distributed, ``scheduler`` its address).
-    progress_factory : called with the number of edges to estimate; returns a callback that is
-        told how many more edges finished.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the edges
+        estimated (``total``: the edges this run estimates).
     checkpoint_seconds : seconds between checkpoints (the first comes after the first batch).
     validity : the roadmap's Python validity checker, if it was built with one.
     session : the :class:`firmtool.parallel.Workers` of the calling command (a build keeps one for
@@ -274,7 +277,7 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     _check_executor(executor)
     with writer_lock(path):
         return _estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
-                               progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds,
+                               progress=progress, checkpoint_seconds=checkpoint_seconds,
                                validity=validity, session=session)
 
 
@@ -284,7 +287,7 @@ def _check_executor(executor: str) -> None:
 
 
 def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, scheduler: str | None,
-                    progress_factory: Callable[[int], Callable[[int], None]] | None,
+                    progress: ProgressCallback | None,
                     checkpoint_seconds: float, validity: Callable | None = None,
                     session: Workers | None = None) -> EstimateReport:
     t0 = time.perf_counter()
@@ -322,7 +325,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
                         engine=engine, **job_extras(problem))
     remember_problem(job, problem)  # in-process and forked workers use this problem as it is
-    progress = progress_factory(len(todo)) if progress_factory and todo else None
+    counter = Counter(progress, ESTIMATE, len(todo)).start() if todo else None
     new: list[int] = []
     saved = 0
     converted: dict[str, np.ndarray] = {}  # the table of the edges checkpointed so far (grows by the new ones)
@@ -341,7 +344,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
         # Ctrl-C (with the CLI's handler) is raised only between edges, where the finished ones can be saved
         with interrupts.deferred():
             for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler,
-                               progress=progress, session=session):
+                               progress=counter.callback() if counter else None, session=session):
                 if r.error is not None:
                     failed[r.edges[0]] = r.error
                 for e, x in zip(r.edges, r.estimates):
@@ -421,7 +424,8 @@ def policy_inputs(edges_inputs: str, failure_cost: float, method: str, cost: obj
     return inputs_hash(edges_inputs, failure_cost, method, digest(cost).hex())
 
 
-def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value") -> PolicyGroup:
+def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
+                 progress: ProgressCallback | None = None) -> PolicyGroup:
     """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
     baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
 
@@ -430,8 +434,11 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     roadmap : a roadmap with estimated edges.
     failure_cost : J_F (default: the scenario's ``cost.failure_cost``).
     method : ``"value"`` (value iteration) or ``"policy"`` (policy iteration).
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the solve's steps
+        (the DP, the success probabilities, the shortest-path baseline).
     """
     t0 = time.perf_counter()
+    steps = Counter(progress, SOLVE, 3).start()
     problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     cost = edge_costs(edges, problem.scenario.cost)
@@ -441,13 +448,16 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     JF = float(failure_cost if failure_cost is not None else problem.scenario.cost.failure_cost)
     res = solve_dp(N, goals, edges["source"].astype(np.int64), cost, landing,
                    fail + timeout, JF, method=method)
+    steps.advance()
     p = success_probability(N, goals, res.policy, landing)
+    steps.advance()
     next_node = np.where(res.policy >= 0, edges["target"][np.maximum(res.policy, 0)], -1)
     # The baseline that ignores uncertainty: shortest configuration-space path on the same roadmap.
     centers = roadmap.require("nodes", "centers")["centers"][:, :problem.config_dim]
     length = np.linalg.norm(centers[edges["target"]] - centers[edges["source"]], axis=1)
     sp = shortest_path_policy(N, goals, edges["source"], edges["target"], length)
     p_sp = success_probability(N, goals, sp, landing)
+    steps.finish()
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
@@ -485,7 +495,8 @@ def unreachable_failure(roadmap_path: str | Path | None, unreachable: int, nodes
                       f"edges ({unreachable} of {nodes} nodes cannot reach it); add nodes or neighbours")
 
 
-def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: str = "value") -> SolveReport:
+def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: str = "value",
+                progress: ProgressCallback | None = None) -> SolveReport:
     """Solve the roadmap file at ``path`` (:func:`solve_policy`) and write ``/policy``.
 
     Raises
@@ -495,7 +506,7 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     """
     with writer_lock(path):
         roadmap = Roadmap(path)
-        group = solve_policy(roadmap, failure_cost=failure_cost, method=method)
+        group = solve_policy(roadmap, failure_cost=failure_cost, method=method, progress=progress)
         write_policy(path, group)
     J = group.arrays["cost_to_go"]
     if not np.isfinite(J[START_INDEX]):
@@ -570,11 +581,10 @@ def _add_nodes_stage(path: str | Path, count: int, validity: Callable | None = N
 
 def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers: int | None = None,
           executor: str = "process", scheduler: str | None = None,
-          progress_factory: Callable[[int], Callable[[int], None]] | None = None, fresh: bool = False,
+          progress: ProgressCallback | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
           checkpoint_seconds: float = CHECKPOINT_SECONDS, force: bool = False,
-          validity: Callable | None = None,
-          stage_progress: Callable[[str], Callable[[int], Callable[[int], None]] | None] | None = None) -> BuildReport:
+          validity: Callable | None = None) -> BuildReport:
     """sample + design + estimate into the roadmap file ``output``, going on from an existing roadmap
     there when it can.
 
@@ -591,12 +601,11 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     ----------
     scenario : a scenario, or the path of a scenario file.
     output : the roadmap file (default ``artifacts/NAME.h5``).
-    workers, executor, scheduler, progress_factory, checkpoint_seconds : see :func:`estimate_stage`.
+    workers, executor, scheduler, checkpoint_seconds : see :func:`estimate_stage`.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told by every stage.
     force : replace an existing file at ``output`` even if it is not a firmtool roadmap.
     validity : a user's vectorised validity checker (:func:`firmtool.problem.build_problem`), used
         by every stage; the roadmap records its identity.
-    stage_progress : called with a stage's name (``"design"``, ``"estimate"``) when it starts; returns a
-        progress factory for it as ``progress_factory`` (which, if given, serves the estimate stage).
 
     The output is locked for the whole build (a second writer is refused).
     """
@@ -615,23 +624,22 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
         if validity is None and not warmup.engine_is_cached():
             warmup.start(engine_choice(build_problem(scenario))[0])
         return _build(scenario, out, workers=workers, executor=executor, scheduler=scheduler,
-                      progress_factory=progress_factory, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
+                      progress=progress, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
                       add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds,
                       validity=None if validity is None else (validity if isinstance(validity, ValidityChecker)
                                                               else ValidityChecker(validity)),
-                      session=session, stage_progress=stage_progress)
+                      session=session)
 
 
 def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str, scheduler: str | None,
-           progress_factory: Callable[[int], Callable[[int], None]] | None, fresh: bool, p_min: float | None,
+           progress: ProgressCallback | None, fresh: bool, p_min: float | None,
            max_nodes: int | None, add_nodes: int | None, checkpoint_seconds: float,
-           validity: ValidityChecker | None = None, session: Workers | None = None,
-           stage_progress: Callable[[str], Callable[[int], Callable[[int], None]] | None] | None = None) -> BuildReport:
+           validity: ValidityChecker | None = None, session: Workers | None = None) -> BuildReport:
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
     existing = None if fresh else _resumable(out, scenario, validity.identity if validity else "")
     if existing is None:
         seconds["sample"] = sample_stage(scenario, out, force=True, validity=validity,  # check_output passed
-                                         session=session).seconds
+                                         session=session, progress=progress).seconds
     elif existing.scenario_sha256 != scenario.sha256:
         # the nodes' inputs are unchanged (_resumable); so are the controllers if their inputs hash matches
         keep = ("nodes",) + (("controllers",) if existing.has("controllers") and
@@ -646,11 +654,9 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
         rm = Roadmap(out)
         if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
                 and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
-            seconds["design"] += design_stage(out, validity=validity, session=session,
-                                              progress_factory=stage_progress("design") if stage_progress else None
-                                              ).seconds
+            seconds["design"] += design_stage(out, validity=validity, session=session, progress=progress).seconds
         e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
-                           progress_factory=progress_factory or (stage_progress("estimate") if stage_progress else None),
+                           progress=progress,
                            checkpoint_seconds=checkpoint_seconds, validity=validity, session=session)
         notices.extend(n for n in e.notices if n not in notices)
         seconds["estimate"] += e.seconds

@@ -229,7 +229,8 @@ MODEL_FIELDS = (  # and the robot's model_fields
 MEASUREMENT_FIELDS = (  # and, when imperfect, the noise form's fields
     Field("kind", "string", choices=MEASUREMENT_KINDS, doc="perfect (state space, SLQR) or imperfect (belief space, SLQG)"),
     Field("noise", "string", choices=lambda: _noise_names(), doc="the noise form (firmtool.models.noise), imperfect only"),
-    Field("H", "array", None, shape=(None, None), doc="observation matrix (nz, n) (default: the robot's)"),
+    Field("H", "array", None, shape=(None, None), doc="observation matrix (nz, n) (default: the robot's)",
+          example=[[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]),
 )
 WORLD_FIELDS = (
     Field("bounds", "array", shape=(2, None), unit="workspace",

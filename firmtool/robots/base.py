@@ -107,6 +107,10 @@ class Robot:
     bounds_name: ClassVar[str] = "world.bounds"
     #: what a node state's coordinates past the configuration must be, in messages
     rest_state_text: ClassVar[str] = "expected zero velocity (nodes are states at rest)"
+    #: the tables of a small scenario for this robot that builds as it is, in seconds (``firmtool init
+    #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario_docs.template`);
+    #: ``[scenario]`` is added; None: no template
+    template: ClassVar[dict[str, dict[str, Any]] | None] = None
 
     model: "Model"
     config_dim: int
@@ -369,14 +373,28 @@ class Robot:
         exactly that kind's (:class:`CompiledKinematics`)."""
         return None
 
+    def heading(self, X: np.ndarray) -> np.ndarray | None:
+        """The robot's heading in the workspace's x-y plane (radians) at states (M, n) -> (M,), for
+        figures; None (the default) for a robot without one."""
+        return None
+
     def draw(self, ax, state: np.ndarray, *, color: str, label: str, lw: float = 2.0) -> None:
         """Draw the robot at ``state`` (n,) on a matplotlib Axes in the workspace's x-y plane (a 3-D
-        robot seen from above): a disc for one key point, a polyline through several."""
-        from matplotlib.patches import Circle
+        robot seen from above): a disc for one key point (with an arrow along its :meth:`heading`,
+        if it has one), a polyline through several."""
+        from matplotlib.patches import Circle, FancyArrow
 
-        pts = self.points(np.asarray(state, dtype=float)[None])[0][:, :2]
+        X = np.asarray(state, dtype=float)[None]
+        pts = self.points(X)[0][:, :2]
         if pts.shape[0] == 1:
-            ax.add_patch(Circle(pts[0], self.scenario.world.robot_radius, color=color, zorder=6, label=label))
+            r = self.scenario.world.robot_radius
+            ax.add_patch(Circle(pts[0], r, color=color, zorder=6, label=label))
+            heading = self.heading(X)
+            if heading is not None:
+                length = 3.0 * r
+                ax.add_patch(FancyArrow(pts[0, 0], pts[0, 1], length * np.cos(heading[0]),
+                                        length * np.sin(heading[0]), width=0.35 * r, head_width=1.1 * r,
+                                        head_length=0.9 * r, length_includes_head=True, color=color, zorder=7))
         else:
             ax.plot(pts[:, 0], pts[:, 1], "-o", color=color, lw=lw, ms=3, zorder=6, label=label)
 
