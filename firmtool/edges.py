@@ -21,7 +21,7 @@ import numpy as np
 from firmtool.controllers import LocalController
 from firmtool.design import Design, local_controller, start_covariance
 from firmtool.models.base import Model
-from firmtool.nodes import GOAL, GOAL_INDEX, NodeRegions
+from firmtool.nodes import GOAL, GOAL_INDEX, START, NodeRegions
 from firmtool.problem import Problem
 from firmtool.scenario import CostSpec
 
@@ -200,20 +200,42 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int,
     xhat = np.repeat(v[None], M, axis=0)
     if problem.perfect:
         return xhat.copy(), xhat
-    chol = np.linalg.cholesky(start_covariance(problem, design_, source) + 1e-15 * np.eye(len(v)))
+    if problem.start_covariance is not None and design_.kinds[source] == START:
+        # the task's start belief (one source per design: not worth the cache)
+        chol = np.linalg.cholesky(start_covariance(problem, design_, source) + 1e-15 * np.eye(len(v)))
+    else:
+        chol = _start_factor(design_, source)
     return v + rng.standard_normal((M, len(v))) @ chol.T, xhat
+
+
+_factor_cache: dict[tuple[int, int], tuple[Design, np.ndarray]] = {}
+
+
+def _start_factor(design_: Design, source: int) -> np.ndarray:
+    """The Cholesky factor of node ``source``'s covariance (jittered by 1e-15 I), once per design and
+    node: a worker's batch of edges shares a few sources (edges come sorted by source)."""
+    hit = _factor_cache.get((id(design_), source))
+    if hit is not None and hit[0] is design_:
+        return hit[1]
+    chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(design_.P.shape[1]))
+    if len(_factor_cache) >= 256:
+        _factor_cache.clear()
+    _factor_cache[(id(design_), source)] = (design_, chol)
+    return chol
 
 
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                   particles: int, seed: int, chunk: int, engine: str | None = None,
-                  numpy_noise: bool = False) -> EdgeEstimate:
+                  numpy_noise: bool = False, controller: LocalController | None = None) -> EdgeEstimate:
     """Monte Carlo of the local controller ``source -> target`` from the source node.
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
     with its own seed derived from ``(seed, source, target, chunk index)``. ``engine`` and
-    ``numpy_noise``: as in :func:`simulate`.
+    ``numpy_noise``: as in :func:`simulate`. ``controller``: the edge's local controller if the caller
+    designed it already (:func:`firmtool.design.local_controllers` designs a batch of edges at once,
+    bit for bit the controller designed here otherwise).
     """
-    lc = local_controller(problem, design_, source, target)
+    lc = controller if controller is not None else local_controller(problem, design_, source, target)
     results = []
     for c, start in enumerate(range(0, particles, chunk)):
         M = min(chunk, particles - start)
