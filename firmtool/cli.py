@@ -449,8 +449,8 @@ def _execute_human(r: dict) -> str:
               if r.get("goal_misses") else "")
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
             f"{r['timeouts']} timeouts{stuck}{missed}\n"
-            f"success rate {prob(r['success_rate'])} (95% {interval(r['success_rate_ci95'])}; judged on the true "
-            f"state){predicted}\n"
+            f"success rate {prob(r['success_rate'])} (95% {interval(r['success_rate_ci95'])}), judged on the true "
+            f"state{predicted}\n"
             f"mean steps {num(r['mean_steps'], 3)}, mean cost {num(r['mean_cost'])}, replans {r['replans']}"
             + _execute_extra_human(r))
 

@@ -17,7 +17,7 @@ pytest.importorskip("pomdp_py")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
 
-import lightdark_pomcp as peer  # noqa: E402
+peer = pytest.importorskip("lightdark_pomcp")  # benchmarks/peers (a folder, not a package)
 
 import firmtool as ft  # noqa: E402
 from firmtool.problem import build_problem  # noqa: E402

@@ -42,7 +42,7 @@ import numpy as np
 try:
     import pomdp_py
 except ImportError as exc:  # pragma: no cover - an optional extra
-    raise SystemExit("the peer needs pomdp-py: pip install '.[peers]'") from exc
+    raise SystemExit("the peer needs pomdp-py: pip install 'firmtool[peers]' (from a checkout: '.[peers]')") from exc
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = ROOT / "scenarios" / "platt_lightdark.toml"

@@ -46,7 +46,7 @@ class ArmRobot(LinearRobot):
                         "sigma_b": 0.001},
         "world": {"bounds": [[-1.4, -1.4], [1.4, 1.4]], "robot_radius": 0.03,
                   "obstacles": [{"center": [0.0, 0.8], "half_size": [0.15, 0.1]}]},
-        "task": {"start": [-0.5, 0.5, 0.5], "goal_center": [0.5, 0.7], "goal_radius": 0.1},
+        "task": {"start": [-0.5, 0.5, 0.5], "goal": [0.5, 0.7], "goal_radius": 0.1, "goal_confidence": 0.5},
         "roadmap": {"nodes": 25, "neighbors": 6, "min_separation": 0.3, "max_edge_length": 2.0},
         "controller": {"velocity_weight": 0.2, "control_weight": 0.2, "max_accel": 2.0, "node_radius": 1.5,
                        "covariance_tolerance": 0.3, "max_steps": 200},
