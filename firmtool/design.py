@@ -105,6 +105,20 @@ def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tupl
     return problem.robot.nominal_trajectory(problem, x0, xf)
 
 
+def directed_edges(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
+                   free_pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The candidate edges (sorted) from the collision-free neighbour pairs: both directions, none
+    from a goal node (goals are absorbing) and none into a start node whose start belief the task
+    gives (it is never landed in); from such a start, edges to
+    :func:`~firmtool.nodes.start_belief_targets` as well. The serial and the parallel design share it."""
+    belief_start = problem.start_covariance is not None
+    directed = {p for i, j in free_pairs for p in ((int(i), int(j)), (int(j), int(i)))
+                if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START)}
+    if belief_start:
+        directed |= {(START_INDEX, j) for j in start_belief_targets(problem, centers)}
+    return sorted(directed)
+
+
 def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
             progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
@@ -118,12 +132,7 @@ def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
     source, target, steps : (E,) int64 arrays sorted by (source, target).
     """
     counter = Counter(progress, DESIGN_EDGES, 3).start()  # the pairs' validity, the nominals, their checks
-    belief_start = problem.start_covariance is not None
-    directed_set = {p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i))
-                    if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START)}
-    if belief_start:
-        directed_set |= {(START_INDEX, j) for j in start_belief_targets(problem, centers)}
-    directed = sorted(directed_set)
+    directed = directed_edges(problem, centers, kinds, valid_pairs(problem, centers))
     counter.advance()
     ij = np.array(directed, dtype=np.int64).reshape(-1, 2)
     # the nominals of all edges, those of one length together (bit for bit nominal_trajectory's)

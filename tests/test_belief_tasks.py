@@ -89,3 +89,14 @@ def test_goal_states_are_judged_on_the_true_state_too(smoke_roadmap):
             truly = regions.true_arrival(np.array([node]), ep.states[-1][None])[0]
             assert truly == (ep.outcome == Outcome.SUCCESS)
     assert res.to_dict()["estimate_success_rate"] >= res.success_rate
+
+
+def test_the_start_beliefs_edges_are_the_same_on_two_workers(platt, tmp_path):
+    """The design on the workers (issue 19) gives the start belief the same candidate edges as the
+    serial design (more than a node's neighbours), and the same estimates."""
+    rm, _ = platt
+    sc = ft.Scenario.from_toml(_small_platt(), "small_platt.toml")
+    two = ft.build(sc, workers=2, output=tmp_path / "two.h5")
+    np.testing.assert_array_equal(two.edges, rm.edges)
+    np.testing.assert_array_equal(two.landing_counts, rm.landing_counts)
+    assert np.count_nonzero(rm.edges[:, 0] == 0) > sc.roadmap.neighbors
