@@ -100,7 +100,7 @@ def test_the_api_gives_the_numbers_of_the_command_line(name, point, point_cli, t
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["point_perfect", "unicycle_lightdark", "unicycle_perfect", "arm8_lightdark"])
+@pytest.mark.parametrize("name", ["point_perfect", "unicycle_lightdark", "unicycle_perfect", "arm8_lightdark", "platt_lightdark"])
 def test_the_snippet_gives_the_numbers_of_the_command_line_on_every_shipped_scenario(name, tmp_path):
     """The other shipped scenarios (6.5 minutes in all on 2 shared cores: pytest -m slow)."""
     rm = ft.build(ft.load_scenario(name), workers=2)
