@@ -1,8 +1,8 @@
-"""Online compute per control step and per replan (execute.Executor), on a built and solved roadmap.
+"""Online compute per control step and per replan (firmtool.online.Policy), on a built and solved roadmap.
 
     python benchmarks/bench_online.py [--scenario point|arm] [--episodes 50] [--json]
 
-Runs ``firmtool.execute.execute`` (as ``firmtool execute --json`` does) with random pushes so that
+Runs ``firmtool.sim.run_episodes`` (as ``firmtool execute --json`` does) with random pushes so that
 replans happen, and records step_time_us_mean / p99 and replan_time_us_mean. Medians over repeats.
 """
 
@@ -23,7 +23,8 @@ from _common import SCENARIOS, one_blas_thread  # noqa: E402
 
 def online(scenario: str, episodes: int, repeat: int, push: str) -> dict:
     from firmtool.disturbances import parse_disturbances
-    from firmtool.execute import execute
+    from firmtool.online import Policy
+    from firmtool.sim import run_episodes
     from firmtool.nodes import START_INDEX
     from firmtool.pipeline import build, design_of, problem_of, solve_stage
     from firmtool.roadmap import Roadmap
@@ -36,9 +37,9 @@ def online(scenario: str, episodes: int, repeat: int, push: str) -> dict:
         pol = rm.require("policy", "edge", "success_probability", "cost_to_go")
     runs = []
     for i in range(repeat):
-        r = execute(problem, d, pol["edge"].astype(np.int64), episodes, i,
-                    predicted=float(pol["success_probability"][START_INDEX]),
-                    cost_to_go=pol["cost_to_go"], disturbances=parse_disturbances([push]))
+        policy = Policy.from_design(problem, d, pol["edge"].astype(np.int64), cost_to_go=pol["cost_to_go"])
+        r = run_episodes(policy, episodes, i, predicted=float(pol["success_probability"][START_INDEX]),
+                         disturbances=parse_disturbances([push]))
         runs.append({k: getattr(r, k) for k in ("step_time_us_mean", "step_time_us_p99", "replan_time_us_mean", "replans",
                                        "success_rate", "mean_steps")})
     med = {k: statistics.median(x[k] for x in runs if x[k] is not None) if any(x[k] is not None for x in runs) else None
