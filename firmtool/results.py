@@ -83,7 +83,9 @@ class Episode:
     act_times, observe_times : (T,) the two parts of ``step_times``.
     replan_times : wall seconds per replan decision (design and Monte Carlo included; the initial
         controller's design too).
+    replan_cpu_times : per decision, its thread's CPU seconds (less sensitive to the machine's load).
     replan_work_times : per decision, its time on the deadline's clock (``ReplanSettings.clock``).
+    replan_scored : per decision, the candidates scored by Monte Carlo (the running controller included).
     deadline_hits : decisions the deadline cut short (an anytime decision: the best candidate scored so far).
     states, estimates : (T + 1, n) true states and filter estimates, row 0 the start (when recorded).
     covariances : (T + 1, n, n) filter covariances (when recorded).
@@ -104,7 +106,9 @@ class Episode:
     replan_times: list[float] = field(default_factory=list)
     act_times: np.ndarray | None = None
     observe_times: np.ndarray | None = None
+    replan_cpu_times: list[float] = field(default_factory=list)
     replan_work_times: list[float] = field(default_factory=list)
+    replan_scored: list[int] = field(default_factory=list)
     deadline_hits: int = 0
     states: np.ndarray | None = None
     estimates: np.ndarray | None = None

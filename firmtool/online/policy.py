@@ -275,10 +275,14 @@ class Policy:
     @property
     def timing(self) -> dict[str, np.ndarray]:
         """Seconds of compute: ``act`` and ``observe`` (T,) per control period (decisions apart),
-        ``decision`` per replan decision (wall), ``decision_work`` (its time on the deadline's clock),
-        ``deadline_hit`` (bool per decision: the deadline cut the search)."""
+        ``decision`` per replan decision (wall), ``decision_cpu`` (its thread's CPU time),
+        ``decision_work`` (its time on the deadline's clock), ``decision_scored`` (candidates scored
+        by Monte Carlo, the running controller included), ``deadline_hit`` (bool per decision: the
+        deadline cut the search)."""
         return {"act": np.asarray(self._act_s), "observe": np.asarray(self._observe_s),
-                "decision": np.asarray(self._decision_s), "decision_work": np.asarray(self._decision_work),
+                "decision": np.asarray(self._decision_s), "decision_cpu": np.asarray(self._decision_cpu),
+                "decision_work": np.asarray(self._decision_work),
+                "decision_scored": np.asarray(self._decision_scored, dtype=np.int64),
                 "deadline_hit": np.asarray(self._deadline_hit, dtype=bool)}
 
     @property
@@ -374,7 +378,9 @@ class Policy:
         self._act_s: list[float] = []
         self._observe_s: list[float] = []
         self._decision_s: list[float] = []
+        self._decision_cpu: list[float] = []
         self._decision_work: list[float] = []
+        self._decision_scored: list[int] = []
         self._deadline_hit: list[bool] = []
         s = self.settings
         self._window = InnovationWindow(s.window, self.problem.model.nz, s.false_alarm) if self._innovation else None
@@ -392,9 +398,9 @@ class Policy:
             self._nodes.append(node)
             self._at_node(node, out)
         else:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             decision = self.replanner.decide(mean, covariance, self._rng)
-            self._decided(time.perf_counter() - t0, decision)
+            self._decided(time.perf_counter() - t0, time.thread_time() - c0, decision)
             if decision.controller is None:
                 self._status = PolicyStatus.STUCK
                 self._emit(out, Event(0, EventKind.STUCK, -1, detail=f"no initial controller: {decision.reason}"))
@@ -570,14 +576,16 @@ class Policy:
         self._edges.append(edge)
         self._begin(self._controller(edge))
 
-    def _decided(self, seconds: float, decision) -> None:
+    def _decided(self, seconds: float, cpu: float, decision) -> None:
         self._decision_s.append(seconds)
+        self._decision_cpu.append(cpu)
         self._decision_work.append(decision.work_seconds if self.settings.clock == "work" else seconds)
+        self._decision_scored.append(decision.scored)
         self._deadline_hit.append(decision.deadline_hit)
 
     def _replan(self, k: int, dev: float, alarm: bool, nu: np.ndarray | None, out: list[Event]) -> bool:
         """A replan decision at step ``k`` of the running controller; True if a new controller took over."""
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         run, total, problem = self._run, self._total, self.problem
         lc = run.lc
         window = self._window
@@ -609,12 +617,14 @@ class Policy:
             new, why, keep = decision.controller, decision.reason, decision.keep_score
             if (new is not None or np.isfinite(keep)) and xv is not x0:
                 self._xhat = xv[None].copy()
-        seconds = time.perf_counter() - t0
+        seconds, cpu = time.perf_counter() - t0, time.thread_time() - c0
         if decision is not None:
-            self._decided(seconds, decision)
+            self._decided(seconds, cpu, decision)
         else:
             self._decision_s.append(seconds)
+            self._decision_cpu.append(cpu)
             self._decision_work.append(0.0)
+            self._decision_scored.append(0)
             self._deadline_hit.append(False)
         if new is None and xv is not None and np.isfinite(keep):
             self._emit(out, Event(total, EventKind.KEPT_CONTROLLER, run.target, keep, why))

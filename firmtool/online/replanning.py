@@ -17,10 +17,13 @@ decision checks whether it still fits, and if not returns the best candidate sco
 least one is always scored). How time is counted is :attr:`ReplanSettings.clock`:
 
 - ``"work"`` (default): a deterministic work budget. Each scored candidate costs
-  :attr:`ReplanSettings.candidate_seconds` (default :data:`CANDIDATE_SECONDS`, the slowest cost per
-  scored candidate measured on the three shipped robots on a 2-core machine, ``benchmarks/bench_online.py``),
-  so a decision scores at most ``deadline / candidate_seconds`` candidates whatever the machine's
-  load: simulations stay reproducible, and the same seed gives the same episodes on any machine.
+  :attr:`ReplanSettings.candidate_seconds`, by default the robot's measured cost of scoring one
+  candidate (:data:`CANDIDATE_SECONDS`: design of the run-time controller + its Monte Carlo, thread
+  CPU time on the reference 2-core machine, ``benchmarks/bench_online.py``), so a decision scores
+  at most ``deadline / candidate_seconds`` candidates whatever the machine's load: simulations stay
+  reproducible, and the same seed gives the same episodes on any machine. With the defaults a
+  point-robot or arm decision is never cut (its 9 candidates fit in ``dt``); a unicycle decision,
+  whose run-time design alone takes ~26 ms, scores 3 within its 100 ms.
 - ``"wall"``: ``time.perf_counter``, with the mean time per candidate measured in this decision as
   the forecast for the next one. For a real robot (or to study a loaded machine); decisions then
   depend on the load.
@@ -54,9 +57,12 @@ RISK_PARTICLES = 32  # Monte Carlo particles per replan candidate (0: rank by th
 RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at run time
 INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
 INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
-# Work clock: seconds charged per scored candidate (design + 32-particle Monte Carlo). The slowest of
-# the shipped robots on the reference 2-core machine, rounded up (benchmarks/README.md, "online").
-CANDIDATE_SECONDS = 2e-3
+# Work clock: seconds charged per scored candidate (run-time design + 32-particle Monte Carlo), per
+# robot: thread CPU time measured on the reference 2-core machine (benchmarks/README.md, "online";
+# point 0.9 ms, arm 1.8 ms, unicycle 26 ms), rounded up. A robot not listed is charged the default.
+# (With robots as plugins this belongs to the robot's module.)
+CANDIDATE_SECONDS = {"point": 1e-3, "arm": 2e-3, "unicycle": 30e-3}
+DEFAULT_CANDIDATE_SECONDS = 2e-3
 CLOCKS = ("work", "wall")
 LATENCIES = ("0", "measured")
 
@@ -76,7 +82,8 @@ class ReplanSettings:
     window, false_alarm : its window (steps) and per-step false-alarm probability.
     deadline : seconds a decision may take (None: the control period ``dt``); see the module notes.
     clock : ``"work"`` (deterministic budget, the default) or ``"wall"`` (real time).
-    candidate_seconds : the work clock's charge per scored candidate.
+    candidate_seconds : the work clock's charge per scored candidate (None: the robot's,
+        :data:`CANDIDATE_SECONDS`).
     latency : ``"0"`` (a new controller runs from the next step, the default) or ``"measured"``: the
         controller that was running goes on for ``ceil(t / dt)`` steps, ``t`` the decision's time on
         its clock (work: ``scored x candidate_seconds``, deterministic; wall: measured), before the
@@ -93,7 +100,7 @@ class ReplanSettings:
     false_alarm: float = INNOVATION_FALSE_ALARM
     deadline: float | None = None
     clock: str = "work"
-    candidate_seconds: float = CANDIDATE_SECONDS
+    candidate_seconds: float | None = None
     latency: str = "0"
 
     def __post_init__(self) -> None:
@@ -105,7 +112,8 @@ class ReplanSettings:
             raise InputError(f"replan deadline: expected a number of seconds > 0, found {self.deadline}")
         if self.clock not in CLOCKS:
             raise InputError(f"replan clock: expected one of {', '.join(CLOCKS)}, found {self.clock!r}")
-        if not (np.isfinite(self.candidate_seconds) and self.candidate_seconds > 0):
+        if self.candidate_seconds is not None and not (np.isfinite(self.candidate_seconds)
+                                                       and self.candidate_seconds > 0):
             raise InputError(f"replan candidate_seconds: expected a number > 0, found {self.candidate_seconds}")
         if str(self.latency) not in LATENCIES:
             raise InputError(f"replan latency: expected one of {', '.join(LATENCIES)}, found {self.latency!r}")
@@ -121,6 +129,7 @@ class Decision:
     Attributes
     ----------
     controller : the new controller, or None (keep the running one, or nothing could be designed).
+    score : the new controller's Monte Carlo score (inf without one, or without Monte Carlo).
     keep_score : the running controller's Monte Carlo score (inf when not scored or not offered).
     reason : a short text for the events.
     scored : candidates scored by Monte Carlo (the running controller included).
@@ -129,6 +138,7 @@ class Decision:
     """
 
     controller: RunningController | None
+    score: float
     keep_score: float
     reason: str
     scored: int
@@ -139,10 +149,10 @@ class Decision:
 class _Budget:
     """The deadline of one decision on its clock; ``fits()`` before each candidate, ``spent()`` after."""
 
-    def __init__(self, settings: ReplanSettings, dt: float) -> None:
+    def __init__(self, settings: ReplanSettings, dt: float, candidate_seconds: float) -> None:
         self.deadline = settings.deadline if settings.deadline is not None else dt
         self.wall = settings.clock == "wall"
-        self.per = settings.candidate_seconds
+        self.per = candidate_seconds
         self.t0 = time.perf_counter()
         self.scored = 0
         self.hit = False
@@ -192,6 +202,8 @@ class Replanner:
         d = problem.config_dim
         self._tree = cKDTree(design_.centers[self._usable, :d]) if self._usable.size else None
         self._trPs = np.trace(design_.P, axis1=1, axis2=2)
+        self.candidate_seconds = (settings.candidate_seconds if settings.candidate_seconds is not None else
+                                  CANDIDATE_SECONDS.get(problem.scenario.model.robot, DEFAULT_CANDIDATE_SECONDS))
 
     # -- controllers designed at run time -----------------------------------------------------------
 
@@ -297,20 +309,20 @@ class Replanner:
         Without ``rng`` or with ``risk_particles == 0`` there is no Monte Carlo: the first candidate
         in the order of the cheap score whose segment is free is taken.
         """
-        budget = _Budget(self.settings, self.problem.model.dt)
+        budget = _Budget(self.settings, self.problem.model.dt, self.candidate_seconds)
         M = self.settings.risk_particles if rng is not None else 0
         keep_score = np.inf
         if keep is not None and M:
             keep_score = self.risk_score(keep, xhat, P, M, rng)
             budget.spent()
-        run, why = self._best_node(xhat, P, rng if M else None, keep_score, budget)
-        return Decision(controller=run, keep_score=keep_score, reason=why, scored=budget.scored,
+        run, score, why = self._best_node(xhat, P, rng if M else None, keep_score, budget)
+        return Decision(controller=run, score=score, keep_score=keep_score, reason=why, scored=budget.scored,
                         deadline_hit=budget.hit, work_seconds=budget.seconds)
 
     def _best_node(self, xhat: np.ndarray, P: np.ndarray, rng: np.random.Generator | None, bound: float,
-                   budget: _Budget) -> tuple[RunningController | None, str]:
+                   budget: _Budget) -> tuple[RunningController | None, float, str]:
         if self._tree is None:
-            return None, "no node can reach the goal"
+            return None, np.inf, "no node can reach the goal"
         problem, cost = self.problem, self.problem.scenario.cost
         d = problem.config_dim
         k = min(self.settings.candidates, self._usable.size)
@@ -336,17 +348,18 @@ class Replanner:
             except NumericalError:
                 continue
             if M == 0:
-                return self.wrap(lc, j), f"to node {j}"
+                return self.wrap(lc, j), np.inf, f"to node {j}"
             mc = self.risk_score(lc, xhat, P, M, rng)
             budget.spent()
             scored += 1
             if mc < best_score:
                 best, best_score, best_j = lc, mc, j
         if best is not None:
-            return self.wrap(best, best_j), f"to node {best_j} (score {best_score:.1f}, {scored} scored{late})"
+            return (self.wrap(best, best_j), best_score,
+                    f"to node {best_j} (score {best_score:.1f}, {scored} scored{late})")
         if scored or late:
-            return None, f"no candidate scores below {bound:.1f} ({scored} scored{late})"
-        return None, f"none of the {k} nearest nodes has a collision-free straight way from the estimate"
+            return None, np.inf, f"no candidate scores below {bound:.1f} ({scored} scored{late})"
+        return None, np.inf, f"none of the {k} nearest nodes has a collision-free straight way from the estimate"
 
 
 def latency_steps(seconds: float, dt: float) -> int:

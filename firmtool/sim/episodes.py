@@ -156,8 +156,10 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     timing = policy.timing
     ep.step_times = timing["act"] + timing["observe"]
     ep.replan_times = timing["decision"].tolist()
+    ep.replan_cpu_times = timing["decision_cpu"].tolist()
     ep.act_times, ep.observe_times = timing["act"], timing["observe"]
     ep.replan_work_times = timing["decision_work"].tolist()
+    ep.replan_scored = timing["decision_scored"].tolist()
     ep.deadline_hits = int(timing["deadline_hit"].sum())
     if record:
         history = policy.history

@@ -127,6 +127,8 @@ def run_case(sol, episodes: int, seed: int, disturbances: list[str], replanning:
 
     opts = dict(options)
     start = opts.pop("start", None)
+    if "deadline" in getattr(ft.ReplanSettings, "__dataclass_fields__", {}):
+        opts.setdefault("deadline", 1e9)  # the executor before the split had no deadline: one that never binds
     replan = ft.ReplanSettings(enabled=replanning, **opts)
     return ft.simulate(sol, episodes, seed, disturbances=disturbances, replan=replan,
                        start=None if start is None else np.asarray(start, dtype=float), record=True)
