@@ -61,9 +61,9 @@ from firmtool import kernels
 from firmtool.controllers import stationary_kalman
 from firmtool.design import Design, local_controller, periodic_node
 from firmtool.edges import TIMEOUT as EDGE_TIMEOUT, simulate
-from firmtool.errors import InputError
+from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, START_INDEX
-from firmtool.online.innovation import InnovationWindow, reset_belief
+from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
 from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps
 from firmtool.online.running import RunningController, remainder, running_controller
 from firmtool.problem import Problem
@@ -383,7 +383,15 @@ class Policy:
         self._decision_scored: list[int] = []
         self._deadline_hit: list[bool] = []
         s = self.settings
-        self._window = InnovationWindow(s.window, self.problem.model.nz, s.false_alarm) if self._innovation else None
+        problem = self.problem
+        self._window = (InnovationWindow(s.window, problem.model.nz, s.false_alarm, s.partial_window)
+                        if self._innovation else None)
+        # a push moves the configuration; a kidnap also stops the robot (the whole state jumps)
+        bases = {"configuration": np.eye(n)[:, :problem.config_dim], "state": np.eye(n)}
+        if problem.config_dim == n:
+            bases.pop("state")
+        self._jump = (JumpTests(bases, s.jump_window, s.jump_false_alarm, self._jump_prior())
+                      if self._innovation and s.jump_test else None)
         self._cooldown = 0  # no decision before this step (after keeping the running controller)
         self._run: RunningController | None = None
         self._clean, self._run_start = False, 0
@@ -495,6 +503,10 @@ class Policy:
             self._observe_s.append(time.perf_counter() - t0)
             return out
         total, s = self._total, self.settings
+        jump = False
+        if self._jump is not None:  # its recursion follows the filter every step
+            A, H = self._jacobians(lc, k)
+            jump = self._jump.add(total, A, H, lc.L[k], run.S_inv[k], nu)
         landed = -1
         if k + 1 >= run.land_from and run.cand[k].any():
             landed = self._locate(xhat, run.cand[k])
@@ -508,6 +520,9 @@ class Policy:
             deviate = dev > s.threshold
             if self._window is not None:
                 alarm = self._window.add(nu, run.S_inv[k])
+            alarm = alarm or jump
+        else:
+            jump = False
         self._observe_s.append(time.perf_counter() - t0)
 
         if landed >= 0:
@@ -527,7 +542,7 @@ class Policy:
                 return out
             self._pending = (new, wait - 1)
         elif alarm or deviate:
-            if self._replan(k, dev, alarm, nu, out):
+            if self._replan(k, dev, alarm, jump, nu, out):
                 return out
         if total >= self.max_steps:
             self._status = PolicyStatus.TIMEOUT
@@ -583,36 +598,97 @@ class Policy:
         self._decision_scored.append(decision.scored)
         self._deadline_hit.append(decision.deadline_hit)
 
-    def _replan(self, k: int, dev: float, alarm: bool, nu: np.ndarray | None, out: list[Event]) -> bool:
+    def _replan(self, k: int, dev: float, alarm: bool, jump: bool, nu: np.ndarray | None, out: list[Event]) -> bool:
         """A replan decision at step ``k`` of the running controller; True if a new controller took over."""
         t0, c0 = time.perf_counter(), time.thread_time()
         run, total, problem = self._run, self._total, self.problem
         lc = run.lc
         window = self._window
-        if window is not None:
-            window.clear()
         if alarm:
-            # The measurements contradict the belief (an unseen push or kidnap): redo this step's
-            # update with the prior inflated by the innovations, so that the decision starts from an
-            # estimate that has taken the measurement in, not the one it refutes.
-            dev = window.statistic
-            self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev))
-            xh, P_now = reset_belief(problem.model, lc, k, self._xhat_prev[0], self._u[0], nu, window.nus)
+            # The measurements contradict the belief (an unseen push or kidnap): correct this step's
+            # belief first, so that the decision starts from an estimate that has taken the
+            # measurements in, not the one they refute.
+            if jump:  # by the estimated jump (Willsky-Jones): mean and covariance
+                shift, cov, onset = self._jump.correction()
+                dev = self._jump.statistic
+                self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev,
+                                      f"jump test: a jump of the {self._jump.fired} before step {onset} "
+                                      f"(estimate moved {np.linalg.norm(shift[:problem.config_dim]):.2f})"))
+                xh, P_now = self._xhat[0] + shift, lc.P[k + 1] + cov
+            else:  # by the update redone from a prior the innovations inflated
+                dev = window.statistic
+                self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev))
+                xh, P_now = reset_belief(problem.model, lc, k, self._xhat_prev[0], self._u[0], nu, window.innovations)
             self._xhat, self._P = xh[None], P_now
             self._clean = False  # the filter was reset: no longer the edge the Monte Carlo ran
             if self._record:
                 self._hist_x[-1], self._hist_P[-1] = xh, P_now
         else:
             P_now = lc.P[k + 1]
+        return self._decide(k + 1, P_now, dev, alarm, out, t0, c0)
+
+    def relocalise(self, mean: np.ndarray, covariance: np.ndarray) -> list[Event]:
+        """Replace the belief mid-run by one from outside (a re-localisation: a marker, a satellite fix,
+        a map match) and decide from it: keep the running controller (its filter re-planned from the
+        new belief) or take a controller designed at run time to a nearby node.
+
+        Call it between :meth:`observe` and :meth:`act`.
+
+        Parameters
+        ----------
+        mean : (n,); covariance : (n, n)
+
+        Returns
+        -------
+        list of Event
+            The decision's: ``replan``, ``kept_controller`` or ``replan_failed``.
+        """
+        if self._status is not PolicyStatus.RUNNING or self._awaiting:
+            raise InputError("Policy.relocalise: only while running, between observe() and act()")
+        n = self.problem.model.n
+        mean, covariance = np.asarray(mean, dtype=float), np.asarray(covariance, dtype=float)
+        if mean.shape != (n,) or covariance.shape != (n, n) or not (np.all(np.isfinite(mean))
+                                                                    and np.all(np.isfinite(covariance))):
+            raise InputError(f"Policy.relocalise: expected a finite mean ({n},) and covariance ({n}, {n})")
+        t0, c0 = time.perf_counter(), time.thread_time()
+        self._xhat, self._P = mean[None].copy(), covariance
+        self._clean = False
+        if self._record:
+            self._hist_x[-1], self._hist_P[-1] = mean.copy(), covariance
+        out: list[Event] = []
+        if self._decide(self._k, covariance, 0.0, True, out, t0, c0):
+            return out
+        return out
+
+    def _decide(self, s_next: int, P_now: np.ndarray, dev: float, reset: bool, out: list[Event], t0: float,
+                c0: float) -> bool:
+        """Keep the running controller from its step ``s_next`` or take a new one, from the belief
+        (``self._xhat``, ``P_now``; ``reset``: a belief that is not the running filter's). True if a
+        controller other than the running one (at its step) runs next."""
+        run, total, problem, s = self._run, self._total, self.problem, self.settings
+        lc = run.lc
+        if self._window is not None:
+            self._window.clear()
+        if self._jump is not None:
+            self._jump.clear()
         # the robot is alive, so its state is valid: never plan from an estimate in collision
         x0 = self._xhat[0]
         xv = x0 if problem.perfect else self.replanner.valid_estimate(x0, P_now, self._rng)
         keep = np.inf
+        kept: RunningController | None = None  # keeping, re-filtered from the reset belief
         if xv is None:
             new, why = None, "the estimate is in collision and no valid state is likely under the belief"
             decision = None
         else:
-            offer = remainder(lc, k + 1) if self.settings.risk_particles and k + 1 < lc.steps - 1 else None
+            offer = None
+            if s.risk_particles and s_next < lc.steps - 1:
+                offer = remainder(lc, s_next)
+                if reset and s.refilter:
+                    try:
+                        kept = self.replanner.refiltered(run, s_next, xv, P_now)
+                        offer = kept.lc
+                    except NumericalError:
+                        kept = None
             decision = self.replanner.decide(xv, P_now, self._rng, keep=offer)
             new, why, keep = decision.controller, decision.reason, decision.keep_score
             if (new is not None or np.isfinite(keep)) and xv is not x0:
@@ -628,7 +704,10 @@ class Policy:
             self._deadline_hit.append(False)
         if new is None and xv is not None and np.isfinite(keep):
             self._emit(out, Event(total, EventKind.KEPT_CONTROLLER, run.target, keep, why))
-            self._cooldown = total + self.settings.window
+            self._cooldown = total + s.window
+            if kept is not None:  # the same reference and feedback, the filter from the reset belief
+                self._begin(kept)
+                return True
             return False
         if new is None:
             self._replan_failures += 1
@@ -637,13 +716,34 @@ class Policy:
         self._replans += 1
         self._emit(out, Event(total, EventKind.REPLAN, new.target, dev, why))
         wait = 0
-        if self.settings.latency == "measured":
+        if s.latency == "measured":
             wait = latency_steps(self._decision_work[-1], problem.model.dt)
-        if wait > 0 and k + 1 < lc.steps:
+        if wait > 0 and s_next < lc.steps:
             self._pending = (new, wait)  # the running controller goes on while the decision "computes"
             return False
         self._begin(new)
         return True
+
+    def _jump_prior(self) -> np.ndarray:
+        """(n,) prior variance of a jump of each state coordinate, for the jump estimate: a
+        configuration coordinate anywhere in its range, a velocity within the speed limit (a
+        nonholonomic robot's heading anywhere)."""
+        problem = self.problem
+        d, n = problem.config_dim, problem.model.n
+        span = np.asarray(problem.config_hi, dtype=float) - np.asarray(problem.config_lo, dtype=float)
+        rest = np.pi ** 2 if problem.nonholonomic else problem.scenario.controller.max_speed ** 2
+        return np.concatenate([span ** 2, np.full(n - d, rest)])
+
+    def _jacobians(self, lc, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The step's linearisation as the filter was designed: ``A_k`` at the reference and ``H`` at
+        the state the step lands on (a linear model's constant matrices)."""
+        model = self.problem.model
+        A, H = getattr(model, "A", None), getattr(model, "H", None)
+        if A is None:
+            A = model.dynamics_jacobians(lc.x_ref[k], lc.u_ref[k])[0]
+        if H is None:
+            H = model.observation_jacobian(lc.x_ref[min(k + 1, lc.steps - 1)])
+        return A, H
 
     def _controller(self, edge: int) -> RunningController:
         if edge not in self._cache:  # designed once per edge, reused by every episode

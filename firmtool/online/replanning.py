@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from firmtool.controllers import LocalController, min_energy_trajectory, plan_local_controller
-from firmtool.design import Design, local_controller, lqr_weights
+from firmtool.design import Design, local_controller, lqr_weights, node_controller
 from firmtool.edges import simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, NodeRegions, segment_is_valid
@@ -57,6 +57,12 @@ RISK_PARTICLES = 32  # Monte Carlo particles per replan candidate (0: rank by th
 RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at run time
 INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
 INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
+JUMP_WINDOW = 20  # onsets the jump test (generalised likelihood ratio) keeps
+# Its per-step false-alarm probability: a jump a few measurement sigmas large in the dark takes ~5-8
+# steps to reach 1e-6's bound on the point robot (a push of 1.0 at sigma 0.45: 7 of 60 detected),
+# ~4-6 at 1e-4 (22 of 60). Nominally <= 0.2 false alarms in the unicycle's ~2000-step episodes (the
+# test is conservative: measured 0 of 20 such episodes at 1e-6, 6 alarms at 1e-3).
+JUMP_FALSE_ALARM = 1e-4
 # Work clock: seconds charged per scored candidate (run-time design + 32-particle Monte Carlo), per
 # robot: thread CPU time measured on the reference 2-core machine (benchmarks/README.md, "online";
 # point 0.9 ms, arm 1.8 ms, unicycle 26 ms), rounded up. A robot not listed is charged the default.
@@ -78,8 +84,17 @@ class ReplanSettings:
     max_per_episode : replans after which the running controller goes on without replanning.
     candidates : nearest nodes considered per decision.
     risk_particles : Monte Carlo particles per candidate (0: take the best cheap score, no Monte Carlo).
-    innovation_test : run the windowed chi-square test of the filter's innovations.
-    window, false_alarm : its window (steps) and per-step false-alarm probability.
+    innovation_test : run the tests of the filter's innovations (below); off: the deviation test only.
+    window, false_alarm : the window (steps) of the chi-square test of normalised innovation squares,
+        and the per-step false-alarm probability of each test.
+    partial_window : the chi-square test runs on a window not yet full (after a start or a decision);
+        off: it waits for ``window`` steps (as before issue 17's sweep).
+    jump_test, jump_window, jump_false_alarm : the generalised likelihood ratio test for a jump of
+        the configuration (:class:`~firmtool.online.innovation.JumpTest`) over ``jump_window`` onsets,
+        at ``jump_false_alarm`` per step; on its alarm the belief is corrected by the estimated jump.
+    refilter : after a belief reset, the option of keeping the running controller keeps its reference
+        and feedback but re-plans its filter from the reset belief (its designed gains assume the old
+        covariance); off: its designed filter goes on.
     deadline : seconds a decision may take (None: the control period ``dt``); see the module notes.
     clock : ``"work"`` (deterministic budget, the default) or ``"wall"`` (real time).
     candidate_seconds : the work clock's charge per scored candidate (None: the robot's,
@@ -98,6 +113,11 @@ class ReplanSettings:
     innovation_test: bool = True
     window: int = INNOVATION_WINDOW
     false_alarm: float = INNOVATION_FALSE_ALARM
+    partial_window: bool = True
+    jump_test: bool = True
+    jump_window: int = JUMP_WINDOW
+    jump_false_alarm: float = JUMP_FALSE_ALARM
+    refilter: bool = True
     deadline: float | None = None
     clock: str = "work"
     candidate_seconds: float | None = None
@@ -117,9 +137,13 @@ class ReplanSettings:
             raise InputError(f"replan candidate_seconds: expected a number > 0, found {self.candidate_seconds}")
         if str(self.latency) not in LATENCIES:
             raise InputError(f"replan latency: expected one of {', '.join(LATENCIES)}, found {self.latency!r}")
-        if self.window < 1 or self.candidates < 1:
-            raise InputError(f"replan window and candidates: expected integers >= 1, found {self.window}, "
-                             f"{self.candidates}")
+        for name in ("false_alarm", "jump_false_alarm"):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0:
+                raise InputError(f"replan {name}: expected a probability in (0, 1), found {value}")
+        if self.window < 1 or self.candidates < 1 or self.jump_window < 1:
+            raise InputError(f"replan window, jump_window and candidates: expected integers >= 1, found "
+                             f"{self.window}, {self.jump_window}, {self.candidates}")
 
 
 @dataclass
@@ -245,6 +269,22 @@ class Replanner:
             steps = int(np.ceil(steps * 1.5))
         Wx, Wu = lqr_weights(problem)
         return plan_local_controller(model, x, u, P0, self.design.node(j), Wx, Wu, c.max_steps, problem.perfect)
+
+    def refiltered(self, run: RunningController, s: int, xhat: np.ndarray, P: np.ndarray) -> RunningController:
+        """The running controller from its step ``s`` on with its filter re-planned from the belief
+        ``(xhat, P)``: the same nominal and target (during the edge, its remaining nominal; in the
+        stabiliser's phase, a run-time controller to its node), the LQR gains of that nominal, and
+        Kalman gains and covariances from ``P``."""
+        lc, problem = run.lc, self.problem
+        if s >= lc.edge_steps:
+            return self.wrap(self.runtime_controller(xhat, P, run.target), run.target)
+        x_nom = np.concatenate([lc.x_ref[s:lc.edge_steps], self.design.centers[run.target][None]])
+        Wx, Wu = lqr_weights(problem)
+        new = plan_local_controller(problem.model, x_nom, lc.u_ref[s:lc.edge_steps], P,
+                                    node_controller(problem, self.design, run.target), Wx, Wu,
+                                    lc.steps - lc.edge_steps, problem.perfect)
+        return running_controller(self.regions, new, run.target, -1, -1, run.scale, max(0, run.land_from - s),
+                                  problem.perfect)
 
     def wrap(self, lc: LocalController, j: int) -> RunningController:
         """A run-time controller to node ``j``, ready to run (landing tested from its first step)."""

@@ -52,6 +52,7 @@ class RunningController:
     edge : the policy edge it belongs to, or -1 for a controller designed at run time.
     source : the edge's source node, or -1.
     land_from : first step (1-based count) at which landing is tested.
+    scale : (n,) the node spread of the deviation norm.
     S_inv : (T, nz, nz) inverse innovation covariances (None with perfect measurements).
     """
 
@@ -63,6 +64,7 @@ class RunningController:
     edge: int
     source: int
     land_from: int
+    scale: np.ndarray
     S_inv: np.ndarray | None = None
 
     @property
@@ -99,7 +101,7 @@ def running_controller(regions: NodeRegions, lc: LocalController, target: int, e
     inv_scale = 1.0 / np.sqrt(scale[None, :] ** 2 + spread[1:] ** 2)
     return RunningController(lc=lc, cand=StepCandidates(regions, lc.P[1:]), trP=np.trace(lc.P[1:], axis1=1, axis2=2),
                              inv_scale=inv_scale, target=target, edge=edge, source=source, land_from=land_from,
-                             S_inv=S_inv)
+                             scale=scale, S_inv=S_inv)
 
 
 def remainder(lc: LocalController, s: int) -> LocalController:

@@ -88,7 +88,7 @@ def start_state(policy: Policy, start: np.ndarray | None) -> np.ndarray | None:
 
 
 def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *, start: np.ndarray | None = None,
-                disturbances: tuple = (), record: bool = False) -> Episode:
+                disturbances: tuple = (), record: bool = False, after_disturbance=None) -> Episode:
     """One episode from the start node (or from the state ``start``, by an initial controller).
 
     Parameters
@@ -98,6 +98,9 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     start : (n,) start state instead of the start node (:func:`start_state` checks one).
     disturbances : parsed disturbances (:func:`firmtool.disturbances.as_disturbances`).
     record : keep the episode's states, estimates, covariances and controls.
+    after_disturbance : for analyses, ``fn(policy, system) -> events``, called after the policy observed
+        the step a disturbance hit (e.g. an oracle that re-localises the policy at the true state:
+        :func:`firmtool.sim.sweep.oracle`); None in a plain simulation.
     """
     rng = np.random.default_rng(seeds.system)
     key = tuple(seeds.disturbances)
@@ -143,6 +146,8 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
             ep.events.append(Event(policy.steps, EventKind.COLLISION, policy.target, detail=policy.controller))
             break
         ep.events.extend(policy.observe(z))
+        if after_disturbance is not None and disturbed and disturbed[-1] == now and not policy.done:
+            ep.events.extend(after_disturbance(policy, system))
     if not collided:
         ep.outcome = _OUTCOME[policy.status]
     traversals = [(t[0], t[1], t[2], t[3]) for t in policy.traversals]

@@ -127,8 +127,11 @@ def run_case(sol, episodes: int, seed: int, disturbances: list[str], replanning:
 
     opts = dict(options)
     start = opts.pop("start", None)
-    if "deadline" in getattr(ft.ReplanSettings, "__dataclass_fields__", {}):
-        opts.setdefault("deadline", 1e9)  # the executor before the split had no deadline: one that never binds
+    fields = getattr(ft.ReplanSettings, "__dataclass_fields__", {})
+    if "deadline" in fields:  # the settings of the executor before the split (the fields it did not have):
+        opts.setdefault("deadline", 1e9)  # no deadline: one that never binds
+        for name in ("partial_window", "jump_test", "refilter"):  # the fixes issue 17's sweep motivated, off
+            opts.setdefault(name, False)
     replan = ft.ReplanSettings(enabled=replanning, **opts)
     return ft.simulate(sol, episodes, seed, disturbances=disturbances, replan=replan,
                        start=None if start is None else np.asarray(start, dtype=float), record=True)
