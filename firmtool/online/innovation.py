@@ -186,8 +186,9 @@ class JumpTest:
 class JumpTests:
     """Jump tests of several families at once, the false alarm split between them: a jump of the
     configuration (a push: positions move, velocities stay) and of the whole state (a kidnap also
-    stops the robot). On alarms, the family whose statistic is least likely under no jump (smallest
-    p-value) fired, and its estimate corrects the belief (:meth:`correction`).
+    stops the robot). When one rejects, the family whose statistic is least likely under no jump
+    (smallest p-value; the other one's too, below its bound) explains the data, and its estimate
+    corrects the belief (:meth:`correction`).
 
     The state family's jump is estimated with a prior, ``N(0, diag(prior))``:
     ``nu = (C + prior^-1)^-1 d`` with covariance ``(C + prior^-1)^-1``. Estimated without one from the
@@ -220,9 +221,13 @@ class JumpTests:
     def add(self, step: int, A: np.ndarray, H: np.ndarray, L: np.ndarray, S_inv: np.ndarray,
             gamma: np.ndarray) -> bool:
         """:meth:`JumpTest.add` for every family; True when one rejects (:attr:`fired` names the one)."""
-        fired = {name: t for name, t in self.tests.items() if t.add(step, A, H, L, S_inv, gamma)}
-        self.fired = (min(fired, key=lambda name: chi2.logsf(fired[name].statistic, fired[name].basis.shape[1]))
-                      if fired else None)
+        rejects = [t.add(step, A, H, L, S_inv, gamma) for t in self.tests.values()]
+        # the family that explains the data best: the smallest p-value, whichever crossed its bound
+        # (a kidnap's position jump crosses the configuration's first, its velocity change shows in
+        # the state's p-value)
+        self.fired = (min(self.tests, key=lambda name: chi2.logsf(self.tests[name].statistic,
+                                                                  self.tests[name].basis.shape[1]))
+                      if any(rejects) else None)
         return self.fired is not None
 
     @property

@@ -27,10 +27,19 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   node radius), a decision is taken: keep the running controller, or a controller designed in real
   time from the current belief to a nearby node (:class:`~firmtool.online.replanning.Replanner`,
   with a deadline); the stored policy resumes once a node is reached.
-- **Innovation test.** The filter's normalised innovations over a moving window are tested against
-  their chi-square bound (:mod:`firmtool.online.innovation`). On an alarm the step's update is redone
-  from a prior inflated by the innovations before the decision, so that it starts from an estimate
-  that has taken the measurement in.
+- **Innovation tests.** A push the filter is not told of shows first in the measurements
+  (:mod:`firmtool.online.innovation`): a generalised likelihood ratio test for a jump of the
+  configuration or of the whole state (Willsky and Jones 1976) over the last
+  :attr:`ReplanSettings.jump_window` onsets, and the chi-square test of the normalised innovation
+  squares over a moving window (also while the window fills, after a start or a decision). On an
+  alarm the belief is corrected before the decision: by the estimated jump (mean and covariance),
+  or, when only the window test fired, by the step's update redone from a prior the innovations
+  inflated, so that the decision starts from an estimate that has taken the measurements in.
+- **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
+  and feedback but re-plans its Kalman gains from the corrected belief (its designed gains assume
+  the covariance it was designed with, and learnt the push far too slowly in the dark).
+- **Re-localisation.** :meth:`Policy.relocalise` replaces the belief mid-run by one from outside (a
+  marker, a satellite fix) and decides from it.
 - **Valid estimate.** An estimate in collision (a noisy reset near an obstacle) is replaced by the
   most likely valid state under the belief before planning (the robot is alive, so its state is valid).
 - **Keep or replan.** When keeping scores best (event ``kept_controller``), no decision is taken for

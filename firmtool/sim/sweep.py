@@ -69,6 +69,9 @@ class SweepPoint:
     immediate_collisions : collisions within ``immediate`` steps after the disturbance.
     decided : episodes with a decision (alarm, replan, kept controller) after the disturbance.
     ended_before : episodes that ended before the disturbance's step (it never happened).
+    collided_undecided : collisions with no decision between the disturbance and the collision.
+    decision_delay_median : median steps from the disturbance to the first decision (None without).
+    collision_delay_median : median steps from the disturbance to a collision (None without).
     """
 
     kind: str
@@ -86,7 +89,12 @@ class SweepPoint:
     immediate_collisions: int = 0
     decided: int = 0
     ended_before: int = 0
+    collided_undecided: int = 0
+    decision_delay_median: float | None = None
+    collision_delay_median: float | None = None
     replans: int = field(default=0, repr=False)
+    _delays: list = field(default_factory=list, repr=False)
+    _collision_delays: list = field(default_factory=list, repr=False)
 
 
 @dataclass
@@ -103,7 +111,7 @@ class Sweep:
 
     def to_dict(self) -> dict:
         return {**{k: v for k, v in asdict(self).items() if k != "points"},
-                "points": [asdict(p) for p in self.points]}
+                "points": [{k: v for k, v in asdict(p).items() if not k.startswith("_")} for p in self.points]}
 
     def get(self, kind: str, step: int | None = None, size: float | None = None, mode: str = "replan") -> SweepPoint:
         for p in self.points:
@@ -137,9 +145,10 @@ def _run_chunk(task: tuple[int, str, int, int]) -> list[tuple]:
         hit = [e.step for e in ep.events if e.kind == EventKind.DISTURBANCE]
         t = hit[0] if hit else None
         immediate_hit = (ep.outcome == Outcome.COLLISION and t is not None and ep.steps - t <= immediate)
-        decided = t is not None and any(e.kind in DECISIONS and e.step > t for e in ep.events)
-        out.append((i, str(ep.outcome), ep.replans, bool(immediate_hit), bool(decided),
-                    cond.kind != "none" and t is None))
+        first = min((e.step for e in ep.events if e.kind in DECISIONS and t is not None and e.step > t), default=None)
+        collided_at = ep.steps - t if ep.outcome == Outcome.COLLISION and t is not None else None
+        out.append((i, str(ep.outcome), ep.replans, bool(immediate_hit), first is not None,
+                    cond.kind != "none" and t is None, None if first is None else first - t, collided_at))
     return out
 
 
@@ -196,7 +205,7 @@ def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list
     for (c, mode, _, _), rows in zip(tasks, chunks):
         cond = conditions[c]
         p = points.setdefault((c, mode), SweepPoint(cond.kind, cond.step, cond.size, mode))
-        for _, outcome, replans, immediate_hit, decided, before in rows:
+        for _, outcome, replans, immediate_hit, decided, before, delay, collided_at in rows:
             p.episodes += 1
             p.successes += outcome == Outcome.SUCCESS
             p.collisions += outcome == Outcome.COLLISION
@@ -206,7 +215,14 @@ def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list
             p.immediate_collisions += immediate_hit
             p.decided += decided
             p.ended_before += before
+            if delay is not None:
+                p._delays.append(delay)
+            if collided_at is not None:
+                p._collision_delays.append(collided_at)
+                p.collided_undecided += delay is None or delay >= collided_at
     for p in points.values():
+        p.decision_delay_median = float(np.median(p._delays)) if p._delays else None
+        p.collision_delay_median = float(np.median(p._collision_delays)) if p._collision_delays else None
         p.rate = p.successes / p.episodes
         lo, hi = wilson_interval(p.successes, p.episodes)
         p.ci95 = (float(lo), float(hi))
