@@ -130,6 +130,8 @@ class EstimateReport(Report):
     particle_steps_per_second : ``simulated_particle_steps`` over ``seconds`` (0 when nothing ran).
     workers, executor : how the Monte Carlo ran.
     seconds : wall time of the stage.
+    notices : one-line remarks for the user, e.g. why the numpy Monte Carlo engine ran where the
+        compiled one was asked for (a Python validity checker, a robot without compiled kinematics).
     """
 
     roadmap: str
@@ -145,6 +147,7 @@ class EstimateReport(Report):
     workers: int
     executor: str
     seconds: float
+    notices: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,6 +197,7 @@ class BuildReport(Report):
     workers, executor : how the Monte Carlo ran.
     seconds : wall time per stage (``sample``, ``design``, ``estimate``, and ``solve`` when densifying).
     densify : the densification loop, when ``p_min`` was given.
+    notices : the estimate stages' notices (:class:`EstimateReport`).
     """
 
     roadmap: str | None
@@ -211,6 +215,7 @@ class BuildReport(Report):
     executor: str
     seconds: Mapping[str, float]
     densify: DensifyReport | None = None
+    notices: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -261,6 +266,8 @@ class RoadmapSummary(Report):
     cached_edges : estimates an interrupted estimate stage left for reuse (``/edge_cache``).
     solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
         (``start_cost_to_go`` None when the goal is unreachable from the start).
+    validity_checker : the identity of the Python validity checker the roadmap was built with
+        (None without one; the command line cannot rebuild such a roadmap's problem).
     stale_stages : stages computed from another scenario text than the stored one (a build with
         the current scenario, or the stage's command, recomputes them).
     """
@@ -284,4 +291,5 @@ class RoadmapSummary(Report):
     solve_iterations: int | None = None
     start_success_probability: float | None = None
     start_cost_to_go: float | None = None
+    validity_checker: str | None = None
     stale_stages: tuple[str, ...] = ()

@@ -158,10 +158,10 @@ def test_cli_deadline_options(smoke):
 
 
 def test_the_work_clock_charges_each_robot_its_measured_cost(smoke):
-    from firmtool.online.replanning import CANDIDATE_SECONDS
+    from firmtool.robots.unicycle import UnicycleRobot
     _, sol = smoke
-    assert Policy(sol).replanner.candidate_seconds == CANDIDATE_SECONDS["point"]
+    assert Policy(sol).replanner.candidate_seconds == sol.roadmap.problem.robot.replan_candidate_seconds == 1e-3
     assert Policy(sol, replan=ReplanSettings(candidate_seconds=0.5)).replanner.candidate_seconds == 0.5
-    assert CANDIDATE_SECONDS["unicycle"] > sol.roadmap.problem.model.dt / 4  # at most 3 candidates in 0.1 s
+    assert UnicycleRobot.replan_candidate_seconds > 0.1 / 4  # at most 3 candidates in its 0.1 s period
     with pytest.raises(ft.InputError, match="candidate_seconds"):
         ReplanSettings(candidate_seconds=0.0)

@@ -67,8 +67,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from firmtool import kernels
-from firmtool.controllers import stationary_kalman
-from firmtool.design import Design, local_controller, periodic_node
+from firmtool.design import Design, local_controller
 from firmtool.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, START_INDEX
@@ -324,17 +323,9 @@ class Policy:
         start = np.asarray(state, dtype=float)
         if problem.perfect:
             return start.copy(), np.zeros((start.size, start.size))
-        model = problem.model
-        if problem.nonholonomic:
-            # At rest a unicycle's heading is not observable (its linearisation there is not
-            # detectable): no stationary filter exists. Its nodes' belief is the periodic filter's at
-            # phase 0 of the orbit through the node; so is the belief at a start state.
-            return start.copy(), periodic_node(problem, start).P.copy()
-        # the stationary filter of the model linearised at the start state (at rest, zero input)
-        A, _ = model.dynamics_jacobians(start, np.zeros(model.m))
-        H = model.observation_jacobian(start)
-        _, P0, _ = stationary_kalman(A, model.process_cov, H, model.R(start[None]))
-        return start.copy(), P0
+        # the robot's belief at a state that is no node (by default the stationary filter of the
+        # model linearised there, at rest; a unicycle's periodic filter at phase 0 of its orbit)
+        return start.copy(), problem.robot.start_covariance(problem, start)
 
     def reset(self, mean: np.ndarray | None = None, covariance: np.ndarray | None = None, *,
               rng: np.random.Generator | None = None, record: bool = False) -> list[Event]:
@@ -399,7 +390,7 @@ class Policy:
         bases = {"configuration": np.eye(n)[:, :problem.config_dim], "state": np.eye(n)}
         if problem.config_dim == n:
             bases.pop("state")
-        self._jump = (JumpTests(bases, s.jump_window, s.jump_false_alarm, self._jump_prior())
+        self._jump = (JumpTests(bases, s.jump_window, s.jump_false_alarm, problem.robot.jump_prior(problem))
                       if self._innovation and s.jump_test else None)
         self._cooldown = 0  # no decision before this step (after keeping the running controller)
         self._run: RunningController | None = None
@@ -732,16 +723,6 @@ class Policy:
             return False
         self._begin(new)
         return True
-
-    def _jump_prior(self) -> np.ndarray:
-        """(n,) prior variance of a jump of each state coordinate, for the jump estimate: a
-        configuration coordinate anywhere in its range, a velocity within the speed limit (a
-        nonholonomic robot's heading anywhere)."""
-        problem = self.problem
-        d, n = problem.config_dim, problem.model.n
-        span = np.asarray(problem.config_hi, dtype=float) - np.asarray(problem.config_lo, dtype=float)
-        rest = np.pi ** 2 if problem.nonholonomic else problem.scenario.controller.max_speed ** 2
-        return np.concatenate([span ** 2, np.full(n - d, rest)])
 
     def _jacobians(self, lc, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The step's linearisation as the filter was designed: ``A_k`` at the reference and ``H`` at

@@ -18,8 +18,9 @@ least one is always scored). How time is counted is :attr:`ReplanSettings.clock`
 
 - ``"work"`` (default): a deterministic work budget. Each scored candidate costs
   :attr:`ReplanSettings.candidate_seconds`, by default the robot's measured cost of scoring one
-  candidate (:data:`CANDIDATE_SECONDS`: design of the run-time controller + its Monte Carlo, thread
-  CPU time on the reference 2-core machine, ``benchmarks/bench_online.py``), so a decision scores
+  candidate (:attr:`firmtool.robots.Robot.replan_candidate_seconds`: design of the run-time
+  controller + its Monte Carlo, thread CPU time on the reference 2-core machine: point robot 1 ms,
+  arm 2 ms, unicycle 30 ms, ``benchmarks/bench_online.py``), so a decision scores
   at most ``deadline / candidate_seconds`` candidates whatever the machine's load: simulations stay
   reproducible, and the same seed gives the same episodes on any machine. With the defaults a
   point-robot or arm decision is never cut (its 9 candidates fit in ``dt``); a unicycle decision,
@@ -41,8 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from firmtool.controllers import LocalController, min_energy_trajectory, plan_local_controller
-from firmtool.design import Design, local_controller, lqr_weights, node_controller
+from firmtool.controllers import LocalController, plan_local_controller
+from firmtool.design import Design, lqr_weights, node_controller
 from firmtool.edges import simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, NodeRegions, segment_is_valid
@@ -63,12 +64,6 @@ JUMP_WINDOW = 20  # onsets the jump test (generalised likelihood ratio) keeps
 # ~4-6 at 1e-4 (22 of 60). Nominally <= 0.2 false alarms in the unicycle's ~2000-step episodes (the
 # test is conservative: measured 0 of 20 such episodes at 1e-6, 6 alarms at 1e-3).
 JUMP_FALSE_ALARM = 1e-4
-# Work clock: seconds charged per scored candidate (run-time design + 32-particle Monte Carlo), per
-# robot: thread CPU time measured on the reference 2-core machine (benchmarks/README.md, "online";
-# point 0.9 ms, arm 1.8 ms, unicycle 26 ms), rounded up. A robot not listed is charged the default.
-# (With robots as plugins this belongs to the robot's module.)
-CANDIDATE_SECONDS = {"point": 1e-3, "arm": 2e-3, "unicycle": 30e-3}
-DEFAULT_CANDIDATE_SECONDS = 2e-3
 CLOCKS = ("work", "wall")
 LATENCIES = ("0", "measured")
 
@@ -98,7 +93,7 @@ class ReplanSettings:
     deadline : seconds a decision may take (None: the control period ``dt``); see the module notes.
     clock : ``"work"`` (deterministic budget, the default) or ``"wall"`` (real time).
     candidate_seconds : the work clock's charge per scored candidate (None: the robot's,
-        :data:`CANDIDATE_SECONDS`).
+        :attr:`firmtool.robots.Robot.replan_candidate_seconds`).
     latency : ``"0"`` (a new controller runs from the next step, the default) or ``"measured"``: the
         controller that was running goes on for ``ceil(t / dt)`` steps, ``t`` the decision's time on
         its clock (work: ``scored x candidate_seconds``, deterministic; wall: measured), before the
@@ -227,48 +222,28 @@ class Replanner:
         self._tree = cKDTree(design_.centers[self._usable, :d]) if self._usable.size else None
         self._trPs = np.trace(design_.P, axis1=1, axis2=2)
         self.candidate_seconds = (settings.candidate_seconds if settings.candidate_seconds is not None else
-                                  CANDIDATE_SECONDS.get(problem.scenario.model.robot, DEFAULT_CANDIDATE_SECONDS))
+                                  float(problem.robot.replan_candidate_seconds))
 
     # -- controllers designed at run time -----------------------------------------------------------
 
     def nominal_steps(self, x0: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """The analytic rest-to-rest length bound of design.nominal_trajectory, per target node."""
-        problem, c = self.problem, self.problem.scenario.controller
-        d = problem.config_dim
-        dist = np.max(np.abs(self.design.centers[targets, :d] - x0[:d]), axis=1)
-        if problem.velocity_dim:
-            T = np.maximum(1.5 * dist / c.max_speed, np.sqrt(6.0 * dist / c.max_accel))
-        else:
-            T = dist / c.max_speed
-        return np.maximum(2, np.ceil(T / problem.model.dt - 1e-9))
+        """The robot's analytic nominal length bound (design's), per target node."""
+        return self.problem.robot.nominal_steps_bound(self.problem, x0, self.design.centers[targets])
 
     def runtime_controller(self, x0: np.ndarray, P0: np.ndarray, j: int) -> LocalController:
         """TV-LQG from the belief ``(x0, P0)`` to node ``j``, then its stabiliser, designed in real time.
 
         The same design as :func:`firmtool.design.local_controller` with ``start_state``, except for the
-        nominal's length: from a moving state, growing it until the speed and input limits hold (as the
-        offline design does, up to 60 times) can take seconds, so here it is the analytic rest-to-rest
-        bound plus the steps to brake the current speed, tried at most :data:`RUNTIME_NOMINAL_TRIES`
-        times (x1.5 each); the last try is used even if it exceeds the limits (design limits, not
-        actuator saturation: the simulation has none).
+        nominal: the robot's real-time one (:meth:`~firmtool.robots.Robot.runtime_nominal`; for a
+        linear model the analytic rest-to-rest bound plus the steps to brake the current speed, tried
+        at most :data:`RUNTIME_NOMINAL_TRIES` times, since growing it until the limits hold, as the
+        offline design does up to 60 times, can take seconds from a moving state).
         """
-        problem, c = self.problem, self.problem.scenario.controller
-        if problem.nonholonomic:  # kinematic nominal (no velocity to brake) and periodic stabiliser
-            return local_controller(problem, self.design, j, j, start_state=x0, start_P=P0)
-        model, d = problem.model, problem.config_dim
-        steps = int(self.nominal_steps(x0, np.array([j]))[0])
-        if problem.velocity_dim:
-            steps += int(np.ceil(2.0 * np.max(np.abs(x0[d:])) / c.max_accel / model.dt))
-        steps = max(steps, -(-model.n // model.m))
-        target = self.design.centers[j]
-        for _ in range(RUNTIME_NOMINAL_TRIES):
-            x, u = min_energy_trajectory(model.A, model.B, x0, target, steps)
-            speed = np.max(np.abs(np.diff(x[:, :d], axis=0))) / model.dt
-            if speed <= c.max_speed * (1 + 1e-9) and np.max(np.abs(u)) <= problem.max_input() * (1 + 1e-9):
-                break
-            steps = int(np.ceil(steps * 1.5))
+        problem = self.problem
+        x, u = problem.robot.runtime_nominal(problem, x0, self.design.centers[j], RUNTIME_NOMINAL_TRIES)
         Wx, Wu = lqr_weights(problem)
-        return plan_local_controller(model, x, u, P0, self.design.node(j), Wx, Wu, c.max_steps, problem.perfect)
+        return plan_local_controller(problem.model, x, u, P0, node_controller(problem, self.design, j), Wx, Wu,
+                                     problem.scenario.controller.max_steps, problem.perfect)
 
     def refiltered(self, run: RunningController, s: int, xhat: np.ndarray, P: np.ndarray) -> RunningController:
         """The running controller from its step ``s`` on with its filter re-planned from the belief

@@ -98,7 +98,7 @@ class SimulatedSystem:
             z = (model.h(x) + np.sqrt(variance) * noise[:, self._r:])[0]
         self._x = x
         self._steps += 1
-        return z, bool(problem.points_valid(pts)[0])
+        return z, bool(problem.states_valid(x, pts)[0])
 
     def disturb(self, disturbance: dist_mod.Disturbance, rng: np.random.Generator) -> float:
         """Apply a push or kidnap (:func:`firmtool.disturbances.apply`) to the true state.
