@@ -47,9 +47,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.problem import Problem
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
-# Shipped scenarios by name, until firmtool.scenario.resolve_scenario (issue 13) ships them with the
-# package: the source checkout's scenarios/, else ./scenarios/ (an installed copy run from the checkout).
-_SCENARIOS_DIR = Path(__file__).resolve().parents[1] / "scenarios"
 
 
 # -- scenarios -----------------------------------------------------------------------------------------
@@ -74,17 +71,7 @@ def load_scenario(source: str | Path) -> Scenario:
     ScenarioError
         One line naming the file, the field and what was expected.
     """
-    from firmtool import scenario as scenario_module
-
-    resolve = getattr(scenario_module, "resolve_scenario", None)  # shipped names (firmtool scenarios)
-    if resolve is not None:
-        return _load_scenario_file(resolve(source))
-    path = Path(source)
-    if not path.exists() and path.suffix == "" and path.parent == Path("."):
-        for folder in (_SCENARIOS_DIR, Path("scenarios")):  # a source checkout, then the working folder
-            if (folder / f"{path.name}.toml").exists():
-                return _load_scenario_file(folder / f"{path.name}.toml")
-    return _load_scenario_file(path)
+    return _load_scenario_file(source)  # an existing path wins over a name (scenario.resolve_scenario)
 
 
 # -- the roadmap -----------------------------------------------------------------------------------------

@@ -15,18 +15,18 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-import click
 import numpy as np
 import typer
 from typer.core import TyperGroup
 
-from firmtool import interrupts
+from firmtool import __version__, interrupts
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
 
-DEFAULT_SCENARIO = "scenarios/arm8_lightdark.toml"
+DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 # The click that typer's commands raise from: recent typer vendors its own copy as typer._click,
-# whose exceptions are not the click package's.
-_click: Any = getattr(typer, "_click", click)
+# whose exceptions are not the click package's; older typer uses the click package (typer.core.click),
+# which firmtool does not import itself (it is typer's dependency, not firmtool's).
+_click: Any = getattr(typer, "_click", None) or typer.core.click
 _NoArgsIsHelp: type = getattr(_click.exceptions, "NoArgsIsHelpError", ())  # click >= 8.2
 
 
@@ -69,7 +69,8 @@ app = typer.Typer(cls=_OneLineErrors,
     help=("FIRM: graph-based stochastic control with constraints, in state space (perfect measurements) "
           "and belief space (imperfect measurements).\n\n"
           "Typical use:\n\n"
-          "  firmtool build scenarios/point_lightdark.toml\n\n"
+          "  firmtool scenarios\n\n"
+          "  firmtool build point_lightdark\n\n"
           "  firmtool solve artifacts/point_lightdark.h5\n\n"
           "  firmtool execute artifacts/point_lightdark.h5 --episodes 200 --json"),
     no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
@@ -88,11 +89,29 @@ CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
 SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
                             "without it --executor dask starts a LocalCluster.")
+SCENARIO_HELP = "Scenario: a TOML file, or the name of a shipped scenario (see 'firmtool scenarios')."
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"firmtool {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                          help="Print firmtool's version and exit.")) -> None:
+    """Options of every command (the help text is the app's)."""
 
 
 def _fail(message: str, code: int) -> None:
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(code)
+
+
+def _say_compiling() -> None:
+    typer.echo("firmtool: compiling the Monte Carlo engine, once per install (10-30 s; later runs load it)",
+               err=True)
 
 
 def _first_line(exc: BaseException) -> str:
@@ -108,6 +127,9 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
         try:
             import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
             from threadpoolctl import threadpool_limits
+
+            from firmtool import warmup
+            warmup.set_notifier(_say_compiling)  # a background compile on a cold cache says so on stderr
             # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
             with threadpool_limits(limits=1):
                 return fn(*args, **kwargs)
@@ -143,10 +165,16 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def _emit(report: dict, as_json: bool, human: Callable[[dict], str]) -> None:
+def _emit(report: dict, as_json: bool, human: Callable[[dict], str], roadmap: bool = True) -> None:
+    """Print ``report`` (its keys without a leading underscore) as text, or as JSON stamped with
+    ``firmtool_version`` and, for a command that reads or writes a roadmap, its ``schema_version``."""
     public = {k: v for k, v in report.items() if not k.startswith("_")}
     if as_json:
-        typer.echo(to_json(public))
+        stamp: dict[str, Any] = {"firmtool_version": __version__}
+        if roadmap:
+            from firmtool.roadmap import SCHEMA_VERSION
+            stamp["schema_version"] = SCHEMA_VERSION  # inspect reports the file's own version instead
+        typer.echo(to_json({**stamp, **public}))
     else:
         typer.echo(human(public))
 
@@ -205,12 +233,12 @@ def _check_exists(path: Path, what: str) -> None:
 
 @app.command()
 @handles_errors
-def sample(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
+def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
            output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
            force: bool = ForceOpt, as_json: bool = JsonOpt) -> None:
     """Sample the nodes (start, goal, valid configurations at rest) into a new roadmap file.
 
-    Example: firmtool sample scenarios/smoke.toml -o artifacts/smoke.h5
+    Example: firmtool sample smoke -o artifacts/smoke.h5
     """
     from firmtool.api import load_scenario
     from firmtool.pipeline import sample_stage
@@ -288,7 +316,7 @@ def _build_human(r: dict) -> str:
 
 @app.command()
 @handles_errors
-def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
+def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
           output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
           workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
           scheduler: Optional[str] = SchedulerOpt, checkpoint_seconds: float = CheckpointOpt,
@@ -308,7 +336,7 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
     interrupted build resumes, and edges whose inputs did not change are not estimated again
     (changing only cost weights re-estimates nothing). --fresh starts over.
 
-    Example: firmtool build scenarios/point_lightdark.toml --workers 2 --p-min 0.8 --max-nodes 120
+    Example: firmtool build point_lightdark --workers 2 --p-min 0.8 --max-nodes 120
     """
     import firmtool.api as ft
     from firmtool.pipeline import default_output
@@ -567,7 +595,7 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
 
 @app.command()
 @handles_errors
-def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario TOML file."),
+def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
         output: Optional[Path] = typer.Option(None, "--output", "-o"),
         episodes: int = typer.Option(200, "--episodes", "-n", min=1),
         seed: int = typer.Option(0, "--seed", min=0),
@@ -576,7 +604,7 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
     """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment):
     the same calls, and the same numbers, as 'firmtool build', 'solve' and 'execute' one by one.
 
-    Example: firmtool run scenarios/smoke.toml --episodes 50
+    Example: firmtool run smoke --episodes 50
     """
     import firmtool.api as ft
     from firmtool.pipeline import default_output, unreachable_failure
@@ -596,6 +624,22 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
     _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
                                                   _execute_human(r["execute"])]))
     _print_notices(report["build"])
+
+
+@app.command()
+@handles_errors
+def scenarios(as_json: bool = JsonOpt) -> None:
+    """List the shipped scenarios, one a line: name and description. Every command that takes a
+    scenario accepts one of these names as well as a TOML file (an existing file wins).
+
+    Example: firmtool build point_lightdark
+    """
+    from firmtool.scenario import scenario_description, shipped_scenarios
+    shipped = [{"name": name, "description": scenario_description(path), "path": str(path)}
+               for name, path in shipped_scenarios().items()]
+    width = max((len(s["name"]) for s in shipped), default=0)
+    _emit({"scenarios": shipped}, as_json,
+          lambda r: "\n".join(f"{s['name']:<{width}}  {s['description']}" for s in r["scenarios"]), roadmap=False)
 
 
 def main() -> None:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse
-from scipy.stats import norm
+from scipy.stats import binomtest
 
 from firmtool.edges import FAILURE
 from firmtool.graph import success_probability
@@ -23,15 +23,17 @@ MIN_EDGE_TRAVERSALS = 20  # executed traversals an edge needs before its calibra
 
 
 def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion."""
+    """Wilson score interval of a binomial proportion (scipy's ``binomtest(...).proportion_ci``).
+
+    Exact at the boundaries (scipy sets them): ``successes == n`` has upper bound 1.0 and
+    ``successes == 0`` lower bound 0.0, where the closed form's rounding gives 0.9999999999999999
+    (an observed 400/400 would fall outside an interval against a prediction of 1.0).
+    ``n == 0`` gives (0.0, 1.0).
+    """
     if n == 0:
         return 0.0, 1.0
-    z = float(norm.ppf(0.5 + confidence / 2))
-    p = successes / n
-    denom = 1 + z * z / n
-    center = (p + z * z / (2 * n)) / denom
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, center - half), min(1.0, center + half)
+    ci = binomtest(int(successes), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(ci.low), float(ci.high)
 
 
 # -- calibration -------------------------------------------------------------------------------------

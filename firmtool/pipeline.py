@@ -15,7 +15,7 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
-from firmtool import interrupts
+from firmtool import interrupts, warmup
 from firmtool.atomic import check_target
 from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
@@ -271,6 +271,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
+        warmup.stop()  # nothing to estimate: no compile to wait for
         e = roadmap.require("edges", "particle_steps", fresh=False)
         if "edges" in roadmap.stale_stages():  # the same inputs under a new scenario text (e.g. a comment)
             restamp(path, ("edges",))
@@ -283,6 +284,11 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     reused = sum(x is not None for x in est)
     todo = [e for e in range(E) if est[e] is None]
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
+    if todo and engine == "numba":  # on a cold cache: compiled once (or by build's start), before the workers
+        warmup.start(engine)
+        warmup.wait()
+    else:
+        warmup.stop()
     workers = check_workers(workers or default_workers(), problem)
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
@@ -568,6 +574,10 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
         check_workers(workers)
     _check_executor(executor)
     with writer_lock(out):
+        # a fresh install: compile the engine while sampling and designing (a user's validity checker
+        # runs the numpy engine: nothing to compile)
+        if validity is None and not warmup.engine_is_cached():
+            warmup.start(engine_choice(build_problem(scenario))[0])
         return _build(scenario, out, workers=workers, executor=executor, scheduler=scheduler,
                       progress_factory=progress_factory, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
                       add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds,

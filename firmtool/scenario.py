@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.resources
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -313,13 +314,68 @@ def _backend_names() -> tuple[str, ...]:
 # reading
 
 
+# The package the shipped scenarios are installed as (the repository's scenarios/ folder; setup.py).
+SHIPPED_PACKAGE = "firmtool.scenarios"
+
+
+def shipped_scenarios() -> dict[str, Path]:
+    """The scenarios installed with firmtool: name (the file's stem) -> file, sorted by name.
+
+    Returns
+    -------
+    dict of str to Path
+        Empty if the scenario package is missing (a broken install) and there is no source tree's
+        ``scenarios/`` folder next to the ``firmtool`` package.
+    """
+    try:
+        folder = importlib.resources.files(SHIPPED_PACKAGE)
+    except ModuleNotFoundError:  # a source tree used without installing it: the repository's folder
+        folder = Path(__file__).resolve().parents[1] / "scenarios"
+        if not folder.is_dir():
+            return {}
+    files = sorted((Path(str(f)) for f in folder.iterdir() if f.name.endswith(".toml")), key=lambda f: f.stem)
+    return {f.stem: f for f in files}
+
+
+def scenario_description(path: str | Path) -> str:
+    """The ``scenario.description`` of a scenario file ('' if it has none or cannot be read)."""
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return ""
+    section = data.get("scenario")
+    description = section.get("description", "") if isinstance(section, dict) else ""
+    return description if isinstance(description, str) else ""
+
+
+def resolve_scenario(name_or_path: str | Path) -> Path:
+    """The scenario file meant by ``name_or_path``: a path that exists, else a shipped scenario's name.
+
+    An existing path wins over a shipped name (``smoke`` is the file ``./smoke`` if there is one).
+
+    Raises
+    ------
+    ScenarioError
+        Neither an existing path nor a shipped name; the message lists the shipped names.
+    """
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    shipped = shipped_scenarios()
+    if str(name_or_path) in shipped:
+        return shipped[str(name_or_path)]
+    names = ", ".join(shipped) or "none (the firmtool.scenarios package is missing: reinstall firmtool)"
+    raise ScenarioError(str(name_or_path), "", f"no such file, nor a shipped scenario (shipped: {names})")
+
+
 def load_scenario(path: str | Path) -> Scenario:
-    """Read, parse and validate a scenario file.
+    """Read, parse and validate a scenario file, or a shipped scenario by name.
 
     Parameters
     ----------
     path : str or Path
-        A TOML file.
+        A TOML file, or the name of a shipped scenario (:func:`shipped_scenarios`, e.g.
+        ``"arm8_lightdark"``); an existing path wins (:func:`resolve_scenario`).
 
     Returns
     -------
@@ -331,7 +387,7 @@ def load_scenario(path: str | Path) -> Scenario:
     ScenarioError
         One line naming the file, and each field with what was expected.
     """
-    p = Path(path)
+    p = resolve_scenario(path)
     try:
         raw = read_regular_file(p)  # a regular file of bounded size, checked before reading it
     except FileNotFoundError:
