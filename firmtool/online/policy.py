@@ -656,8 +656,7 @@ class Policy:
         if self._record:
             self._hist_x[-1], self._hist_P[-1] = mean.copy(), covariance
         out: list[Event] = []
-        if self._decide(self._k, covariance, 0.0, True, out, t0, c0):
-            return out
+        self._decide(self._k, covariance, 0.0, True, out, t0, c0)
         return out
 
     def _decide(self, s_next: int, P_now: np.ndarray, dev: float, reset: bool, out: list[Event], t0: float,
