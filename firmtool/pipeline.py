@@ -229,6 +229,9 @@ def _design_stage(path: str | Path, validity: Callable | None = None, session: W
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
     if session is not None and session.parallel:
+        # a fresh install: the background compile does the design's functions first; the workers then
+        # load them from the cache instead of each compiling them at once (no-op with a warm cache)
+        warmup.wait_design()
         counter = Counter(progress, DESIGN_NODES, int(centers.shape[0])).start()
         d = parallel_design(problem, centers, nodes["kind"], session, counter.callback())
         counter.finish()
