@@ -41,9 +41,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from firmtool.calibration import EdgeCounts
     from firmtool.design import Design
     from firmtool.disturbances import Disturbance
-    from firmtool.execute import EdgeCounts, ReplanSettings
+    from firmtool.execute import ReplanSettings
     from firmtool.problem import Problem
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
@@ -211,8 +212,8 @@ class Roadmap:
 
     @functools.cached_property
     def edge_counts(self) -> "EdgeCounts":
-        """The outcome counts in sparse form (``firmtool.execute.EdgeCounts``), for calibration."""
-        from firmtool.execute import edge_counts_of  # execution is loaded when first needed
+        """The outcome counts in sparse form (``firmtool.calibration.EdgeCounts``), for calibration."""
+        from firmtool.calibration import edge_counts_of
 
         return edge_counts_of(self._data)
 
@@ -440,7 +441,7 @@ class Solution:
     def success_probability_interval(self, policy: str = "firm", samples: int = 1000) -> tuple[float, float]:
         """95% interval of the start node's success probability under ``policy``, from the
         uncertainty of the edge counts: every policy edge's outcome distribution is drawn from its
-        Dirichlet posterior ``samples`` times (:func:`firmtool.execute.predicted_interval`), from a
+        Dirichlet posterior ``samples`` times (:func:`firmtool.calibration.predicted_interval`), from a
         stream keyed by the roadmap's seed.
 
         Parameters
@@ -448,7 +449,7 @@ class Solution:
         policy : ``"firm"`` or ``"shortest-path"``.
         samples : posterior draws.
         """
-        from firmtool.execute import predicted_interval
+        from firmtool.calibration import predicted_interval
 
         key = (policy, samples)
         if key not in self._intervals:

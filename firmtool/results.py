@@ -110,7 +110,7 @@ class Episode:
 
 @dataclass(frozen=True)
 class EdgeCheck(Report):
-    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.execute.edge_calibration`).
+    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.calibration.edge_calibration`).
 
     ``target_*``: landing in the edge's target node; ``failure_*``: collision or timeout. Each with
     its Wilson 95% interval; ``flagged`` names the frequencies whose two intervals do not overlap.

@@ -12,8 +12,8 @@ from firmtool.disturbances import Disturbance, parse_disturbance, parse_disturba
 from firmtool.edges import initial_ensemble, simulate
 from firmtool.episodes_io import load_episodes
 from firmtool.errors import InputError
-from firmtool.execute import (EV_DISTURBANCE, EV_REPLAN, Executor, ReplanSettings, edge_counts_of, execute,
-                              predicted_interval)
+from firmtool.calibration import edge_counts_of, predicted_interval
+from firmtool.execute import EV_DISTURBANCE, EV_REPLAN, Executor, ReplanSettings, execute
 from firmtool.nodes import GOAL, START_INDEX
 from firmtool.pipeline import design_of, problem_of
 from firmtool.roadmap import Roadmap
