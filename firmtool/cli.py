@@ -252,7 +252,9 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
 def _solve_human(r: dict) -> str:
     p = r["start_success_probability"]
     lines = [f"solve: {r['status']} after {r['iterations']} iterations (residual {r['residual']:.2e})",
-             f"start: cost-to-go {r['start_cost_to_go']}, success probability {p:.4f}",
+             f"start: cost-to-go {r['start_cost_to_go']}, success probability {p:.4f}"
+             + (f" (95% interval from the edge counts {r['start_success_probability_ci95'][0]:.4f}-"
+                f"{r['start_success_probability_ci95'][1]:.4f})" if r.get("start_success_probability_ci95") else ""),
              f"most likely path: {' -> '.join(map(str, r['path']))}"]
     if r["unreachable_nodes"]:
         lines.append(f"{len(r['unreachable_nodes'])} nodes cannot reach the goal: {r['unreachable_nodes'][:20]}")

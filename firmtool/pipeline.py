@@ -15,6 +15,7 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
+from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
@@ -265,7 +266,10 @@ class PolicyGroup:
     arrays : ``cost_to_go``, ``edge``, ``next_node``, ``success_probability``, ``unreachable``,
         ``shortest_path_edge``, ``shortest_path_success_probability`` (N,) (``unreachable``: node ids).
     attrs : ``inputs_sha256``, ``status`` (a :class:`SolveStatus` name), ``iterations``, ``residual``,
-        ``failure_cost``, ``method``.
+        ``failure_cost``, ``method``; the prediction intervals of the start node's success probability
+        under each policy, ``success_probability_ci95`` and ``shortest_path_success_probability_ci95``
+        (2,), with ``interval_method``, ``interval_prior`` and ``interval_samples``
+        (:func:`firmtool.calibration.predicted_interval`; absent in files solved before them).
     seconds : wall time of the solve (0 for a group read from a file).
     """
 
@@ -301,13 +305,18 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     length = np.linalg.norm(centers[edges["target"]] - centers[edges["source"]], axis=1)
     sp = shortest_path_policy(N, goals, edges["source"], edges["target"], length)
     p_sp = success_probability(N, goals, sp, landing)
+    counts = edge_counts_of(roadmap)
+    intervals = {f"{prefix}success_probability_ci95": np.asarray(
+        predicted_interval(counts, N, goals, pol, roadmap.seed, node=START_INDEX, point=float(prob[START_INDEX])))
+        for prefix, pol, prob in (("", res.policy, p), ("shortest_path_", sp, p_sp))}
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
     attrs = {"inputs_sha256": inputs_hash(roadmap.attrs("edges")["inputs_sha256"], JF, method,
                                           digest(problem.scenario.cost).hex()),
              "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
-             "failure_cost": JF, "method": method}
+             "failure_cost": JF, "method": method, **intervals, "interval_method": INTERVAL_METHOD,
+             "interval_prior": PRIOR, "interval_samples": INTERVAL_SAMPLES}
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
 
 
@@ -328,7 +337,14 @@ def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_targe
                        shortest_path_start_success_probability=float(
                            a["shortest_path_success_probability"][START_INDEX]),
                        unreachable_nodes=tuple(int(i) for i in a["unreachable"]),
-                       path=tuple(policy_path(a["edge"], edge_target, START_INDEX, goals)), seconds=group.seconds)
+                       path=tuple(policy_path(a["edge"], edge_target, START_INDEX, goals)), seconds=group.seconds,
+                       start_success_probability_ci95=_interval_or_none(at.get("success_probability_ci95")),
+                       shortest_path_start_success_probability_ci95=_interval_or_none(
+                           at.get("shortest_path_success_probability_ci95")))
+
+
+def _interval_or_none(value: Any) -> tuple[float, float] | None:
+    return None if value is None else (float(value[0]), float(value[1]))
 
 
 def unreachable_failure(roadmap_path: str | Path | None, unreachable: int, nodes: int) -> RunFailure:

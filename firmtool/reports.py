@@ -230,6 +230,9 @@ class SolveReport(Report):
     unreachable_nodes : nodes (goal excluded) that cannot reach the goal.
     path : the policy's most likely node sequence from the start.
     seconds : wall time of the solve.
+    start_success_probability_ci95, shortest_path_start_success_probability_ci95 : 95% intervals of
+        the two start success probabilities from the edge-count uncertainty, computed at solve time
+        (:func:`firmtool.calibration.predicted_interval`); None for a policy solved before they were.
     """
 
     roadmap: str | None
@@ -244,6 +247,8 @@ class SolveReport(Report):
     unreachable_nodes: tuple[int, ...]
     path: tuple[int, ...]
     seconds: float
+    start_success_probability_ci95: tuple[float, float] | None = None
+    shortest_path_start_success_probability_ci95: tuple[float, float] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
