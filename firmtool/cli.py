@@ -203,6 +203,15 @@ def _build_human(r: dict) -> str:
             f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
             f"{r['simulated_particle_steps']:,} particle-steps simulated; sample {s['sample']:.1f} s, "
             f"design {s['design']:.1f} s, estimate {s['estimate']:.1f} s on {r['workers']} workers")
+    c = r.get("connectivity")
+    if c:
+        text += (f"\nconnected: {len(c['connected_goal_nodes'])} of {len(c['goal_nodes'])} goal nodes in the start's "
+                 f"component ({c['start_component_nodes']} of {r['nodes']} nodes, {c['components']} components); "
+                 f"connection stage added {c['added_nodes']} nodes (budget roadmap.bridge_nodes = {c['budget']})")
+        if c.get("reachable_goal_nodes") is not None:
+            text += (f"\nreachable under the estimated edges: {len(c['reachable_goal_nodes'])} of "
+                     f"{len(c['goal_nodes'])} goal nodes")
+        text += "".join(f"\nmissing: {m}" for m in c["missing"])
     if r.get("densify"):
         text += "\n" + "\n".join(f"  {x['nodes']} nodes: start success probability {x['start_success_probability']:.4f}"
                                   for x in r["densify"]["rounds"])
@@ -247,6 +256,16 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
     _exit_on_failed_edges(report)
     if report["densify"] and not report["densify"]["reached"]:
         _fail(report["densify"]["reason"], 1)
+    _exit_if_unreachable(report)
+
+
+def _exit_if_unreachable(report: dict) -> None:
+    """Exit 1 when no goal node can be reached from the start (the roadmap cannot be solved)."""
+    c = report.get("connectivity")
+    if c and c.get("reachable_goal_nodes") is not None and not c["reachable_goal_nodes"]:
+        why = "; ".join(c["missing"]) or "edges leave the start's component but none lands in a goal node"
+        _fail(f"{report['roadmap']}: no goal node is reachable from the start: {why}; raise roadmap.bridge_nodes "
+              "or roadmap.nodes, or use --p-min to densify", 1)
 
 
 def _solve_human(r: dict) -> str:

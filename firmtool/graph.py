@@ -106,6 +106,19 @@ def can_reach(n_nodes: int, goal: int | np.ndarray, edge_source: np.ndarray,
     return ok[:n_nodes]
 
 
+def reachable_from(n_nodes: int, edge_source: np.ndarray, landing: scipy.sparse.spmatrix, node: int) -> np.ndarray:
+    """Boolean (N,): nodes some chain of edges reaches from ``node`` with positive probability
+    (``node`` itself included; edges leave any node, goals too, as given)."""
+    coo = scipy.sparse.coo_matrix(landing)
+    positive = coo.data > 0
+    rows, cols = np.asarray(edge_source)[coo.row[positive]], coo.col[positive]
+    graph = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n_nodes, n_nodes))
+    order = scipy.sparse.csgraph.breadth_first_order(graph, node, directed=True, return_predecessors=False)
+    out = np.zeros(n_nodes, dtype=bool)
+    out[order] = True
+    return out
+
+
 class _Segments:
     """Per-node minimum over that node's edges, vectorised (edges sorted by source once)."""
 

@@ -17,9 +17,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-import scipy.sparse
-import scipy.sparse.csgraph
-
 from firmtool.errors import RunFailure, ScenarioError
 from firmtool.problem import Problem
 
@@ -60,7 +57,8 @@ def sample_nodes(problem: Problem, count: int, rng: np.random.Generator, *,
 
 
 def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Start node, goal node, then sampled regular nodes.
+    """Start node, goal node(s), then sampled regular nodes (the connection stage,
+    :func:`firmtool.connectivity.connect_goals`, may add more).
 
     Returns
     -------
@@ -90,8 +88,6 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
     kinds = np.full(centers.shape[0], REGULAR, dtype=np.int8)
     kinds[START_INDEX], kinds[GOAL_INDEX] = START, GOAL
     kinds[2:2 + extra_goals.shape[0]] = GOAL
-    if spec.bridge_nodes:
-        centers, kinds = add_bridges(problem, centers, kinds, spec.bridge_nodes, rng)
     return centers, kinds
 
 
@@ -138,49 +134,6 @@ def valid_pairs(problem: Problem, centers: np.ndarray, cache: dict | None = None
         if cache[key]:
             out.append((i, j))
     return out
-
-
-def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget: int,
-                rng: np.random.Generator, per_round: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """Add nodes between the start's component and goal components that it does not reach.
-
-    Each round connects the roadmap (k nearest neighbours, collision-free segments), and for every
-    goal component apart from the start's samples valid nodes near the midpoints of the closest
-    node pairs across the two components (a Gaussian around the midpoint, spread a third of the gap).
-    Stops when every goal is connected to the start or ``budget`` nodes were added.
-    """
-    d = problem.config_dim
-    cache: dict = {}
-    added, rounds = 0, 0
-    while added < budget and rounds < 4 * budget // per_round + 10:  # bounded even if no sample is valid
-        rounds += 1
-        pairs = valid_pairs(problem, centers, cache)
-        N = centers.shape[0]
-        a = np.array([p[0] for p in pairs], dtype=np.int64)
-        b = np.array([p[1] for p in pairs], dtype=np.int64)
-        graph = scipy.sparse.csr_matrix((np.ones(a.size), (a, b)), shape=(N, N))
-        _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
-        stranded = sorted(set(label[kinds == GOAL].tolist()) - {label[START_INDEX]})
-        if not stranded:
-            break
-        new = []
-        here = np.flatnonzero(label == label[START_INDEX])
-        for comp in stranded:
-            there = np.flatnonzero(label == comp)
-            gap = np.linalg.norm(centers[here, None, :d] - centers[None, there, :d], axis=2)
-            flat = np.argsort(gap, axis=None)[:per_round]
-            hi, ti = np.unravel_index(flat, gap.shape)
-            mid = 0.5 * (centers[here[hi], :d] + centers[there[ti], :d])
-            spread = gap[hi, ti][:, None] / 3.0
-            q = np.clip(mid + spread * rng.standard_normal(mid.shape), problem.config_lo, problem.config_hi)
-            new.append(q[problem.is_valid(problem.state_of(q))])
-        q = np.concatenate(new)[: budget - added]
-        if q.shape[0] == 0:
-            continue
-        centers = np.concatenate([centers, problem.state_of(q)])
-        kinds = np.concatenate([kinds, np.full(q.shape[0], REGULAR, dtype=np.int8)])
-        added += q.shape[0]
-    return centers, kinds
 
 
 def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixed: np.ndarray,

@@ -16,17 +16,18 @@ import numpy as np
 import scipy.sparse
 
 from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
+from firmtool.connectivity import connect_goals, connectivity_report, structure
 from firmtool.design import Design, design
 from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
 from firmtool.errors import FirmtoolError, RoadmapError, RunFailure
-from firmtool.graph import SolveStatus, shortest_path_policy, solve_dp, success_probability
+from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, solve_dp, success_probability
 from firmtool.kernels import engine_for
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
-from firmtool.reports import (AddNodesReport, BuildReport, DensifyReport, DensifyRound, DesignReport, EstimateReport,
-                              FailedEdge, SampleReport, SolveReport)
+from firmtool.reports import (AddNodesReport, BuildReport, ConnectivityReport, DensifyReport, DensifyRound,
+                              DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget
 from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, read_edge_cache,
                               update_scenario, write_edge_cache, write_stage)
@@ -108,13 +109,16 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None) -> 
     check_budget(problem)  # refuse up front what would take hours or exhaust memory
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
     centers, kinds = roadmap_nodes(problem, rng)
+    budget = scenario.roadmap.bridge_nodes
+    centers, kinds, added, reason = connect_goals(problem, centers, kinds, budget, rng)
     out = Path(output) if output else default_output(scenario)
     create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
     write_stage(out, "nodes", {"centers": centers, "kind": kinds},
                 {"inputs_sha256": nodes_inputs(scenario), "densify_rounds": 0,
-                 "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL)})
+                 "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL),
+                 "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
     return SampleReport(roadmap=str(out), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
-                        seconds=time.perf_counter() - t0)
+                        seconds=time.perf_counter() - t0, connect_added=added)
 
 
 def controllers_inputs(roadmap: Roadmap) -> str:
@@ -402,10 +406,14 @@ def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
     return rm
 
 
-def add_nodes_stage(path: str | Path, count: int) -> AddNodesReport:
+def add_nodes_stage(path: str | Path, count: int, connect: bool = False) -> AddNodesReport:
     """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
     scenario's minimum separation from the others, from a random stream keyed by the seed and the
-    round number (so a densified build is reproducible). Later stages are rebuilt by the caller."""
+    round number (so a densified build is reproducible). Later stages are rebuilt by the caller.
+
+    With ``connect`` (the start cannot reach the goal), the nodes go first where connections fail
+    (:func:`firmtool.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
+    the rest."""
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
@@ -414,16 +422,20 @@ def add_nodes_stage(path: str | Path, count: int) -> AddNodesReport:
     rounds = int(attrs.get("densify_rounds", 0)) + 1
     rng = np.random.default_rng(np.random.SeedSequence([problem.scenario.seed, 0xD5, rounds]))
     spec = problem.scenario.roadmap
-    new = sample_nodes(problem, count, rng, min_separation=spec.min_separation, existing=nodes["centers"])
+    centers, kinds, connected, _ = (connect_goals(problem, nodes["centers"], nodes["kind"], count, rng) if connect
+                                    else (nodes["centers"], nodes["kind"], 0, ""))
+    count -= connected
+    new = sample_nodes(problem, count, rng, min_separation=spec.min_separation, existing=centers)
     if new.shape[0] < count:  # the separation leaves no room: fill the rest without it
-        more = sample_nodes(problem, count - new.shape[0], rng, existing=np.concatenate([nodes["centers"], new]))
+        more = sample_nodes(problem, count - new.shape[0], rng, existing=np.concatenate([centers, new]))
         new = np.concatenate([new, more])
-    centers = np.concatenate([nodes["centers"], new])
-    kinds = np.concatenate([nodes["kind"], np.full(new.shape[0], REGULAR, dtype=nodes["kind"].dtype)])
+    centers = np.concatenate([centers, new])
+    kinds = np.concatenate([kinds, np.full(new.shape[0], REGULAR, dtype=kinds.dtype)])
     write_stage(path, "nodes", {"centers": centers, "kind": kinds},
                 {**{k: v for k, v in attrs.items() if k not in ("encoding-type", "encoding-version")},
-                 "densify_rounds": rounds})
-    return AddNodesReport(added=int(new.shape[0]), nodes=int(centers.shape[0]), seconds=time.perf_counter() - t0)
+                 "densify_rounds": rounds, "connect_added": int(attrs.get("connect_added", 0)) + connected})
+    return AddNodesReport(added=int(new.shape[0]) + connected, nodes=int(centers.shape[0]),
+                          seconds=time.perf_counter() - t0, connect_added=connected)
 
 
 def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers: int | None = None,
@@ -481,13 +493,33 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
         del seconds["solve"]
     rm = Roadmap(out)
     nodes = rm.require("nodes", "centers")["centers"].shape[0]
+    connectivity = roadmap_connectivity(rm)
     rate = totals["simulated_particle_steps"] / seconds["estimate"] if seconds["estimate"] else 0.0
     return BuildReport(roadmap=str(out), resumed=existing is not None, nodes=int(nodes), edges=e.edges,
                        estimated_edges=totals["estimated_edges"], reused_edges=e.reused_edges,
                        failed_edges=tuple(failed), particles_per_edge=e.particles_per_edge,
                        particle_steps=e.particle_steps, simulated_particle_steps=totals["simulated_particle_steps"],
                        particle_steps_per_second=rate, workers=workers or default_workers(), executor=executor,
-                       seconds=seconds, densify=densify)
+                       seconds=seconds, densify=densify, connectivity=connectivity)
+
+
+def roadmap_connectivity(roadmap: Roadmap) -> ConnectivityReport:
+    """The connected structure of a roadmap's nodes (:func:`firmtool.connectivity.connectivity_report`),
+    what its connection stage added, and the goal nodes the start reaches under the estimated edges
+    (when ``/edges`` is there)."""
+    problem = problem_of(roadmap)
+    nodes = roadmap.require("nodes", "centers", "kind")
+    attrs = roadmap.attrs("nodes")
+    report = connectivity_report(problem, nodes["centers"], nodes["kind"],
+                                 added=int(attrs.get("connect_added", 0)), budget=int(attrs.get("connect_budget", 0)),
+                                 reason=str(attrs.get("connect_stop_reason", "")))
+    if roadmap.has("edges"):
+        landing, _, _, _ = edge_probabilities(roadmap)
+        source = roadmap.require("edges", "source")["source"].astype(np.int64)
+        reach = reachable_from(landing.shape[1], source, landing, START_INDEX)
+        goals = np.flatnonzero(nodes["kind"] == GOAL)
+        report = dataclasses.replace(report, reachable_goal_nodes=tuple(int(g) for g in goals[reach[goals]]))
+    return report
 
 
 def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | None, seconds: dict,
@@ -497,12 +529,13 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
     rounds = []
     last = None
     while True:
+        reachable = True
         try:
             sol = solve_stage(out)
             p = sol.start_success_probability
             seconds["solve"] += sol.seconds
         except RunFailure:  # the goal is not reachable yet: that is what densification is for
-            p = 0.0
+            p, reachable = 0.0, False
         nodes = Roadmap(out).require("nodes", "centers")["centers"].shape[0]
         rounds.append(DensifyRound(nodes=int(nodes), start_success_probability=float(p),
                                    estimated_edges=last.estimated_edges if last else None))
@@ -514,7 +547,7 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
                       f"probability is {p:.4f} < p_min {p_min:g}")
             break
         count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
-        added = add_nodes_stage(out, count)
+        added = add_nodes_stage(out, count, connect=not reachable)
         seconds["sample"] += added.seconds
         if added.added == 0:
             reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"

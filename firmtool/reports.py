@@ -75,12 +75,14 @@ class SampleReport(Report):
     nodes : nodes sampled (start and goal nodes included).
     requested_nodes : the scenario's ``roadmap.nodes``.
     seconds : wall time of the stage.
+    connect_added : nodes the connection stage added to reach stranded goal nodes.
     """
 
     roadmap: str
     nodes: int
     requested_nodes: int
     seconds: float
+    connect_added: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,11 +151,13 @@ class EstimateReport(Report):
 
 @dataclasses.dataclass(frozen=True)
 class AddNodesReport(Report):
-    """One densification round's new nodes (paper III-E)."""
+    """One densification round's new nodes (paper III-E); ``connect_added`` of them placed where
+    connections to the goal failed (:func:`firmtool.connectivity.connect_goals`)."""
 
     added: int
     nodes: int
     seconds: float
+    connect_added: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,6 +183,64 @@ class DensifyReport(Report):
 
 
 @dataclasses.dataclass(frozen=True)
+class GoalComponent(Report):
+    """A component of the roadmap graph that holds goal nodes.
+
+    Attributes
+    ----------
+    goal_nodes : the goal nodes in it.
+    nodes : its size.
+    connected : whether it is the start's component.
+    closest_pair : (node in the start's component, node in this one) closest across the gap (None
+        when connected).
+    distance : their configuration-space distance.
+    blocked : the first and last fraction of that pair's straight segment in collision, None when
+        the segment is free (then it is too long, or neither node is among the other's nearest).
+    """
+
+    goal_nodes: tuple[int, ...]
+    nodes: int
+    connected: bool
+    closest_pair: tuple[int, int] | None = None
+    distance: float | None = None
+    blocked: tuple[float, float] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class ConnectivityReport(Report):
+    """The roadmap's connected structure (each node with its k nearest neighbours within the edge
+    length, where the straight segment is collision-free: the edges design will build).
+
+    Attributes
+    ----------
+    components : connected components of the roadmap graph.
+    start_component_nodes : nodes in the start's component.
+    goal_nodes, connected_goal_nodes : the goal nodes sampling found, and those in the start's component.
+    goal_components : every component holding goal nodes (the start's first).
+    added_nodes : nodes the connection stage added (:func:`firmtool.connectivity.connect_goals`).
+    budget : its node budget (``roadmap.bridge_nodes``).
+    complete : every goal node is connected to the start.
+    stop_reason : why the connection stage stopped: ``connected``, ``budget`` (nodes spent) or
+        ``attempts`` (its sampling work bound).
+    missing : one sentence per stranded goal component: what is not connected and where the gap is.
+    reachable_goal_nodes : goal nodes reachable from the start under the estimated edges (a chain of
+        edges with positive landing counts); None before the edges are estimated.
+    """
+
+    components: int
+    start_component_nodes: int
+    goal_nodes: tuple[int, ...]
+    connected_goal_nodes: tuple[int, ...]
+    goal_components: tuple[GoalComponent, ...]
+    added_nodes: int
+    budget: int
+    complete: bool
+    stop_reason: str
+    missing: tuple[str, ...]
+    reachable_goal_nodes: tuple[int, ...] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class BuildReport(Report):
     """sample + design + estimate (+ densification): what a build did.
 
@@ -194,6 +256,8 @@ class BuildReport(Report):
     workers, executor : how the Monte Carlo ran.
     seconds : wall time per stage (``sample``, ``design``, ``estimate``, and ``solve`` when densifying).
     densify : the densification loop, when ``p_min`` was given.
+    connectivity : the roadmap's connected structure at the end of the build: which goal nodes and
+        components the start reaches, what the connection stage added, and what is missing.
     """
 
     roadmap: str | None
@@ -211,6 +275,7 @@ class BuildReport(Report):
     executor: str
     seconds: Mapping[str, float]
     densify: DensifyReport | None = None
+    connectivity: ConnectivityReport | None = None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -103,6 +103,8 @@ class RoadmapSpec:
     max_edge_length: float
     goal_nodes: int = 1
     goal_bias: float = 0.0
+    # Node budget of the connection stage (firmtool.connectivity.connect_goals): nodes added between
+    # the start's component and goal nodes it does not reach (default: default_bridge_nodes(nodes)).
     bridge_nodes: int = 0
     bias_step: float = 0.3
 
@@ -443,16 +445,23 @@ def _read_task(t: _Table, model: ModelSpec) -> TaskSpec:
     return TaskSpec(start=start, goal=goal)
 
 
+def default_bridge_nodes(nodes: int) -> int:
+    """Default node budget of the connection stage (``roadmap.bridge_nodes``): half the sampled nodes,
+    at least 10. Nothing is added to a roadmap whose goal nodes are all connected to the start."""
+    return max(10, nodes // 2)
+
+
 def _read_roadmap(t: _Table) -> RoadmapSpec:
+    nodes = t.number("nodes", _REQUIRED, integer=True, positive=True)
     spec = RoadmapSpec(
-        nodes=t.number("nodes", _REQUIRED, integer=True, positive=True),
+        nodes=nodes,
         neighbors=t.number("neighbors", 6, integer=True, positive=True),
         min_separation=t.number("min_separation", 0.0, nonnegative=True),
         max_edge_length=t.number("max_edge_length", math.inf, positive=True),
         goal_nodes=t.number("goal_nodes", 1, integer=True, positive=True),
         goal_bias=t.number("goal_bias", 0.0, nonnegative=True),
         bias_step=t.number("bias_step", 0.3, positive=True),
-        bridge_nodes=t.number("bridge_nodes", 0, integer=True, nonnegative=True),
+        bridge_nodes=t.number("bridge_nodes", default_bridge_nodes(nodes), integer=True, nonnegative=True),
     )
     if spec.goal_bias > 1:
         raise ScenarioError(t.path, "roadmap.goal_bias", f"expected a fraction in [0, 1], found {spec.goal_bias}")
