@@ -233,7 +233,8 @@ class Roadmap:
         """Write the roadmap as a versioned HDF5 file (the schema ``firmtool build`` writes), atomically.
 
         Every stage it holds is written (``/policy`` too, when it was read from a solved file); the
-        ``/edge_cache`` of an interrupted build is not (it only saves work when resuming).
+        ``/edge_cache`` is not (the estimates of an interrupted build, and the earlier particle blocks
+        of edges that adaptive Monte Carlo refined: they only save work when a build resumes).
 
         Parameters
         ----------

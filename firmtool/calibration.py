@@ -212,7 +212,13 @@ def edge_calibration(episodes: list[Episode], counts: EdgeCounts, min_traversals
 
 def edge_counts_of(roadmap) -> EdgeCounts:
     """The outcome counts of a roadmap's ``/edges`` group."""
-    e = roadmap.require("edges", "target", "particles", "outcome_edge", "outcome_code", "outcome_count")
-    return EdgeCounts(edge=e["outcome_edge"].astype(np.int64), code=e["outcome_code"].astype(np.int64),
-                      count=e["outcome_count"].astype(np.int64), particles=e["particles"].astype(np.int64),
-                      target=e["target"].astype(np.int64))
+    return counts_of_table(roadmap.require("edges", "target", "particles", "outcome_edge", "outcome_code",
+                                           "outcome_count"))
+
+
+def counts_of_table(e) -> EdgeCounts:
+    """The outcome counts of an edge table (the ``/edges`` datasets as a mapping of arrays)."""
+    return EdgeCounts(edge=np.asarray(e["outcome_edge"]).astype(np.int64),
+                      code=np.asarray(e["outcome_code"]).astype(np.int64),
+                      count=np.asarray(e["outcome_count"]).astype(np.int64),
+                      particles=np.asarray(e["particles"]).astype(np.int64), target=np.asarray(e["target"]).astype(np.int64))

@@ -203,6 +203,13 @@ def _build_human(r: dict) -> str:
             f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
             f"{r['simulated_particle_steps']:,} particle-steps simulated; sample {s['sample']:.1f} s, "
             f"design {s['design']:.1f} s, estimate {s['estimate']:.1f} s on {r['workers']} workers")
+    a = r.get("adaptive")
+    if a:
+        last = a["rounds"][-1]
+        text += (f"\nadaptive Monte Carlo: {a['particles_added']:,} particles added in {len(a['rounds']) - 1} rounds "
+                 f"to the {a['first_pass_particles']:,} of the first pass; start success probability "
+                 f"{last['start_success_probability']:.4f}, 95% interval +-{a['halfwidth']:.4f} (target "
+                 f"+-{a['target_halfwidth']:g}): {a['reason']}")
     c = r.get("connectivity")
     if c:
         text += (f"\nconnected: {len(c['connected_goal_nodes'])} of {len(c['goal_nodes'])} goal nodes in the start's "

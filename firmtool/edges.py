@@ -181,20 +181,58 @@ def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, sourc
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
     with its own seed derived from ``(seed, source, target, chunk index)``. ``engine`` and
-    ``numpy_noise``: as in :func:`simulate`.
+    ``numpy_noise``: as in :func:`simulate`. This is block 0 of :func:`estimate_blocks`.
+    """
+    return estimate_blocks(problem, design_, regions, source, target, particles, 0, 1, seed, chunk, engine,
+                           numpy_noise)[0]
+
+
+def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
+                    block_size: int, first_block: int, blocks: int, seed: int, chunk: int, engine: str | None = None,
+                    numpy_noise: bool = False) -> list[EdgeEstimate]:
+    """Blocks ``first_block .. first_block + blocks - 1`` of an edge's particles, one estimate each.
+
+    An edge's particles come in blocks of ``block_size`` (the scenario's ``estimation.particles``);
+    block ``b`` is simulated in ``ceil(block_size / chunk)`` chunks whose indices continue those of
+    the blocks before it (block ``b``, chunk ``j``: index ``b * ceil(block_size / chunk) + j``), each
+    chunk drawing from :func:`edge_seed_sequence`. So the particles of an edge with ``k`` blocks are a
+    function of the seed, the edge and ``k`` alone: more particles for an edge are new chunks, and an
+    estimate with ``k`` blocks is the in-order merge (:func:`merge_estimates`) of blocks 0 to k - 1,
+    whoever computed them and in whatever batches.
     """
     lc = local_controller(problem, design_, source, target)
-    results = []
-    for c, start in enumerate(range(0, particles, chunk)):
-        M = min(chunk, particles - start)
-        rng = np.random.default_rng(edge_seed_sequence(seed, source, target, c))
-        x, xhat = initial_ensemble(problem, design_, source, M, rng)
-        results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise))
-    outcome = np.concatenate([r.outcome for r in results])
-    steps = np.concatenate([r.steps for r in results])
-    terms = np.concatenate([r.terms for r in results])
-    values, counts = np.unique(outcome, return_counts=True)
-    cov = np.cov(terms, rowvar=False, ddof=1) if particles > 1 else np.zeros((3, 3))
-    return EdgeEstimate(source=source, target=target, particles=particles, outcomes=values, counts=counts,
-                        terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
-                        steps_mean=float(steps.mean()), particle_steps=int(steps.sum()))
+    per_block = -(-block_size // chunk)
+    out = []
+    for b in range(first_block, first_block + blocks):
+        results = []
+        for j, start in enumerate(range(0, block_size, chunk)):
+            M = min(chunk, block_size - start)
+            rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
+            x, xhat = initial_ensemble(problem, design_, source, M, rng)
+            results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise))
+        outcome = np.concatenate([r.outcome for r in results])
+        steps = np.concatenate([r.steps for r in results])
+        terms = np.concatenate([r.terms for r in results])
+        values, counts = np.unique(outcome, return_counts=True)
+        cov = np.cov(terms, rowvar=False, ddof=1) if block_size > 1 else np.zeros((3, 3))
+        out.append(EdgeEstimate(source=source, target=target, particles=block_size, outcomes=values, counts=counts,
+                                terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
+                                steps_mean=float(steps.mean()), particle_steps=int(steps.sum())))
+    return out
+
+
+def merge_estimates(a: EdgeEstimate, b: EdgeEstimate) -> EdgeEstimate:
+    """One estimate from the particles of two estimates of the same edge: counts added, means and
+    sample covariances pooled exactly (Chan et al.'s parallel update)."""
+    n1, n2 = a.particles, b.particles
+    n = n1 + n2
+    outcomes = np.union1d(a.outcomes, b.outcomes)
+    counts = np.zeros(outcomes.size, dtype=np.int64)
+    counts[np.searchsorted(outcomes, a.outcomes)] += a.counts
+    counts[np.searchsorted(outcomes, b.outcomes)] += b.counts
+    delta = b.terms_mean - a.terms_mean
+    mean = a.terms_mean + delta * (n2 / n)
+    m2 = a.terms_cov * max(n1 - 1, 0) + b.terms_cov * max(n2 - 1, 0) + np.outer(delta, delta) * (n1 * n2 / n)
+    return EdgeEstimate(source=a.source, target=a.target, particles=n, outcomes=outcomes, counts=counts,
+                        terms_mean=mean, terms_cov=m2 / (n - 1), steps_mean=(a.steps_mean * n1 + b.steps_mean * n2) / n,
+                        particle_steps=a.particle_steps + b.particle_steps)

@@ -19,8 +19,10 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence
 
+import numpy as np
+
 from firmtool.design import Design
-from firmtool.edges import EdgeEstimate, estimate_edge
+from firmtool.edges import EdgeEstimate, estimate_blocks, estimate_edge
 from firmtool.errors import InputError
 from firmtool.problem import Problem, build_problem
 from firmtool.scenario import parse_scenario
@@ -40,6 +42,10 @@ class EstimationJob:
     # worker with another FIRMTOOL_ENGINE or without numba cannot silently run a different one
     # (it fails the edge instead). None: each worker chooses (kernels.engine_for).
     engine: str | None = None
+    # Later blocks of particles (adaptive Monte Carlo): row t = (edge, first block, blocks); the work
+    # items are then the rows' indices, and each gives its blocks' estimates
+    # (firmtool.edges.estimate_blocks, blocks of ``particles``). None: block 0 of every edge given.
+    block_tasks: np.ndarray | None = None
 
 
 _worker_state: dict[str, object] = {}
@@ -62,10 +68,18 @@ def _init_worker(job: EstimationJob) -> None:
     _context(job)
 
 
-def run_batch(job: EstimationJob, edges: Sequence[int]) -> list[EdgeEstimate]:
-    """Estimate a batch of edges (indices into the design's edge arrays)."""
+def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
+    """Estimate a batch of edges (indices into the design's edge arrays): one EdgeEstimate each; or,
+    with ``job.block_tasks``, a batch of its rows: one list of block estimates each."""
     problem, design, regions = _context(job)
     src, dst = design.edge_source, design.edge_target
+    if job.block_tasks is not None:
+        out = []
+        for t in edges:
+            e, first, count = (int(v) for v in job.block_tasks[t])
+            out.append(estimate_blocks(problem, design, regions, int(src[e]), int(dst[e]), job.particles, first, count,
+                                       job.seed, job.chunk, job.engine))
+        return out
     return [estimate_edge(problem, design, regions, int(src[e]), int(dst[e]), job.particles, job.seed, job.chunk,
                           job.engine) for e in edges]
 

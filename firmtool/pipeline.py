@@ -15,19 +15,21 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
+from firmtool.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
 from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.connectivity import connect_goals, connectivity_report, structure
 from firmtool.design import Design, design
-from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
-from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate
+from firmtool.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, edge_costs, edge_keys, from_arrays,
+                                 outcome_probabilities, to_arrays)
+from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate, merge_estimates
 from firmtool.errors import FirmtoolError, RoadmapError, RunFailure
 from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, solve_dp, success_probability
 from firmtool.kernels import engine_for
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
-from firmtool.reports import (AddNodesReport, BuildReport, ConnectivityReport, DensifyReport, DensifyRound,
-                              DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
+from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
+                              DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget
 from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, read_edge_cache,
                               update_scenario, write_edge_cache, write_stage)
@@ -151,12 +153,19 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
                    scheduler: str | None = None,
                    progress_factory: Callable[[int], Callable[[int], None]] | None = None,
                    checkpoint_seconds: float = CHECKPOINT_SECONDS) -> EstimateReport:
-    """Monte Carlo estimation of every edge, in parallel; writes ``/edges``.
+    """Monte Carlo estimation of every edge, in parallel, then adaptive rounds; writes ``/edges``.
 
-    Edges whose key (:func:`firmtool.edge_table.edge_keys`) matches a stored estimate, in ``/edges``
+    A uniform first pass gives every edge ``estimation.particles`` particles; then, unless
+    ``estimation.adaptive_particles`` is 0, :func:`firmtool.adaptive.refine` adds particles to the
+    edges the DP's policy depends on until the start's success probability is known to
+    ``estimation.target_halfwidth`` (its 95% interval) or the budget is spent.
+
+    Estimates whose key (:func:`firmtool.edge_table.edge_keys`, and
+    :func:`firmtool.edge_table.blocks_key` for more particles) matches a stored one, in ``/edges``
     or in ``/edge_cache``, are reused. Finished edges are checkpointed to ``/edge_cache`` every
     ``checkpoint_seconds`` and on Ctrl-C, so an interrupted run resumes where it stopped. An edge
-    that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges``.
+    that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges`` (and the
+    adaptive rounds do not run).
 
     Parameters
     ----------
@@ -177,6 +186,10 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     keys = edge_keys(problem, d, engine=engine)
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
+    adaptive_on = sc.estimation.adaptive_particles != 0
+    if adaptive_on:  # the rounds' allocation depends on the DP, so on the cost weights and J_F too
+        table_hash = inputs_hash(table_hash, sc.estimation.target_halfwidth, sc.estimation.adaptive_particles,
+                                 digest(sc.cost).hex(), "adaptive", ADAPTIVE_VERSION)
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
         e = roadmap.require("edges", "particle_steps")
         return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0, workers or 0, executor,
@@ -193,72 +206,135 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
                         engine=engine)
     progress = progress_factory(len(todo)) if progress_factory and todo else None
-    new: list[int] = []
+    fresh: list[tuple[EdgeEstimate, np.ndarray]] = []  # estimates made by this run, with their keys
     saved = 0
     failed: dict[int, str] = {}
+    simulated = 0
 
     def checkpoint() -> None:
         nonlocal saved
-        if len(new) > saved:
-            fresh = to_arrays([est[e] for e in new], keys[new], sc.cost)
-            write_edge_cache(path, concat_edge_tables(cache, fresh), {"controllers_sha256": table_hash})
-            saved = len(new)
+        if len(fresh) > saved:
+            table = to_arrays([x for x, _ in fresh], np.array([k for _, k in fresh]), sc.cost)
+            write_edge_cache(path, concat_edge_tables(cache, table), {"controllers_sha256": table_hash})
+            saved = len(fresh)
 
-    last = time.monotonic()
+    last = [time.monotonic()]
+
+    def maybe_checkpoint() -> None:
+        if time.monotonic() - last[0] >= checkpoint_seconds:
+            checkpoint()
+            last[0] = time.monotonic()
+
+    new = 0
     try:
         for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress):
             if r.error is not None:
                 failed[r.edges[0]] = r.error
             for e, x in zip(r.edges, r.estimates):
                 est[e] = x
-                new.append(e)
-            if time.monotonic() - last >= checkpoint_seconds:
-                checkpoint()
-                last = time.monotonic()
+                fresh.append((x, keys[e]))
+                simulated += x.particle_steps
+                new += 1
+            maybe_checkpoint()
+        adaptive = None
+        history = {bytes(keys[e]): est[e] for e in range(E) if est[e] is not None}  # the first pass, by key
+        if adaptive_on and not failed and E:
+            B = sc.estimation.particles
+            settings = AdaptiveSettings(
+                target_halfwidth=sc.estimation.target_halfwidth,
+                budget=int(sc.estimation.adaptive_particles if sc.estimation.adaptive_particles is not None
+                           else B * E),
+                block_size=B, failure_cost=sc.cost.failure_cost)
+
+            def run_blocks(want: dict[int, int], current: list[EdgeEstimate]) -> dict[int, EdgeEstimate]:
+                nonlocal simulated
+                out: dict[int, EdgeEstimate] = {}
+                tasks, start = [], {}
+                for e, n in sorted(want.items()):
+                    k_target, k_now = n // B, current[e].particles // B
+                    hit = known.get(bytes(blocks_key(keys[e], k_target)))
+                    if hit is not None:
+                        out[e] = hit
+                        continue
+                    begin, k0 = current[e], k_now
+                    for k in range(k_target - 1, k_now, -1):  # the largest stored block count on the way
+                        stored = known.get(bytes(blocks_key(keys[e], k)))
+                        if stored is not None:
+                            begin, k0 = stored, k
+                            break
+                    start[len(tasks)] = begin
+                    tasks.append((e, k0, k_target - k0))
+                block_job = dataclasses.replace(job, block_tasks=np.array(tasks, dtype=np.int64).reshape(-1, 3))
+                for r in run_edges(block_job, list(range(len(tasks))), workers=workers, executor=executor,
+                                   scheduler=scheduler):
+                    if r.error is not None:  # keep the edge's particles so far; say so in the report
+                        failed[int(tasks[r.edges[0]][0])] = r.error
+                        continue
+                    for t, blocks in zip(r.edges, r.estimates):
+                        e = int(tasks[t][0])
+                        merged = start[t]
+                        for b in blocks:  # in block order: the same numbers however the work was split
+                            merged = merge_estimates(merged, b)
+                            simulated += b.particle_steps
+                        key = blocks_key(keys[e], merged.particles // B)
+                        out[e] = known[bytes(key)] = history[bytes(key)] = merged
+                        fresh.append((merged, key))
+                    maybe_checkpoint()
+                for e, x in out.items():
+                    history.setdefault(bytes(blocks_key(keys[e], x.particles // B)), x)
+                return out
+
+            goals = np.flatnonzero(d.kinds == GOAL)
+            refined, adaptive = refine(est, keys, d.centers.shape[0], goals, sc.cost,  # type: ignore[arg-type]
+                                       settings, sc.seed, run_blocks)
+            est = list(refined)
+            failed = {}  # a refinement that failed keeps the edge's earlier estimate: nothing is left out
     except KeyboardInterrupt:
         checkpoint()
         raise EstimationInterrupted(f"{path}: interrupted; {saved} newly estimated edges saved "
                                     f"({reused} reused, {E - reused - saved} still to do); run the same "
                                     "command again to resume") from None
     done = [e for e in range(E) if est[e] is not None]
-    arrays = to_arrays([est[e] for e in done], keys[done], sc.cost)
+    final_keys = np.array([blocks_key(keys[e], est[e].particles // sc.estimation.particles)  # type: ignore[union-attr]
+                           for e in done]).reshape(-1, KEY_BYTES)
+    arrays = to_arrays([est[e] for e in done], final_keys, sc.cost)
+    # keep for reuse what the table does not hold: the earlier blocks of the refined edges
+    final = {bytes(k) for k in final_keys}
+    spare = [(x, np.frombuffer(k, dtype=np.uint8)) for k, x in history.items() if k not in final]
+    spare_table = to_arrays([x for x, _ in spare], np.array([k for _, k in spare]).reshape(-1, KEY_BYTES), sc.cost) \
+        if spare else None
     write_stage(path, "edges", arrays,
                 {"inputs_sha256": table_hash if not failed else "incomplete",
                  "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT,
-                 "engine_version": ENGINE_VERSION, "failed_edges": len(failed)})
+                 "engine_version": ENGINE_VERSION, "failed_edges": len(failed),
+                 "particles_first_pass": sc.estimation.particles,
+                 "particles_added": adaptive.particles_added if adaptive else 0}, cache=spare_table)
     failures = [FailedEdge(edge=e, source=int(d.edge_source[e]), target=int(d.edge_target[e]), error=failed[e])
                 for e in sorted(failed)]
-    simulated = int(sum(est[e].particle_steps for e in new))  # type: ignore[union-attr]
-    return _estimate_report(path, sc, E, len(new), reused, failures, int(arrays["particle_steps"].sum()), simulated,
-                            workers, executor, time.perf_counter() - t0)
+    return _estimate_report(path, sc, E, new, reused, failures, int(arrays["particle_steps"].sum()), simulated,
+                            workers, executor, time.perf_counter() - t0, adaptive=adaptive)
 
 
 def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list[FailedEdge],
                      steps: int, simulated: int, workers: int, executor: str, seconds: float,
-                     up_to_date: bool = False) -> EstimateReport:
+                     up_to_date: bool = False, adaptive: AdaptiveReport | None = None) -> EstimateReport:
     """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
     return EstimateReport(roadmap=str(path), edges=E, estimated_edges=estimated, reused_edges=reused,
                           failed_edges=tuple(failures), up_to_date=up_to_date,
                           particles_per_edge=sc.estimation.particles, particle_steps=steps,
                           simulated_particle_steps=simulated,
                           particle_steps_per_second=simulated / seconds if seconds and simulated else 0.0,
-                          workers=workers, executor=executor, seconds=seconds)
+                          workers=workers, executor=executor, seconds=seconds, adaptive=adaptive)
 
 
 def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
     """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``."""
     e = roadmap.require("edges", "source", "particles", "outcome_edge", "outcome_code", "outcome_count")
     N = roadmap.require("nodes", "centers")["centers"].shape[0]
-    E = e["source"].size
-    n = e["particles"].astype(float)
-    edge, code, count = e["outcome_edge"], e["outcome_code"], e["outcome_count"].astype(float)
-    if np.any(code >= N) or np.any(code < TIMEOUT):
-        raise RoadmapError(f"{roadmap.path}: /edges holds outcome codes outside the node range")
-    land = code >= 0
-    landing = scipy.sparse.csr_matrix((count[land] / n[edge[land]], (edge[land], code[land])), shape=(E, N))
-    fail = np.bincount(edge[code == FAILURE], weights=count[code == FAILURE], minlength=E) / n
-    timeout = np.bincount(edge[code == TIMEOUT], weights=count[code == TIMEOUT], minlength=E) / n
-    return landing, fail, timeout, e["particles"]
+    try:
+        return outcome_probabilities(e, N)
+    except ValueError as exc:
+        raise RoadmapError(f"{roadmap.path}: /edges {exc}") from None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -500,7 +576,7 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
                        failed_edges=tuple(failed), particles_per_edge=e.particles_per_edge,
                        particle_steps=e.particle_steps, simulated_particle_steps=totals["simulated_particle_steps"],
                        particle_steps_per_second=rate, workers=workers or default_workers(), executor=executor,
-                       seconds=seconds, densify=densify, connectivity=connectivity)
+                       seconds=seconds, densify=densify, connectivity=connectivity, adaptive=e.adaptive)
 
 
 def roadmap_connectivity(roadmap: Roadmap) -> ConnectivityReport:

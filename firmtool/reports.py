@@ -115,6 +115,49 @@ class FailedEdge(Report):
 
 
 @dataclasses.dataclass(frozen=True)
+class AdaptiveRound(Report):
+    """The roadmap after a round of adaptive Monte Carlo (the first row: after the uniform pass).
+
+    Attributes
+    ----------
+    start_success_probability : the DP policy's success probability from the start.
+    ci95, halfwidth : its 95% posterior interval and half that interval's width.
+    particles : particles of the whole edge table; ``policy_particles`` those of the policy's edges.
+    """
+
+    start_success_probability: float
+    ci95: tuple[float, float]
+    halfwidth: float
+    particles: int
+    policy_particles: int
+
+
+@dataclasses.dataclass(frozen=True)
+class AdaptiveReport(Report):
+    """Adaptive Monte Carlo (:func:`firmtool.adaptive.refine`): particles where they change the answer.
+
+    Attributes
+    ----------
+    target_halfwidth : ``estimation.target_halfwidth``.
+    budget : ``estimation.adaptive_particles`` (particles the rounds may add).
+    first_pass_particles : particles of the uniform first pass; ``particles_added`` by the rounds.
+    rounds : the roadmap after the first pass and after every round.
+    reached : the start's interval half-width reached the target.
+    reason : why the rounds stopped.
+    halfwidth : the last half-width.
+    """
+
+    target_halfwidth: float
+    budget: int
+    first_pass_particles: int
+    particles_added: int
+    rounds: tuple[AdaptiveRound, ...]
+    reached: bool
+    reason: str
+    halfwidth: float
+
+
+@dataclasses.dataclass(frozen=True)
 class EstimateReport(Report):
     """The estimate stage: Monte Carlo outcome counts of every edge.
 
@@ -132,6 +175,7 @@ class EstimateReport(Report):
     particle_steps_per_second : ``simulated_particle_steps`` over ``seconds`` (0 when nothing ran).
     workers, executor : how the Monte Carlo ran.
     seconds : wall time of the stage.
+    adaptive : the adaptive rounds (None when ``estimation.adaptive_particles`` is 0 or nothing ran).
     """
 
     roadmap: str
@@ -147,6 +191,7 @@ class EstimateReport(Report):
     workers: int
     executor: str
     seconds: float
+    adaptive: AdaptiveReport | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -258,6 +303,7 @@ class BuildReport(Report):
     densify : the densification loop, when ``p_min`` was given.
     connectivity : the roadmap's connected structure at the end of the build: which goal nodes and
         components the start reaches, what the connection stage added, and what is missing.
+    adaptive : the last estimate stage's adaptive Monte Carlo rounds (None when off or up to date).
     """
 
     roadmap: str | None
@@ -276,6 +322,7 @@ class BuildReport(Report):
     seconds: Mapping[str, float]
     densify: DensifyReport | None = None
     connectivity: ConnectivityReport | None = None
+    adaptive: AdaptiveReport | None = None
 
 
 @dataclasses.dataclass(frozen=True)

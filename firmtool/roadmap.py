@@ -92,7 +92,7 @@ def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
 
 
 def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
-                drop_later: bool = True) -> None:
+                drop_later: bool = True, cache: Mapping[str, np.ndarray] | None = None) -> None:
     """Replace one stage group atomically. Later stages are dropped: they depend on this one.
 
     Parameters
@@ -101,6 +101,9 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
     arrays : datasets of the group.
     attrs : attributes of the group (must include ``inputs_sha256``).
     drop_later : remove the groups of the stages after ``stage`` (they are stale now).
+    cache : with ``stage == "edges"``: the new ``/edge_cache`` (estimates kept for reuse that the new
+        table does not hold: the earlier particle blocks of edges that adaptive Monte Carlo refined);
+        without it the cache is removed.
     """
     if stage not in STAGES:
         raise ValueError(f"unknown stage {stage!r}")
@@ -111,6 +114,8 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
         later = STAGES[STAGES.index(stage):] if drop_later else (stage,)
         if stage == "edges":
             _delete(f, CACHE)  # its estimates are in the new table or no longer wanted
+            if cache:
+                _write_table(f, CACHE, cache, {"description": "edge estimates keyed by their inputs, for reuse"})
         elif "edges" in later and "edges" in f:
             _cache_edges(f)  # keep the estimates: edges whose inputs are unchanged are reused
         for name in later:

@@ -126,11 +126,27 @@ class ControllerSpec:
 DEFAULT_MAX_PARTICLE_STEPS = 1e10
 
 
+# Default target of adaptive Monte Carlo: the 95% interval of the start's success probability at
+# most +-0.02 (firmtool.adaptive).
+DEFAULT_TARGET_HALFWIDTH = 0.02
+
+
 @dataclass(frozen=True)
 class EstimationSpec:
+    """Monte Carlo settings.
+
+    ``particles`` per edge in the uniform first pass (and the block size of later ones), simulated in
+    chunks of ``chunk``; ``target_halfwidth`` and ``adaptive_particles`` steer adaptive Monte Carlo
+    (:mod:`firmtool.adaptive`): rounds add particles to the policy's edges and their competitors until
+    the 95% interval of the start's success probability is at most +-``target_halfwidth`` or
+    ``adaptive_particles`` more particles were spent (None: as many as the first pass; 0: no rounds).
+    """
+
     particles: int
     chunk: int
     max_particle_steps: float = DEFAULT_MAX_PARTICLE_STEPS
+    target_halfwidth: float = DEFAULT_TARGET_HALFWIDTH
+    adaptive_particles: int | None = None
 
 
 @dataclass(frozen=True)
@@ -489,7 +505,12 @@ def _read_estimation(t: _Table) -> EstimationSpec:
         particles=t.number("particles", 500, integer=True, positive=True),
         chunk=t.number("chunk", 2000, integer=True, positive=True),
         max_particle_steps=t.number("max_particle_steps", DEFAULT_MAX_PARTICLE_STEPS, positive=True),
+        target_halfwidth=t.number("target_halfwidth", DEFAULT_TARGET_HALFWIDTH, positive=True),
+        adaptive_particles=t.number("adaptive_particles", None, integer=True, nonnegative=True),
     )
+    if spec.target_halfwidth >= 0.5:
+        raise ScenarioError(t.path, "estimation.target_halfwidth",
+                            f"expected a half-width in (0, 0.5), found {spec.target_halfwidth}")
     t.finish()
     return spec
 
