@@ -25,14 +25,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.atomic import replacing
 from firmtool.edges import FAILURE, TIMEOUT
 from firmtool.errors import InputError
 from firmtool.graph import SolveStatus
 from firmtool.nodes import GOAL, START_INDEX
 from firmtool.reports import BuildReport, SolveReport
 from firmtool.results import Outcome, Results
-from firmtool.roadmap import STAGES, create_roadmap, write_stage
+from firmtool.roadmap import STAGES, write_roadmap
 from firmtool.roadmap import Roadmap as RoadmapFile
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
@@ -256,13 +255,8 @@ class Roadmap:
         data = self._data
         stages = {name: data.stages[name] for name in STAGES if data.has(name)}
         stages.update(replace)
-        with replacing(path) as tmp:
-            create_roadmap(tmp, data.scenario_text, data.scenario_sha256, data.seed)
-            for name in STAGES:
-                if name in stages:
-                    arrays, attrs = stages[name]
-                    attrs = {k: v for k, v in attrs.items() if k not in ("encoding-type", "encoding-version")}
-                    write_stage(tmp, name, arrays, attrs, drop_later=False)
+        # one atomic write, built in memory: a failure names ``path``, never a temporary file
+        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
 
     def solution(self) -> "Solution":
         """The policy stored in the roadmap (``firmtool solve`` wrote it), as a :class:`Solution`.
@@ -295,7 +289,7 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
           executor: str = "process", scheduler: str | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
           progress: Callable[[int], Callable[[int], None]] | None = None,
-          checkpoint_seconds: float = pipeline.CHECKPOINT_SECONDS) -> Roadmap:
+          checkpoint_seconds: float = pipeline.CHECKPOINT_SECONDS, force: bool = False) -> Roadmap:
     """Sample the nodes, design their stabilisers and the edges, and estimate every edge by Monte Carlo.
 
     Parameters
@@ -320,6 +314,8 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
         Called with the number of edges to estimate; returns a callback told how many finished.
     checkpoint_seconds : float
         Seconds between saves of finished edges into ``output`` (resume after a kill).
+    force : bool
+        Replace an existing file at ``output`` even if it is not a firmtool roadmap.
 
     Returns
     -------
@@ -335,7 +331,7 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
     scenario = pipeline.as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
     options: dict[str, Any] = dict(workers=workers, executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min,
                                    max_nodes=max_nodes, add_nodes=add_nodes, progress_factory=progress,
-                                   checkpoint_seconds=checkpoint_seconds)
+                                   checkpoint_seconds=checkpoint_seconds, force=force)
     if output is not None:
         report = pipeline.build(scenario, output, **options)
         return Roadmap(RoadmapFile(output), path=Path(output), report=report)

@@ -1,7 +1,9 @@
 """The ``firmtool`` command line: parse, call the library, print, exit.
 
-Exit codes: 0 success, 1 a run that failed on its own terms (unreachable goal, numerical failure),
-2 bad input (scenario, roadmap file or option). Errors are one line on stderr, never a traceback.
+Exit codes: 0 success, 1 a run that failed on its own terms (unreachable goal, numerical failure,
+disk full), 2 bad input (scenario, roadmap file, option or output path), 130 interrupted (Ctrl-C).
+Errors are one line on stderr, never a traceback; that includes usage errors (a bad option value, an
+unknown command, a missing argument), which click would print as a multi-line panel.
 """
 
 from __future__ import annotations
@@ -16,12 +18,53 @@ from typing import Any, Callable, Optional
 import click
 import numpy as np
 import typer
+from typer.core import TyperGroup
 
+from firmtool import interrupts
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
 
 DEFAULT_SCENARIO = "scenarios/arm8_lightdark.toml"
+# The click that typer's commands raise from: recent typer vendors its own copy as typer._click,
+# whose exceptions are not the click package's.
+_click: Any = getattr(typer, "_click", click)
+_NoArgsIsHelp: type = getattr(_click.exceptions, "NoArgsIsHelpError", ())  # click >= 8.2
 
-app = typer.Typer(
+
+class _OneLineErrors(TyperGroup):
+    """The command group: usage errors in one line (``error: ...``, exit 2) instead of click's panel."""
+
+    def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, **extra: Any) -> Any:
+        try:
+            rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var, standalone_mode=False,
+                              **extra)
+            code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+        except _NoArgsIsHelp as exc:  # 'firmtool' alone: the help (typer's rich help printed itself already)
+            text = exc.format_message()
+            if text.strip():
+                typer.echo(text)
+            code = 0
+        except _click.exceptions.UsageError as exc:
+            where = f"{exc.ctx.command_path}: " if exc.ctx is not None else ""
+            hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+            typer.echo(f"error: {where}{_one_line(exc.format_message())}{hint}", err=True)
+            code = 2
+        except _click.exceptions.ClickException as exc:
+            typer.echo(f"error: {_one_line(exc.format_message())}", err=True)
+            code = exc.exit_code
+        except (typer.Abort, KeyboardInterrupt):
+            typer.echo("error: interrupted", err=True)
+            code = interrupts.INTERRUPTED_EXIT
+        if standalone_mode:
+            sys.exit(code)
+        return code
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+app = typer.Typer(cls=_OneLineErrors,
     name="firmtool",
     help=("FIRM: graph-based stochastic control with constraints, in state space (perfect measurements) "
           "and belief space (imperfect measurements).\n\n"
@@ -33,7 +76,13 @@ app = typer.Typer(
 )
 
 JsonOpt = typer.Option(False, "--json", help="Print machine-readable results on stdout.")
-WorkersOpt = typer.Option(None, "--workers", "-w", min=1, help="Worker processes (default: all cores).")
+WorkersOpt = typer.Option(None, "--workers", "-w", min=1,
+                         help="Worker processes (default: all cores; at most 2 per core, and as many as memory allows).")
+ForceOpt = typer.Option(False, "--force", help="Replace an existing output file even if it is not a firmtool file "
+                                               "of the same kind.")
+MaxStepsOpt = typer.Option(1e8, "--max-total-steps", min=1.0,
+                           help="Refuse runs of more than this many control steps in the worst case "
+                                "(episodes x the scenario's execution.max_steps).")
 ExecutorOpt = typer.Option("process", "--executor", help="'process' (local) or 'dask' (dask.distributed).")
 CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
@@ -56,9 +105,9 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
-        from threadpoolctl import threadpool_limits
         try:
+            import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
+            from threadpoolctl import threadpool_limits
             # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
             with threadpool_limits(limits=1):
                 return fn(*args, **kwargs)
@@ -72,15 +121,19 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             _fail(str(exc), 1)
         except FirmtoolError as exc:  # pragma: no cover - every subclass is mapped above
             _fail(str(exc), 1)
-        except (typer.Exit, typer.Abort, click.exceptions.ClickException):
+        except (typer.Exit, typer.Abort, _click.exceptions.ClickException):
             raise
         except OSError as exc:
             if os.environ.get("FIRMTOOL_DEBUG") or not exc.filename:
                 raise
             # a file the user named that cannot be read or written (permissions, disk full, ...)
-            _fail(f"{exc.filename}: {exc.strerror or _first_line(exc)}", 2)
+            from firmtool.atomic import write_failure
+            failure = write_failure(exc.filename, exc)
+            _fail(str(failure), 1 if isinstance(failure, RunFailure) else 2)
         except MemoryError:
             _fail("out of memory; lower roadmap.nodes, estimation.particles or estimation.chunk", 1)
+        except RecursionError:
+            _fail("input nested too deeply to process (a bug in firmtool if it came from a checked file)", 1)
         except Exception as exc:
             if os.environ.get("FIRMTOOL_DEBUG"):
                 raise
@@ -93,17 +146,33 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 def _emit(report: dict, as_json: bool, human: Callable[[dict], str]) -> None:
     public = {k: v for k, v in report.items() if not k.startswith("_")}
     if as_json:
-        typer.echo(json.dumps(public, indent=2, default=_json_default))
+        typer.echo(to_json(public))
     else:
         typer.echo(human(public))
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
+def to_json(value: Any) -> str:
+    """RFC 8259 JSON: numpy values as plain ones, non-finite numbers as null (JSON has no NaN or
+    Infinity); ``allow_nan=False`` makes any that slipped through an error, not invalid output."""
+    return json.dumps(_plain(value), indent=2, allow_nan=False)
+
+
+def _plain(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_plain(v) for v in o]
     if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o).__name__)
+        return _plain(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    if o is None or isinstance(o, (str, int, float, bool)):
+        return o
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def _progress_factory(label: str) -> Callable[[int], Callable[[int], None]] | None:
@@ -138,14 +207,14 @@ def _check_exists(path: Path, what: str) -> None:
 @handles_errors
 def sample(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
            output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
-           as_json: bool = JsonOpt) -> None:
+           force: bool = ForceOpt, as_json: bool = JsonOpt) -> None:
     """Sample the nodes (start, goal, valid configurations at rest) into a new roadmap file.
 
     Example: firmtool sample scenarios/smoke.toml -o artifacts/smoke.h5
     """
     from firmtool.api import load_scenario
     from firmtool.pipeline import sample_stage
-    _emit(sample_stage(load_scenario(scenario), output).to_dict(), as_json,
+    _emit(sample_stage(load_scenario(scenario), output, force=force).to_dict(), as_json,
           lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
 
 
@@ -189,12 +258,12 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
 
 
 def _exit_on_failed_edges(report: dict) -> None:
+    """One line for any number of failed edges (each is listed in the --json report)."""
     failed = report.get("failed_edges") or []
-    for f in failed[:20]:
-        typer.echo(f"error: edge {f['edge']} ({f['source']} -> {f['target']}) failed twice: {f['error']}", err=True)
     if failed:
-        _fail(f"{len(failed)} edge(s) failed and were left out of {report['roadmap']}; run the same command "
-              "again to retry them", 1)
+        f = failed[0]
+        _fail(f"{report['roadmap']}: {len(failed)} edge(s) failed twice and were left out (first: edge {f['edge']} "
+              f"({f['source']} -> {f['target']}): {f['error']}); run the same command again to retry them", 1)
 
 
 def _build_human(r: dict) -> str:
@@ -241,7 +310,7 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
           add_nodes: Optional[int] = typer.Option(None, "--add-nodes", min=1,
                                                   help="Nodes added per densification round (default: a quarter "
                                                        "of the current count, at least 5)."),
-          as_json: bool = JsonOpt) -> None:
+          force: bool = ForceOpt, as_json: bool = JsonOpt) -> None:
     """Run the offline stages: sample, design, estimate (and, with --p-min, densify and solve).
 
     An existing roadmap at the output, sampled from the same scenario settings, is continued: an
@@ -257,7 +326,7 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
     sc = ft.load_scenario(scenario)
     rm = ft.build(sc, output=output or default_output(sc), workers=workers, executor=executor, scheduler=scheduler,
                   progress=_progress_factory("estimating edges"), fresh=fresh, p_min=p_min, max_nodes=max_nodes,
-                  add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds)
+                  add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds, force=force)
     report = rm.report.to_dict()
     _emit(report, as_json, _build_human)
     _exit_on_failed_edges(report)
@@ -314,8 +383,9 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
 def _execute_human(r: dict) -> str:
     lo, hi = r["success_rate_ci95"]
     pred = r["predicted_success_probability"]
+    stuck = f", {r['stuck']} stuck (no policy edge or no controller to a node)" if r.get("stuck") else ""
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
-            f"{r['timeouts']} timeouts\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
+            f"{r['timeouts']} timeouts{stuck}\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
             f"predicted {pred if pred is None else round(pred, 4)}\n"
             f"mean steps {r['mean_steps']:.1f}, mean cost {r['mean_cost']:.2f}, replans {r['replans']}"
             + _execute_extra_human(r))
@@ -381,7 +451,7 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                 None, "--save-episodes",
                 help="Write every episode (true states, estimates, covariances, controls, nodes, events) to "
                      "this HDF5 file (atomic write)."),
-            as_json: bool = JsonOpt) -> None:
+            force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt, as_json: bool = JsonOpt) -> None:
     """Run closed-loop episodes of the policy on a simulated true system, with real-time replanning
     after large disturbances, and check the plan against what happened (predicted success probability
     with its interval from the edge counts, executed rate with its Wilson interval, per-edge landing
@@ -402,13 +472,19 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     import firmtool.api as ft
     from firmtool.disturbances import parse_disturbances
     from firmtool.execute import ReplanSettings
+    from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
     if not (np.isfinite(replan_threshold) and replan_threshold > 0):
         raise InputError(f"--replan-threshold: expected a finite number > 0, found {replan_threshold}")
     start_state = _parse_start(start)
     _check_policy(policy_name)
-    sol = ft.open_roadmap(roadmap).solution()
+    if save_episodes is not None:
+        from firmtool.episodes_io import check_output
+        check_output(save_episodes, force)  # before the episodes run, not after
+    rm = ft.open_roadmap(roadmap)
+    check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
+    sol = rm.solution()
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
                       replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
                       record=save_episodes is not None)
@@ -418,9 +494,17 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         write_episodes(save_episodes, res.episodes,
                        {"roadmap": str(roadmap), "seed": seed, "policy": policy_name,
                         "disturbances": ";".join(report["disturbances"]), "replanning": not no_replan,
-                        "replan_threshold": replan_threshold})
+                        "replan_threshold": replan_threshold}, force=force)
         report["episodes_file"] = str(save_episodes)
     _emit(report, as_json, _execute_human)
+    _exit_if_all_stuck(report, roadmap)
+
+
+def _exit_if_all_stuck(report: dict, roadmap: Path) -> None:
+    """Exit 1 when no episode ran at all: every one ended before its first step."""
+    if report["episodes"] and report.get("stuck") == report["episodes"]:
+        _fail(f"{roadmap}: every episode was stuck at its start (no policy edge from the start node, or no "
+              "controller from the start to any node); the policy cannot be executed", 1)
 
 
 def _check_policy(name: str) -> None:
@@ -437,22 +521,27 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
          episodes: int = typer.Option(20, "--episodes", "-n", min=0,
                                       help="Episodes run per policy: the panel shows their success rate and draws "
                                            "the first successful one (0: the roadmap and the policy only)."),
-         dpi: int = typer.Option(120, "--dpi", min=30, max=600)) -> None:
+         dpi: int = typer.Option(120, "--dpi", min=30, max=600), force: bool = ForceOpt,
+         max_total_steps: float = MaxStepsOpt) -> None:
     """Draw the paper's Fig. 1: obstacles, sensing field, goal, roadmap, policy path, and an executed
     episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip).
 
     Example: firmtool plot artifacts/arm8_lightdark.h5 -o fig.png --episodes 100
     """
     import firmtool.api as ft
-    from firmtool.figures import save_figure
+    from firmtool.figures import check_output, save_figure
+    from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
         raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
-    sol = ft.open_roadmap(roadmap).solution()
+    out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
+    rm = ft.open_roadmap(roadmap)
+    if episodes:
+        check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
+    sol = rm.solution()
     results = [ft.simulate(sol, episodes, seed, policy=name) if episodes else None for name in names[policy_name]]
-    out = output or roadmap.with_suffix(".png")
-    save_figure(ft.plot_policies(sol, results, names[policy_name], dpi=dpi), out)
+    save_figure(ft.plot_policies(sol, results, names[policy_name], dpi=dpi), out, force=force)
     typer.echo(f"wrote {out}")
 
 
@@ -475,7 +564,8 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
         output: Optional[Path] = typer.Option(None, "--output", "-o"),
         episodes: int = typer.Option(200, "--episodes", "-n", min=1),
         seed: int = typer.Option(0, "--seed", min=0),
-        workers: Optional[int] = WorkersOpt, as_json: bool = JsonOpt) -> None:
+        workers: Optional[int] = WorkersOpt, force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt,
+        as_json: bool = JsonOpt) -> None:
     """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment):
     the same calls, and the same numbers, as 'firmtool build', 'solve' and 'execute' one by one.
 
@@ -483,9 +573,13 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
     """
     import firmtool.api as ft
     from firmtool.pipeline import default_output, unreachable_failure
+    from firmtool.problem import build_problem
+    from firmtool.resources import check_execution
     sc = ft.load_scenario(scenario)
+    check_execution(build_problem(sc), episodes, max_total_steps=max_total_steps)
     out = output or default_output(sc)
-    rm = ft.build(sc, output=out, workers=workers, progress=_progress_factory("estimating edges"))
+    rm = ft.build(sc, output=out, workers=workers, progress=_progress_factory("estimating edges"), force=force)
+    _exit_on_failed_edges(rm.report.to_dict())
     sol = ft.solve(rm)
     sol.save()
     if not sol.start_reachable:
@@ -496,8 +590,11 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
                                                   _execute_human(r["execute"])]))
 
 
-def main() -> None:  # pragma: no cover - console entry point
-    app()
+def main() -> None:
+    """Run the CLI on ``sys.argv`` and exit with its code (the console script, firmtool.__main__, installs
+    the Ctrl-C handler before this module's imports)."""
+    interrupts.install()
+    sys.exit(app(standalone_mode=False))
 
 
 if __name__ == "__main__":  # python -m firmtool.cli (tests run the CLI with the interpreter they use)

@@ -327,14 +327,34 @@ def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.n
     try:
         lam = np.linalg.solve(W, xf - A_steps @ x0)
     except np.linalg.LinAlgError:
-        raise NumericalError(f"no trajectory in {steps} steps: the pair (A, B) is not controllable") from None
+        raise NumericalError(f"no trajectory in {steps} steps: the reachability Gramian over {steps} steps is "
+                             "singular, so the pair (A, B) is not controllable in that many steps") from None
     u = np.einsum("kim,i->km", blocks, lam)
     x = np.empty((steps + 1, n))
     _rollout(np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(B, dtype=float),
              np.asarray(x0, dtype=float), u, x)
-    if np.linalg.norm(x[-1] - xf) > 1e-6 * max(1.0, np.linalg.norm(xf)):
-        raise NumericalError("nominal trajectory misses its target: the pair (A, B) is not controllable")
+    miss = float(np.linalg.norm(x[-1] - xf))
+    if not miss <= 1e-6 * max(1.0, np.linalg.norm(xf)):
+        raise NumericalError(_miss_diagnosis(A, W, A_steps, steps, miss))
     return x, u
+
+
+def _miss_diagnosis(A: np.ndarray, W: np.ndarray, A_steps: np.ndarray, steps: int, miss: float) -> str:
+    """Why a minimum-energy nominal missed its target: an ill-conditioned reachability Gramian (a
+    nearly uncontrollable pair), or an unstable A whose growth over the edge the open-loop rollout
+    cannot cancel in double precision (a controllable pair, too unstable at this time step)."""
+    cond = float(np.linalg.cond(W))
+    growth = float(np.linalg.norm(A_steps, 2))
+    rho = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if np.isfinite(cond) and cond < 1e10 and growth > 1e6:
+        return (f"nominal trajectory over {steps} steps misses its target by {miss:.3g}: the discretised A grows "
+                f"{rho:.4g}-fold per step ({growth:.3g}-fold over the edge), more than an open-loop nominal can "
+                "cancel in double precision; (A, B) is controllable, but too unstable at this time step for "
+                "rest-to-rest nominals (lower model.dt, or raise controller.max_speed / controller.max_accel so "
+                "that edges take fewer steps)")
+    return (f"nominal trajectory over {steps} steps misses its target by {miss:.3g}: the reachability Gramian is "
+            f"ill-conditioned (condition number {cond:.3g}), so the pair (A, B) is nearly uncontrollable over "
+            f"{steps} steps")
 
 
 @dataclass(frozen=True)

@@ -16,18 +16,22 @@ roadmap path, seed, policy, disturbances and replanning settings)::
         events       (E,)        compound: step (int64), kind (S24), node (int64), value (float64),
                                  detail (S96)
 
-Written to a temporary file in the same folder, then renamed: a reader never sees half a file.
+Built in memory, then written to a temporary file in the same folder and renamed
+(:func:`firmtool.atomic.write_bytes`): a reader never sees half a file, and a full disk is one
+clean error that leaves the previous file intact. An existing file at the path is replaced only if
+it is a firmtool episodes file (or with ``force``).
 """
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
-from firmtool.atomic import replacing
+from firmtool.atomic import check_target, write_bytes
 from firmtool.errors import InputError
 
 FORMAT, FORMAT_VERSION = "firmtool-episodes", 1
@@ -43,10 +47,28 @@ def _events_array(events: list) -> np.ndarray:
     return out
 
 
-def save_episodes(path: str | Path, episodes: list, attrs: dict[str, Any]) -> None:
+def is_episodes_file(path: str | Path) -> bool:
+    """Whether ``path`` is an HDF5 file written by :func:`save_episodes`."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("format") == FORMAT
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def check_output(path: str | Path, force: bool = False) -> Path:
+    """Refuse an episodes output path that is not a firmtool episodes file (unless ``force``), a
+    folder, a device, or lies under a file (:func:`firmtool.atomic.check_target`)."""
+    return check_target(path, "episodes file", is_episodes_file, force)
+
+
+def save_episodes(path: str | Path, episodes: list, attrs: dict[str, Any], force: bool = False) -> None:
     """Write recorded episodes (:class:`firmtool.results.Episode`, from ``firmtool.simulate(...,
-    record=True)``) atomically to ``path``."""
-    with replacing(path) as tmp, h5py.File(tmp, "w") as f:
+    record=True)``) atomically to ``path``; an existing file there is replaced only if it is a
+    firmtool episodes file, or with ``force``."""
+    check_output(path, force)
+    image = io.BytesIO()
+    with h5py.File(image, "w") as f:
         f.attrs["format"], f.attrs["format_version"] = FORMAT, FORMAT_VERSION
         for k, v in attrs.items():
             f.attrs[k] = "" if v is None else v
@@ -70,6 +92,7 @@ def save_episodes(path: str | Path, episodes: list, attrs: dict[str, Any]) -> No
             g.create_dataset("nodes", data=np.asarray(ep.nodes, dtype=np.int64))
             g.create_dataset("edges", data=np.asarray(ep.edges, dtype=np.int64))
             g.create_dataset("events", data=_events_array(ep.events))
+    write_bytes(path, image.getbuffer())
 
 
 def load_episodes(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:

@@ -31,9 +31,23 @@ class RoadmapError(InputError):
     """A roadmap file that is missing, unreadable, of an unknown schema or lacks a stage."""
 
 
+class FileBusyError(RoadmapError):
+    """A file another process is writing (firmtool's writer lock, or HDF5's file lock) (exit code 2)."""
+
+
+class OutputError(InputError):
+    """An output path that cannot be a firmtool file: a directory, a path under a file, a device, an
+    existing file of another kind (without ``force``), or no permission to write (exit code 2)."""
+
+
 class NumericalError(FirmtoolError, ArithmeticError):
     """A numerical failure (uncontrollable pair, Riccati without a stabilising solution...)."""
 
 
 class RunFailure(FirmtoolError, RuntimeError):
     """A run that failed on its own terms, e.g. a goal unreachable from the start (exit code 1)."""
+
+
+class WriteFailure(RunFailure):
+    """Writing an output failed in the environment (disk full, quota, I/O error); the previous file
+    is intact and no temporary file is left (exit code 1)."""

@@ -13,6 +13,8 @@ pushed through the Jacobian of that point (central finite differences of ``probl
 
 from __future__ import annotations
 
+import io
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +23,8 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Ellipse, Rectangle
 
-from firmtool.atomic import replacing
+from firmtool import __version__
+from firmtool.atomic import check_target, write_bytes
 from firmtool.design import Design
 from firmtool.nodes import GOAL, START_INDEX
 from firmtool.problem import Problem
@@ -153,11 +156,47 @@ def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
     ax.legend(loc="lower left", fontsize=6, framealpha=0.8)
 
 
-def save_figure(fig: Figure, path: str | Path) -> None:
-    """Write a PNG atomically (temporary file in the same folder, then rename)."""
-    with replacing(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
-    if fig.canvas.manager is not None:  # a pyplot figure: let pyplot forget it
-        import matplotlib.pyplot as plt
+PNG_SOFTWARE = f"firmtool {__version__}"  # the PNG's Software text: marks a figure firmtool may replace
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
-        plt.close(fig)
+
+def is_firmtool_png(path: str | Path) -> bool:
+    """Whether ``path`` is a PNG whose ``Software`` text (before its image data) names firmtool."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)
+    except OSError:
+        return False
+    if not head.startswith(_PNG_SIGNATURE):
+        return False
+    pos = len(_PNG_SIGNATURE)
+    while pos + 8 <= len(head):
+        length, kind = struct.unpack(">I4s", head[pos:pos + 8])
+        if kind == b"IDAT":
+            return False
+        data = head[pos + 8:pos + 8 + length]
+        if kind == b"tEXt" and data.startswith(b"Software\x00") and data[9:].startswith(b"firmtool"):
+            return True
+        pos += 12 + length
+    return False
+
+
+def check_output(path: str | Path, force: bool = False) -> Path:
+    """Refuse a figure output path that is not a firmtool PNG (unless ``force``), a folder, a device,
+    or lies under a file (:func:`firmtool.atomic.check_target`)."""
+    return check_target(path, "PNG image", is_firmtool_png, force)
+
+
+def save_figure(fig: Figure, path: str | Path, force: bool = False) -> None:
+    """Write a PNG atomically: rendered in memory, then :func:`firmtool.atomic.write_bytes` (an
+    existing file there is replaced only if it is a firmtool PNG, or with ``force``)."""
+    try:
+        check_output(path, force)
+        image = io.BytesIO()
+        fig.savefig(image, format="png", metadata={"Software": PNG_SOFTWARE})
+        write_bytes(path, image.getbuffer())
+    finally:
+        if fig.canvas.manager is not None:  # a pyplot figure: let pyplot forget it
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)

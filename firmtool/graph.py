@@ -14,6 +14,7 @@ which keeps every value finite and free of ``inf * 0`` traps.
 from __future__ import annotations
 
 import enum
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -227,9 +228,10 @@ def _evaluate(n_nodes: int, is_goal: np.ndarray, policy: np.ndarray, c: np.ndarr
     rhs = c[policy[act]] + failure_cost * dead_mass
     A = (scipy.sparse.identity(act.size, format="csc") - Q.tocsc())
     try:
-        with np.errstate(all="raise"):
+        with np.errstate(all="raise"), warnings.catch_warnings():
+            warnings.simplefilter("error", scipy.sparse.linalg.MatrixRankWarning)  # singular: None, no warning
             sol = scipy.sparse.linalg.spsolve(A, rhs)
-    except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+    except (FloatingPointError, RuntimeError, np.linalg.LinAlgError, scipy.sparse.linalg.MatrixRankWarning):
         return None
     sol = np.atleast_1d(sol)
     if not np.all(np.isfinite(sol)) or np.any(sol < -1e-9):
@@ -305,7 +307,9 @@ def success_probability(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray
         Q = T[act][:, act]
         r = np.asarray(T[act][:, np.flatnonzero(is_goal)].sum(axis=1)).ravel()
         A = scipy.sparse.identity(act.size, format="csc") - Q.tocsc()
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            # a singular system (a closed loop with no exit) is handled below: no warning on stderr
+            warnings.simplefilter("ignore", scipy.sparse.linalg.MatrixRankWarning)
             sol = np.atleast_1d(scipy.sparse.linalg.spsolve(A, r))
         if not np.all(np.isfinite(sol)):
             # a closed loop with no exit: those nodes never reach the goal; solve by iteration instead

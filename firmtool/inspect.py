@@ -15,6 +15,9 @@ from firmtool.scenario import parse_scenario
 def summarize(path: str | Path) -> RoadmapSummary:
     """Stages present, sizes, and the solve status of the roadmap file at ``path``.
 
+    Every stage present is validated (a damaged one is refused); stages computed from another
+    scenario text than the stored one are listed in ``stale_stages``, not refused.
+
     Raises
     ------
     RoadmapError, ScenarioError
@@ -22,24 +25,26 @@ def summarize(path: str | Path) -> RoadmapSummary:
     """
     rm = Roadmap(path)
     scenario = parse_scenario(rm.scenario_text, f"{path}:scenario_toml")
-    out: dict = {}
+    out: dict = {"stale_stages": tuple(rm.stale_stages())}
+    for stage in STAGES:
+        rm.table(stage)  # validates it (and the stages before it) if present
     if rm.has("nodes"):
-        c = rm.require("nodes", "centers")["centers"]
+        c = rm.require("nodes", "centers", fresh=False)["centers"]
         out["nodes"], out["state_dim"] = int(c.shape[0]), int(c.shape[1])
     if rm.has("controllers"):
-        out["edges"] = int(rm.require("controllers", "edge_source")["edge_source"].size)
+        out["edges"] = int(rm.require("controllers", "edge_source", fresh=False)["edge_source"].size)
     if rm.has("edges"):
-        e = rm.require("edges", "particles", "particle_steps")
+        e = rm.require("edges", "particles", "particle_steps", fresh=False)
         out["particles_per_edge"] = int(np.median(e["particles"])) if e["particles"].size else 0
         out["particle_steps"] = int(e["particle_steps"].sum())
         out["estimated_edges"] = int(e["particles"].size)
         out["densify_rounds"] = int(rm.attrs("nodes").get("densify_rounds", 0)) if rm.has("nodes") else 0
-    cache = read_edge_cache(path)
+    cache = read_edge_cache(path, nodes=out.get("nodes"))
     if cache:  # an interrupted estimate stage (or a superseded design) left estimates to reuse
         out["cached_edges"] = int(cache["source"].size)
     if rm.has("policy"):
         a = rm.attrs("policy")
-        p = rm.require("policy", "success_probability", "cost_to_go")
+        p = rm.require("policy", "success_probability", "cost_to_go", fresh=False)
         out["solve_status"] = str(a.get("status"))
         out["solve_iterations"] = int(a.get("iterations", 0))
         out["start_success_probability"] = float(p["success_probability"][START_INDEX])

@@ -7,12 +7,22 @@ every edge draws from its own seed sequence (see :func:`firmtool.edges.edge_seed
 
 A batch that raises (or whose worker dies) is retried once, edge by edge; an edge that fails
 again is reported with its cause and the rest of the work goes on.
+
+Local workers die with their parent: on Linux the kernel kills them when the process that started
+them ends, however it ends (``prctl(PR_SET_PDEATHSIG)``), and everywhere a watchdog thread in each
+worker exits it once its parent is gone. They ignore SIGINT (a Ctrl-C at a terminal reaches the
+whole process group): the parent handles it, saves what is finished, and stops them.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import re
+import signal
+import sys
+import threading
+import time
 import traceback
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -21,6 +31,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from firmtool import interrupts
 from firmtool.design import Design
 from firmtool.edges import EdgeEstimate, estimate_blocks, estimate_edge
 from firmtool.errors import InputError
@@ -58,7 +69,37 @@ def _context(job: EstimationJob) -> tuple[Problem, Design, object]:
     return _worker_state["problem"], job.design, _worker_state["regions"]  # type: ignore[return-value]
 
 
-def _init_worker(job: EstimationJob) -> None:
+# Seconds between two checks of the worker watchdog (the fallback where PR_SET_PDEATHSIG is missing).
+WATCHDOG_SECONDS = 0.5
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Make this (worker) process end when ``parent_pid`` ends: ``PR_SET_PDEATHSIG`` on Linux, and a
+    watchdog thread that polls the parent's id everywhere (``kill -9`` of the parent runs no cleanup)."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):  # pragma: no cover - no libc prctl: the watchdog remains
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the line above: nobody will collect us
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(WATCHDOG_SECONDS)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="firmtool-parent-watchdog", daemon=True).start()
+
+
+def _init_worker(job: EstimationJob, parent_pid: int | None = None) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C, then stops the workers
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
+    from firmtool.locking import forget_inherited
+    forget_inherited()  # the parent's writer lock must end with the parent, not with its workers
     # One BLAS thread per worker: parallelism is across edges; threaded small matmuls are slower.
     try:
         from threadpoolctl import threadpool_limits
@@ -73,15 +114,17 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
     with ``job.block_tasks``, a batch of its rows: one list of block estimates each."""
     problem, design, regions = _context(job)
     src, dst = design.edge_source, design.edge_target
-    if job.block_tasks is not None:
-        out = []
-        for t in edges:
+    out = []
+    for t in edges:
+        interrupts.check()  # a deferred Ctrl-C, between edges (in this process only)
+        if job.block_tasks is not None:
             e, first, count = (int(v) for v in job.block_tasks[t])
             out.append(estimate_blocks(problem, design, regions, int(src[e]), int(dst[e]), job.particles, first, count,
                                        job.seed, job.chunk, job.engine))
-        return out
-    return [estimate_edge(problem, design, regions, int(src[e]), int(dst[e]), job.particles, job.seed, job.chunk,
-                          job.engine) for e in edges]
+        else:
+            out.append(estimate_edge(problem, design, regions, int(src[t]), int(dst[t]), job.particles, job.seed,
+                                     job.chunk, job.engine))
+    return out
 
 
 def _worker_batch(edges: Sequence[int]) -> list[EdgeEstimate]:
@@ -183,7 +226,7 @@ def _run_pool(job: EstimationJob, work: list[list[int]], workers: int) -> Iterat
     while retries.queue:
         # A new pool per round: a worker that died (killed, out of memory) breaks the whole pool,
         # and every task in flight comes back failed; they are retried in a fresh one.
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(job,))
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(job, os.getpid()))
         try:
             pending: dict[Future, tuple[list[int], int]] = {}
             while retries.queue:
@@ -191,7 +234,9 @@ def _run_pool(job: EstimationJob, work: list[list[int]], workers: int) -> Iterat
                 pending[pool.submit(_worker_batch, b)] = (b, attempt)
             broken = False
             while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                # a timeout, so that a deferred Ctrl-C is seen while every worker is busy
+                done, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                interrupts.check()
                 for fut in done:
                     b, attempt = pending.pop(fut)
                     exc = fut.exception()
@@ -205,10 +250,27 @@ def _run_pool(job: EstimationJob, work: list[list[int]], workers: int) -> Iterat
                             rb, ra = retries.queue.popleft()
                             pending[pool.submit(_worker_batch, rb)] = (rb, ra)
         except BaseException:
-            # interrupted (Ctrl-C) or the consumer stopped: do not wait for the queued tasks
-            pool.shutdown(wait=False, cancel_futures=True)
+            # interrupted (Ctrl-C) or the consumer stopped: stop the workers now, not after their batch
+            stop_pool(pool)
             raise
         pool.shutdown(wait=True)
+
+
+def stop_pool(pool: ProcessPoolExecutor, timeout: float = 5.0) -> None:
+    """Cancel the queued tasks and end the worker processes at once (SIGTERM, then SIGKILL)."""
+    # the pool's own list of its processes (private, but stable since Python 3.8; 3.14 adds
+    # terminate_workers() for this)
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    deadline = time.monotonic() + timeout
+    for proc in processes:
+        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.is_alive():  # pragma: no cover - SIGTERM ignored
+            proc.kill()
+            proc.join(1.0)
 
 
 def _run_dask(job: EstimationJob, work: list[list[int]], workers: int,

@@ -15,24 +15,27 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
+from firmtool import interrupts
 from firmtool.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
+from firmtool.atomic import check_target
 from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
-from firmtool.connectivity import connect_goals, connectivity_report, structure
+from firmtool.connectivity import connect_goals, connectivity_report
 from firmtool.design import Design, design
 from firmtool.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, edge_costs, edge_keys, from_arrays,
                                  outcome_probabilities, to_arrays)
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate, merge_estimates
-from firmtool.errors import FirmtoolError, RoadmapError, RunFailure
+from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, solve_dp, success_probability
 from firmtool.kernels import engine_for
+from firmtool.locking import writer_lock
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.parallel import EstimationJob, default_workers, run_edges
 from firmtool.problem import Problem, build_problem
 from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
                               DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
-from firmtool.resources import check_budget
-from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, read_edge_cache,
-                              update_scenario, write_edge_cache, write_stage)
+from firmtool.resources import check_budget, check_workers
+from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, is_roadmap_file,
+                              read_edge_cache, restamp, update_scenario, write_edge_cache, write_stage)
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
 from firmtool.scenario_io import synced
 
@@ -56,8 +59,19 @@ def default_output(scenario: Scenario) -> Path:
 
 
 def problem_of(roadmap: Roadmap) -> Problem:
-    """Rebuild the problem from the scenario text stored in the roadmap."""
-    return build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"))
+    """Rebuild the problem from the scenario text stored in the roadmap, and check the roadmap's
+    stages against its model (dimensions, node centres in bounds and valid)."""
+    problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"))
+    model = problem.model
+    roadmap.check_model(model.n, model.m, model.nz, problem.config_dim, problem.config_lo, problem.config_hi,
+                        problem.is_valid)
+    return problem
+
+
+def check_output(path: str | Path, force: bool = False) -> Path:
+    """Refuse a roadmap output path that is not a firmtool roadmap (unless ``force``), a folder, a
+    device, or lies under a file (:func:`firmtool.atomic.check_target`)."""
+    return check_target(path, "roadmap", is_roadmap_file, force)
 
 
 def design_of(roadmap: Roadmap) -> Design:
@@ -97,30 +111,51 @@ def as_scenario(scenario: Scenario | str | Path) -> Scenario:
     return synced(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
 
 
-def sample_stage(scenario: Scenario | str | Path, output: str | Path | None) -> SampleReport:
+def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False) -> SampleReport:
     """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
 
     Parameters
     ----------
     scenario : a scenario, or the path of a scenario file.
     output : the roadmap file to create (replaced atomically); default ``artifacts/NAME.h5``.
+    force : replace an existing file there even if it is not a firmtool roadmap.
     """
     t0 = time.perf_counter()
     scenario = as_scenario(scenario)
+    out = check_output(output if output else default_output(scenario), force)
     problem = build_problem(scenario)
     check_budget(problem)  # refuse up front what would take hours or exhaust memory
+    if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
+        raise InputError(f"{scenario.path}: task.goal: expected a goal apart from the start, found the start itself")
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
     centers, kinds = roadmap_nodes(problem, rng)
+    _check_start_apart_from_goals(problem, centers, kinds)
     budget = scenario.roadmap.bridge_nodes
     centers, kinds, added, reason = connect_goals(problem, centers, kinds, budget, rng)
-    out = Path(output) if output else default_output(scenario)
-    create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
-    write_stage(out, "nodes", {"centers": centers, "kind": kinds},
-                {"inputs_sha256": nodes_inputs(scenario), "densify_rounds": 0,
-                 "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL),
-                 "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
+    with writer_lock(out):
+        create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
+        write_stage(out, "nodes", {"centers": centers, "kind": kinds},
+                    {"inputs_sha256": nodes_inputs(scenario), "densify_rounds": 0,
+                     "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL),
+                     "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
     return SampleReport(roadmap=str(out), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
                         seconds=time.perf_counter() - t0, connect_added=added)
+
+
+def _check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> None:
+    """Refuse a task whose start lies in a goal node's region (input time: before anything is
+    written): the start would be a goal already, every edge from it would land at once, and the
+    graph would have no way out of the start. Designs the start and goal nodes only."""
+    keep = np.flatnonzero(kinds != REGULAR)
+    d = design(problem, centers[keep], kinds[keep])
+    regions = d.regions(problem)
+    start = int(np.flatnonzero(keep == START_INDEX)[0])
+    inside = [int(keep[g]) for g in np.flatnonzero(d.kinds == GOAL)
+              if regions.contains(int(g), d.centers[start], d.P[start])]
+    if inside:
+        raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
+                         f"lies inside the region of goal node {inside[0]} (controller.node_radius "
+                         f"{problem.scenario.controller.node_radius:g}); move the goal or lower the node radius")
 
 
 def controllers_inputs(roadmap: Roadmap) -> str:
@@ -131,6 +166,11 @@ def controllers_inputs(roadmap: Roadmap) -> str:
 
 def design_stage(path: str | Path) -> DesignReport:
     """Design node stabilisers, node regions and edges (nominal trajectories)."""
+    with writer_lock(path):
+        return _design_stage(path)
+
+
+def _design_stage(path: str | Path) -> DesignReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
@@ -174,8 +214,24 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     executor : ``"process"`` (local) or ``"dask"`` (dask.distributed, ``scheduler`` its address).
     progress_factory : called with the number of edges to estimate; returns a callback that is
         told how many more edges finished.
-    checkpoint_seconds : seconds between checkpoints.
+    checkpoint_seconds : seconds between checkpoints (the first comes after the first batch).
     """
+    if workers is not None:
+        check_workers(workers)  # refused before anything is read (again with the memory per worker below)
+    _check_executor(executor)
+    with writer_lock(path):
+        return _estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
+                               progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
+
+
+def _check_executor(executor: str) -> None:
+    if executor not in ("process", "dask"):
+        raise InputError(f"--executor: expected 'process' or 'dask', found {executor!r}")
+
+
+def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, scheduler: str | None,
+                    progress_factory: Callable[[int], Callable[[int], None]] | None,
+                    checkpoint_seconds: float) -> EstimateReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
@@ -191,17 +247,19 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
         table_hash = inputs_hash(table_hash, sc.estimation.target_halfwidth, sc.estimation.adaptive_particles,
                                  digest(sc.cost).hex(), "adaptive", ADAPTIVE_VERSION)
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
-        e = roadmap.require("edges", "particle_steps")
+        e = roadmap.require("edges", "particle_steps", fresh=False)
+        if "edges" in roadmap.stale_stages():  # the same inputs under a new scenario text (e.g. a comment)
+            restamp(path, ("edges",))
         return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0, workers or 0, executor,
                                 time.perf_counter() - t0, up_to_date=True)
-    known: dict[bytes, EdgeEstimate] = from_arrays(roadmap.stages["edges"][0]) if roadmap.has("edges") else {}
-    cache = read_edge_cache(path)
+    known: dict[bytes, EdgeEstimate] = from_arrays(roadmap.table("edges"))
+    cache = read_edge_cache(path, nodes=d.centers.shape[0])
     known.update(from_arrays(cache))
     est: list[EdgeEstimate | None] = [known.get(bytes(k)) for k in keys]
     reused = sum(x is not None for x in est)
     todo = [e for e in range(E) if est[e] is None]
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
-    workers = workers or default_workers()
+    workers = check_workers(workers or default_workers(), problem)
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
                         engine=engine)
@@ -221,74 +279,81 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     last = [time.monotonic()]
 
     def maybe_checkpoint() -> None:
-        if time.monotonic() - last[0] >= checkpoint_seconds:
+        if not saved or time.monotonic() - last[0] >= checkpoint_seconds:  # the first after the first batch
             checkpoint()
             last[0] = time.monotonic()
 
     new = 0
     try:
-        for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress):
-            if r.error is not None:
-                failed[r.edges[0]] = r.error
-            for e, x in zip(r.edges, r.estimates):
-                est[e] = x
-                fresh.append((x, keys[e]))
-                simulated += x.particle_steps
-                new += 1
-            maybe_checkpoint()
-        adaptive = None
-        history = {bytes(keys[e]): est[e] for e in range(E) if est[e] is not None}  # the first pass, by key
-        if adaptive_on and not failed and E:
-            B = sc.estimation.particles
-            settings = AdaptiveSettings(
-                target_halfwidth=sc.estimation.target_halfwidth,
-                budget=int(sc.estimation.adaptive_particles if sc.estimation.adaptive_particles is not None
-                           else B * E),
-                block_size=B, failure_cost=sc.cost.failure_cost)
+        # Ctrl-C (with the CLI's handler) is raised only between edges, where the finished ones can be saved
+        with interrupts.deferred():
+            for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler,
+                               progress=progress):
+                if r.error is not None:
+                    failed[r.edges[0]] = r.error
+                for e, x in zip(r.edges, r.estimates):
+                    est[e] = x
+                    fresh.append((x, keys[e]))
+                    simulated += x.particle_steps
+                    new += 1
+                maybe_checkpoint()
+                interrupts.check()
+            interrupts.check()
+            adaptive = None
+            history = {bytes(keys[e]): est[e] for e in range(E) if est[e] is not None}  # the first pass, by key
+            if adaptive_on and not failed and E:
+                B = sc.estimation.particles
+                settings = AdaptiveSettings(
+                    target_halfwidth=sc.estimation.target_halfwidth,
+                    budget=int(sc.estimation.adaptive_particles if sc.estimation.adaptive_particles is not None
+                               else B * E),
+                    block_size=B, failure_cost=sc.cost.failure_cost)
 
-            def run_blocks(want: dict[int, int], current: list[EdgeEstimate]) -> dict[int, EdgeEstimate]:
-                nonlocal simulated
-                out: dict[int, EdgeEstimate] = {}
-                tasks, start = [], {}
-                for e, n in sorted(want.items()):
-                    k_target, k_now = n // B, current[e].particles // B
-                    hit = known.get(bytes(blocks_key(keys[e], k_target)))
-                    if hit is not None:
-                        out[e] = hit
-                        continue
-                    begin, k0 = current[e], k_now
-                    for k in range(k_target - 1, k_now, -1):  # the largest stored block count on the way
-                        stored = known.get(bytes(blocks_key(keys[e], k)))
-                        if stored is not None:
-                            begin, k0 = stored, k
-                            break
-                    start[len(tasks)] = begin
-                    tasks.append((e, k0, k_target - k0))
-                block_job = dataclasses.replace(job, block_tasks=np.array(tasks, dtype=np.int64).reshape(-1, 3))
-                for r in run_edges(block_job, list(range(len(tasks))), workers=workers, executor=executor,
-                                   scheduler=scheduler):
-                    if r.error is not None:  # keep the edge's particles so far; say so in the report
-                        failed[int(tasks[r.edges[0]][0])] = r.error
-                        continue
-                    for t, blocks in zip(r.edges, r.estimates):
-                        e = int(tasks[t][0])
-                        merged = start[t]
-                        for b in blocks:  # in block order: the same numbers however the work was split
-                            merged = merge_estimates(merged, b)
-                            simulated += b.particle_steps
-                        key = blocks_key(keys[e], merged.particles // B)
-                        out[e] = known[bytes(key)] = history[bytes(key)] = merged
-                        fresh.append((merged, key))
-                    maybe_checkpoint()
-                for e, x in out.items():
-                    history.setdefault(bytes(blocks_key(keys[e], x.particles // B)), x)
-                return out
+                def run_blocks(want: dict[int, int], current: list[EdgeEstimate]) -> dict[int, EdgeEstimate]:
+                    nonlocal simulated
+                    out: dict[int, EdgeEstimate] = {}
+                    tasks, start = [], {}
+                    for e, n in sorted(want.items()):
+                        k_target, k_now = n // B, current[e].particles // B
+                        hit = known.get(bytes(blocks_key(keys[e], k_target)))
+                        if hit is not None:
+                            out[e] = hit
+                            continue
+                        begin, k0 = current[e], k_now
+                        for k in range(k_target - 1, k_now, -1):  # the largest stored block count on the way
+                            stored = known.get(bytes(blocks_key(keys[e], k)))
+                            if stored is not None:
+                                begin, k0 = stored, k
+                                break
+                        start[len(tasks)] = begin
+                        tasks.append((e, k0, k_target - k0))
+                    block_job = dataclasses.replace(job, block_tasks=np.array(tasks, dtype=np.int64).reshape(-1, 3))
+                    for r in run_edges(block_job, list(range(len(tasks))), workers=workers, executor=executor,
+                                       scheduler=scheduler):
+                        if r.error is not None:  # the edge keeps its particles so far
+                            failed[int(tasks[r.edges[0]][0])] = r.error
+                            continue
+                        for t, blocks in zip(r.edges, r.estimates):
+                            e = int(tasks[t][0])
+                            merged = start[t]
+                            for b in blocks:  # in block order: the same numbers however the work was split
+                                merged = merge_estimates(merged, b)
+                                simulated += b.particle_steps
+                            key = blocks_key(keys[e], merged.particles // B)
+                            out[e] = known[bytes(key)] = history[bytes(key)] = merged
+                            fresh.append((merged, key))
+                        maybe_checkpoint()
+                        interrupts.check()
+                    for e, x in out.items():
+                        history.setdefault(bytes(blocks_key(keys[e], x.particles // B)), x)
+                    return out
 
-            goals = np.flatnonzero(d.kinds == GOAL)
-            refined, adaptive = refine(est, keys, d.centers.shape[0], goals, sc.cost,  # type: ignore[arg-type]
-                                       settings, sc.seed, run_blocks)
-            est = list(refined)
-            failed = {}  # a refinement that failed keeps the edge's earlier estimate: nothing is left out
+                goals = np.flatnonzero(d.kinds == GOAL)
+                refined, adaptive = refine(est, keys, d.centers.shape[0], goals, sc.cost,  # type: ignore[arg-type]
+                                           settings, sc.seed, run_blocks)
+                est = list(refined)
+                failed = {}  # a refinement that failed keeps the edge's earlier estimate: nothing is left out
+                interrupts.check()
     except KeyboardInterrupt:
         checkpoint()
         raise EstimationInterrupted(f"{path}: interrupted; {saved} newly estimated edges saved "
@@ -358,6 +423,11 @@ class PolicyGroup:
     seconds: float = 0.0
 
 
+def policy_inputs(edges_inputs: str, failure_cost: float, method: str, cost: object) -> str:
+    """Identity of the solve stage's inputs."""
+    return inputs_hash(edges_inputs, failure_cost, method, digest(cost).hex())
+
+
 def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value") -> PolicyGroup:
     """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
     baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
@@ -371,7 +441,7 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     t0 = time.perf_counter()
     problem = problem_of(roadmap)
     edges = roadmap.require("edges", "source", "target", "cost_mean")
-    cost = edge_costs(roadmap.stages["edges"][0], problem.scenario.cost)
+    cost = edge_costs(edges, problem.scenario.cost)
     landing, fail, timeout, _ = edge_probabilities(roadmap)
     N = landing.shape[1]
     goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
@@ -392,8 +462,8 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
-    attrs = {"inputs_sha256": inputs_hash(roadmap.attrs("edges")["inputs_sha256"], JF, method,
-                                          digest(problem.scenario.cost).hex()),
+    attrs = {"inputs_sha256": policy_inputs(str(roadmap.attrs("edges")["inputs_sha256"]), JF, method,
+                                            problem.scenario.cost),
              "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
              "failure_cost": JF, "method": method, **intervals, "interval_method": INTERVAL_METHOD,
              "interval_prior": PRIOR, "interval_samples": INTERVAL_SAMPLES}
@@ -402,7 +472,8 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
 
 def write_policy(path: str | Path, group: PolicyGroup) -> None:
     """Store a solved policy as the ``/policy`` group of the roadmap file at ``path`` (atomically)."""
-    write_stage(path, "policy", group.arrays, group.attrs)
+    with writer_lock(path):
+        write_stage(path, "policy", group.arrays, group.attrs)
 
 
 def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_target: np.ndarray,
@@ -441,9 +512,10 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     RunFailure
         After writing the policy, if the goal is unreachable from the start node.
     """
-    roadmap = Roadmap(path)
-    group = solve_policy(roadmap, failure_cost=failure_cost, method=method)
-    write_policy(path, group)
+    with writer_lock(path):
+        roadmap = Roadmap(path)
+        group = solve_policy(roadmap, failure_cost=failure_cost, method=method)
+        write_policy(path, group)
     J = group.arrays["cost_to_go"]
     if not np.isfinite(J[START_INDEX]):
         raise unreachable_failure(path, len(group.arrays["unreachable"]), J.size)
@@ -475,8 +547,11 @@ def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
         return None
     try:
         rm = Roadmap(out)
+        rm.require("nodes", "centers", "kind", fresh=False)
+    except FileBusyError:
+        raise  # another process is writing it: never start over under its feet
     except RoadmapError:
-        return None  # damaged or foreign: replaced atomically by a fresh build
+        return None  # a damaged roadmap (check_output refused anything else): replaced by a fresh build
     if rm.seed != scenario.seed or not rm.has("nodes") or rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario):
         return None
     return rm
@@ -490,6 +565,11 @@ def add_nodes_stage(path: str | Path, count: int, connect: bool = False) -> AddN
     With ``connect`` (the start cannot reach the goal), the nodes go first where connections fail
     (:func:`firmtool.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
     the rest."""
+    with writer_lock(path):
+        return _add_nodes_stage(path, count, connect)
+
+
+def _add_nodes_stage(path: str | Path, count: int, connect: bool) -> AddNodesReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap)
@@ -518,7 +598,7 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
           executor: str = "process", scheduler: str | None = None,
           progress_factory: Callable[[int], Callable[[int], None]] | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
-          checkpoint_seconds: float = CHECKPOINT_SECONDS) -> BuildReport:
+          checkpoint_seconds: float = CHECKPOINT_SECONDS, force: bool = False) -> BuildReport:
     """sample + design + estimate into the roadmap file ``output``, going on from an existing roadmap
     there when it can.
 
@@ -536,21 +616,43 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     scenario : a scenario, or the path of a scenario file.
     output : the roadmap file (default ``artifacts/NAME.h5``).
     workers, executor, scheduler, progress_factory, checkpoint_seconds : see :func:`estimate_stage`.
+    force : replace an existing file at ``output`` even if it is not a firmtool roadmap.
+
+    The output is locked for the whole build (a second writer is refused).
     """
     scenario = as_scenario(scenario)
-    out = Path(output) if output else default_output(scenario)
+    out = check_output(output if output else default_output(scenario), force)
+    if p_min is not None and not (0 < p_min <= 1):
+        raise InputError(f"--p-min: expected a probability in (0, 1], found {p_min}")
+    if workers is not None:
+        check_workers(workers)
+    _check_executor(executor)
+    with writer_lock(out):
+        return _build(scenario, out, workers=workers, executor=executor, scheduler=scheduler,
+                      progress_factory=progress_factory, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
+                      add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds)
+
+
+def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str, scheduler: str | None,
+           progress_factory: Callable[[int], Callable[[int], None]] | None, fresh: bool, p_min: float | None,
+           max_nodes: int | None, add_nodes: int | None, checkpoint_seconds: float) -> BuildReport:
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
     existing = None if fresh else _resumable(out, scenario)
     if existing is None:
-        seconds["sample"] = sample_stage(scenario, out).seconds
+        seconds["sample"] = sample_stage(scenario, out, force=True).seconds  # check_output passed
     elif existing.scenario_sha256 != scenario.sha256:
-        update_scenario(out, scenario.text, scenario.sha256)
+        # the nodes' inputs are unchanged (_resumable); so are the controllers if their inputs hash matches
+        keep = ("nodes",) + (("controllers",) if existing.has("controllers") and
+                             existing.attrs("controllers").get("inputs_sha256") == controllers_inputs(existing)
+                             else ())
+        update_scenario(out, scenario.text, scenario.sha256, keep=keep)
     totals = {"estimated_edges": 0, "simulated_particle_steps": 0}
     failed: list[FailedEdge] = []
 
     def design_and_estimate() -> EstimateReport:
         rm = Roadmap(out)
-        if not (rm.has("controllers") and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
+        if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
+                and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
             seconds["design"] += design_stage(out).seconds
         e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
                            progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
@@ -561,6 +663,7 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
         return e
 
     e = design_and_estimate()
+    _restamp_policy(out)
     densify = None
     if p_min is not None:
         densify, last = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate)
@@ -596,6 +699,24 @@ def roadmap_connectivity(roadmap: Roadmap) -> ConnectivityReport:
         goals = np.flatnonzero(nodes["kind"] == GOAL)
         report = dataclasses.replace(report, reachable_goal_nodes=tuple(int(g) for g in goals[reach[goals]]))
     return report
+
+
+def _restamp_policy(out: Path) -> None:
+    """A policy kept by a build whose scenario text changed is still valid if its inputs (edge table,
+    J_F, method, cost weights) are unchanged: stamp it with the new text; otherwise leave it stale
+    (readers then ask for 'firmtool solve')."""
+    rm = Roadmap(out)
+    if rm.stale_stages() != ["policy"]:  # nothing to do, or an earlier stage is stale too
+        return
+    a = rm.attrs("policy")
+    try:
+        cost = problem_of(rm).scenario.cost
+        same = a.get("inputs_sha256") == policy_inputs(str(rm.attrs("edges").get("inputs_sha256")),
+                                                       float(a.get("failure_cost")), str(a.get("method")), cost)
+    except (TypeError, ValueError):
+        return
+    if same:
+        restamp(out, ("policy",))
 
 
 def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | None, seconds: dict,

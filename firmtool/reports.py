@@ -378,6 +378,8 @@ class RoadmapSummary(Report):
     cached_edges : estimates an interrupted estimate stage left for reuse (``/edge_cache``).
     solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
         (``start_cost_to_go`` None when the goal is unreachable from the start).
+    stale_stages : stages computed from another scenario text than the stored one (a build with
+        the current scenario, or the stage's command, recomputes them).
     """
 
     roadmap: str
@@ -399,3 +401,4 @@ class RoadmapSummary(Report):
     solve_iterations: int | None = None
     start_success_probability: float | None = None
     start_cost_to_go: float | None = None
+    stale_stages: tuple[str, ...] = ()

@@ -5,15 +5,20 @@ particle-steps in the worst case (every particle runs to its timeout); at the me
 particle-steps/s on two cores (DESIGN.md), the default budget of 1e10 is about an hour. The check
 runs before the first stage writes anything (an estimate from the roadmap settings) and again
 before the Monte Carlo (with the designed edges and their nominal lengths).
+
+The same kind of bound applies to the worker processes (:func:`check_workers`: by cores and by the
+memory each needs) and to closed-loop execution (:func:`check_execution`: episodes x
+``execution.max_steps`` control steps, and the memory of recorded episodes).
 """
 
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
-from firmtool.errors import ScenarioError
+from firmtool.errors import InputError, ScenarioError
 from firmtool.problem import Problem
 
 # Largest working set we allow one stage to ask for: node matrices, or one chunk of particles
@@ -23,6 +28,16 @@ MAX_BYTES = 4 * 2**30
 RATE = 3e6
 # Working arrays per particle of one chunk (true state, estimate, noise, proposals, outcomes...).
 ARRAYS_PER_PARTICLE = 12
+# Memory of one worker process before its chunk: the interpreter with numpy, scipy, numba and the
+# problem (measured: ~120 MB resident per worker of a smoke build, its parent ~200 MB), with a
+# margin for larger designs (the arm's).
+WORKER_BASE_BYTES = 300 * 2**20
+# More worker processes than this many per core only add memory and contention (the work is
+# CPU-bound and parallel across edges); at least MIN_WORKER_LIMIT are always allowed.
+WORKERS_PER_CORE, MIN_WORKER_LIMIT = 2, 4
+# Control steps one execute command may simulate (episodes x execution.max_steps, the worst case):
+# ~60 us a step on the reference machine makes 1e8 about 1.7 h; --max-total-steps raises it.
+MAX_EXECUTION_STEPS = 1e8
 
 
 def _gib(b: float) -> str:
@@ -85,3 +100,76 @@ def check_budget(problem: Problem, edges: int | None = None, mean_nominal_steps:
                             f"expected a smaller estimation.chunk / estimation.particles / controller.max_steps: "
                             f"one chunk needs ~{_gib(b['chunk_bytes'])} (limit {_gib(MAX_BYTES)})")
     return b
+
+
+def cores() -> int:
+    """CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to new processes (Linux ``MemAvailable``), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return None
+
+
+def check_workers(workers: int, problem: Problem | None = None) -> int:
+    """``workers`` if this machine can run that many worker processes, else :class:`InputError`.
+
+    Bounds: at most ``WORKERS_PER_CORE`` per core (at least ``MIN_WORKER_LIMIT``), and their memory
+    (``WORKER_BASE_BYTES`` plus one chunk of particles of ``problem`` each) within what is available.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise InputError(f"--workers: expected an integer >= 1, found {workers!r}")
+    n_cores = cores()
+    top = max(MIN_WORKER_LIMIT, WORKERS_PER_CORE * n_cores)
+    if workers > top:
+        raise InputError(f"--workers: expected at most {top} ({WORKERS_PER_CORE} per core, {n_cores} cores), found "
+                         f"{workers}; more processes than cores only add memory and contention")
+    each = WORKER_BASE_BYTES + (budget(problem)["chunk_bytes"] if problem is not None else 0)
+    free = available_memory()
+    if workers > 1 and free is not None and workers * each > free:
+        raise InputError(f"--workers: {workers} workers need ~{_gib(workers * each)} (~{_gib(each)} each) but "
+                         f"{_gib(free)} of memory is available; use at most {max(1, int(free // each))}")
+    return int(workers)
+
+
+def check_execution(problem: Problem, episodes: int, record: bool = False,
+                    max_total_steps: float = MAX_EXECUTION_STEPS) -> dict:
+    """Refuse (:class:`InputError`) closed-loop runs that could take hours or exhaust memory.
+
+    Parameters
+    ----------
+    episodes : episodes to run; each may take up to ``execution.max_steps`` control steps.
+    record : episodes are kept in memory (``--save-episodes``): states, estimates, covariances per step.
+    max_total_steps : the bound of episodes x ``execution.max_steps`` (``--max-total-steps``).
+
+    Returns
+    -------
+    dict with ``steps`` (the worst case) and ``record_bytes``.
+    """
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise InputError(f"--episodes: expected an integer >= 1, found {episodes!r}")
+    if not (math.isfinite(max_total_steps) and max_total_steps >= 1):
+        raise InputError(f"--max-total-steps: expected a finite number >= 1, found {max_total_steps}")
+    per_episode = problem.scenario.execution.max_steps
+    steps = float(episodes) * per_episode
+    if steps > max_total_steps:
+        raise InputError(f"--episodes: {episodes} episodes x execution.max_steps {per_episode} = {steps:.3g} control "
+                         f"steps in the worst case (~{steps * 60e-6 / 3600:.3g} h at ~60 us a step), more than "
+                         f"--max-total-steps {max_total_steps:.3g}; run fewer episodes, or raise --max-total-steps")
+    n = int(problem.model.n)
+    record_bytes = steps * 8.0 * (3 * n + n * n + int(problem.model.m)) if record else 0.0
+    if record_bytes > MAX_BYTES:
+        raise InputError(f"--save-episodes: {episodes} recorded episodes of up to {per_episode} steps may need "
+                         f"~{_gib(record_bytes)} of memory (limit {_gib(MAX_BYTES)}); record fewer episodes")
+    return {"steps": steps, "record_bytes": record_bytes}

@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 
 from firmtool.errors import ScenarioError
+from firmtool.input_limits import (MAX_SCENARIO_BYTES, LimitError, data_limit_error, read_regular_file,
+                                   toml_nesting_error)
 
 ROBOTS = ("point", "arm", "unicycle")
 DYNAMICS = ("single_integrator", "double_integrator", "matrices", "unicycle")
@@ -294,11 +296,13 @@ def load_scenario(path: str | Path) -> Scenario:
     """
     p = Path(path)
     try:
-        raw = p.read_bytes()
+        raw = read_regular_file(p)  # a regular file of bounded size, checked before reading it
     except FileNotFoundError:
         raise ScenarioError(str(p), "", "no such file") from None
+    except LimitError as exc:
+        raise ScenarioError(str(p), exc.field, exc.message) from None
     except OSError as exc:
-        raise ScenarioError(str(p), "", f"cannot read the file ({exc.strerror})") from None
+        raise ScenarioError(str(p), "", f"cannot read the file ({exc.strerror or exc})") from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -308,10 +312,19 @@ def load_scenario(path: str | Path) -> Scenario:
 
 def parse_scenario(text: str, path: str = "<string>") -> Scenario:
     """Validate scenario ``text`` (the contents of a TOML file named ``path``)."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, "", f"not valid TOML ({exc})") from None
+    if len(text) > MAX_SCENARIO_BYTES:
+        raise ScenarioError(path, "", f"expected at most {MAX_SCENARIO_BYTES} characters, found {len(text)}")
+    limit = toml_nesting_error(text)  # before tomllib, which recurses once per level
+    if limit is None:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError(path, "", f"not valid TOML ({exc})") from None
+        except RecursionError:  # pragma: no cover - the scan above refuses deep nesting first
+            raise ScenarioError(path, "", "nested too deeply to parse") from None
+        limit = data_limit_error(data)
+    if limit is not None:
+        raise ScenarioError(path, limit.field, limit.message)
     root = _Table(path, "", data)
 
     sc = root.table("scenario")

@@ -1,0 +1,21 @@
+"""The ``firmtool`` console script and ``python -m firmtool``.
+
+The Ctrl-C handler is installed when this module is imported, the earliest moment firmtool's own
+code runs (before numpy, scipy and typer are imported); see :mod:`firmtool.interrupts`. The
+interpreter's own start-up before it (a few tens of milliseconds) is outside firmtool's reach.
+"""
+
+from firmtool import interrupts
+
+interrupts.install()
+
+
+def main() -> None:
+    """Run the command line (imported only now, after the handler is in place)."""
+    from firmtool.cli import main as cli_main
+
+    cli_main()
+
+
+if __name__ == "__main__":
+    main()
