@@ -4,7 +4,8 @@ that says whether a stored estimate can be reused.
 An edge's key is a sha256 over everything its Monte Carlo depends on: the engine's semantics
 (:data:`ENGINE_VERSION`) and which engine runs it (the compiled one draws its own noise, so the
 two give statistically equal, not identical, estimates), the scenario's model, measurement,
-world, task and controller settings, the seed, the particle count and chunk size, the two node indices (they seed the random streams),
+world, task and controller settings, the seed, the particle count and chunk size, where the particles start
+(``estimation.start``), the two node indices (they seed the random streams),
 both nodes' centres and stabilisers, and the nominal length. Not in it: the cost weights (the
 table stores cost terms, weighted at solve time) and the other nodes of the roadmap. The latter is
 a deliberate approximation: when nodes are added, existing edges keep their estimates, whose
@@ -73,8 +74,11 @@ def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = N
         from firmtool.kernels import engine_for
 
         engine = engine_for(problem)
-    base = digest(ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
-                  sc.estimation.particles, sc.estimation.chunk)
+    parts = [ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
+             sc.estimation.particles, sc.estimation.chunk]
+    if sc.estimation.start != "center":  # keys of centre starts are those of the files written before the option
+        parts.append(f"start={sc.estimation.start}")
+    base = digest(*parts)
     idx = np.arange(design_.edge_source.size) if edges is None else np.asarray(list(edges), dtype=np.int64)
     node_digest: dict[int, bytes] = {}
 

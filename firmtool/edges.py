@@ -14,10 +14,11 @@ import numpy as np
 
 from firmtool.controllers import LocalController
 from firmtool.design import Design, local_controller
+from firmtool.errors import NumericalError
 from firmtool.models.linear import LinearGaussianModel
 from firmtool.nodes import NodeRegions
 from firmtool.problem import Problem
-from firmtool.scenario import CostSpec
+from firmtool.scenario import START_MODES, CostSpec
 
 FAILURE, TIMEOUT = -1, -2  # outcome codes besides node ids
 
@@ -163,33 +164,62 @@ class EdgeEstimate:
         return float(np.sqrt(max(w @ self.terms_cov @ w, 0.0)))
 
 
-def initial_ensemble(problem: Problem, design_: Design, source: int, M: int,
-                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Start of every particle: estimate at the node centre, true state drawn from the node's belief."""
+def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
+                     start: str = "center") -> tuple[np.ndarray, np.ndarray]:
+    """Start of every particle of an edge's Monte Carlo: (true states, estimates), each (M, n).
+
+    ``"center"`` (the paper's eq. 8: the node's centre represents the node): the estimate at the
+    node centre ``v``, the true state drawn from the node's belief, ``N(v, P_s)``.
+
+    ``"region"``: beliefs spread over the node's region, as a robot arrives there in execution: the
+    estimate drawn from the stationary distribution of the estimate under the node's stabiliser,
+    ``N(v, Sigma)``, restricted to the region (``rms((xhat - v) / s) < radius``, by rejection), and the
+    true state ``N(xhat, P_s)`` around it (the filter's error is independent of its estimate).
+    """
     v = design_.centers[source]
-    xhat = np.repeat(v[None], M, axis=0)
+    n = len(v)
+    if start == "region":
+        radius = problem.scenario.controller.node_radius
+        chol_s = np.linalg.cholesky(design_.Sigma[source] + 1e-15 * np.eye(n))
+        scale = design_.scale[source]
+        out = np.empty((0, n))
+        for _ in range(64):  # a node region holds most of the stationary mass: few rounds
+            z = rng.standard_normal((2 * M, n)) @ chol_s.T
+            inside = np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius
+            out = np.concatenate([out, z[inside]])
+            if out.shape[0] >= M:
+                break
+        else:
+            raise NumericalError(f"node {source}: its region holds almost none of its stabiliser's estimate "
+                                 "distribution; a region start is impossible")
+        xhat = v + out[:M]
+    elif start == "center":
+        xhat = np.repeat(v[None], M, axis=0)
+    else:
+        raise ValueError(f"start: expected one of {START_MODES}, found {start!r}")
     if problem.perfect:
         return xhat.copy(), xhat
-    chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(len(v)))
-    return v + rng.standard_normal((M, len(v))) @ chol.T, xhat
+    chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(n))
+    return xhat + rng.standard_normal((M, n)) @ chol.T, xhat
 
 
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                   particles: int, seed: int, chunk: int, engine: str | None = None,
-                  numpy_noise: bool = False) -> EdgeEstimate:
+                  numpy_noise: bool = False, start: str = "center") -> EdgeEstimate:
     """Monte Carlo of the local controller ``source -> target`` from the source node.
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
     with its own seed derived from ``(seed, source, target, chunk index)``. ``engine`` and
-    ``numpy_noise``: as in :func:`simulate`. This is block 0 of :func:`estimate_blocks`.
+    ``numpy_noise``: as in :func:`simulate`; ``start``: as in :func:`initial_ensemble`. This is block 0
+    of :func:`estimate_blocks`.
     """
     return estimate_blocks(problem, design_, regions, source, target, particles, 0, 1, seed, chunk, engine,
-                           numpy_noise)[0]
+                           numpy_noise, start)[0]
 
 
 def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                     block_size: int, first_block: int, blocks: int, seed: int, chunk: int, engine: str | None = None,
-                    numpy_noise: bool = False) -> list[EdgeEstimate]:
+                    numpy_noise: bool = False, start: str = "center") -> list[EdgeEstimate]:
     """Blocks ``first_block .. first_block + blocks - 1`` of an edge's particles, one estimate each.
 
     An edge's particles come in blocks of ``block_size`` (the scenario's ``estimation.particles``);
@@ -205,10 +235,10 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
     out = []
     for b in range(first_block, first_block + blocks):
         results = []
-        for j, start in enumerate(range(0, block_size, chunk)):
-            M = min(chunk, block_size - start)
+        for j, first in enumerate(range(0, block_size, chunk)):
+            M = min(chunk, block_size - first)
             rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
-            x, xhat = initial_ensemble(problem, design_, source, M, rng)
+            x, xhat = initial_ensemble(problem, design_, source, M, rng, start)
             results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise))
         outcome = np.concatenate([r.outcome for r in results])
         steps = np.concatenate([r.steps for r in results])

@@ -57,6 +57,7 @@ class EstimationJob:
     # items are then the rows' indices, and each gives its blocks' estimates
     # (firmtool.edges.estimate_blocks, blocks of ``particles``). None: block 0 of every edge given.
     block_tasks: np.ndarray | None = None
+    start: str = "center"  # where each edge's Monte Carlo starts (estimation.start; edges.initial_ensemble)
 
 
 _worker_state: dict[str, object] = {}
@@ -120,10 +121,10 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
         if job.block_tasks is not None:
             e, first, count = (int(v) for v in job.block_tasks[t])
             out.append(estimate_blocks(problem, design, regions, int(src[e]), int(dst[e]), job.particles, first, count,
-                                       job.seed, job.chunk, job.engine))
+                                       job.seed, job.chunk, job.engine, start=job.start))
         else:
             out.append(estimate_edge(problem, design, regions, int(src[t]), int(dst[t]), job.particles, job.seed,
-                                     job.chunk, job.engine))
+                                     job.chunk, job.engine, start=job.start))
     return out
 
 

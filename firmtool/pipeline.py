@@ -262,7 +262,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     workers = check_workers(workers or default_workers(), problem)
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
-                        engine=engine)
+                        engine=engine, start=sc.estimation.start)
     progress = progress_factory(len(todo)) if progress_factory and todo else None
     fresh: list[tuple[EdgeEstimate, np.ndarray]] = []  # estimates made by this run, with their keys
     saved = 0
@@ -441,6 +441,9 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     t0 = time.perf_counter()
     problem = problem_of(roadmap)
     edges = roadmap.require("edges", "source", "target", "cost_mean")
+    if edges["source"].size == 0:
+        raise RunFailure(f"{roadmap.path}: no edge was estimated (every edge's Monte Carlo failed); "
+                         "run 'firmtool estimate' again")
     cost = edge_costs(edges, problem.scenario.cost)
     landing, fail, timeout, _ = edge_probabilities(roadmap)
     N = landing.shape[1]

@@ -128,6 +128,10 @@ class ControllerSpec:
 DEFAULT_MAX_PARTICLE_STEPS = 1e10
 
 
+# Where an edge's Monte Carlo starts (firmtool.edges.initial_ensemble): "center" (the paper's eq. 8,
+# the node centre represents the node) or "region" (beliefs spread over the node's region).
+START_MODES = ("center", "region")
+DEFAULT_START = "center"
 # Default target of adaptive Monte Carlo: the 95% interval of the start's success probability at
 # most +-0.02 (firmtool.adaptive).
 DEFAULT_TARGET_HALFWIDTH = 0.02
@@ -142,6 +146,8 @@ class EstimationSpec:
     (:mod:`firmtool.adaptive`): rounds add particles to the policy's edges and their competitors until
     the 95% interval of the start's success probability is at most +-``target_halfwidth`` or
     ``adaptive_particles`` more particles were spent (None: as many as the first pass; 0: no rounds).
+    ``start``: where each particle starts (:func:`firmtool.edges.initial_ensemble`), ``"center"`` or
+    ``"region"``.
     """
 
     particles: int
@@ -149,6 +155,7 @@ class EstimationSpec:
     max_particle_steps: float = DEFAULT_MAX_PARTICLE_STEPS
     target_halfwidth: float = DEFAULT_TARGET_HALFWIDTH
     adaptive_particles: int | None = None
+    start: str = DEFAULT_START
 
 
 @dataclass(frozen=True)
@@ -520,6 +527,7 @@ def _read_estimation(t: _Table) -> EstimationSpec:
         max_particle_steps=t.number("max_particle_steps", DEFAULT_MAX_PARTICLE_STEPS, positive=True),
         target_halfwidth=t.number("target_halfwidth", DEFAULT_TARGET_HALFWIDTH, positive=True),
         adaptive_particles=t.number("adaptive_particles", None, integer=True, nonnegative=True),
+        start=t.string("start", DEFAULT_START, choices=START_MODES),
     )
     if spec.target_halfwidth >= 0.5:
         raise ScenarioError(t.path, "estimation.target_halfwidth",
