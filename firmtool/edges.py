@@ -164,6 +164,9 @@ class EdgeEstimate:
         return float(np.sqrt(max(w @ self.terms_cov @ w, 0.0)))
 
 
+REGION_DRAW_ROUNDS = 64  # rejection rounds of a region start (each draws 2 M candidates)
+
+
 def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
                      start: str = "center") -> tuple[np.ndarray, np.ndarray]:
     """Start of every particle of an edge's Monte Carlo: (true states, estimates), each (M, n).
@@ -174,33 +177,41 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
     ``"region"``: beliefs spread over the node's region, as a robot arrives there in execution: the
     estimate drawn from the stationary distribution of the estimate under the node's stabiliser,
     ``N(v, Sigma)``, restricted to the region (``rms((xhat - v) / s) < radius``, by rejection), and the
-    true state ``N(xhat, P_s)`` around it (the filter's error is independent of its estimate).
+    true state ``N(xhat, P_s)`` around it (the filter's error is independent of its estimate), kept
+    only where the true state is valid (a robot arriving at a node is alive; without this a node
+    near an obstacle would count starts inside it as failures). In execution, arrivals' rms offsets
+    follow this law closely (quantiles 0.52/0.91/1.38 vs 0.53/0.90/1.30 on point_perfect).
     """
     v = design_.centers[source]
     n = len(v)
-    if start == "region":
-        radius = problem.scenario.controller.node_radius
-        chol_s = np.linalg.cholesky(design_.Sigma[source] + 1e-15 * np.eye(n))
-        scale = design_.scale[source]
-        out = np.empty((0, n))
-        for _ in range(64):  # a node region holds most of the stationary mass: few rounds
-            z = rng.standard_normal((2 * M, n)) @ chol_s.T
-            inside = np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius
-            out = np.concatenate([out, z[inside]])
-            if out.shape[0] >= M:
-                break
-        else:
-            raise NumericalError(f"node {source}: its region holds almost none of its stabiliser's estimate "
-                                 "distribution; a region start is impossible")
-        xhat = v + out[:M]
-    elif start == "center":
+    if start == "center":
         xhat = np.repeat(v[None], M, axis=0)
-    else:
+        if problem.perfect:
+            return xhat.copy(), xhat
+        chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(n))
+        return xhat + rng.standard_normal((M, n)) @ chol.T, xhat
+    if start != "region":
         raise ValueError(f"start: expected one of {START_MODES}, found {start!r}")
-    if problem.perfect:
-        return xhat.copy(), xhat
-    chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(n))
-    return xhat + rng.standard_normal((M, n)) @ chol.T, xhat
+    radius = problem.scenario.controller.node_radius
+    chol_s = np.linalg.cholesky(design_.Sigma[source] + 1e-15 * np.eye(n))
+    chol_p = None if problem.perfect else np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(n))
+    scale = design_.scale[source]
+    xs, xhats, drawn = [], [], 0
+    for _ in range(REGION_DRAW_ROUNDS):  # a node region holds most of the stationary mass: few rounds
+        z = rng.standard_normal((2 * M, n)) @ chol_s.T
+        xhat = v + z[np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius]
+        x = xhat if chol_p is None else xhat + rng.standard_normal(xhat.shape) @ chol_p.T
+        alive = problem.is_valid(x)  # a robot that arrived is alive: its true state is valid
+        xs.append(x[alive])
+        xhats.append(xhat[alive])
+        drawn += int(alive.sum())
+        if drawn >= M:
+            break
+    else:
+        raise NumericalError(f"node {source}: fewer than {M} of {REGION_DRAW_ROUNDS * 2 * M} beliefs drawn over its "
+                             "region have a valid true state; a region start is impossible there")
+    x, xhat = np.concatenate(xs)[:M], np.concatenate(xhats)[:M]
+    return (xhat.copy(), xhat) if problem.perfect else (x, xhat)
 
 
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,

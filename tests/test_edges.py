@@ -127,3 +127,14 @@ def test_the_start_mode_is_part_of_the_edge_key():
         edge_keys(region, d, engine="numpy")
     assert np.array_equal(a, b)  # "center" is the default: the keys of files written before the option
     assert not np.any(np.all(a == c, axis=1))
+
+
+def test_region_starts_are_alive_next_to_an_obstacle():
+    """A robot that arrives at a node is alive: region starts keep only valid true states (the centre
+    start, the paper's, draws its true states around the centre whatever lies there)."""
+    wall = "[ { center = [1.45, 1.0], half_size = [0.25, 0.6] } ]"  # its face 0.2 from the start node's centre
+    problem, d, _ = _setup(open_world(q=0.3, std=0.15, obstacles=wall))
+    x, xhat = initial_ensemble(problem, d, 0, 4000, np.random.default_rng(0), "region")
+    assert np.all(problem.is_valid(x))
+    xc, _ = initial_ensemble(problem, d, 0, 4000, np.random.default_rng(0), "center")
+    assert not np.all(problem.is_valid(xc))  # so the conditioning matters here
