@@ -8,8 +8,9 @@ were estimated off by 2-5x in execution, and the DP preferred edges whose estima
 
 1. solve the DP (eq. 12) on the current estimates, and the start node's success probability with
    its 95% posterior interval (:func:`firmtool.calibration.predicted_interval`);
-2. stop when the interval's half-width is at most ``estimation.target_halfwidth``, or the particle
-   budget ``estimation.adaptive_particles`` is spent, or after :data:`MAX_ROUNDS` rounds;
+2. stop when the interval's half-width is at most :func:`required_halfwidth`
+   (``estimation.target_halfwidth`` at a probability of 1/2, scaled like a binomial proportion's
+   standard error towards 0 and 1, with a floor), or the particle budget ``estimation.adaptive_particles`` is spent, or after :data:`MAX_ROUNDS` rounds;
 3. allocate new particles (:func:`allocate`):
 
    * **policy edges**, by the delta method: the start's success probability ``p_0`` moves with an
@@ -50,8 +51,9 @@ from firmtool.scenario import CostSpec
 
 # Bump when the allocation changes what it asks for: a stored table refined by an older version is
 # refined again (its particle blocks are reused from the cache where they match).
-ADAPTIVE_VERSION = 1
+ADAPTIVE_VERSION = 2  # 2: the stop rule's half-width scales like a binomial proportion's
 MAX_ROUNDS = 12  # allocation rounds after the first pass
+BINOMIAL_FLOOR = 0.25  # the target half-width near 0 or 1 is at least this fraction of estimation.target_halfwidth
 GROWTH_PER_ROUND = 8  # an edge's particles grow at most this factor per round (the policy may change)
 COMPETITOR_SIGMAS = 2.0  # competing edges: eq. 12 values within this many standard errors of the policy's
 VISIT_FLOOR = 1e-3  # nodes visited less often than this (expected visits) get no competitor particles
@@ -79,6 +81,15 @@ class SolvedTable:
     fail: np.ndarray
     cost: np.ndarray
     interval: tuple[float, float]
+
+
+def required_halfwidth(target: float, interval: tuple[float, float]) -> float:
+    """The half-width the rounds aim at for an interval: ``target`` at a success probability of 1/2,
+    scaled like a binomial proportion's, ``target * sqrt(4 p (1 - p))`` with ``p`` the interval's
+    middle, and never below :data:`BINOMIAL_FLOOR` times ``target`` (so that 0.999 is not called known
+    to +-0.02, while the work stays bounded)."""
+    p = 0.5 * (interval[0] + interval[1])
+    return target * max(BINOMIAL_FLOOR, float(np.sqrt(max(4.0 * p * (1.0 - p), 0.0))))
 
 
 def solve_table(arrays: Mapping[str, np.ndarray], n_nodes: int, goals: np.ndarray, cost_spec: CostSpec,
@@ -140,7 +151,7 @@ def allocate(arrays: Mapping[str, np.ndarray], solved: SolvedTable, n_nodes: int
         return {}
     # the delta-method variance that gives the target half-width, scaled by how the posterior
     # interval relates to it now
-    target = var_now * (settings.target_halfwidth / half) ** 2
+    target = var_now * (required_halfwidth(settings.target_halfwidth, solved.interval) / half) ** 2
     want = _neyman(a, steps[edges], n, target)
     out: dict[int, int] = {}
     for e, w, cur in zip(edges, want, n):
@@ -248,7 +259,7 @@ def refine(estimates: list[EdgeEstimate], keys: np.ndarray, n_nodes: int, goals:
         if not np.isfinite(solved.cost_to_go[START_INDEX]):
             reason = "the goal is unreachable from the start"
             break
-        if half <= settings.target_halfwidth:
+        if half <= required_halfwidth(settings.target_halfwidth, (lo, hi)):
             reason = "reached the target half-width"
             break
         if spent >= settings.budget:
@@ -276,5 +287,6 @@ def refine(estimates: list[EdgeEstimate], keys: np.ndarray, n_nodes: int, goals:
     last = rounds[-1]
     return estimates, AdaptiveReport(target_halfwidth=settings.target_halfwidth, budget=settings.budget,
                                      first_pass_particles=first, particles_added=spent, rounds=tuple(rounds),
-                                     reached=last.halfwidth <= settings.target_halfwidth, reason=reason,
+                                     reached=last.halfwidth <= required_halfwidth(settings.target_halfwidth, last.ci95),
+                                     reason=reason,
                                      halfwidth=last.halfwidth)

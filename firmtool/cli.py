@@ -278,7 +278,7 @@ def _build_human(r: dict) -> str:
         text += (f"\nadaptive Monte Carlo: {a['particles_added']:,} particles added in {len(a['rounds']) - 1} rounds "
                  f"to the {a['first_pass_particles']:,} of the first pass; start success probability "
                  f"{last['start_success_probability']:.4f}, 95% interval +-{a['halfwidth']:.4f} (target "
-                 f"+-{a['target_halfwidth']:g}): {a['reason']}")
+                 f"+-{a['target_halfwidth']:g} at p = 1/2): {a['reason']}")
     c = r.get("connectivity")
     if c:
         text += (f"\nconnected: {len(c['connected_goal_nodes'])} of {len(c['goal_nodes'])} goal nodes in the start's "

@@ -142,7 +142,8 @@ class AdaptiveReport(Report):
     budget : ``estimation.adaptive_particles`` (particles the rounds may add).
     first_pass_particles : particles of the uniform first pass; ``particles_added`` by the rounds.
     rounds : the roadmap after the first pass and after every round.
-    reached : the start's interval half-width reached the target.
+    reached : the start's interval half-width reached the target (scaled to the probability:
+        :func:`firmtool.adaptive.required_halfwidth`).
     reason : why the rounds stopped.
     halfwidth : the last half-width.
     """
@@ -374,10 +375,13 @@ class RoadmapSummary(Report):
     stages : the stages present, in order.
     nodes, state_dim : size of ``/nodes``.
     edges : designed edges (``/controllers``).
-    particles_per_edge, particle_steps, estimated_edges, densify_rounds : of ``/edges``.
+    particles_per_edge, particle_steps, estimated_edges, densify_rounds : of ``/edges``
+        (``particles_per_edge`` the median: adaptive Monte Carlo gives some edges more; ``particles``
+        the total).
     cached_edges : estimates an interrupted estimate stage left for reuse (``/edge_cache``).
     solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
-        (``start_cost_to_go`` None when the goal is unreachable from the start).
+        (``start_cost_to_go`` None when the goal is unreachable from the start);
+        ``start_success_probability_ci95`` its interval stored at solve time.
     stale_stages : stages computed from another scenario text than the stored one (a build with
         the current scenario, or the stage's command, recomputes them).
     """
@@ -401,4 +405,6 @@ class RoadmapSummary(Report):
     solve_iterations: int | None = None
     start_success_probability: float | None = None
     start_cost_to_go: float | None = None
+    start_success_probability_ci95: tuple[float, float] | None = None
+    particles: int | None = None
     stale_stages: tuple[str, ...] = ()

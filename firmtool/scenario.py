@@ -131,7 +131,7 @@ DEFAULT_MAX_PARTICLE_STEPS = 1e10
 # Where an edge's Monte Carlo starts (firmtool.edges.initial_ensemble): "center" (the paper's eq. 8,
 # the node centre represents the node) or "region" (beliefs spread over the node's region).
 START_MODES = ("center", "region")
-DEFAULT_START = "center"
+DEFAULT_START = "region"
 # Default target of adaptive Monte Carlo: the 95% interval of the start's success probability at
 # most +-0.02 (firmtool.adaptive).
 DEFAULT_TARGET_HALFWIDTH = 0.02
@@ -144,7 +144,8 @@ class EstimationSpec:
     ``particles`` per edge in the uniform first pass (and the block size of later ones), simulated in
     chunks of ``chunk``; ``target_halfwidth`` and ``adaptive_particles`` steer adaptive Monte Carlo
     (:mod:`firmtool.adaptive`): rounds add particles to the policy's edges and their competitors until
-    the 95% interval of the start's success probability is at most +-``target_halfwidth`` or
+    the 95% interval of the start's success probability is at most +-``target_halfwidth`` (at a
+    probability of 1/2; scaled like a binomial proportion's, :func:`firmtool.adaptive.required_halfwidth`) or
     ``adaptive_particles`` more particles were spent (None: as many as the first pass; 0: no rounds).
     ``start``: where each particle starts (:func:`firmtool.edges.initial_ensemble`), ``"center"`` or
     ``"region"``.

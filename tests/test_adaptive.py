@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import firmtool.pipeline
-from firmtool.adaptive import AdaptiveSettings, _neyman, allocate, solve_table
+from firmtool.adaptive import BINOMIAL_FLOOR, AdaptiveSettings, _neyman, allocate, required_halfwidth, solve_table
 from firmtool.edge_table import to_arrays
 from firmtool.edges import FAILURE, EdgeEstimate, estimate_blocks, estimate_edge, merge_estimates
 from firmtool.pipeline import build, design_of, problem_of, solve_stage
@@ -31,6 +31,16 @@ def test_neyman_allocation_matches_the_closed_form():
     assert n2[1] == 1e6 and np.sum(a / n2) == pytest.approx(0.01)
     np.testing.assert_allclose(n2[[0, 2]] / np.sqrt(a[[0, 2]] / c[[0, 2]]),
                                (n2[0] / np.sqrt(a[0] / c[0])))
+
+
+def test_the_required_halfwidth_scales_like_a_binomial_proportion():
+    # a binomial proportion's standard error is sqrt(p (1 - p) / n): relative to p = 1/2 it is sqrt(4 p (1 - p))
+    assert required_halfwidth(0.02, (0.45, 0.55)) == pytest.approx(0.02)
+    assert required_halfwidth(0.02, (0.85, 0.95)) == pytest.approx(0.02 * 0.6)  # sqrt(4 * 0.9 * 0.1) = 0.6
+    assert required_halfwidth(0.02, (0.05, 0.15)) == pytest.approx(0.02 * 0.6)  # symmetric in p <-> 1 - p
+    # near 0 or 1 the floor bounds the work
+    assert required_halfwidth(0.02, (0.999, 1.0)) == pytest.approx(0.02 * BINOMIAL_FLOOR)
+    assert required_halfwidth(0.02, (0.0, 0.0)) == pytest.approx(0.02 * BINOMIAL_FLOOR)
 
 
 def _estimate(source, target, outcomes, cost=1.0):
@@ -99,9 +109,10 @@ def _edges(path):
 
 
 def test_an_interrupted_refinement_resumes_to_the_uninterrupted_table(tmp_path, monkeypatch):
-    # a target tight enough for several rounds
+    # a target tight enough for several rounds (the smoke start's p is ~0.99, where the required
+    # half-width is the floor: 0.016 * BINOMIAL_FLOOR = 0.004)
     scenario = tmp_path / "s.toml"
-    scenario.write_text(SMOKE.replace("particles = 100", "particles = 100\ntarget_halfwidth = 0.004"))
+    scenario.write_text(SMOKE.replace("particles = 100", "particles = 100\ntarget_halfwidth = 0.016"))
     clean = tmp_path / "clean.h5"
     report = build(scenario, clean, workers=1)
     rounds = report.adaptive.rounds
@@ -133,7 +144,7 @@ def test_an_interrupted_refinement_resumes_to_the_uninterrupted_table(tmp_path, 
     lo, hi = sol.start_success_probability_ci95
     assert lo <= sol.start_success_probability <= hi
     if report.adaptive.reached:
-        assert 0.5 * (hi - lo) <= 0.004 + 1e-12
+        assert 0.5 * (hi - lo) <= required_halfwidth(0.016, (lo, hi)) + 1e-12
 
 
 def test_adaptive_off_keeps_the_uniform_table(tmp_path):

@@ -52,6 +52,9 @@ def test_solve_execute_inspect(built):
     r = invoke("inspect", out, "--json")
     info = json.loads(r.stdout)
     assert info["stages"] == ["nodes", "controllers", "edges", "policy"] and info["solve_status"] == "CONVERGED"
+    # the interval stored at solve time, the one execute reported, and the particles in /edges
+    assert info["start_success_probability_ci95"] == pytest.approx(ex["predicted_success_probability_ci95"])
+    assert info["particles"] >= info["particles_per_edge"] * info["estimated_edges"] // 2 > 0
 
 
 def test_execute_is_reproducible_from_its_seed(built):

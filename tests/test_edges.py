@@ -125,8 +125,8 @@ def test_the_start_mode_is_part_of_the_edge_key():
                                           "t.toml"))
     a, b, c = edge_keys(problem, d, engine="numpy"), edge_keys(centre, d, engine="numpy"), \
         edge_keys(region, d, engine="numpy")
-    assert np.array_equal(a, b)  # "center" is the default: the keys of files written before the option
-    assert not np.any(np.all(a == c, axis=1))
+    assert np.array_equal(a, c)  # "region" is the default
+    assert not np.any(np.all(a == b, axis=1))  # centre starts: the keys of files written before the option
 
 
 def test_region_starts_are_alive_next_to_an_obstacle():
