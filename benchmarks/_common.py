@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
+import shutil
 import statistics
 import tempfile
 import time
@@ -12,6 +14,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = {"arm": ROOT / "scenarios" / "arm8_lightdark.toml", "point": ROOT / "scenarios" / "point_lightdark.toml"}
 _TMP = Path(tempfile.mkdtemp(prefix="firmtool-bench-"))
+_OWNER = os.getpid()
+# removed when the benchmark ends (not by forked workers, which inherit the handler); before, every
+# run left a firmtool-bench-* folder behind in the shared temporary folder
+atexit.register(lambda: os.getpid() == _OWNER and shutil.rmtree(_TMP, ignore_errors=True))
 _designed: dict[str, Path] = {}
 
 

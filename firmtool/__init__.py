@@ -57,7 +57,7 @@ _EXPORTS = {
     "RunFailure": "firmtool.errors",
 }
 
-__all__ = sorted(_EXPORTS) + ["__version__"]
+__all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
     from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, plot, simulate, solve
@@ -71,7 +71,13 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time 
     from firmtool.scenario import Scenario
 
 
+# subpackages reachable as attributes (``ft.robots.register(name, cls)``), imported on first use
+_SUBMODULES = ("robots",)
+
+
 def __getattr__(name: str) -> Any:
+    if name in _SUBMODULES:
+        return importlib.import_module(f"firmtool.{name}")
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'firmtool' has no attribute {name!r}")

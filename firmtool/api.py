@@ -111,10 +111,12 @@ class Roadmap:
     policy's edge indices (:attr:`Solution.policy`) are rows of them.
     """
 
-    def __init__(self, data: RoadmapFile, *, path: Path | None = None, report: BuildReport | None = None) -> None:
+    def __init__(self, data: RoadmapFile, *, path: Path | None = None, report: BuildReport | None = None,
+                 validity: "Callable | None" = None) -> None:
         self._data = data
         self.path = path
         self.report = report
+        self.validity = validity  # the Python validity checker it was built with (None: the scenario's geometry)
 
     def __repr__(self) -> str:
         stages = ", ".join(s for s in STAGES if self._data.has(s))
@@ -129,8 +131,9 @@ class Roadmap:
 
     @functools.cached_property
     def problem(self) -> "Problem":
-        """The problem (models, validity, bounds) rebuilt from the stored scenario."""
-        return pipeline.problem_of(self._data)
+        """The problem (models, validity, bounds) rebuilt from the stored scenario (and the Python
+        validity checker the roadmap was built with)."""
+        return pipeline.problem_of(self._data, self.validity)
 
     @functools.cached_property
     def design(self) -> "Design":
@@ -274,22 +277,27 @@ class Roadmap:
         return Solution._from_group(self, pipeline.PolicyGroup(arrays=dict(arrays), attrs=dict(attrs)))
 
 
-def open_roadmap(path: str | Path) -> Roadmap:
+def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadmap:
     """Read a roadmap file (validated: schema version, groups, shapes, index ranges).
+
+    ``validity``: the Python validity checker a roadmap was built with (:func:`build`); without it
+    such a roadmap can be solved but not simulated (its problem is refused, never rebuilt without
+    the checker).
 
     Raises
     ------
     RoadmapError
         One line naming the file and what is wrong with it.
     """
-    return Roadmap(RoadmapFile(path), path=Path(path))
+    return Roadmap(RoadmapFile(path), path=Path(path), validity=validity)
 
 
 def build(scenario: Scenario | str | Path, *, workers: int | None = None, output: str | Path | None = None,
           executor: str = "process", scheduler: str | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
           progress: Callable[[int], Callable[[int], None]] | None = None,
-          checkpoint_seconds: float = pipeline.CHECKPOINT_SECONDS, force: bool = False) -> Roadmap:
+          checkpoint_seconds: float = pipeline.CHECKPOINT_SECONDS, force: bool = False,
+          validity: Callable | None = None) -> Roadmap:
     """Sample the nodes, design their stabilisers and the edges, and estimate every edge by Monte Carlo.
 
     Parameters
@@ -316,6 +324,12 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
         Seconds between saves of finished edges into ``output`` (resume after a kill).
     force : bool
         Replace an existing file at ``output`` even if it is not a firmtool roadmap.
+    validity : callable, optional
+        A vectorised checker ``states (M, n) -> bool (M,)`` (True where valid), ANDed with the
+        scenario's geometry in sampling, nominals, the Monte Carlo (every executor) and
+        simulation. The compiled engine does not compute it: the numpy engine runs and
+        ``report.notices`` says so. The roadmap records its identity (``firmtool_key`` attribute,
+        else a fingerprint of its code and data); reopen it with ``open_roadmap(path, validity=...)``.
 
     Returns
     -------
@@ -329,18 +343,21 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
         Bad settings; no collision-free edge; a Riccati equation without a stabilising solution.
     """
     scenario = pipeline.as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
+    from firmtool.problem import ValidityChecker
+
+    checker = None if validity is None else ValidityChecker(validity)
     options: dict[str, Any] = dict(workers=workers, executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min,
                                    max_nodes=max_nodes, add_nodes=add_nodes, progress_factory=progress,
-                                   checkpoint_seconds=checkpoint_seconds, force=force)
+                                   checkpoint_seconds=checkpoint_seconds, force=force, validity=checker)
     if output is not None:
         report = pipeline.build(scenario, output, **options)
-        return Roadmap(RoadmapFile(output), path=Path(output), report=report)
+        return Roadmap(RoadmapFile(output), path=Path(output), report=report, validity=checker)
     with tempfile.TemporaryDirectory(prefix="firmtool-") as tmp:
         out = Path(tmp) / f"{scenario.name}.h5"
         report = pipeline.build(scenario, out, **options)
         data = RoadmapFile(out)  # read into memory: the folder goes
     data.path = Path(f"<roadmap {scenario.name} in memory>")  # what its messages name
-    return Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None))
+    return Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None), validity=checker)
 
 
 # -- the solution ----------------------------------------------------------------------------------------

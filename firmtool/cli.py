@@ -254,7 +254,14 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
                                       f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
                                       f"{r['simulated_particle_steps']:,} particle-steps, {r['seconds']:.1f} s, "
                                       f"{r['workers']} workers)"))
+    _print_notices(report)
     _exit_on_failed_edges(report)
+
+
+def _print_notices(report: dict) -> None:
+    """One line on stderr per notice of a stage (e.g. why the numpy Monte Carlo engine ran)."""
+    for notice in report.get("notices") or []:
+        typer.echo(f"notice: {notice}", err=True)
 
 
 def _exit_on_failed_edges(report: dict) -> None:
@@ -329,6 +336,7 @@ def build(scenario: Path = typer.Argument(..., help="Scenario TOML file."),
                   add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds, force=force)
     report = rm.report.to_dict()
     _emit(report, as_json, _build_human)
+    _print_notices(report)
     _exit_on_failed_edges(report)
     if report["densify"] and not report["densify"]["reached"]:
         _fail(report["densify"]["reason"], 1)
@@ -588,6 +596,7 @@ def run(scenario: Path = typer.Argument(Path(DEFAULT_SCENARIO), help="Scenario T
     report = {"build": rm.report.to_dict(), "solve": sol.to_dict(), "execute": res.to_dict()}
     _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
                                                   _execute_human(r["execute"])]))
+    _print_notices(report["build"])
 
 
 def main() -> None:

@@ -10,12 +10,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import scipy.linalg
 
+from firmtool._jit import cached_njit
 from firmtool.errors import NumericalError
+from firmtool.models.base import Model
 from firmtool.models.linear import LinearGaussianModel
+
+# compiled, cached on disk by a key that covers the compiled functions each calls (firmtool._jit)
+njit = cached_njit()
 
 
 def lqr_gain(A: np.ndarray, B: np.ndarray, Wx: np.ndarray, Wu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -59,7 +63,7 @@ def kalman_update(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np
     return L, 0.5 * (P + P.T)
 
 
-@numba.njit(cache=True)
+@njit
 def mat_rows(A, B, out, n_out, nc):
     """``out[:n_out, :nc] = A[:n_out] @ B[:, :nc]`` as row updates (``out[i] += A[i, l] B[l]``: the inner
     loop runs along a row of B, so it vectorises), skipping exact zeros of ``A`` (the models' A, B, H
@@ -75,27 +79,27 @@ def mat_rows(A, B, out, n_out, nc):
                     out[i, c] += a * B[l, c]
 
 
-@numba.njit(cache=True)
+@njit
 def _mm(A, B, out):
     """``out = A @ B`` (:func:`mat_rows` over the whole matrices)."""
     mat_rows(A, B, out, A.shape[0], B.shape[1])
 
 
-@numba.njit(cache=True)
+@njit
 def _transpose(X, out):
     for i in range(X.shape[0]):
         for j in range(X.shape[1]):
             out[j, i] = X[i, j]
 
 
-@numba.njit(cache=True)
+@njit
 def _symmetric_part(X, out):
     for i in range(X.shape[0]):
         for j in range(X.shape[1]):
             out[i, j] = 0.5 * (X[i, j] + X[j, i])
 
 
-@numba.njit(cache=True)
+@njit
 def _sandwich(M, X, D, W1, W2, W3, out):
     """``out`` = the symmetric part of ``M X M' + D`` (``W1..W3``: (n, n) work arrays; ``out`` may be
     ``X``). ``M X M'`` is computed as its transpose ``M (M X)'``: equal for a symmetric X."""
@@ -109,7 +113,7 @@ def _sandwich(M, X, D, W1, W2, W3, out):
     _symmetric_part(W3, out)
 
 
-@numba.njit(cache=True)
+@njit
 def _cholesky_solve(S, B, C, out):
     """``out = S^-1 B`` for a symmetric positive definite ``S`` (Cholesky factor in ``C``); returns
     False if ``S`` is not numerically positive definite."""
@@ -139,7 +143,7 @@ def _cholesky_solve(S, B, C, out):
     return True
 
 
-@numba.njit(cache=True)
+@njit
 def _filter_recursion(A_steps, H_steps, index, variances, Qd, L, P, innovation, k0, k1):
     """Steps ``k0 <= k < k1`` of the Kalman covariance recursion, from ``P[k0]``.
 
@@ -186,7 +190,7 @@ def _filter_recursion(A_steps, H_steps, index, variances, Qd, L, P, innovation, 
         L[k] = Lk
 
 
-@numba.njit(cache=True)
+@njit
 def _spread_recursion(A_steps, B_steps, index, K, Qd, perfect, L, innovation, spread, Sigma, k0, k1):
     """Steps ``k0 <= k < k1`` of the closed-loop spread of the decision state: ``Sigma_{k+1} = Acl
     Sigma Acl' + D`` with ``Acl = A - B K[k]`` and ``D = Qd`` (perfect measurements) or the
@@ -293,7 +297,7 @@ def _reachability(A: np.ndarray, B: np.ndarray, steps: int) -> tuple[np.ndarray,
     return blocks, W, powers[steps]
 
 
-@numba.njit(cache=True)
+@njit
 def _rollout(A, B, x0, u, x):
     """``x[0] = x0``, ``x[k + 1] = A x[k] + B u[k]`` (the nominal's states from its inputs)."""
     n, m = B.shape
@@ -394,7 +398,7 @@ class PeriodicStabiliser:
         return self.u.shape[0]
 
 
-def weights(model: LinearGaussianModel, state_weight: float, velocity_weight: float,
+def weights(model: Model, state_weight: float, velocity_weight: float,
             control_weight: float, config_dim: int) -> tuple[np.ndarray, np.ndarray]:
     """Diagonal LQR weights: ``state_weight`` on configuration coordinates, ``velocity_weight`` on the rest."""
     wx = np.full(model.n, velocity_weight)
@@ -543,7 +547,7 @@ def _same_matrices(jacobians: list[tuple[np.ndarray, ...]]) -> bool:
     return all(all(a is b or np.array_equal(a, b) for a, b in zip(first, j)) for j in jacobians[1:])
 
 
-def plan_local_controller(model: LinearGaussianModel, x_nominal: np.ndarray, u_nominal: np.ndarray,
+def plan_local_controller(model: Model, x_nominal: np.ndarray, u_nominal: np.ndarray,
                           P0: np.ndarray, target: NodeController, Wx: np.ndarray, Wu: np.ndarray,
                           stabiliser_steps: int, perfect: bool) -> LocalController:
     """Time-varying LQG along a nominal trajectory, then the target's stabiliser.

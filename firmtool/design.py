@@ -11,12 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.controllers import (LocalController, NodeController, design_node, lqr_gain, min_energy_trajectory,
-                                  plan_local_controller, weights)
+from firmtool.controllers import LocalController, NodeController, plan_local_controller, weights
 from firmtool.errors import NumericalError
 from firmtool.nodes import GOAL, NodeRegions, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
-
 
 
 @dataclass(frozen=True)
@@ -49,37 +47,21 @@ def lqr_weights(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     return weights(problem.model, c.state_weight, c.velocity_weight, c.control_weight, problem.config_dim)
 
 
-def periodic_node(problem: Problem, center: np.ndarray) -> NodeController:
-    """The periodic (PLQG / PLQR) stabiliser of a nonholonomic robot's node, memoised per centre."""
-    from firmtool.stabilisers import OrbitSpec, cached_periodic_node
-
-    Wx, Wu = lqr_weights(problem)
-    spec = problem.scenario.model
-    return cached_periodic_node((problem.scenario.sha256,), problem.model, center,
-                                OrbitSpec(spec.orbit_radius, spec.orbit_speed), Wx, Wu, problem.perfect)
-
-
 def node_controller(problem: Problem, design_: Design, j: int) -> NodeController:
-    """Stabiliser of node ``j`` with everything the local controllers need (the whole orbit of a
-    periodic one, recomputed from the centre; the stored arrays hold its phase-0 values)."""
-    if problem.nonholonomic:
-        return periodic_node(problem, design_.centers[j])
-    return design_.node(j)
+    """Stabiliser of node ``j`` with everything the local controllers need (the robot's
+    :meth:`~firmtool.robots.Robot.node_controller`: e.g. the whole orbit of a periodic one,
+    recomputed from the centre; the stored arrays hold its phase-0 values)."""
+    return problem.robot.node_controller(problem, design_.centers[j], design_.node(j))
 
 
 def design_nodes(problem: Problem, centers: np.ndarray) -> list[NodeController]:
-    """Stabiliser of every node (R at the node's centre; periodic for a nonholonomic robot)."""
+    """Stabiliser of every node (R at the node's centre; the robot's kind: stationary or periodic)."""
     Wx, Wu = lqr_weights(problem)
+    memo: dict = {}  # what the robot shares between the nodes of this design (a linear model's LQR gain)
     out = []
-    lqr = None
     for j, v in enumerate(centers):
         try:
-            if problem.nonholonomic:
-                out.append(periodic_node(problem, v))
-                continue
-            if lqr is None:  # a linear model: one LQR gain serves every node (only R varies)
-                lqr = lqr_gain(problem.model.A, problem.model.B, Wx, Wu)
-            out.append(design_node(problem.model, v, Wx, Wu, problem.perfect, lqr=lqr))
+            out.append(problem.robot.design_node(problem, v, Wx, Wu, memo))
         except NumericalError as exc:
             raise NumericalError(f"node {j}: {exc}") from None
     return out
@@ -92,31 +74,9 @@ def region_scale(Sigmas: np.ndarray) -> np.ndarray:
 
 
 def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rest-to-rest minimum-energy trajectory whose length respects the speed and input limits.
-
-    The step count starts from the analytic bound of the integrator profiles (peak speed 1.5 D/T
-    and peak acceleration 6 D/T^2 for the cubic) and grows by 10% until both limits hold.
-    """
-    model, c = problem.model, problem.scenario.controller
-    if problem.nonholonomic:  # kinematically feasible: turn in place, drive straight, turn
-        from firmtool.models.unicycle import turn_drive_turn
-
-        return turn_drive_turn(model, x0, xf, c.max_speed, problem.scenario.model.max_turn_rate)
-    dt, d = model.dt, problem.config_dim
-    dist = float(np.max(np.abs(xf[:d] - x0[:d])))
-    if problem.velocity_dim:
-        T = max(1.5 * dist / c.max_speed, np.sqrt(6.0 * dist / c.max_accel))
-    else:
-        T = dist / c.max_speed
-    min_steps = max(2, -(-model.n // model.m))
-    steps = max(min_steps, int(np.ceil(T / dt - 1e-9)))
-    for _ in range(60):
-        x, u = min_energy_trajectory(model.A, model.B, x0, xf, steps)
-        speed = np.max(np.abs(np.diff(x[:, :d], axis=0))) / dt if steps else 0.0
-        if speed <= c.max_speed * (1 + 1e-9) and np.max(np.abs(u)) <= problem.max_input() * (1 + 1e-9):
-            return x, u
-        steps = int(np.ceil(steps * 1.1)) + 1
-    raise NumericalError(f"no nominal trajectory within the speed/input limits from {x0} to {xf}")
+    """The nominal from ``x0`` to ``xf``: the robot's (:meth:`~firmtool.robots.Robot.nominal_trajectory`;
+    for a linear model the rest-to-rest minimum-energy trajectory within the speed and input limits)."""
+    return problem.robot.nominal_trajectory(problem, x0, xf)
 
 
 def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -130,9 +90,9 @@ def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[n
     """
     directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
     src, dst, steps = [], [], []
-    # Integrators move every coordinate on the same rest-to-rest profile, so their nominal is the
-    # segment checked above; other models' nominals may bend and are checked along their states.
-    straight = problem.scenario.model.dynamics in ("single_integrator", "double_integrator")
+    # A nominal along the straight configuration segment was checked above with its node pair;
+    # other nominals may bend and are checked along their states.
+    straight = problem.robot.nominals_are_straight()
     for i, j in directed:
         x, u = nominal_trajectory(problem, centers[i], centers[j])
         if not straight and not trajectory_is_valid(problem, x):

@@ -4,8 +4,9 @@ that says whether a stored estimate can be reused.
 An edge's key is a sha256 over everything its Monte Carlo depends on: the engine's semantics
 (:data:`ENGINE_VERSION`) and which engine runs it (the compiled one draws its own noise, so the
 two give statistically equal, not identical, estimates), the scenario's model, measurement,
-world, task and controller settings, the seed, the particle count and chunk size, where the particles start
-(``estimation.start``), the two node indices (they seed the random streams),
+world, task and controller settings, the robot's code (its class and version) and the identity of
+a user's validity checker (if any), the seed, the particle count and chunk size, where the particles
+start (``estimation.start``), the two node indices (they seed the random streams),
 both nodes' centres and stabilisers, and the nominal length. Not in it: the cost weights (the
 table stores cost terms, weighted at solve time) and the other nodes of the roadmap. The latter is
 a deliberate approximation: when nodes are added, existing edges keep their estimates, whose
@@ -65,6 +66,16 @@ def digest(*parts: Any) -> bytes:
     return h.digest()
 
 
+def robot_identity(problem: Problem) -> str:
+    """Which robot code the problem's robot is (its class and version; see Robot.identity)."""
+    return problem.robot.identity if problem.robot is not None else ""
+
+
+def validity_identity(problem: Problem) -> str:
+    """The identity of the problem's user validity checker ("" without one; see ValidityChecker)."""
+    return problem.validity.identity if problem.validity is not None else ""
+
+
 def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = None,
               engine: str | None = None) -> np.ndarray:
     """(E, 32) uint8 keys of the design's edges (or of ``edges``, indices into them), for the Monte
@@ -75,7 +86,7 @@ def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = N
 
         engine = engine_for(problem)
     parts = [ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
-             sc.estimation.particles, sc.estimation.chunk]
+             sc.estimation.particles, sc.estimation.chunk, robot_identity(problem), validity_identity(problem)]
     if sc.estimation.start != "center":  # keys of centre starts are those of the files written before the option
         parts.append(f"start={sc.estimation.start}")
     base = digest(*parts)

@@ -15,7 +15,7 @@ import numpy as np
 from firmtool.controllers import LocalController
 from firmtool.design import Design, local_controller
 from firmtool.errors import NumericalError
-from firmtool.models.linear import LinearGaussianModel
+from firmtool.models.base import Model
 from firmtool.nodes import NodeRegions
 from firmtool.problem import Problem
 from firmtool.scenario import START_MODES, CostSpec
@@ -29,14 +29,14 @@ def edge_seed_sequence(seed: int, source: int, target: int, chunk: int = 0) -> n
     return np.random.SeedSequence([seed, source, target, chunk])
 
 
-def control_and_move(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+def control_and_move(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
                      w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Control from the estimate, then the true-state step: returns the new true states and the controls."""
     u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T
     return model.f(x, u) + w @ model.F.T, u
 
 
-def filter_update(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+def filter_update(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
                   u: np.ndarray, v: np.ndarray, variance: np.ndarray) -> np.ndarray:
     """Observe the new true states ``x`` (noise variance ``variance``, at the TRUE state) and update
     with the precomputed gain (an extended Kalman filter for a nonlinear model: the prediction and
@@ -46,7 +46,7 @@ def filter_update(model: LinearGaussianModel, lc: LocalController, k: int, x: np
     return pred + (z - model.h(pred)) @ lc.L[k].T
 
 
-def belief_step(model: LinearGaussianModel, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+def belief_step(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
                 w: np.ndarray, v: np.ndarray, perfect: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Advance true states and estimates by one step of the local controller.
 
@@ -129,7 +129,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
             xhat_a = filter_update(model, lc, k, x_a, xhat[alive], u, noise[:, r:], variance)
         x[alive], xhat[alive] = x_a, xhat_a
         effort[alive] += np.einsum("ij,ij->i", u, u)
-        failed = ~problem.points_valid(pts)
+        failed = ~problem.states_valid(x_a, pts)
         done = failed.copy()
         outcome[alive[failed]] = FAILURE
         if k + 1 >= lc.edge_steps and candidates[k].any():

@@ -18,13 +18,19 @@ class InputError(FirmtoolError, ValueError):
 class ScenarioError(InputError):
     """A scenario file that is missing, unreadable or invalid.
 
-    The message names the file, the field and what was expected.
+    The message names the file, the field and what was expected, on one line; when the file has
+    several problems they all follow (``; also FIELD: EXPECTED``), and :attr:`errors` lists them.
     """
 
-    def __init__(self, path: str, field: str, expected: str) -> None:
+    def __init__(self, path: str, field: str, expected: str, more: "list[tuple[str, str]] | tuple" = ()) -> None:
         self.path, self.field, self.expected = str(path), field, expected
+        #: every problem found, ``(field, expected)``, the first one being ``(field, expected)``
+        self.errors = [(field, expected), *more]
         where = f"{self.path}: {field}" if field else self.path
-        super().__init__(f"{where}: {expected}")
+        text = f"{where}: {expected}"
+        for f, e in more:  # all problems of a file on one line, first one first
+            text += f"; also {f}: {e}" if f else f"; also {e}"
+        super().__init__(text)
 
 
 class RoadmapError(InputError):

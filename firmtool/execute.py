@@ -62,8 +62,8 @@ from scipy.stats import chi2, norm
 
 from firmtool import disturbances as dist_mod
 from firmtool import kernels
-from firmtool.controllers import LocalController, min_energy_trajectory, plan_local_controller, stationary_kalman
-from firmtool.design import Design, local_controller, lqr_weights, periodic_node
+from firmtool.controllers import LocalController, plan_local_controller
+from firmtool.design import Design, local_controller, lqr_weights, node_controller
 from firmtool.edges import FAILURE, TIMEOUT as EDGE_TIMEOUT, control_and_move, filter_update, simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, START_INDEX, NodeRegions, segment_is_valid
@@ -238,43 +238,23 @@ class Executor:
         return self._cache[edge]
 
     def _nominal_steps(self, x0: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """The analytic rest-to-rest length bound of design.nominal_trajectory, per target node."""
-        problem, c = self.problem, self.problem.scenario.controller
-        d = problem.config_dim
-        dist = np.max(np.abs(self.design.centers[targets, :d] - x0[:d]), axis=1)
-        if problem.velocity_dim:
-            T = np.maximum(1.5 * dist / c.max_speed, np.sqrt(6.0 * dist / c.max_accel))
-        else:
-            T = dist / c.max_speed
-        return np.maximum(2, np.ceil(T / problem.model.dt - 1e-9))
+        """The analytic nominal length bound of the robot (design's), per target node."""
+        return self.problem.robot.nominal_steps_bound(self.problem, x0, self.design.centers[targets])
 
     def _runtime_controller(self, x0: np.ndarray, P0: np.ndarray, j: int) -> LocalController:
         """TV-LQG from the belief ``(x0, P0)`` to node ``j``, then its stabiliser, designed in real time.
 
         The same design as :func:`firmtool.design.local_controller` with ``start_state``, except for the
-        nominal's length: from a moving state, growing it until the speed and input limits hold (as the
-        offline design does, up to 60 times) can take seconds, so here it is the analytic rest-to-rest
-        bound plus the steps to brake the current speed, tried at most :data:`RUNTIME_NOMINAL_TRIES`
-        times (x1.5 each); the last try is used even if it exceeds the limits (design limits, not
-        actuator saturation: the simulation has none).
+        nominal: the robot's real-time one (:meth:`~firmtool.robots.Robot.runtime_nominal`; for a
+        linear model the analytic rest-to-rest bound plus the steps to brake the current speed, tried
+        at most :data:`RUNTIME_NOMINAL_TRIES` times, since growing it until the limits hold, as the
+        offline design does up to 60 times, can take seconds from a moving state).
         """
-        problem, c = self.problem, self.problem.scenario.controller
-        if problem.nonholonomic:  # kinematic nominal (no velocity to brake) and periodic stabiliser
-            return local_controller(problem, self.design, j, j, start_state=x0, start_P=P0)
-        model, d = problem.model, problem.config_dim
-        steps = int(self._nominal_steps(x0, np.array([j]))[0])
-        if problem.velocity_dim:
-            steps += int(np.ceil(2.0 * np.max(np.abs(x0[d:])) / c.max_accel / model.dt))
-        steps = max(steps, -(-model.n // model.m))
-        target = self.design.centers[j]
-        for _ in range(RUNTIME_NOMINAL_TRIES):
-            x, u = min_energy_trajectory(model.A, model.B, x0, target, steps)
-            speed = np.max(np.abs(np.diff(x[:, :d], axis=0))) / model.dt
-            if speed <= c.max_speed * (1 + 1e-9) and np.max(np.abs(u)) <= problem.max_input() * (1 + 1e-9):
-                break
-            steps = int(np.ceil(steps * 1.5))
+        problem = self.problem
+        x, u = problem.robot.runtime_nominal(problem, x0, self.design.centers[j], RUNTIME_NOMINAL_TRIES)
         Wx, Wu = lqr_weights(problem)
-        return plan_local_controller(model, x, u, P0, self.design.node(j), Wx, Wu, c.max_steps, problem.perfect)
+        return plan_local_controller(problem.model, x, u, P0, node_controller(problem, self.design, j), Wx, Wu,
+                                     problem.scenario.controller.max_steps, problem.perfect)
 
     def valid_estimate(self, xhat: np.ndarray, P: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
         """The estimate if it is a valid state, else the most likely valid state under ``N(xhat, P)``.
@@ -411,7 +391,7 @@ class Executor:
             if innovation:
                 pred = model.f(xhat_prev, u)  # the EKF's innovation, as in filter_update
                 nu = (model.h(x) + np.sqrt(variance) * noise[:, r:] - model.h(pred))[0]
-        return x, xhat, u, bool(problem.points_valid(pts)[0]), nu
+        return x, xhat, u, bool(problem.states_valid(x, pts)[0]), nu
 
     def reset_belief(self, lc: LocalController, k: int, xhat_prev: np.ndarray, u: np.ndarray, nu: np.ndarray,
                      window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -454,17 +434,9 @@ class Executor:
         start = np.asarray(start, dtype=float)
         if problem.perfect:
             return start.copy(), np.zeros((start.size, start.size))
-        model = problem.model
-        if problem.nonholonomic:
-            # At rest a unicycle's heading is not observable (its linearisation there is not
-            # detectable): no stationary filter exists. Its nodes' belief is the periodic filter's at
-            # phase 0 of the orbit through the node; so is the belief at a start state.
-            return start.copy(), periodic_node(problem, start).P.copy()
-        # the stationary filter of the model linearised at the start state (at rest, zero input)
-        A, _ = model.dynamics_jacobians(start, np.zeros(model.m))
-        H = model.observation_jacobian(start)
-        _, P0, _ = stationary_kalman(A, model.process_cov, H, model.R(start[None]))
-        return start.copy(), P0
+        # the robot's belief at a state that is no node (by default the stationary filter of the
+        # model linearised there, at rest; a unicycle's periodic filter at phase 0 of its orbit)
+        return start.copy(), problem.robot.start_covariance(problem, start)
 
     def run_episode(self, rng: np.random.Generator, record: bool = False, *, start: np.ndarray | None = None,
                     disturbance_seed: tuple[int, ...] | None = None) -> Episode:

@@ -5,10 +5,11 @@
 here selects a matplotlib backend, so a notebook keeps its own. (Named ``figures``, not ``plot``: a
 submodule ``firmtool.plot`` would replace the function ``firmtool.plot`` as soon as it was imported.)
 
-Only :attr:`Problem.points` is used to draw the robot (a polyline of its key points; the last one,
-the arm's tip or the point robot itself, is the one followed), so a new robot needs no change here.
-The belief of the followed point is drawn as its mean path with 3-sigma ellipses of the covariance
-pushed through the Jacobian of that point (central finite differences of ``problem.points``).
+The robot draws itself (:meth:`firmtool.robots.Robot.draw`; by default a polyline of its key points,
+the last one, the arm's tip or the point robot itself, being the one followed), so a new robot
+needs no change here. A 3-D world is drawn from above (its x-y plane). The belief of the followed
+point is drawn as its mean path with 3-sigma ellipses of the covariance pushed through the
+Jacobian of that point (central finite differences of ``problem.points``).
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ def point_jacobian(problem: Problem, X: np.ndarray, eps: float = 1e-6) -> np.nda
     for i in range(n):  # loop over state coordinates, each vectorised over the T states
         d = np.zeros(n)
         d[i] = eps
-        J[:, :, i] = (problem.points(X + d)[:, -1] - problem.points(X - d)[:, -1]) / (2 * eps)
+        J[:, :, i] = (problem.points(X + d)[:, -1, :2] - problem.points(X - d)[:, -1, :2]) / (2 * eps)
     return J
 
 
@@ -84,18 +85,23 @@ def _ellipse(center: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, **kw) -> 
 
 def _background(ax, problem: Problem) -> None:
     sc = problem.scenario
-    lo, hi = np.array(sc.world.lo), np.array(sc.world.hi)
-    if not problem.perfect and sc.measurement.noise != "constant":
+    lo, hi = np.array(sc.world.lo)[:2], np.array(sc.world.hi)[:2]
+    noise = problem.model.noise
+    lx = getattr(noise, "light_x", None)  # a light-dark law of the sensing x: shade the field
+    if not problem.perfect and lx is not None:
         xs = np.linspace(lo[0], hi[0], 400)
-        std = np.sqrt(problem.model.noise.variance(xs))
+        std = np.sqrt(noise.variance(xs))
         ax.imshow(std[None, :], extent=(lo[0], hi[0], lo[1], hi[1]), origin="lower", aspect="auto",
                   cmap="Greys", alpha=0.55, vmin=0.0, vmax=float(std.max()) * 1.2, zorder=0)
-        lx = sc.measurement.light_x
         if lo[0] <= lx <= hi[0]:
             ax.axvline(lx, color="gold", lw=2.5, zorder=1, label="light")
-    for o in sc.world.obstacles:
-        c, h = np.array(o.center), np.array(o.half_size)
-        ax.add_patch(Rectangle(c - h, 2 * h[0], 2 * h[1], color=OBSTACLE_COLOR, zorder=2))
+    alpha = 1.0 if problem.workspace_dim == 2 else 0.5  # seen from above, 3-D obstacles overlap
+    for o in sc.world.obstacles:  # each obstacle's disc, or its x-y bounding box
+        if o.kind == "sphere":
+            ax.add_patch(Circle(np.array(o.center)[:2], o.radius, color=OBSTACLE_COLOR, alpha=alpha, zorder=2))
+            continue
+        a, b = (v[:2] for v in o.aabb())
+        ax.add_patch(Rectangle(a, *(b - a), color=OBSTACLE_COLOR, alpha=alpha, zorder=2))
     ax.add_patch(Rectangle(lo, *(hi - lo), fill=False, lw=1.0, color="k", zorder=2))
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -103,11 +109,7 @@ def _background(ax, problem: Problem) -> None:
 
 
 def _robot(ax, problem: Problem, state: np.ndarray, color: str, label: str, lw: float = 2.0) -> None:
-    pts = problem.points(state[None])[0]
-    if pts.shape[0] == 1:
-        ax.add_patch(Circle(pts[0], problem.scenario.world.robot_radius, color=color, zorder=6, label=label))
-    else:
-        ax.plot(pts[:, 0], pts[:, 1], "-o", color=color, lw=lw, ms=3, zorder=6, label=label)
+    problem.robot.draw(ax, state, color=color, label=label, lw=lw)
 
 
 def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
@@ -117,14 +119,14 @@ def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
     from firmtool.pipeline import policy_path
 
     _background(ax, problem)
-    tips = problem.points(design.centers)[:, -1]
+    tips = problem.points(design.centers)[:, -1, :2]
     segs = np.stack([tips[design.edge_source], tips[design.edge_target]], axis=1)
     ax.add_collection(LineCollection(segs, colors="tab:blue", alpha=0.06, lw=0.5, zorder=3))
     ax.plot(tips[:, 0], tips[:, 1], ".", color="tab:blue", ms=2.5, alpha=0.6, zorder=3)
     goals = np.flatnonzero(design.kinds == GOAL)
     if problem.goal_disc is not None:
         c, r = problem.goal_disc
-        ax.add_patch(Circle(c, r, color=GOAL_COLOR, alpha=0.6, zorder=4, label="goal"))
+        ax.add_patch(Circle(c[:2], r, color=GOAL_COLOR, alpha=0.6, zorder=4, label="goal"))
     else:
         ax.plot(tips[goals, 0], tips[goals, 1], "*", color=GOAL_COLOR, ms=14, zorder=4, label="goal")
     path = policy_path(data.policy, design.edge_target, START_INDEX, goals)
@@ -133,7 +135,7 @@ def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
 
     ep = data.episode
     if ep is not None and ep.estimates is not None:
-        mean = problem.points(ep.estimates)[:, -1]
+        mean = problem.points(ep.estimates)[:, -1, :2]
         ax.plot(mean[:, 0], mean[:, 1], "-", color="red", lw=1.2, zorder=5, label="estimated mean")
         if not problem.perfect:
             idx = np.arange(0, len(ep.estimates), ELLIPSE_EVERY)

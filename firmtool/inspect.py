@@ -31,6 +31,9 @@ def summarize(path: str | Path) -> RoadmapSummary:
     if rm.has("nodes"):
         c = rm.require("nodes", "centers", fresh=False)["centers"]
         out["nodes"], out["state_dim"] = int(c.shape[0]), int(c.shape[1])
+        checker = str(rm.attrs("nodes").get("validity_checker", ""))
+        if checker:  # built with a Python validity checker: the command line cannot rebuild it
+            out["validity_checker"] = checker
     if rm.has("controllers"):
         out["edges"] = int(rm.require("controllers", "edge_source", fresh=False)["edge_source"].size)
     if rm.has("edges"):

@@ -1,13 +1,25 @@
 """Compiled Monte Carlo engine: the whole edge step in one numba kernel (plain loops, no temporaries).
 
-:func:`simulate` is a drop-in twin of :func:`firmtool.edges.simulate` for the models it knows:
-a :class:`~firmtool.models.linear.LinearGaussianModel` on the ``point`` or ``arm`` robot with the
-numpy or numba collision geometry. Per step and per live particle it does, in this order, exactly
+:func:`simulate` is a drop-in twin of :func:`firmtool.edges.simulate` for the problems it knows:
+a :class:`~firmtool.models.linear.LinearGaussianModel` on a robot whose compiled hook names one of
+its two planar kinematics (a point; a chain of links) with the numpy or numba collision geometry. Per step and per live particle it does, in this order, exactly
 what the numpy path does:
 
     control from the estimate -> true-state step with process noise -> kinematics (once) ->
     observation noise with R at the TRUE state -> filter update with the precomputed gain ->
     control effort -> collision test -> node membership (from the stabiliser phase on)
+
+Compiled functions
+    Each stage is a named compiled function, called by the kernel :func:`run`: :func:`control`,
+    :func:`true_step`, :func:`kinematics` (planar point or planar chain), :func:`measurement_variance`
+    and :func:`filter_update`, :func:`control_effort`, :func:`collision_gate` then :func:`collides`,
+    :func:`locate`. Each one's docstring names the numpy function it reproduces and the test that
+    pins the two together. The kernel's arguments come in a few groups (tuples: the particles, the
+    noise source, model matrices, controller arrays, node candidates, membership regions, sensor,
+    robot, world; listed above the compiled functions). They are cached on disk by
+    :func:`firmtool._jit.cached_njit`, whose key also covers the compiled functions of other modules
+    they call (the controllers' product, the geometry's distances): an edit of those recompiles the
+    kernel instead of loading stale machine code.
 
 Layout
     While the kernel runs, the live particles' states are columns of (state, particle) arrays, so
@@ -39,9 +51,11 @@ Node membership
     nodes (all nodes, as in the tree query) are nearer in that metric.
 
 Selection: :func:`firmtool.edges.simulate` dispatches here when :func:`engine_for` says so: the
-environment variable ``FIRMTOOL_ENGINE=numpy|numba`` forces an engine (``numba`` raises if the
-problem is not supported); unset or ``auto`` uses this kernel whenever numba is importable and the
-problem is supported, and the numpy path otherwise (nonlinear models, other robots, fcl geometry).
+environment variable ``FIRMTOOL_ENGINE=numpy`` forces the numpy path; unset, ``auto`` or ``numba``
+use this kernel whenever numba is importable and the kernel computes exactly the problem's Monte
+Carlo (:func:`supports`: the robot's compiled hook, a linear model, a compiled noise form, planar
+box geometry of numpy/numba, no user's validity checker), and the numpy path otherwise, with a
+one-line notice saying why (:func:`engine_choice`).
 """
 
 from __future__ import annotations
@@ -57,7 +71,9 @@ except ImportError:  # pragma: no cover
 
 FAILURE, TIMEOUT = -1, -2  # same codes as firmtool.edges
 ROBOT_POINT, ROBOT_ARM = 0, 1
+KINEMATICS = {"planar_point": ROBOT_POINT, "planar_chain": ROBOT_ARM}  # robots' compiled hooks
 NOISE_FORMS = {"lightdark_std": 0, "lightdark_variance": 1, "constant": 2}
+COMPILED_BACKENDS = ("numpy", "numba")  # the collision geometry the kernel reproduces exactly
 # Steps are run in segments; per segment the local controller's filter recursion is run as far as
 # the segment's end (lazily: particles mostly stop within a few steps of the edge's end, long before
 # the controller's ~edge + 200 steps) and the node candidates of its steps are computed at once.
@@ -74,38 +90,62 @@ ENGINE_ENV = "FIRMTOOL_ENGINE"
 
 
 def supports(problem) -> str | None:
-    """None if the compiled engine can run ``problem``, else the reason it cannot."""
+    """None if the compiled engine computes exactly ``problem``'s Monte Carlo, else why it cannot.
+
+    The robot says whether its kinematics are one of the kernel's kinds (its compiled hook,
+    :meth:`firmtool.robots.Robot.compiled_kinematics`); the kernel also needs a linear model, a
+    noise form with a compiled twin, and the problem's validity to be exactly the scenario's planar
+    geometry (numpy/numba backend, boxes, the robot's own test, no user's checker)."""
     from firmtool.models.linear import LinearGaussianModel
 
     if numba is None:
         return "numba is not installed"
+    if len(problem.scenario.world.lo) != 2:
+        return f"the compiled engine is planar, this world is {len(problem.scenario.world.lo)}-D"
+    robot = problem.robot
+    if robot is None or robot.compiled_kinematics() is None:
+        return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
     if type(problem.model) is not LinearGaussianModel:
         return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
-    sc = problem.scenario
-    if sc.model.robot not in ("point", "arm"):
-        return f"robot {sc.model.robot!r} has no compiled kinematics"
-    if sc.world.collision_backend not in ("numpy", "numba"):
-        return f"collision backend {sc.world.collision_backend!r} is not compiled (numpy/numba geometry only)"
-    if problem.model.noise.form not in NOISE_FORMS:
-        return f"measurement noise {problem.model.noise.form!r} is not compiled"
+    if problem.validity is not None:
+        return "the problem has a Python validity checker, which the compiled engine does not compute"
+    if not (problem.points_valid == robot.points_valid and problem.points == robot.points
+            and problem.sensing_from_points == robot.sensing_from_points):
+        return "the problem's key points, sensing or validity are not its robot's own"
+    w = problem.scenario.world
+    if w.collision_backend not in COMPILED_BACKENDS:
+        return f"collision backend {w.collision_backend!r} is not compiled (numpy/numba geometry only)"
+    if len(w.lo) != 2 or any(o.kind != "box" for o in w.obstacles):
+        return "the compiled engine's geometry is planar boxes only"
+    noise = problem.model.noise
+    if getattr(noise, "compiled", None) not in NOISE_FORMS:
+        return f"measurement noise {getattr(noise, 'form', type(noise).__name__)!r} is not compiled"
     return None
 
 
-def engine_for(problem) -> str:
-    """``"numba"`` or ``"numpy"`` for this problem, honouring ``FIRMTOOL_ENGINE``."""
+def engine_choice(problem) -> tuple[str, str | None]:
+    """``("numba" | "numpy", notice)`` for this problem, honouring ``FIRMTOOL_ENGINE``.
+
+    The compiled engine runs only where it computes exactly the problem's Monte Carlo
+    (:func:`supports`); where it was asked for (``auto`` with numba installed, or ``numba``) but
+    cannot, the numpy engine runs and ``notice`` says why, in one line (else None)."""
     from firmtool.errors import InputError
 
     choice = os.environ.get(ENGINE_ENV, "auto").strip().lower() or "auto"
     if choice not in ("auto", "numpy", "numba"):
         raise InputError(f"{ENGINE_ENV}: expected 'auto', 'numpy' or 'numba' but found {choice!r}")
     if choice == "numpy":
-        return "numpy"
+        return "numpy", None
     reason = supports(problem)
     if reason is None:
-        return "numba"
-    if choice == "numba":
-        raise InputError(f"{ENGINE_ENV}=numba: the compiled engine cannot run this problem: {reason}")
-    return "numpy"
+        return "numba", None
+    asked = f"{ENGINE_ENV}=numba" if choice == "numba" else "the compiled Monte Carlo engine"
+    return "numpy", f"numpy Monte Carlo engine: {asked} cannot run this problem ({reason})"
+
+
+def engine_for(problem) -> str:
+    """``"numba"`` or ``"numpy"`` for this problem (:func:`engine_choice` without its notice)."""
+    return engine_choice(problem)[0]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -120,13 +160,14 @@ class _ProblemData:
         self.mats = tuple(np.ascontiguousarray(M, dtype=float) for M in (model.A, model.B, model.F, model.H))
         self.r, self.nz = model.F.shape[1], model.nz
         nm = model.noise
-        self.noise = (NOISE_FORMS[nm.form], float(nm.light_x), float(nm.eta), float(nm.sigma_b), float(nm.a),
-                      float(nm.c), float(nm.std))
+        p = nm.compiled_params()
+        self.noise = (NOISE_FORMS[nm.compiled], *(float(p.get(k, 0.0)) for k in ("light_x", "eta", "sigma_b", "a", "c",
+                                                                              "std")))
         w = sc.world
-        if sc.model.robot == "arm":
-            self.robot, self.lengths, self.self_collision = ROBOT_ARM, np.asarray(sc.model.link_lengths, float), True
-        else:
-            self.robot, self.lengths, self.self_collision = ROBOT_POINT, np.zeros(0), False
+        hook = problem.robot.compiled_kinematics()
+        self.robot = KINEMATICS[hook.kind]
+        self.lengths = np.asarray(hook.link_lengths, dtype=float).reshape(-1)
+        self.self_collision = bool(hook.self_collision)
         C = np.array([o.center for o in w.obstacles], dtype=float).reshape(-1, 2)
         Hs = np.array([o.half_size for o in w.obstacles], dtype=float).reshape(-1, 2)
         ang = np.array([getattr(o, "angle", 0.0) for o in w.obstacles], dtype=float)
@@ -194,8 +235,18 @@ def locate_one(regions, xhat: np.ndarray, candidates: np.ndarray) -> int:
     order = _first_coordinate_order(regions)
     idx = order[candidates[order]]
     data = _locate_data(regions)
-    return int(locate(np.ascontiguousarray(xhat, dtype=float), xhat.shape[0], 0, idx.size, idx,
-                      np.ascontiguousarray(data[0][idx, 0]), *data))
+    return int(locate(np.ascontiguousarray(xhat, dtype=float), 0, idx.size, idx, np.ascontiguousarray(data[0][idx, 0]),
+                      data))
+
+
+def _robot_group(pd: _ProblemData) -> tuple:
+    """The kernel's robot group ``(kind, lengths, sensing, self_collision)``: measurement j of a chain
+    senses at the end of link j (key point j + 1), every measurement of a point robot at its point."""
+    if pd.robot == PLANAR_CHAIN:
+        sensing = np.arange(1, pd.nz + 1, dtype=np.int64)
+    else:
+        sensing = np.zeros(pd.nz, dtype=np.int64)
+    return pd.robot, pd.lengths, sensing, pd.self_collision
 
 
 def _candidate_lists(regions, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -237,22 +288,47 @@ ZIG_R = 3.6541528853610088
 ZIG_INV_R = 1.0 / ZIG_R
 
 _kernel = None
+PLANAR_POINT, PLANAR_CHAIN = ROBOT_POINT, ROBOT_ARM  # the kernel's two kinematics kinds
 
 
 # Module-level functions (not closures): numba keys its on-disk cache of a closure by its cells,
 # and a cell holding another dispatcher pickles with a per-process uuid, so every process recompiled.
+# The kernel calls compiled functions of other modules (the controllers' skip-zero product, the
+# geometry's distances): firmtool._jit's cache key covers their source files, so an edit of them is
+# compiled, not loaded stale from the cache.
+#
+# The kernel's arguments come in groups (plain tuples: numba dispatches them faster than named ones),
+# each unpacked by the names below where it is used:
+#   ensemble   (alive, x, xhat, outcome, steps, effort): the particles, updated in place
+#   draws      (noise, rng_state): numpy's stream (empty: draw here) and the xoshiro256++ state
+#   model      (A, B, F, H): the linear Gaussian model's matrices
+#   controller (x_ref, u_ref, K, L): the local controller's reference, LQR and Kalman gains per step
+#   candidates (cand_ptr, cand_idx, cand_key): per step, the nodes whose covariance test passes (CSR)
+#   regions    (centers, scale, inv_outer, radius2, window, knn): the membership test (_locate_data)
+#   sensor     (form, light_x, eta, sigma_b, a, c, std): the measurement noise (NOISE_FORMS)
+#   robot      (kind, lengths, sensing, self_collision): kinematics kind and constants; ``sensing[j]``
+#              the key point whose x sets measurement j's noise
+#   world      (lo, hi, C, Hs, cs, sn, blo, bhi, radius): bounds, boxes (centre, half size, rotation,
+#              bounding box) and the robot's capsule radius
 if numba is not None:
-    # Shared with the controllers (products skipping zeros) and the geometry backend (distances). numba's
-    # disk cache of this module's kernel does not notice edits to them: clear firmtool/__pycache__/*.nb*.
+    from firmtool._jit import cached_njit
     from firmtool.controllers import mat_rows
     from firmtool.geometry._numba import seg_box_d2, seg_seg_d2
 
-    njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+    njit = cached_njit(nogil=True, fastmath=False, error_model="numpy")
+    # The step's helpers are inlined into the kernel at numba's IR level: compiled separately (and
+    # then inlined by LLVM), they ran at the same speed but made the kernel's cold compile ~15% longer
+    # (each separately compiled function costs its own typing and optimisation passes). Called from
+    # Python (the tests) they compile as usual.
+    step = cached_njit(nogil=True, fastmath=False, error_model="numpy", inline="always")
+
+    # -- arithmetic primitives ---------------------------------------------------------------------
 
     @njit
     def sincos(a):
         """(sin a, cos a): Cody-Waite reduction by pi/2 and fdlibm's minimax polynomials on
-        [-pi/4, pi/4] (within an ulp or two of libm; branch-free but for the quadrant select)."""
+        [-pi/4, pi/4] (within an ulp or two of libm; branch-free but for the quadrant select).
+        Twin of ``np.sin``, ``np.cos``; pinned by tests/test_kernels.py::test_kinematics_are_the_robots_points."""
         q = np.floor(a * 0.6366197723675814 + 0.5)
         y = (a - q * 1.57079632673412561417e+00) - q * 6.07710050650619224932e-11
         z = y * y
@@ -271,10 +347,176 @@ if numba is not None:
             return -sp, -cp
         return -cp, sp
 
+    @step
+    def linear_step(A, B, X, U, out, TMP, na):
+        """``out = A X + B U`` over the first ``na`` particle columns (``TMP``: work array): the
+        noise-free dynamics. Twin of :meth:`firmtool.models.linear.LinearGaussianModel.f`; pinned by
+        tests/test_kernels.py::test_control_and_true_step_are_the_numpy_step."""
+        n = A.shape[0]
+        mat_rows(A, X, out, n, na)
+        mat_rows(B, U, TMP, n, na)
+        for j in range(n):
+            for a in range(na):
+                out[j, a] += TMP[j, a]
+
+    # -- the particles as columns ------------------------------------------------------------------
+
+    @step
+    def gather_columns(rows, alive, cols, na):
+        """``cols[:, a] = rows[alive[a]]`` for ``a < na``: particles (rows) to the kernel's columns."""
+        for a in range(na):
+            i = alive[a]
+            for j in range(rows.shape[1]):
+                cols[j, a] = rows[i, j]
+
+    @step
+    def scatter_columns(cols, alive, rows, na):
+        """``rows[alive[a]] = cols[:, a]`` for ``a < na``: back to the caller's (particle, state) rows."""
+        for a in range(na):
+            i = alive[a]
+            for j in range(rows.shape[1]):
+                rows[i, j] = cols[j, a]
+
+    @step
+    def take_noise(noise, pos, W, d, na):
+        """``W[:d, :na]`` from numpy's stream at ``pos`` (``(particle, d)`` row-major, as the numpy path
+        draws a step's noise); returns the new position."""
+        for a in range(na):
+            for j in range(d):
+                W[j, a] = noise[pos + a * d + j]
+        return pos + na * d
+
+    @step
+    def draw_noise(rng_state, W, d, na):
+        """``W[:d, :na]`` standard normals drawn here, row by row (:func:`fill_normals`)."""
+        for j in range(d):
+            fill_normals(rng_state, W[j], na)
+
+    # -- one step of the local controller, all particles ----------------------------------------
+
+    @step
+    def control(XH, x_ref_k, u_ref_k, K_k, DX, U, na):
+        """``U = u_ref - K (XH - x_ref)``: the step's controls from the estimates (``DX``: work array).
+        Twin of the control line of :func:`firmtool.edges.control_and_move`; pinned by
+        tests/test_kernels.py::test_control_and_true_step_are_the_numpy_step."""
+        n, m = XH.shape[0], U.shape[0]
+        for j in range(n):
+            xr = x_ref_k[j]
+            for a in range(na):
+                DX[j, a] = XH[j, a] - xr
+        mat_rows(K_k, DX, U, m, na)
+        for j in range(m):
+            ur = u_ref_k[j]
+            for a in range(na):
+                U[j, a] = ur - U[j, a]
+
+    @step
+    def true_step(A, B, F, X, U, W, XN, TMP, na):
+        """``XN = (A X + B U) + F W[:r]``: the true states' step with process noise (``W``'s first ``r =
+        F.shape[1]`` rows). Twin of :func:`firmtool.edges.control_and_move`'s ``model.f(x, u) + w F'``;
+        pinned by tests/test_kernels.py::test_control_and_true_step_are_the_numpy_step."""
+        n = A.shape[0]
+        linear_step(A, B, X, U, XN, TMP, na)
+        mat_rows(F, W, TMP, n, na)
+        for j in range(n):
+            for a in range(na):
+                XN[j, a] += TMP[j, a]
+
+    @step
+    def planar_point_kinematics(X, PX, PY, na):
+        """The key point of a planar point robot: its first two state coordinates. Twin of the point
+        robot's ``Problem.points`` (:mod:`firmtool.problem`); pinned by
+        tests/test_kernels.py::test_kinematics_are_the_robots_points."""
+        for a in range(na):
+            PX[0, a] = X[0, a]
+            PY[0, a] = X[1, a]
+
+    @step
+    def planar_chain_kinematics(X, lengths, PX, PY, PHI, na):
+        """The base (at the origin), the joints and the tip of a planar chain whose first ``L`` state
+        coordinates are the relative joint angles (``PHI``: work array, the absolute angles). Twin of
+        :func:`firmtool.models.planar_arm.chain_points`; pinned by
+        tests/test_kernels.py::test_kinematics_are_the_robots_points."""
+        for a in range(na):
+            PHI[a] = 0.0
+            PX[0, a] = 0.0
+            PY[0, a] = 0.0
+        for l in range(lengths.shape[0]):
+            ll = lengths[l]
+            for a in range(na):
+                PHI[a] += X[l, a]
+                s_phi, c_phi = sincos(PHI[a])
+                PX[l + 1, a] = PX[l, a] + ll * c_phi
+                PY[l + 1, a] = PY[l, a] + ll * s_phi
+
+    @step
+    def kinematics(robot, X, PX, PY, PHI, na):
+        """The robot's key points ``(PX, PY)`` (points, particles) from the true states: once per step,
+        for both the sensor noise and the collision test."""
+        kind, lengths, sensing, self_collision = robot
+        if kind == PLANAR_CHAIN:
+            planar_chain_kinematics(X, lengths, PX, PY, PHI, na)
+        else:
+            planar_point_kinematics(X, PX, PY, na)
+
+    @step
+    def measurement_variance(sensor, sensing_x):
+        """The measurement noise variance for a sensing point at x-coordinate ``sensing_x``, per form:
+        light-dark standard deviation (paper eq. 14), light-dark variance (Platt et al.), constant.
+        Twin of :meth:`firmtool.models.linear.LightDarkNoise.variance`; pinned by
+        tests/test_kernels.py::test_measurement_variance_is_the_noise_models."""
+        form, light_x, eta, sigma_b, na_, nc, nstd = sensor
+        dd = sensing_x - light_x
+        if form == 0:
+            s_ = eta * abs(dd) + sigma_b
+            return s_ * s_
+        if form == 1:
+            return na_ * dd * dd + nc
+        return nstd * nstd
+
+    @step
+    def filter_update(A, B, H, L_k, X, XH, U, W, PX, sensor, sensing, PRED, HZ, INN, TMP, na):
+        """The estimates' update in place: prediction ``A XH + B U``, measurement of the true states
+        ``H X`` with noise ``W[r:]`` scaled by the standard deviation at the TRUE state (its sensing
+        points' x in ``PX[sensing]``), innovation against ``H`` of the prediction, correction by the
+        precomputed gain ``L_k``. Twin of :func:`firmtool.edges.filter_update` (the variance as
+        ``model.noise.variance(problem.sensing_from_points(points))``); pinned by
+        tests/test_kernels.py::test_filter_update_is_the_numpy_update."""
+        n, nz, r = A.shape[0], H.shape[0], W.shape[0] - H.shape[0]
+        linear_step(A, B, XH, U, PRED, TMP, na)
+        mat_rows(H, X, HZ, nz, na)
+        mat_rows(H, PRED, INN, nz, na)
+        for j in range(nz):
+            prow = PX[sensing[j]]
+            for a in range(na):
+                var = measurement_variance(sensor, prow[a])
+                INN[j, a] = (HZ[j, a] + np.sqrt(var) * W[r + j, a]) - INN[j, a]
+        mat_rows(L_k, INN, TMP, n, na)
+        for j in range(n):
+            for a in range(na):
+                XH[j, a] = PRED[j, a] + TMP[j, a]
+
+    @step
+    def control_effort(U, E, na):
+        """``E[a] = |U[:, a]|^2``: the step's control effort per particle. Twin of
+        :func:`firmtool.edges.simulate`'s ``einsum("ij,ij->i", u, u)``; pinned by the cost terms of
+        tests/test_kernels.py::test_point_robot_same_noise_same_outcomes."""
+        for a in range(na):
+            E[a] = 0.0
+        for j in range(U.shape[0]):
+            for a in range(na):
+                E[a] += U[j, a] * U[j, a]
+
+    # -- constraints: the collision test ---------------------------------------------------------
+
     @njit
-    def collides(px, py, n_seg, seg_offset, lo, hi, C, Hs, cs, sn, blo, bhi, r, self_collision, half):
+    def collides(px, py, n_seg, seg_offset, world, self_collision, half):
         """Capsules [p[l], p[l + seg_offset]] for l < n_seg (seg_offset 0: discs at the points);
-        ``half[l]`` bounds half the length of segment l (for the self-collision prefilter)."""
+        ``half[l]`` bounds half the length of segment l (for the self-collision prefilter). Twin of
+        the numpy backend's ``capsules_collide`` (:mod:`firmtool.geometry.backends`, as
+        ``Problem.points_valid`` calls it); pinned by
+        tests/test_kernels.py::test_collision_test_is_the_numpy_backends."""
+        lo, hi, C, Hs, cs, sn, blo, bhi, r = world
         r2, lim = r * r, 4.0 * r * r
         for l in range(n_seg):
             ax, ay, bx, by = px[l], py[l], px[l + seg_offset], py[l + seg_offset]
@@ -324,10 +566,12 @@ if numba is not None:
         return False
 
     @njit
-    def collision_gate(PX, PY, na, n_seg, seg_offset, lo, hi, blo, bhi, r, self_collision, half, G):
+    def collision_gate(PX, PY, na, n_seg, seg_offset, world, self_collision, half, G):
         """``G[a] = 1`` where :func:`collides` could return True for particle a: a point outside the
         world's bounds, or any prefilter of an obstacle or self pair passing (the same comparisons, on
-        all particles at once so that they vectorise); elsewhere ``collides`` returns False."""
+        all particles at once so that they vectorise); elsewhere ``collides`` returns False. Pinned
+        with it by tests/test_kernels.py::test_collision_test_is_the_numpy_backends."""
+        lo, hi, C, Hs, cs, sn, blo, bhi, r = world
         for a in range(na):
             G[a] = 0
         for c in range(2):
@@ -363,10 +607,26 @@ if numba is not None:
                         ey = 0.5 * (a0y[a] + a1y[a] - b0y[a] - b1y[a])
                         G[a] |= near and not (ex * ex + ey * ey > reach2)
 
+    @step
+    def robot_segments(robot):
+        """``(n_seg, seg_offset)`` of the robot's capsules over its key points: a chain's links
+        (point l to l + 1), or a point robot's disc (its one point)."""
+        if robot[0] == PLANAR_CHAIN:
+            return robot[1].shape[0], 1
+        return 1, 0
+
+    # -- node membership -------------------------------------------------------------------------
+
     @njit
-    def locate(xh, n, lo_ptr, hi_ptr, cand_idx, cand_key, centers, scale, inv_outer, radius2, window, knn):
-        """NodeRegions.locate for one estimate: nearest (outer metric) passing candidate among the
-        ``knn`` nearest nodes, or -1."""
+    def locate(xh, lo_ptr, hi_ptr, cand_idx, cand_key, regions):
+        """The node estimate ``xh`` (n,) lands in among the candidates ``cand_idx[lo_ptr:hi_ptr]``
+        (sorted by ``cand_key``, their centres' first coordinate): the nearest (outer metric) passing
+        candidate among the ``knn`` nearest nodes, or -1. Twin of
+        :meth:`firmtool.nodes.NodeRegions.locate` (without its k-d tree); pinned by
+        tests/test_execute.py::test_executor_membership_is_the_node_regions_one (through
+        :func:`locate_one`) and the whole-step tests of tests/test_kernels.py."""
+        centers, scale, inv_outer, radius2, window, knn = regions
+        n = xh.shape[0]
         x0 = xh[0]
         # first candidate whose key >= x0 - window (binary search)
         a, b = lo_ptr, hi_ptr
@@ -435,7 +695,9 @@ if numba is not None:
     @njit
     def fill_normals(state, out, count):
         """``out[:count]`` = standard normals (ziggurat of Marsaglia & Tsang, numpy's 256-layer
-        variant: 8 bits pick the layer, 1 the sign, 52 the abscissa); ``state`` (4 uint64) advances."""
+        variant: 8 bits pick the layer, 1 the sign, 52 the abscissa); ``state`` (4 uint64) advances.
+        Not a twin of numpy's draws (other numbers, the same law); pinned by
+        tests/test_kernels.py::test_kernel_normals_are_standard_normal."""
         s0, s1, s2, s3 = state[0], state[1], state[2], state[3]
         i = 0
         while i < count:
@@ -468,172 +730,84 @@ if numba is not None:
                     i += 1
         state[0], state[1], state[2], state[3] = s0, s1, s2, s3
 
-    # -- the step kernel, structure of arrays ----------------------------------------------------
+    # -- the kernel: steps of all live particles, structure of arrays ----------------------------
 
     @njit
-    def linear_step(A, B, X, U, out, TMP, n, na):
-        """``out = A X + B U`` over the particle columns (``TMP``: work array)."""
-        mat_rows(A, X, out, n, na)
-        mat_rows(B, U, TMP, n, na)
-        for j in range(n):
-            for a in range(na):
-                out[j, a] += TMP[j, a]
-
-    @njit
-    def run(k, k_end, n_alive, alive, x, xhat, outcome, steps, effort, noise, pos, rng_state, w_len,
-            A, B, F, H, x_ref, u_ref, K, L,
-            cand_ptr, cand_idx, cand_key, centers, scale, inv_outer, radius2, window, knn,
-            form, light_x, eta, sigma_b, na_, nc, nstd,
-            robot, lengths, lo, hi, C, Hs, cs, sn, blo, bhi, rob_r, self_collision,
-            perfect, with_effort):
+    def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, regions, sensor, robot,
+            world, perfect):
         """Advance the live particles ``alive[:n_alive]`` from step ``k`` to ``k_end`` (or until all stop).
 
-        The noise comes from ``noise`` (numpy's stream, per step ``(alive, r + nz)`` row-major) when
+        The arguments after ``pos`` are the groups listed above this module's compiled functions. The
+        noise comes from ``noise`` (numpy's stream, per step ``(alive, r + nz)`` row-major) when
         ``noise`` is not empty, and the kernel then also stops when it cannot feed a whole step;
         otherwise it is drawn here from ``rng_state``. Returns the next step, the number of live
         particles (compacted in place, order kept) and the position in ``noise``. The candidate
         nodes of step k are ``cand_idx[cand_ptr[k]:cand_ptr[k + 1]]``.
 
         The live particles' states are held as columns (state index, particle) while the kernel runs,
-        so that every linear step is a loop over particles (SIMD); per-particle decisions (collision,
-        node membership) follow in a second loop."""
-        n = x.shape[1]
-        m = u_ref.shape[1]
-        r = w_len
-        nz = H.shape[0]
-        d = r if perfect else r + nz
+        so that every step helper is a loop over particles (SIMD); the per-particle decisions (exact
+        collision test where the gate passed, node membership, stopping) follow in one loop. The
+        whole step is the numpy path's (:func:`firmtool.edges.simulate`); pinned particle by particle
+        by tests/test_kernels.py's ``*_same_noise_same_outcomes`` tests."""
+        alive, x, xhat, outcome, steps, effort = ensemble
+        noise, rng_state = draws
+        A, B, F, H = model
+        x_ref, u_ref, K, L = controller
+        cand_ptr, cand_idx, cand_key = candidates
+        kind, lengths, sensing, self_collision = robot
+        n, m, nz = A.shape[0], B.shape[1], H.shape[0]
+        d = F.shape[1] if perfect else F.shape[1] + nz
         stream = noise.shape[0] > 0
         N = n_alive
-        X = np.empty((n, N))
-        XH = np.empty((n, N))
-        for a in range(N):
-            i = alive[a]
-            for j in range(n):
-                X[j, a] = x[i, j]
-                XH[j, a] = xhat[i, j]
-        XN = np.empty((n, N))
-        PRED = np.empty((n, N))
-        DX = np.empty((n, N))
-        TMP = np.empty((n, N))
-        U = np.empty((m, N))
-        W = np.empty((d, N))
-        HZ = np.empty((nz, N))
-        INN = np.empty((nz, N))
-        E = np.empty(N)
+        X, XH, XN = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
+        gather_columns(x, alive, X, N)
+        gather_columns(xhat, alive, XH, N)
+        PRED, DX, TMP = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
+        U, W, E = np.empty((m, N)), np.empty((d, N)), np.empty(N)
+        HZ, INN = np.empty((nz, N)), np.empty((nz, N))
         G = np.empty(N, dtype=np.uint8)
-        L_links = lengths.shape[0]
         half = 0.5 * lengths * (1.0 + 1e-12)
-        n_pts = L_links + 1 if robot == 1 else 1
-        PX = np.empty((n_pts, N))
-        PY = np.empty((n_pts, N))
-        PHI = np.empty(N)
-        px = np.empty(n_pts)
-        py = np.empty(n_pts)
-        xh1 = np.empty(n)
+        n_seg, seg_offset = robot_segments(robot)
+        n_pts = n_seg + seg_offset
+        PX, PY, PHI = np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty(N)
+        px, py, xh1 = np.empty(n_pts), np.empty(n_pts), np.empty(n)
         na = N
         while k < k_end and na > 0:
-            # the step's noise, as columns
             if stream:
                 if pos + na * d > noise.shape[0]:
                     break
-                for a in range(na):
-                    for j in range(d):
-                        W[j, a] = noise[pos + a * d + j]
-                pos += na * d
+                pos = take_noise(noise, pos, W, d, na)
             else:
-                for j in range(d):
-                    fill_normals(rng_state, W[j], na)
-            # control from the estimate: u = u_ref - K (xhat - x_ref)
-            for j in range(n):
-                xr = x_ref[k, j]
-                for a in range(na):
-                    DX[j, a] = XH[j, a] - xr
-            mat_rows(K[k], DX, U, m, na)
-            for j in range(m):
-                ur = u_ref[k, j]
-                for a in range(na):
-                    U[j, a] = ur - U[j, a]
-            # true state: (A x + B u) + F w
-            linear_step(A, B, X, U, XN, TMP, n, na)
-            mat_rows(F, W, TMP, n, na)
-            for j in range(n):
-                for a in range(na):
-                    XN[j, a] += TMP[j, a]
+                draw_noise(rng_state, W, d, na)
+            control(XH, x_ref[k], u_ref[k], K[k], DX, U, na)
+            true_step(A, B, F, X, U, W, XN, TMP, na)
             X, XN = XN, X
-            # kinematics, once
-            if robot == 1:
-                for a in range(na):
-                    PHI[a] = 0.0
-                    PX[0, a] = 0.0
-                    PY[0, a] = 0.0
-                for l in range(L_links):
-                    ll = lengths[l]
-                    for a in range(na):
-                        PHI[a] += X[l, a]
-                        s_phi, c_phi = sincos(PHI[a])
-                        PX[l + 1, a] = PX[l, a] + ll * c_phi
-                        PY[l + 1, a] = PY[l, a] + ll * s_phi
-            else:
-                for a in range(na):
-                    PX[0, a] = X[0, a]
-                    PY[0, a] = X[1, a]
-            # estimate
+            kinematics(robot, X, PX, PY, PHI, na)
             if perfect:
                 for j in range(n):
                     for a in range(na):
                         XH[j, a] = X[j, a]
             else:
-                linear_step(A, B, XH, U, PRED, TMP, n, na)
-                mat_rows(H, X, HZ, nz, na)
-                mat_rows(H, PRED, INN, nz, na)
-                for j in range(nz):
-                    prow = PX[j + 1] if robot == 1 else PX[0]
-                    for a in range(na):
-                        dd = prow[a] - light_x
-                        if form == 0:
-                            s_ = eta * abs(dd) + sigma_b
-                            var = s_ * s_
-                        elif form == 1:
-                            var = na_ * dd * dd + nc
-                        else:
-                            var = nstd * nstd
-                        INN[j, a] = (HZ[j, a] + np.sqrt(var) * W[r + j, a]) - INN[j, a]
-                mat_rows(L[k], INN, TMP, n, na)
-                for j in range(n):
-                    for a in range(na):
-                        XH[j, a] = PRED[j, a] + TMP[j, a]
-            if with_effort:
-                for a in range(na):
-                    E[a] = 0.0
-                for j in range(m):
-                    for a in range(na):
-                        E[a] += U[j, a] * U[j, a]
-            # per particle: constraints on the true state, node membership, compaction
-            if robot == 1:
-                collision_gate(PX, PY, na, L_links, 1, lo, hi, blo, bhi, rob_r, self_collision, half, G)
-            else:
-                collision_gate(PX, PY, na, 1, 0, lo, hi, blo, bhi, rob_r, False, half, G)
+                filter_update(A, B, H, L[k], X, XH, U, W, PX, sensor, sensing, PRED, HZ, INN, TMP, na)
+            control_effort(U, E, na)
+            collision_gate(PX, PY, na, n_seg, seg_offset, world, self_collision, half, G)
+            # per particle: constraints on the true state, node membership, compaction (order kept)
             test_nodes = cand_ptr[k + 1] > cand_ptr[k]
             kept = 0
             for a in range(na):
                 i = alive[a]
-                if with_effort:
-                    effort[i] += E[a]
+                effort[i] += E[a]
                 failed = False
                 if G[a]:  # only where a prefilter passed (the same tests as in collides)
                     for p in range(n_pts):
                         px[p] = PX[p, a]
                         py[p] = PY[p, a]
-                    if robot == 1:
-                        failed = collides(px, py, L_links, 1, lo, hi, C, Hs, cs, sn, blo, bhi, rob_r, self_collision, half)
-                    else:
-                        failed = collides(px, py, 1, 0, lo, hi, C, Hs, cs, sn, blo, bhi, rob_r, False, half)
+                    failed = collides(px, py, n_seg, seg_offset, world, self_collision, half)
                 node = -1
                 if test_nodes and not failed:
                     for j in range(n):
                         xh1[j] = XH[j, a]
-                    node = locate(xh1, n, cand_ptr[k], cand_ptr[k + 1], cand_idx, cand_key, centers, scale,
-                                  inv_outer, radius2, window, knn)
+                    node = locate(xh1, cand_ptr[k], cand_ptr[k + 1], cand_idx, cand_key, regions)
                 if failed or node >= 0:
                     outcome[i] = FAILURE if failed else node
                     steps[i] = k + 1
@@ -649,13 +823,9 @@ if numba is not None:
                 kept += 1
             na = kept
             k += 1
-        for a in range(na):
-            i = alive[a]
-            for j in range(n):
-                x[i, j] = X[j, a]
-                xhat[i, j] = XH[j, a]
+        scatter_columns(X, alive, x, na)
+        scatter_columns(XH, alive, xhat, na)
         return k, na, pos
-
 
 
 def kernel():
@@ -705,16 +875,16 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     alive = np.arange(M, dtype=np.int64)
     n_alive, k, pos = M, 0, 0
     noise = np.empty(0)
-    A_, B_, F_, H_ = pd.mats
-    K_ = np.ascontiguousarray(lc.K, dtype=float)
     rng_state = np.zeros(4, dtype=np.uint64)
     if not numpy_noise:
         rng_state[:] = rng.bit_generator.random_raw(4)
         rng_state[0] |= np.uint64(rng_state.any() == 0)  # xoshiro's one forbidden state: all zero
     x_ref = np.ascontiguousarray(lc.x_ref, dtype=float)
     u_ref = np.ascontiguousarray(lc.u_ref, dtype=float)
-    tail = (*_locate_data(regions), *pd.noise, pd.robot, pd.lengths, *pd.world, pd.self_collision, bool(perfect),
-            True)  # effort always: weights apply later
+    K_ = np.ascontiguousarray(lc.K, dtype=float)
+    # the kernel's argument groups (listed above its compiled functions)
+    ensemble = (alive, X, Xh, outcome, steps, effort)
+    model, membership, robot = pd.mats, _locate_data(regions), _robot_group(pd)
     first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
     cand_ptr = np.zeros(T + 1, dtype=np.int64)
     cand_idx, cand_key = np.zeros(0, dtype=np.int64), np.zeros(0)
@@ -735,10 +905,10 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
             cand_ptr[:] = 0
             cand_ptr[lo_t:k_end + 1] = ptr
             cand_ptr[k_end + 1:] = ptr[-1]
-        args = (A_, B_, F_, H_, x_ref, u_ref, K_, Ld, cand_ptr, cand_idx, cand_key, *tail)
+        groups = (model, (x_ref, u_ref, K_, Ld), (cand_ptr, cand_idx, cand_key), membership, pd.noise, robot, pd.world,
+                  bool(perfect))
         if not numpy_noise:
-            k, n_alive, _ = run(k, k_end, n_alive, alive, X, Xh, outcome, steps, effort, noise, 0, rng_state, pd.r,
-                                *args)
+            k, n_alive, _ = run(k, k_end, n_alive, 0, ensemble, (noise, rng_state), *groups)
             continue
         while k < k_end and n_alive > 0:
             # noise for ~CALL_PARTICLE_STEPS particle-steps: little is drawn ahead (the last
@@ -748,8 +918,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
                 ahead = min(ahead, first_test + 1 - k)
             fresh = rng.standard_normal(n_alive * d * ahead)
             noise = np.concatenate([noise[pos:], fresh]) if pos < noise.shape[0] else fresh
-            k, n_alive, pos = run(k, k_end, n_alive, alive, X, Xh, outcome, steps, effort, noise, 0, rng_state, pd.r,
-                                  *args)
+            k, n_alive, pos = run(k, k_end, n_alive, 0, ensemble, (noise, rng_state), *groups)
     if X is not x:
         x[...] = X
     if Xh is not xhat:

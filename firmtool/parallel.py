@@ -2,8 +2,10 @@
 
 Work is shipped as batches of edge indices; each worker rebuilds the problem and the design from
 the scenario text and the design arrays once (in its initialiser, or once per task on dask), so a
-task carries only integers. Results are identical whatever the executor or the number of workers:
-every edge draws from its own seed sequence (see :func:`firmtool.edges.edge_seed_sequence`).
+task carries only integers. What the scenario text cannot say travels in the job pickled with
+cloudpickle: a user's validity checker, and a robot class defined in the caller's script (it is
+registered in the worker under the scenario's robot name). Results are identical whatever the
+executor or the number of workers: every edge draws from its own seed sequence (see :func:`firmtool.edges.edge_seed_sequence`).
 
 A batch that raises (or whose worker dies) is retried once, edge by edge; an edge that fails
 again is reported with its cause and the rest of the work goes on.
@@ -57,7 +59,31 @@ class EstimationJob:
     # items are then the rows' indices, and each gives its blocks' estimates
     # (firmtool.edges.estimate_blocks, blocks of ``particles``). None: block 0 of every edge given.
     block_tasks: np.ndarray | None = None
-    start: str = "center"  # where each edge's Monte Carlo starts (estimation.start; edges.initial_ensemble)
+    # What the scenario text cannot carry, pickled with cloudpickle (job_extras): a user's validity
+    # checker, and a robot class a fresh process cannot find by its name (defined in a script).
+    validity: bytes | None = None
+    robot: tuple[str, bytes] | None = None
+
+
+def job_extras(problem: Problem) -> dict:
+    """The :class:`EstimationJob` fields that carry ``problem``'s Python objects to the workers: the
+    user's validity checker, and its robot class when it is neither built in nor an installed entry
+    point (a class defined in ``__main__`` travels by value)."""
+    from firmtool.robots.base import is_importable
+
+    extras: dict = {}
+    if problem.validity is not None:
+        extras["validity"] = problem.validity.pickled
+    cls = type(problem.robot)
+    if problem.robot is not None and not is_importable(cls):
+        import cloudpickle
+
+        try:
+            extras["robot"] = (problem.scenario.model.robot, cloudpickle.dumps(cls))
+        except Exception as exc:  # noqa: BLE001 - say which object cannot travel, in one line
+            raise InputError(f"robot {problem.scenario.model.robot!r}: its class cannot be pickled for worker "
+                             f"processes ({type(exc).__name__}: {exc})") from None
+    return extras
 
 
 _worker_state: dict[str, object] = {}
@@ -65,7 +91,15 @@ _worker_state: dict[str, object] = {}
 
 def _context(job: EstimationJob) -> tuple[Problem, Design, object]:
     if _worker_state.get("job") is not job:
-        problem = build_problem(parse_scenario(job.scenario_text, job.scenario_path))
+        import pickle
+
+        if job.robot is not None:  # a robot defined in the caller's script: register it here too
+            from firmtool import robots
+
+            name, cls = job.robot
+            robots.register(name, pickle.loads(cls), replace=True)
+        validity = pickle.loads(job.validity) if job.validity is not None else None
+        problem = build_problem(parse_scenario(job.scenario_text, job.scenario_path), validity=validity)
         _worker_state.update(job=job, problem=problem, regions=job.design.regions(problem))
     return _worker_state["problem"], job.design, _worker_state["regions"]  # type: ignore[return-value]
 
@@ -115,16 +149,17 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
     with ``job.block_tasks``, a batch of its rows: one list of block estimates each."""
     problem, design, regions = _context(job)
     src, dst = design.edge_source, design.edge_target
+    start = problem.scenario.estimation.start  # from the job's scenario text, like every other setting
     out = []
     for t in edges:
         interrupts.check()  # a deferred Ctrl-C, between edges (in this process only)
         if job.block_tasks is not None:
             e, first, count = (int(v) for v in job.block_tasks[t])
             out.append(estimate_blocks(problem, design, regions, int(src[e]), int(dst[e]), job.particles, first, count,
-                                       job.seed, job.chunk, job.engine, start=job.start))
+                                       job.seed, job.chunk, job.engine, start=start))
         else:
             out.append(estimate_edge(problem, design, regions, int(src[t]), int(dst[t]), job.particles, job.seed,
-                                     job.chunk, job.engine, start=job.start))
+                                     job.chunk, job.engine, start=start))
     return out
 
 

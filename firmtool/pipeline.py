@@ -26,11 +26,11 @@ from firmtool.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, 
 from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate, merge_estimates
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, solve_dp, success_probability
-from firmtool.kernels import engine_for
+from firmtool.kernels import engine_choice
 from firmtool.locking import writer_lock
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
-from firmtool.parallel import EstimationJob, default_workers, run_edges
-from firmtool.problem import Problem, build_problem
+from firmtool.parallel import EstimationJob, default_workers, job_extras, run_edges
+from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
                               DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget, check_workers
@@ -43,29 +43,62 @@ from firmtool.scenario_io import synced
 CHECKPOINT_SECONDS = 10.0
 
 
+# /nodes attribute: the identity of the Python validity checker the roadmap was built with ("" none)
+VALIDITY_ATTR = "validity_checker"
+
+
 class EstimationInterrupted(FirmtoolError, KeyboardInterrupt):
     """Ctrl-C during the estimate stage, after the finished edges were saved (exit code 130)."""
 
 
-def nodes_inputs(scenario: Scenario) -> str:
+def nodes_inputs(scenario: Scenario, validity: str = "") -> str:
     """Identity of what the sampled nodes depend on: every section but the cost weights, the
-    estimation and execution settings and the name (changing those keeps the nodes)."""
-    return digest(scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
-                  scenario.roadmap, scenario.controller).hex()
+    estimation and execution settings and the name (changing those keeps the nodes), the robot's
+    code and the identity of a user's validity checker (``validity``, "" without one)."""
+    from firmtool import robots
+
+    parts = (scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
+             scenario.roadmap, scenario.controller, robots.get(scenario.model.robot).code_identity(), validity)
+    return digest(*parts).hex()
 
 
 def default_output(scenario: Scenario) -> Path:
     return Path("artifacts") / f"{scenario.name}.h5"
 
 
-def problem_of(roadmap: Roadmap) -> Problem:
+def problem_of(roadmap: Roadmap, validity: Callable | None = None, *, need_validity: bool = True) -> Problem:
     """Rebuild the problem from the scenario text stored in the roadmap, and check the roadmap's
-    stages against its model (dimensions, node centres in bounds and valid)."""
-    problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"))
+    stages against its model (dimensions, node centres in bounds and valid).
+
+    A roadmap built with a Python validity checker records the checker's identity (``/nodes``
+    attribute ``validity_checker``): the stage must be given the same checker (``validity``), or,
+    with ``need_validity`` (every stage that samples, designs, estimates or executes), it is refused
+    in one line rather than run on the scenario's geometry alone. A checker for a roadmap built
+    without one is refused too (its nodes were sampled without it)."""
+    recorded = validity_of(roadmap)
+    if validity is None and recorded and need_validity:
+        raise InputError(f"{roadmap.path}: built with a Python validity checker ({recorded[:23]}), which the "
+                         "command line cannot rebuild; run this stage from Python with the same checker "
+                         "(validity=...)")
+    problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"), validity=validity)
+    given = _identity(problem)
+    if validity is not None and given != recorded:
+        raise InputError(f"{roadmap.path}: " + (f"built with another validity checker ({recorded[:23]}), not "
+                                                  f"this one ({given[:23]})" if recorded else
+                                                  "built without a validity checker; build a new roadmap with it"))
     model = problem.model
     roadmap.check_model(model.n, model.m, model.nz, problem.config_dim, problem.config_lo, problem.config_hi,
                         problem.is_valid)
     return problem
+
+
+def validity_of(roadmap: Roadmap) -> str:
+    """The identity of the Python validity checker a roadmap was built with ("" for none)."""
+    return str(roadmap.attrs("nodes").get(VALIDITY_ATTR, "")) if roadmap.has("nodes") else ""
+
+
+def _identity(problem: Problem) -> str:
+    return problem.validity.identity if problem.validity is not None else ""
 
 
 def check_output(path: str | Path, force: bool = False) -> Path:
@@ -111,7 +144,8 @@ def as_scenario(scenario: Scenario | str | Path) -> Scenario:
     return synced(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
 
 
-def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False) -> SampleReport:
+def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False, *,
+                 validity: Callable | None = None) -> SampleReport:
     """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
 
     Parameters
@@ -119,11 +153,13 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     scenario : a scenario, or the path of a scenario file.
     output : the roadmap file to create (replaced atomically); default ``artifacts/NAME.h5``.
     force : replace an existing file there even if it is not a firmtool roadmap.
+    validity : a user's vectorised checker (:func:`firmtool.problem.build_problem`); the roadmap
+        records its identity, and the later stages need the same checker.
     """
     t0 = time.perf_counter()
     scenario = as_scenario(scenario)
     out = check_output(output if output else default_output(scenario), force)
-    problem = build_problem(scenario)
+    problem = build_problem(scenario, validity=validity)
     check_budget(problem)  # refuse up front what would take hours or exhaust memory
     if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
         raise InputError(f"{scenario.path}: task.goal: expected a goal apart from the start, found the start itself")
@@ -135,8 +171,8 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     with writer_lock(out):
         create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
         write_stage(out, "nodes", {"centers": centers, "kind": kinds},
-                    {"inputs_sha256": nodes_inputs(scenario), "densify_rounds": 0,
-                     "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL),
+                    {"inputs_sha256": nodes_inputs(scenario, _identity(problem)), "densify_rounds": 0,
+                     "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: _identity(problem),
                      "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
     return SampleReport(roadmap=str(out), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
                         seconds=time.perf_counter() - t0, connect_added=added)
@@ -164,16 +200,17 @@ def controllers_inputs(roadmap: Roadmap) -> str:
     return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
 
 
-def design_stage(path: str | Path) -> DesignReport:
-    """Design node stabilisers, node regions and edges (nominal trajectories)."""
+def design_stage(path: str | Path, *, validity: Callable | None = None) -> DesignReport:
+    """Design node stabilisers, node regions and edges (nominal trajectories); ``validity``: the
+    roadmap's Python validity checker, if it was built with one."""
     with writer_lock(path):
-        return _design_stage(path)
+        return _design_stage(path, validity)
 
 
-def _design_stage(path: str | Path) -> DesignReport:
+def _design_stage(path: str | Path, validity: Callable | None = None) -> DesignReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
     d = design(problem, centers, nodes["kind"])
@@ -192,7 +229,7 @@ def _design_stage(path: str | Path) -> DesignReport:
 def estimate_stage(path: str | Path, *, workers: int | None = None, executor: str = "process",
                    scheduler: str | None = None,
                    progress_factory: Callable[[int], Callable[[int], None]] | None = None,
-                   checkpoint_seconds: float = CHECKPOINT_SECONDS) -> EstimateReport:
+                   checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None) -> EstimateReport:
     """Monte Carlo estimation of every edge, in parallel, then adaptive rounds; writes ``/edges``.
 
     A uniform first pass gives every edge ``estimation.particles`` particles; then, unless
@@ -205,7 +242,8 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     or in ``/edge_cache``, are reused. Finished edges are checkpointed to ``/edge_cache`` every
     ``checkpoint_seconds`` and on Ctrl-C, so an interrupted run resumes where it stopped. An edge
     that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges`` (and the
-    adaptive rounds do not run).
+    adaptive rounds do not run). Where the compiled engine was asked for but cannot run the problem
+    (e.g. a Python validity checker), the numpy engine runs and the report's ``notices`` say why.
 
     Parameters
     ----------
@@ -215,13 +253,15 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     progress_factory : called with the number of edges to estimate; returns a callback that is
         told how many more edges finished.
     checkpoint_seconds : seconds between checkpoints (the first comes after the first batch).
+    validity : the roadmap's Python validity checker, if it was built with one.
     """
     if workers is not None:
         check_workers(workers)  # refused before anything is read (again with the memory per worker below)
     _check_executor(executor)
     with writer_lock(path):
         return _estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
-                               progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
+                               progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds,
+                               validity=validity)
 
 
 def _check_executor(executor: str) -> None:
@@ -231,14 +271,15 @@ def _check_executor(executor: str) -> None:
 
 def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, scheduler: str | None,
                     progress_factory: Callable[[int], Callable[[int], None]] | None,
-                    checkpoint_seconds: float) -> EstimateReport:
+                    checkpoint_seconds: float, validity: Callable | None = None) -> EstimateReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, validity)
     d = design_of(roadmap)
     sc = problem.scenario
     E = d.edge_source.size
-    engine = engine_for(problem)  # chosen once: the keys record it, the workers run it
+    engine, notice = engine_choice(problem)  # chosen once: the keys record it, the workers run it
+    notices = (notice,) if notice else ()
     keys = edge_keys(problem, d, engine=engine)
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
@@ -251,7 +292,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
         if "edges" in roadmap.stale_stages():  # the same inputs under a new scenario text (e.g. a comment)
             restamp(path, ("edges",))
         return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0, workers or 0, executor,
-                                time.perf_counter() - t0, up_to_date=True)
+                                time.perf_counter() - t0, up_to_date=True, notices=notices)
     known: dict[bytes, EdgeEstimate] = from_arrays(roadmap.table("edges"))
     cache = read_edge_cache(path, nodes=d.centers.shape[0])
     known.update(from_arrays(cache))
@@ -262,7 +303,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     workers = check_workers(workers or default_workers(), problem)
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
-                        engine=engine, start=sc.estimation.start)
+                        engine=engine, **job_extras(problem))
     progress = progress_factory(len(todo)) if progress_factory and todo else None
     fresh: list[tuple[EdgeEstimate, np.ndarray]] = []  # estimates made by this run, with their keys
     saved = 0
@@ -377,19 +418,21 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     failures = [FailedEdge(edge=e, source=int(d.edge_source[e]), target=int(d.edge_target[e]), error=failed[e])
                 for e in sorted(failed)]
     return _estimate_report(path, sc, E, new, reused, failures, int(arrays["particle_steps"].sum()), simulated,
-                            workers, executor, time.perf_counter() - t0, adaptive=adaptive)
+                            workers, executor, time.perf_counter() - t0, adaptive=adaptive, notices=notices)
 
 
 def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list[FailedEdge],
                      steps: int, simulated: int, workers: int, executor: str, seconds: float,
-                     up_to_date: bool = False, adaptive: AdaptiveReport | None = None) -> EstimateReport:
+                     up_to_date: bool = False, adaptive: AdaptiveReport | None = None,
+                     notices: tuple[str, ...] = ()) -> EstimateReport:
     """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
     return EstimateReport(roadmap=str(path), edges=E, estimated_edges=estimated, reused_edges=reused,
                           failed_edges=tuple(failures), up_to_date=up_to_date,
                           particles_per_edge=sc.estimation.particles, particle_steps=steps,
                           simulated_particle_steps=simulated,
                           particle_steps_per_second=simulated / seconds if seconds and simulated else 0.0,
-                          workers=workers, executor=executor, seconds=seconds, adaptive=adaptive)
+                          workers=workers, executor=executor, seconds=seconds, adaptive=adaptive,
+                          notices=tuple(notices))
 
 
 def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
@@ -439,7 +482,7 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     method : ``"value"`` (value iteration) or ``"policy"`` (policy iteration).
     """
     t0 = time.perf_counter()
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     if edges["source"].size == 0:
         raise RunFailure(f"{roadmap.path}: no edge was estimated (every edge's Monte Carlo failed); "
@@ -543,7 +586,7 @@ def policy_path(policy: np.ndarray, target: np.ndarray, start: int, goals: np.nd
     return path
 
 
-def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
+def _resumable(out: Path, scenario: Scenario, validity: str = "") -> Roadmap | None:
     """The roadmap at ``out`` if its nodes were sampled from the same inputs (so the build can go on
     from it), else None (a new roadmap replaces it)."""
     if not out.exists():
@@ -555,12 +598,14 @@ def _resumable(out: Path, scenario: Scenario) -> Roadmap | None:
         raise  # another process is writing it: never start over under its feet
     except RoadmapError:
         return None  # a damaged roadmap (check_output refused anything else): replaced by a fresh build
-    if rm.seed != scenario.seed or not rm.has("nodes") or rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario):
+    if rm.seed != scenario.seed or not rm.has("nodes") or \
+            rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario, validity):
         return None
     return rm
 
 
-def add_nodes_stage(path: str | Path, count: int, connect: bool = False) -> AddNodesReport:
+def add_nodes_stage(path: str | Path, count: int, connect: bool = False, *,
+                    validity: Callable | None = None) -> AddNodesReport:
     """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
     scenario's minimum separation from the others, from a random stream keyed by the seed and the
     round number (so a densified build is reproducible). Later stages are rebuilt by the caller.
@@ -569,13 +614,13 @@ def add_nodes_stage(path: str | Path, count: int, connect: bool = False) -> AddN
     (:func:`firmtool.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
     the rest."""
     with writer_lock(path):
-        return _add_nodes_stage(path, count, connect)
+        return _add_nodes_stage(path, count, connect, validity)
 
 
-def _add_nodes_stage(path: str | Path, count: int, connect: bool) -> AddNodesReport:
+def _add_nodes_stage(path: str | Path, count: int, connect: bool, validity: Callable | None = None) -> AddNodesReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
-    problem = problem_of(roadmap)
+    problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     attrs = roadmap.attrs("nodes")
     rounds = int(attrs.get("densify_rounds", 0)) + 1
@@ -601,7 +646,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
           executor: str = "process", scheduler: str | None = None,
           progress_factory: Callable[[int], Callable[[int], None]] | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
-          checkpoint_seconds: float = CHECKPOINT_SECONDS, force: bool = False) -> BuildReport:
+          checkpoint_seconds: float = CHECKPOINT_SECONDS, force: bool = False,
+          validity: Callable | None = None) -> BuildReport:
     """sample + design + estimate into the roadmap file ``output``, going on from an existing roadmap
     there when it can.
 
@@ -620,6 +666,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     output : the roadmap file (default ``artifacts/NAME.h5``).
     workers, executor, scheduler, progress_factory, checkpoint_seconds : see :func:`estimate_stage`.
     force : replace an existing file at ``output`` even if it is not a firmtool roadmap.
+    validity : a user's vectorised validity checker (:func:`firmtool.problem.build_problem`), used
+        by every stage; the roadmap records its identity.
 
     The output is locked for the whole build (a second writer is refused).
     """
@@ -633,16 +681,19 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     with writer_lock(out):
         return _build(scenario, out, workers=workers, executor=executor, scheduler=scheduler,
                       progress_factory=progress_factory, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
-                      add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds)
+                      add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds,
+                      validity=None if validity is None else (validity if isinstance(validity, ValidityChecker)
+                                                              else ValidityChecker(validity)))
 
 
 def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str, scheduler: str | None,
            progress_factory: Callable[[int], Callable[[int], None]] | None, fresh: bool, p_min: float | None,
-           max_nodes: int | None, add_nodes: int | None, checkpoint_seconds: float) -> BuildReport:
+           max_nodes: int | None, add_nodes: int | None, checkpoint_seconds: float,
+           validity: ValidityChecker | None = None) -> BuildReport:
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
-    existing = None if fresh else _resumable(out, scenario)
+    existing = None if fresh else _resumable(out, scenario, validity.identity if validity else "")
     if existing is None:
-        seconds["sample"] = sample_stage(scenario, out, force=True).seconds  # check_output passed
+        seconds["sample"] = sample_stage(scenario, out, force=True, validity=validity).seconds  # check_output passed
     elif existing.scenario_sha256 != scenario.sha256:
         # the nodes' inputs are unchanged (_resumable); so are the controllers if their inputs hash matches
         keep = ("nodes",) + (("controllers",) if existing.has("controllers") and
@@ -651,14 +702,17 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
         update_scenario(out, scenario.text, scenario.sha256, keep=keep)
     totals = {"estimated_edges": 0, "simulated_particle_steps": 0}
     failed: list[FailedEdge] = []
+    notices: list[str] = []
 
     def design_and_estimate() -> EstimateReport:
         rm = Roadmap(out)
         if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
                 and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
-            seconds["design"] += design_stage(out).seconds
+            seconds["design"] += design_stage(out, validity=validity).seconds
         e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
-                           progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds)
+                           progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds,
+                           validity=validity)
+        notices.extend(n for n in e.notices if n not in notices)
         seconds["estimate"] += e.seconds
         totals["estimated_edges"] += e.estimated_edges
         totals["simulated_particle_steps"] += e.simulated_particle_steps
@@ -669,27 +723,29 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
     _restamp_policy(out)
     densify = None
     if p_min is not None:
-        densify, last = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate)
+        densify, last = _densify(out, p_min, max_nodes, add_nodes, seconds, design_and_estimate, validity)
         e = last or e
     else:
         del seconds["solve"]
     rm = Roadmap(out)
     nodes = rm.require("nodes", "centers")["centers"].shape[0]
-    connectivity = roadmap_connectivity(rm)
+    connectivity = roadmap_connectivity(rm, validity)
     rate = totals["simulated_particle_steps"] / seconds["estimate"] if seconds["estimate"] else 0.0
     return BuildReport(roadmap=str(out), resumed=existing is not None, nodes=int(nodes), edges=e.edges,
                        estimated_edges=totals["estimated_edges"], reused_edges=e.reused_edges,
                        failed_edges=tuple(failed), particles_per_edge=e.particles_per_edge,
                        particle_steps=e.particle_steps, simulated_particle_steps=totals["simulated_particle_steps"],
                        particle_steps_per_second=rate, workers=workers or default_workers(), executor=executor,
-                       seconds=seconds, densify=densify, connectivity=connectivity, adaptive=e.adaptive)
+                       seconds=seconds, densify=densify, connectivity=connectivity, adaptive=e.adaptive,
+                       notices=tuple(notices))
 
 
-def roadmap_connectivity(roadmap: Roadmap) -> ConnectivityReport:
+def roadmap_connectivity(roadmap: Roadmap, validity: Callable | None = None) -> ConnectivityReport:
     """The connected structure of a roadmap's nodes (:func:`firmtool.connectivity.connectivity_report`),
     what its connection stage added, and the goal nodes the start reaches under the estimated edges
-    (when ``/edges`` is there)."""
-    problem = problem_of(roadmap)
+    (when ``/edges`` is there). ``validity``: the roadmap's Python validity checker, if it was built
+    with one (the free segments between nodes depend on it)."""
+    problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     attrs = roadmap.attrs("nodes")
     report = connectivity_report(problem, nodes["centers"], nodes["kind"],
@@ -713,7 +769,7 @@ def _restamp_policy(out: Path) -> None:
         return
     a = rm.attrs("policy")
     try:
-        cost = problem_of(rm).scenario.cost
+        cost = problem_of(rm, need_validity=False).scenario.cost
         same = a.get("inputs_sha256") == policy_inputs(str(rm.attrs("edges").get("inputs_sha256")),
                                                        float(a.get("failure_cost")), str(a.get("method")), cost)
     except (TypeError, ValueError):
@@ -723,7 +779,8 @@ def _restamp_policy(out: Path) -> None:
 
 
 def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | None, seconds: dict,
-             design_and_estimate: Callable[[], EstimateReport]) -> tuple[DensifyReport, EstimateReport | None]:
+             design_and_estimate: Callable[[], EstimateReport],
+             validity: Callable | None = None) -> tuple[DensifyReport, EstimateReport | None]:
     """The p_min loop of :func:`build`: its report, and the last round's estimate report (None if
     no round added nodes)."""
     rounds = []
@@ -747,7 +804,7 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
                       f"probability is {p:.4f} < p_min {p_min:g}")
             break
         count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
-        added = add_nodes_stage(out, count, connect=not reachable)
+        added = add_nodes_stage(out, count, connect=not reachable, validity=validity)
         seconds["sample"] += added.seconds
         if added.added == 0:
             reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"

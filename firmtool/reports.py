@@ -177,6 +177,8 @@ class EstimateReport(Report):
     workers, executor : how the Monte Carlo ran.
     seconds : wall time of the stage.
     adaptive : the adaptive rounds (None when ``estimation.adaptive_particles`` is 0 or nothing ran).
+    notices : one-line remarks for the user, e.g. why the numpy Monte Carlo engine ran where the
+        compiled one was asked for (a Python validity checker, a robot without compiled kinematics).
     """
 
     roadmap: str
@@ -193,6 +195,7 @@ class EstimateReport(Report):
     executor: str
     seconds: float
     adaptive: AdaptiveReport | None = None
+    notices: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -305,6 +308,7 @@ class BuildReport(Report):
     connectivity : the roadmap's connected structure at the end of the build: which goal nodes and
         components the start reaches, what the connection stage added, and what is missing.
     adaptive : the last estimate stage's adaptive Monte Carlo rounds (None when off or up to date).
+    notices : the estimate stages' notices (:class:`EstimateReport`).
     """
 
     roadmap: str | None
@@ -324,6 +328,7 @@ class BuildReport(Report):
     densify: DensifyReport | None = None
     connectivity: ConnectivityReport | None = None
     adaptive: AdaptiveReport | None = None
+    notices: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -382,6 +387,8 @@ class RoadmapSummary(Report):
     solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
         (``start_cost_to_go`` None when the goal is unreachable from the start);
         ``start_success_probability_ci95`` its interval stored at solve time.
+    validity_checker : the identity of the Python validity checker the roadmap was built with
+        (None without one; the command line cannot rebuild such a roadmap's problem).
     stale_stages : stages computed from another scenario text than the stored one (a build with
         the current scenario, or the stage's command, recomputes them).
     """
@@ -407,4 +414,5 @@ class RoadmapSummary(Report):
     start_cost_to_go: float | None = None
     start_success_probability_ci95: tuple[float, float] | None = None
     particles: int | None = None
+    validity_checker: str | None = None
     stale_stages: tuple[str, ...] = ()

@@ -1,95 +1,125 @@
 """Load and validate a scenario file (TOML) into frozen, typed dataclasses.
 
-Every error names the file, the field (dotted path) and what was expected, in one line.
-Unknown keys are rejected: in a hand-written file they are almost always typos.
+Every key is declared once (:mod:`firmtool.schema`): the sections' keys below, a robot's
+``[model]`` keys by the robot (:attr:`firmtool.robots.Robot.model_fields`), a noise form's
+``[measurement]`` keys by the form (:mod:`firmtool.models.noise`), an obstacle kind's keys by the
+kind (:mod:`firmtool.geometry.shapes`). Every problem found is reported at once, on one line
+naming the file, each dotted field and what was expected. Unknown keys are rejected: in a
+hand-written file they are almost always typos.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
-from firmtool.errors import ScenarioError
+from firmtool.errors import InputError, ScenarioError
 from firmtool.input_limits import (MAX_SCENARIO_BYTES, LimitError, data_limit_error, read_regular_file,
                                    toml_nesting_error)
+from firmtool.robots.base import DEFAULT_ROBOT
+from firmtool.geometry.shapes import KIND_FIELD, KINDS, Box, Mesh, Obstacle, Rectangle, obstacle_from_values, read_obj
+from firmtool.schema import (INVALID, MAX_INTEGER, MAX_MAGNITUDE, MAX_STATE_DIM, REQUIRED, Errors, Field,  # noqa: F401
+                             read_table, read_value, valid)
 
-ROBOTS = ("point", "arm", "unicycle")
-DYNAMICS = ("single_integrator", "double_integrator", "matrices", "unicycle")
-NOISE_FORMS = ("lightdark_std", "lightdark_variance", "constant")
 MEASUREMENT_KINDS = ("perfect", "imperfect")
-# Sanity bounds of any number in a scenario: beyond them squares, exponentials and products of
-# the model overflow, and an integer must fit the roadmap file's int64 attributes.
-MAX_MAGNITUDE = 1e12
-MAX_INTEGER = 2**63 - 1
-# Largest state dimension (matrices model; arm: 2 x links): dense n x n covariances per node and
-# per step of every edge make larger ones impractical long before the planner could use them.
-MAX_STATE_DIM = 64
+__all__ = ["Box", "ControllerSpec", "CostSpec", "EstimationSpec", "ExecutionSpec", "MeasurementSpec", "ModelSpec",
+           "Obstacle", "Rectangle", "RoadmapSpec", "Scenario", "TaskSpec", "WorldSpec", "load_scenario",
+           "parse_scenario", "sections"]
 
 
-@dataclass(frozen=True)
-class Rectangle:
-    """An axis-aligned rectangular obstacle."""
+def _equal(a: Any, b: Any) -> bool:
+    """Equality of setting values, arrays by shape and value (``==`` of two dicts of arrays raises)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and \
+            bool(np.array_equal(a, b))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
+    return bool(a == b)
 
-    center: tuple[float, float]
-    half_size: tuple[float, float]
+
+class _Params:
+    """Attribute access to the keys a plugin declared (``spec.link_lengths``), kept in ``params``;
+    equality of the settings, arrays included."""
+
+    params: Mapping[str, Any]
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        return all(_equal(getattr(self, f.name), getattr(other, f.name)) for f in dataclasses.fields(self))
+
+    __hash__ = None  # type: ignore[assignment]  # settings hold arrays
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "params":
+            raise AttributeError(name)
+        try:
+            return self.params[name]
+        except KeyError:
+            raise AttributeError(f"{type(self).__name__} has no key {name!r}") from None
 
 
-@dataclass(frozen=True)
-class ModelSpec:
+@dataclass(frozen=True, init=False, eq=False)
+class ModelSpec(_Params):
+    """``[model]``: the robot's name, the step, and the keys the robot declares (``params``, also
+    readable as attributes: ``spec.dynamics``; ``dataclasses.replace(spec, link_lengths=...)`` and
+    ``ModelSpec(robot, dt, dynamics=...)`` set them by name)."""
+
     robot: str
-    dynamics: str
     dt: float
-    process_noise_std: float
-    # Only for dynamics = "matrices" (continuous-time A, B, G and noise intensity Q).
-    A: np.ndarray | None = None
-    B: np.ndarray | None = None
-    G: np.ndarray | None = None
-    Q: np.ndarray | None = None
-    # Only for robot = "arm": link lengths, range of the first (absolute) joint, range of the others.
-    link_lengths: np.ndarray | None = None
-    first_joint_range: tuple[float, float] = (-math.pi, math.pi)
-    joint_range: float = math.pi
-    # Only for robot = "unicycle" (dynamics = "unicycle"): process noise on the heading (rad per
-    # sqrt(s); process_noise_std is the position's, m per sqrt(s)), the turn-rate limit of edge
-    # nominals (rad/s; the speed limit is controller.max_speed), and the node stabiliser's orbit
-    # (a figure eight of two circles of radius orbit_radius driven at orbit_speed).
-    heading_noise_std: float = 0.0
-    max_turn_rate: float = 1.0
-    orbit_radius: float = 0.1
-    orbit_speed: float = 0.2
+    params: dict[str, Any]
+
+    def __init__(self, robot: str, dt: float, params: Mapping[str, Any] | None = None, **more: Any) -> None:
+        object.__setattr__(self, "robot", robot)
+        object.__setattr__(self, "dt", dt)
+        object.__setattr__(self, "params", {**(params or {}), **more})
 
 
-@dataclass(frozen=True)
-class MeasurementSpec:
+@dataclass(frozen=True, init=False, eq=False)
+class MeasurementSpec(_Params):
+    """``[measurement]``: perfect or imperfect; the noise form, its keys (``params``, also readable
+    and settable by name, like :class:`ModelSpec`'s) and an optional observation matrix ``H``."""
+
     kind: str  # "perfect" | "imperfect"
-    noise: str  # one of NOISE_FORMS
-    light_x: float = 0.0
-    eta: float = 0.0  # lightdark_std: std = eta * |x - l| + sigma_b
-    sigma_b: float = 0.0
-    a: float = 0.0  # lightdark_variance: var = a * (x - l)^2 + c
-    c: float = 0.0
-    std: float = 0.0  # constant
-    H: np.ndarray | None = None  # optional observation matrix (default: observe the position)
+    noise: str  # a registered noise form (firmtool.models.noise); "constant" when perfect
+    H: np.ndarray | None  # optional observation matrix (default: the robot's)
+    params: dict[str, Any]
+
+    def __init__(self, kind: str, noise: str, H: np.ndarray | None = None, params: Mapping[str, Any] | None = None,
+                 **more: Any) -> None:
+        object.__setattr__(self, "kind", kind)
+        object.__setattr__(self, "noise", noise)
+        object.__setattr__(self, "H", H)
+        object.__setattr__(self, "params", {**(params or {}), **more})
 
 
 @dataclass(frozen=True)
 class WorldSpec:
-    lo: tuple[float, float]
-    hi: tuple[float, float]
+    """``[world]``: bounds ``lo``, ``hi`` (D,) (D = 2 or 3), the robot's radius, the obstacles
+    (:mod:`firmtool.geometry.shapes`) and the collision backend's name."""
+
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
     robot_radius: float
-    obstacles: tuple[Rectangle, ...]
+    obstacles: tuple[Obstacle, ...]
     collision_backend: str = "numpy"
+
+    @property
+    def dim(self) -> int:
+        return len(self.lo)
 
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """Start and goal. The goal is a state/configuration, or (arm) a disc the tip must reach."""
+    """Start and goal. The goal is a state/configuration, or (robots with goal regions, e.g. the
+    arm) a ball the last key point must reach."""
 
     start: np.ndarray
     goal: np.ndarray | None
@@ -196,92 +226,130 @@ class Scenario:
         return self.measurement.kind == "perfect"
 
 
-class _Table:
-    """A TOML table being read: typed getters that name the dotted field, unknown-key check."""
 
-    def __init__(self, path: str, prefix: str, data: Any) -> None:
-        if not isinstance(data, dict):
-            raise ScenarioError(path, prefix, "expected a table")
-        self.path, self.prefix, self.data, self.used = path, prefix, data, set()
-
-    def _name(self, key: str) -> str:
-        return f"{self.prefix}.{key}" if self.prefix else key
-
-    def _raw(self, key: str, default: Any) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if default is _REQUIRED:
-                raise ScenarioError(self.path, self._name(key), "missing required field")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: Any = None, *, positive: bool = False,
-               nonnegative: bool = False, integer: bool = False) -> Any:
-        if key not in self.data:
-            return self._raw(key, default)  # defaults are trusted, not checked
-        value = self._raw(key, default)
-        kind = "an integer" if integer else "a number"
-        ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-        if not ok or isinstance(value, bool):
-            raise ScenarioError(self.path, self._name(key), f"expected {kind}, found {value!r}")
-        if not math.isfinite(value):
-            raise ScenarioError(self.path, self._name(key), f"expected a finite number, found {value!r}")
-        if abs(value) > (MAX_INTEGER if integer else MAX_MAGNITUDE):
-            raise ScenarioError(self.path, self._name(key),
-                                f"expected {kind} of magnitude <= {MAX_INTEGER if integer else MAX_MAGNITUDE:.3g}, "
-                                f"found {value!r}")
-        if positive and value <= 0:
-            raise ScenarioError(self.path, self._name(key), f"expected {kind} > 0, found {value!r}")
-        if nonnegative and value < 0:
-            raise ScenarioError(self.path, self._name(key), f"expected {kind} >= 0, found {value!r}")
-        return int(value) if integer else float(value)
-
-    def string(self, key: str, default: Any = None, *, choices: tuple[str, ...] = ()) -> Any:
-        value = self._raw(key, default)
-        if value is None:
-            return None
-        if not isinstance(value, str):
-            raise ScenarioError(self.path, self._name(key), f"expected a string, found {value!r}")
-        if choices and value not in choices:
-            raise ScenarioError(self.path, self._name(key),
-                                f"expected one of {', '.join(choices)}, found {value!r}")
-        return value
-
-    def array(self, key: str, default: Any = None, *, shape: tuple[int | None, ...]) -> Any:
-        value = self._raw(key, default)
-        if value is None:
-            return None
-        name = self._name(key)
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError):
-            raise ScenarioError(self.path, name, f"expected a numeric array of shape {_shape_text(shape)}") from None
-        if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
-            raise ScenarioError(self.path, name,
-                                f"expected shape {_shape_text(shape)} but found {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ScenarioError(self.path, name, "expected finite numbers")
-        if arr.size and np.abs(arr).max() > MAX_MAGNITUDE:
-            raise ScenarioError(self.path, name, f"expected numbers of magnitude <= {MAX_MAGNITUDE:.3g}")
-        arr.setflags(write=False)
-        return arr
-
-    def table(self, key: str, required: bool = True) -> "_Table":
-        value = self._raw(key, _REQUIRED if required else {})
-        return _Table(self.path, self._name(key), value)
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise ScenarioError(self.path, self._name(unknown[0]),
-                                "unknown field (a typo?); known fields: " + ", ".join(sorted(self.used)))
+# ---------------------------------------------------------------------------------------------------
+# the declarative schema of each section (robots, noise forms and obstacle kinds declare their own)
 
 
-_REQUIRED = object()
+def _name_problem(name: str) -> str | None:
+    if not name or not all(ch.isalnum() or ch in "-_." for ch in name):
+        return "expected a non-empty name of letters, digits, '-', '_' or '.'"
+    return None
 
 
-def _shape_text(shape: tuple[int | None, ...]) -> str:
-    return "(" + ", ".join("n" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+def _halfwidth(x: float) -> str | None:
+    return None if x < 0.5 else f"expected a half-width in (0, 0.5), found {x}"
+
+
+def _fraction(x: float) -> str | None:
+    return None if x <= 1 else f"expected a fraction in [0, 1], found {x}"
+
+
+SCENARIO_FIELDS = (
+    Field("name", "string", doc="the scenario's name (the default roadmap file is artifacts/NAME.h5)",
+          check=_name_problem),
+    Field("seed", "integer", 0, bound="nonnegative", doc="seed of every random stream (nodes, edges, episodes)"),
+    Field("description", "string", "", doc="a line about the scenario"),
+)
+MODEL_FIELDS = (  # and the robot's model_fields
+    Field("robot", "string", DEFAULT_ROBOT, doc="the robot (firmtool.robots: a built-in or a registered one)"),
+    Field("dt", "number", bound="positive", unit="s", doc="control period: the step of the discrete model"),
+)
+MEASUREMENT_FIELDS = (  # and, when imperfect, the noise form's fields
+    Field("kind", "string", choices=MEASUREMENT_KINDS, doc="perfect (state space, SLQR) or imperfect (belief space, SLQG)"),
+    Field("noise", "string", choices=lambda: _noise_names(), doc="the noise form (firmtool.models.noise), imperfect only"),
+    Field("H", "array", None, shape=(None, None), doc="observation matrix (nz, n) (default: the robot's)"),
+)
+WORLD_FIELDS = (
+    Field("bounds", "array", shape=(2, None), unit="workspace",
+          doc="[[xmin, ymin], [xmax, ymax]] (2-D) or with z (3-D): the workspace box"),
+    Field("robot_radius", "number", 0.05, bound="positive", unit="workspace", doc="radius of the robot's spheres or capsules"),
+    Field("collision_backend", "string", "numpy", choices=lambda: _backend_names(),
+          doc="collision backend (firmtool.geometry.registry): numpy, numba (2-D) or fcl (2-D and 3-D)"),
+    Field("obstacles", "tables", [], doc="the obstacles, each a table with a kind (firmtool.geometry.shapes)"),
+)
+TASK_FIELDS = (
+    Field("start", "array", shape=(None,), doc="start configuration or state"),
+    Field("goal", "array", shape=("start",), doc="goal configuration or state"),
+)
+GOAL_REGION_FIELDS = (  # robots with goal regions, when task.goal is not given
+    Field("goal_center", "array", shape=("D",), unit="workspace", doc="centre of the ball the last key point must reach"),
+    Field("goal_radius", "number", bound="positive", unit="workspace", doc="its radius"),
+)
+ROADMAP_FIELDS = (
+    Field("nodes", "integer", bound="positive", doc="regular nodes sampled uniformly"),
+    Field("neighbors", "integer", 6, bound="positive", doc="each node is connected to this many nearest nodes"),
+    Field("min_separation", "number", 0.0, bound="nonnegative", unit="configuration", doc="least distance between sampled nodes"),
+    Field("max_edge_length", "number", math.inf, bound="positive", unit="configuration", doc="longest edge"),
+    Field("goal_nodes", "integer", 1, bound="positive", doc="goal nodes (in a goal region: one per way in)"),
+    Field("goal_bias", "number", 0.0, bound="nonnegative", check=_fraction,
+          doc="fraction of the nodes grown from the goal nodes"),
+    Field("bridge_nodes", "integer", None, bound="nonnegative",
+          doc="node budget of the connection stage: nodes added between the start's component and goal nodes it "
+              "does not reach (default: half the nodes, at least 10; 0: none)"),
+    Field("bias_step", "number", 0.3, bound="positive", unit="configuration", doc="step of the nodes grown from the goals"),
+)
+CONTROLLER_FIELDS = (
+    Field("state_weight", "number", 1.0, bound="positive", doc="LQR weight of the configuration coordinates"),
+    Field("velocity_weight", "number", 0.1, bound="positive", doc="LQR weight of the other state coordinates"),
+    Field("control_weight", "number", 0.1, bound="positive", doc="LQR weight of the inputs"),
+    Field("max_speed", "number", 1.0, bound="positive", unit="configuration/s", doc="speed limit of nominals"),
+    Field("max_accel", "number", 1.0, bound="positive", unit="configuration/s^2", doc="acceleration limit of nominals"),
+    Field("node_radius", "number", 2.0, bound="positive", doc="node region radius (rms of the scaled deviation)"),
+    Field("covariance_tolerance", "number", 0.1, bound="positive", doc="node region covariance tolerance (relative)"),
+    Field("max_steps", "integer", 300, bound="positive", doc="steps a stabiliser may run before the edge times out"),
+)
+# Default work budget of one build's Monte Carlo (particle-steps): about an hour on two cores at
+# the measured ~3M particle-steps/s. A scenario may raise it with estimation.max_particle_steps.
+DEFAULT_MAX_PARTICLE_STEPS = 1e10
+ESTIMATION_FIELDS = (
+    Field("particles", "integer", 500, bound="positive", doc="Monte Carlo particles per edge"),
+    Field("chunk", "integer", 2000, bound="positive", doc="particles simulated at once"),
+    Field("max_particle_steps", "number", DEFAULT_MAX_PARTICLE_STEPS, bound="positive",
+          doc="work budget of a build (particles x edges x steps); refused above it"),
+    Field("target_halfwidth", "number", DEFAULT_TARGET_HALFWIDTH, bound="positive", check=_halfwidth,
+          doc="adaptive Monte Carlo's target: the half-width of the start's 95% interval at p = 1/2 "
+              "(scaled like a binomial proportion's towards 0 and 1)"),
+    Field("adaptive_particles", "integer", None, bound="nonnegative",
+          doc="particles the adaptive rounds may add (default: as many as the first pass; 0: no rounds)"),
+    Field("start", "string", DEFAULT_START, choices=START_MODES,
+          doc="where each edge's Monte Carlo starts: the node's centre (eq. 8) or beliefs over its region"),
+)
+COST_FIELDS = (
+    Field("alpha_covariance", "number", 1.0, bound="nonnegative", doc="weight of sum tr(P_k) (eq. 16)"),
+    Field("alpha_time", "number", 0.1, bound="nonnegative", doc="weight of the stopping time (eq. 16)"),
+    Field("alpha_control", "number", 0.0, bound="nonnegative", doc="weight of the control effort sum |u_k|^2"),
+    Field("failure_cost", "number", 100.0, bound="positive", doc="J_F, the cost of a failure (eq. 12)"),
+)
+EXECUTION_FIELDS = (
+    Field("max_steps", "integer", 5000, bound="positive", doc="step limit of an executed episode"),
+)
+OPTIONAL_SECTIONS = ("controller", "estimation", "cost", "execution")
+
+
+def sections() -> dict[str, tuple[Field, ...]]:
+    """The keys of every section that do not depend on a plugin (the scenario reference's base);
+    robots, noise forms and obstacle kinds list theirs (``model_fields``, ``fields``)."""
+    return {"scenario": SCENARIO_FIELDS, "model": MODEL_FIELDS, "measurement": MEASUREMENT_FIELDS,
+            "world": WORLD_FIELDS, "task": TASK_FIELDS + GOAL_REGION_FIELDS, "roadmap": ROADMAP_FIELDS,
+            "controller": CONTROLLER_FIELDS, "estimation": ESTIMATION_FIELDS, "cost": COST_FIELDS,
+            "execution": EXECUTION_FIELDS}
+
+
+def _noise_names() -> tuple[str, ...]:
+    from firmtool.models import noise
+
+    return noise.names(scenario_only=True)
+
+
+def _backend_names() -> tuple[str, ...]:
+    from firmtool.geometry.registry import backend_names
+
+    return backend_names()
+
+
+# ---------------------------------------------------------------------------------------------------
+# reading
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -300,7 +368,7 @@ def load_scenario(path: str | Path) -> Scenario:
     Raises
     ------
     ScenarioError
-        One line naming the file, the field and what was expected.
+        One line naming the file, and each field with what was expected.
     """
     p = Path(path)
     try:
@@ -319,7 +387,8 @@ def load_scenario(path: str | Path) -> Scenario:
 
 
 def parse_scenario(text: str, path: str = "<string>") -> Scenario:
-    """Validate scenario ``text`` (the contents of a TOML file named ``path``)."""
+    """Validate scenario ``text`` (the contents of a TOML file named ``path``; relative file names
+    in it, e.g. a mesh's, are taken from that file's folder)."""
     if len(text) > MAX_SCENARIO_BYTES:
         raise ScenarioError(path, "", f"expected at most {MAX_SCENARIO_BYTES} characters, found {len(text)}")
     limit = toml_nesting_error(text)  # before tomllib, which recurses once per level
@@ -333,153 +402,164 @@ def parse_scenario(text: str, path: str = "<string>") -> Scenario:
         limit = data_limit_error(data)
     if limit is not None:
         raise ScenarioError(path, limit.field, limit.message)
-    root = _Table(path, "", data)
+    errors = Errors(path)
+    get = lambda key, required=True: data.get(key, None if required else {})  # noqa: E731
 
-    sc = root.table("scenario")
-    name = sc.string("name", _REQUIRED)
-    if not name or not all(ch.isalnum() or ch in "-_." for ch in name):
-        raise ScenarioError(path, "scenario.name", "expected a non-empty name of letters, digits, '-', '_' or '.'")
-    seed = sc.number("seed", 0, integer=True, nonnegative=True)
-    sc.string("description", "")
-    sc.finish()
+    def section(key: str, fields: tuple[Field, ...], required: bool = True) -> dict | None:
+        if key not in data and required:
+            errors.add(key, "missing required field")
+            return None
+        return read_table(errors, key, get(key, required), fields)
 
-    model = _read_model(root.table("model"))
-    measurement = _read_measurement(root.table("measurement"))
-    world = _read_world(root.table("world"))
-    task = _read_task(root.table("task"), model)
-    roadmap = _read_roadmap(root.table("roadmap"))
-    controller = _read_controller(root.table("controller", required=False))
-    estimation = _read_estimation(root.table("estimation", required=False))
-    cost = _read_cost(root.table("cost", required=False))
-    execution = _read_execution(root.table("execution", required=False))
-    root.finish()
-
+    sc = section("scenario", SCENARIO_FIELDS)
+    model, robot_cls = _read_model(errors, data)
+    measurement = _read_measurement(errors, data)
+    world = _read_world(errors, data, path)
+    task = _read_task(errors, data, robot_cls, world)
+    tables = {key: section(key, fields, required=key not in OPTIONAL_SECTIONS)
+              for key, fields in (("roadmap", ROADMAP_FIELDS), ("controller", CONTROLLER_FIELDS),
+                                  ("estimation", ESTIMATION_FIELDS), ("cost", COST_FIELDS),
+                                  ("execution", EXECUTION_FIELDS))}
+    known = ("scenario", "model", "measurement", "world", "task", "roadmap", *OPTIONAL_SECTIONS)
+    for key in data:
+        if key not in known:
+            errors.add(key, "unknown field (a typo?); known fields: " + ", ".join(sorted(known)))
+    errors.raise_if_any()
+    assert sc is not None and model and measurement and world and task  # no error recorded: all read
+    specs = {k: v for k, v in tables.items()}
+    if specs["roadmap"]["bridge_nodes"] is None:
+        specs["roadmap"]["bridge_nodes"] = default_bridge_nodes(specs["roadmap"]["nodes"])
     return Scenario(
-        path=path, text=text, sha256=hashlib.sha256(text.encode()).hexdigest(), name=name, seed=seed,
-        model=model, measurement=measurement, world=world, task=task, roadmap=roadmap,
-        controller=controller, estimation=estimation, cost=cost, execution=execution,
+        path=path, text=text, sha256=hashlib.sha256(text.encode()).hexdigest(), name=sc["name"], seed=sc["seed"],
+        model=model, measurement=measurement, world=world, task=task, roadmap=RoadmapSpec(**specs["roadmap"]),
+        controller=ControllerSpec(**specs["controller"]), estimation=EstimationSpec(**specs["estimation"]),
+        cost=CostSpec(**specs["cost"]), execution=ExecutionSpec(**specs["execution"]),
     )
 
 
-def _read_model(t: _Table) -> ModelSpec:
-    robot = t.string("robot", "point", choices=ROBOTS)
-    dynamics = t.string("dynamics", _REQUIRED, choices=DYNAMICS)
-    dt = t.number("dt", _REQUIRED, positive=True)
-    std = t.number("process_noise_std", 0.0 if dynamics == "matrices" else _REQUIRED, nonnegative=True)
-    A = B = G = Q = None
-    if dynamics == "matrices":
-        A = t.array("A", _REQUIRED, shape=(None, None))
-        n = A.shape[0]
-        if A.shape != (n, n) or n == 0:
-            raise ScenarioError(t.path, "model.A", f"expected a square matrix but found {A.shape}")
-        if n > MAX_STATE_DIM:
-            raise ScenarioError(t.path, "model.A", f"expected at most {MAX_STATE_DIM} states, found {n}")
-        B = t.array("B", _REQUIRED, shape=(n, None))
-        G = t.array("G", _REQUIRED, shape=(n, None))
-        for key, M in (("B", B), ("G", G)):
-            if M.shape[1] == 0:
-                raise ScenarioError(t.path, f"model.{key}", f"expected at least one column, found shape {M.shape}")
-        Q = t.array("Q", _REQUIRED, shape=(G.shape[1], G.shape[1]))
-        _check_psd(t.path, "model.Q", Q, strict=False)
-    arm: dict[str, Any] = {}
-    if robot == "arm":
-        if dynamics != "double_integrator":
-            raise ScenarioError(t.path, "model.dynamics", "expected 'double_integrator' for robot = 'arm'")
-        links = t.number("links", None, integer=True, positive=True)
-        if links is not None and links > MAX_STATE_DIM // 2:
-            raise ScenarioError(t.path, "model.links", f"expected 1 to {MAX_STATE_DIM // 2} links, found {links}")
-        lengths = t.array("link_lengths", None, shape=(None,))
-        if lengths is None:
-            if links is None:
-                raise ScenarioError(t.path, "model.link_lengths", "missing: give link_lengths, or links and link_length")
-            lengths = np.full(links, t.number("link_length", _REQUIRED, positive=True))
-        elif links is not None and links != lengths.size:
-            raise ScenarioError(t.path, "model.links", f"expected {lengths.size} (the size of link_lengths), found {links}")
-        if np.any(lengths <= 0):
-            raise ScenarioError(t.path, "model.link_lengths", "expected positive lengths")
-        if not 0 < lengths.size <= MAX_STATE_DIM // 2:
-            raise ScenarioError(t.path, "model.link_lengths", f"expected 1 to {MAX_STATE_DIM // 2} links, found {lengths.size}")
-        first = t.array("first_joint_range", np.array([-math.pi, math.pi]), shape=(2,))
-        if first[1] <= first[0]:
-            raise ScenarioError(t.path, "model.first_joint_range", "expected [low, high] with high > low")
-        arm = dict(link_lengths=lengths, first_joint_range=(float(first[0]), float(first[1])),
-                   joint_range=t.number("joint_range", math.pi, positive=True))
-    if (robot == "unicycle") != (dynamics == "unicycle"):
-        raise ScenarioError(t.path, "model.dynamics", "expected 'unicycle' exactly when robot = 'unicycle'")
-    if robot == "unicycle":
-        arm = dict(heading_noise_std=t.number("heading_noise_std", 0.0, nonnegative=True),
-                   max_turn_rate=t.number("max_turn_rate", 1.0, positive=True),
-                   orbit_radius=t.number("orbit_radius", 0.1, positive=True),
-                   orbit_speed=t.number("orbit_speed", 0.2, positive=True))
-    t.finish()
-    return ModelSpec(robot=robot, dynamics=dynamics, dt=dt, process_noise_std=std, A=A, B=B, G=G, Q=Q, **arm)
+def _read_model(errors: Errors, data: dict) -> tuple[ModelSpec | None, type | None]:
+    """``[model]``: the robot's name first, then dt and the keys the robot declares."""
+    from firmtool import robots
+
+    if "model" not in data:
+        errors.add("model", "missing required field")
+        return None, None
+    raw = data["model"]
+    if not isinstance(raw, dict):
+        errors.add("model", "expected a table")
+        return None, None
+    name = read_value(errors, "model", raw, MODEL_FIELDS[0])
+    cls = None
+    if valid(name):
+        try:
+            cls = robots.get(name)
+        except InputError as exc:
+            errors.add("model.robot", f"expected one of {', '.join(robots.names())}, found {name!r}"
+                       if str(exc).startswith("unknown robot") else str(exc))
+    if cls is None:  # the robot's keys are unknown: read dt, do not flag the others
+        values = read_table(errors, "model", raw, MODEL_FIELDS[1:], known_extra=tuple(raw))
+        return None, None
+    values = read_table(errors, "model", raw, MODEL_FIELDS[1:] + tuple(cls.model_fields), known_extra=("robot",))
+    before = len(errors.items)
+    params = cls.read_model({f.name: values[f.name] for f in cls.model_fields}, errors)
+    if len(errors.items) > before or not all(valid(v) for v in values.values()):
+        return None, cls
+    return ModelSpec(robot=name, dt=values["dt"], params=dict(params)), cls
 
 
-def _check_psd(path: str, name: str, M: np.ndarray, strict: bool) -> None:
-    if not np.allclose(M, M.T, atol=1e-12 * max(1.0, np.abs(M).max())):
-        raise ScenarioError(path, name, "expected a symmetric matrix")
-    w = np.linalg.eigvalsh(M)
-    if (strict and w.min() <= 0) or w.min() < -1e-12 * max(1.0, np.abs(w).max()):
-        kind = "positive definite" if strict else "positive semi-definite"
-        raise ScenarioError(path, name, f"expected a {kind} matrix (smallest eigenvalue {w.min():.3g})")
+def _read_measurement(errors: Errors, data: dict) -> MeasurementSpec | None:
+    """``[measurement]``: perfect, or imperfect with a noise form and the keys the form declares."""
+    from firmtool.models import noise
 
-
-def _read_measurement(t: _Table) -> MeasurementSpec:
-    kind = t.string("kind", _REQUIRED, choices=MEASUREMENT_KINDS)
+    if "measurement" not in data:
+        errors.add("measurement", "missing required field")
+        return None
+    raw = data["measurement"]
+    if not isinstance(raw, dict):
+        errors.add("measurement", "expected a table")
+        return None
+    kind = read_value(errors, "measurement", raw, MEASUREMENT_FIELDS[0])
+    if not valid(kind):
+        return None
     if kind == "perfect":
-        t.finish()
+        read_table(errors, "measurement", raw, (), known_extra=("kind",))
         return MeasurementSpec(kind=kind, noise="constant")
-    noise = t.string("noise", _REQUIRED, choices=NOISE_FORMS)
-    values: dict[str, float] = {}
-    if noise == "lightdark_std":
-        values["light_x"] = t.number("light_x", _REQUIRED)
-        values["eta"] = t.number("eta", _REQUIRED, nonnegative=True)
-        values["sigma_b"] = t.number("sigma_b", _REQUIRED, positive=True)
-    elif noise == "lightdark_variance":
-        values["light_x"] = t.number("light_x", _REQUIRED)
-        values["a"] = t.number("a", _REQUIRED, nonnegative=True)
-        values["c"] = t.number("c", _REQUIRED, positive=True)
-    else:
-        values["std"] = t.number("std", _REQUIRED, positive=True)
-    H = t.array("H", None, shape=(None, None))
-    t.finish()
-    return MeasurementSpec(kind=kind, noise=noise, H=H, **values)
+    form = read_value(errors, "measurement", raw, MEASUREMENT_FIELDS[1])
+    if not valid(form):
+        read_table(errors, "measurement", raw, MEASUREMENT_FIELDS[2:], known_extra=tuple(raw))
+        return None
+    cls = noise.get(form)
+    values = read_table(errors, "measurement", raw, MEASUREMENT_FIELDS[2:] + cls.fields, known_extra=("kind", "noise"))
+    if not all(valid(v) for v in values.values()):
+        return None
+    params = {f.name: values[f.name] for f in cls.fields}
+    return MeasurementSpec(kind=kind, noise=form, H=values["H"], params=params)
 
 
-def _read_world(t: _Table) -> WorldSpec:
-    bounds = t.array("bounds", _REQUIRED, shape=(2, 2))
+def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
+    """``[world]``: bounds (their number of columns is the world's dimension), radius, backend and
+    obstacles, each read by its kind's keys; the backend must handle the dimension and the kinds."""
+    from firmtool.geometry.registry import backends_for, get_backend
+
+    if "world" not in data:
+        errors.add("world", "missing required field")
+        return None
+    values = read_table(errors, "world", data["world"], WORLD_FIELDS)
+    if values is None:
+        return None
+    bounds, D = values["bounds"], None
+    if valid(bounds):
+        if bounds.shape[1] not in (2, 3):
+            errors.add("world.bounds", f"expected 2 (x, y) or 3 (x, y, z) columns, found {bounds.shape[1]}")
+        elif np.any(bounds[1] <= bounds[0]):
+            errors.add("world.bounds", "expected [[xmin, ymin], [xmax, ymax]] with max > min")
+        else:
+            D = bounds.shape[1]
+    raw = values["obstacles"]
+    obstacles: list[Obstacle] = []
+    ok = True
+    for i, item in enumerate(raw if valid(raw) else ()):
+        o = _read_obstacle(errors, f"world.obstacles[{i}]", item, D, path)
+        ok &= o is not None
+        if o is not None:
+            obstacles.append(o)
+    backend = values["collision_backend"]
+    if valid(backend) and D is not None and ok:
+        info = get_backend(backend)
+        kinds = {o.kind for o in obstacles}
+        if D not in info.dimensions:
+            errors.add("world.collision_backend", f"{backend!r} handles {'/'.join(map(str, info.dimensions))}-D worlds, "
+                                                  f"this world is {D}-D; use one of: {', '.join(backends_for(D, kinds))}")
+        for i, o in enumerate(obstacles):
+            if o.kind not in info.obstacle_kinds:
+                errors.add(f"world.obstacles[{i}].kind", f"{o.kind!r} is not handled by world.collision_backend "
+                                                         f"{backend!r} (it handles {', '.join(info.obstacle_kinds)}); "
+                                                         f"use one of: {', '.join(backends_for(D, kinds))}")
+    if not (ok and D is not None and all(valid(v) for v in values.values())):
+        return None
     lo, hi = bounds
-    if np.any(hi <= lo):
-        raise ScenarioError(t.path, "world.bounds", "expected [[xmin, ymin], [xmax, ymax]] with max > min")
-    radius = t.number("robot_radius", 0.05, positive=True)
-    backend = t.string("collision_backend", "numpy", choices=("numpy", "numba", "fcl"))
-    raw = t._raw("obstacles", [])
-    if not isinstance(raw, list):
-        raise ScenarioError(t.path, "world.obstacles", "expected an array of tables {center, half_size}")
-    obstacles = []
-    for i, item in enumerate(raw):
-        o = _Table(t.path, f"world.obstacles[{i}]", item)
-        c = o.array("center", _REQUIRED, shape=(2,))
-        h = o.array("half_size", _REQUIRED, shape=(2,))
-        if np.any(h <= 0):
-            raise ScenarioError(t.path, f"world.obstacles[{i}].half_size", "expected positive half sizes")
-        o.finish()
-        obstacles.append(Rectangle(center=(float(c[0]), float(c[1])), half_size=(float(h[0]), float(h[1]))))
-    t.finish()
-    return WorldSpec(lo=(float(lo[0]), float(lo[1])), hi=(float(hi[0]), float(hi[1])),
-                     robot_radius=radius, obstacles=tuple(obstacles), collision_backend=backend)
+    return WorldSpec(lo=tuple(float(x) for x in lo), hi=tuple(float(x) for x in hi), robot_radius=values["robot_radius"],
+                     obstacles=tuple(obstacles), collision_backend=backend)
 
 
-def _read_task(t: _Table, model: ModelSpec) -> TaskSpec:
-    start = t.array("start", _REQUIRED, shape=(None,))
-    if model.robot == "arm" and "goal" not in t.data:
-        center = t.array("goal_center", _REQUIRED, shape=(2,))
-        radius = t.number("goal_radius", _REQUIRED, positive=True)
-        t.finish()
-        return TaskSpec(start=start, goal=None, goal_center=center, goal_radius=radius)
-    goal = t.array("goal", _REQUIRED, shape=(start.shape[0],))
-    t.finish()
-    return TaskSpec(start=start, goal=goal)
+def _read_obstacle(errors: Errors, prefix: str, item: Any, D: int | None, path: str) -> Obstacle | None:
+    if not isinstance(item, dict):
+        errors.add(prefix, "expected a table (e.g. { center = [...], half_size = [...] })")
+        return None
+    kind = read_value(errors, prefix, item, KIND_FIELD)
+    if not valid(kind):
+        read_table(errors, prefix, item, (), known_extra=tuple(item))
+        return None
+    cls = KINDS[kind]
+    before = len(errors.items)
+    values = read_table(errors, prefix, item, cls.fields, {"D": D} if D else {}, known_extra=("kind",))
+    if D is not None and D not in cls.dimensions:
+        errors.add(f"{prefix}.kind", f"{kind!r} needs a {'/'.join(map(str, cls.dimensions))}-D world, this one is {D}-D")
+    if len(errors.items) > before or D is None:
+        return None
+    if cls is Mesh and not _read_mesh(errors, prefix, values, path):
+        return None
+    return obstacle_from_values(kind, values)
 
 
 def default_bridge_nodes(nodes: int) -> int:
@@ -488,70 +568,57 @@ def default_bridge_nodes(nodes: int) -> int:
     return max(10, nodes // 2)
 
 
-def _read_roadmap(t: _Table) -> RoadmapSpec:
-    nodes = t.number("nodes", _REQUIRED, integer=True, positive=True)
-    spec = RoadmapSpec(
-        nodes=nodes,
-        neighbors=t.number("neighbors", 6, integer=True, positive=True),
-        min_separation=t.number("min_separation", 0.0, nonnegative=True),
-        max_edge_length=t.number("max_edge_length", math.inf, positive=True),
-        goal_nodes=t.number("goal_nodes", 1, integer=True, positive=True),
-        goal_bias=t.number("goal_bias", 0.0, nonnegative=True),
-        bias_step=t.number("bias_step", 0.3, positive=True),
-        bridge_nodes=t.number("bridge_nodes", default_bridge_nodes(nodes), integer=True, nonnegative=True),
-    )
-    if spec.goal_bias > 1:
-        raise ScenarioError(t.path, "roadmap.goal_bias", f"expected a fraction in [0, 1], found {spec.goal_bias}")
-    t.finish()
-    return spec
+def _read_mesh(errors: Errors, prefix: str, values: dict, path: str) -> bool:
+    """A mesh's vertices and triangles, inline or from its OBJ file; indices in range."""
+    inline = values["vertices"] is not None or values["triangles"] is not None
+    if values["file"] is not None:
+        if inline:
+            errors.add(f"{prefix}.file", "expected either file or vertices and triangles, not both")
+            return False
+        p = Path(values["file"])
+        if not p.is_absolute():
+            p = Path(path.rsplit(":scenario_toml", 1)[0]).parent / p
+        try:
+            values["vertices"], values["triangles"] = read_obj(p)
+        except FileNotFoundError:
+            errors.add(f"{prefix}.file", f"no such file {str(p)!r}")
+            return False
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            errors.add(f"{prefix}.file", f"expected a Wavefront OBJ file of v and triangular f lines: {p}: {exc}")
+            return False
+    for key in ("vertices", "triangles"):
+        if values[key] is None:
+            errors.add(f"{prefix}.{key}", "missing required field (or give file)")
+            return False
+    V, T = values["vertices"], values["triangles"]
+    if T.shape[0] == 0 or T.min() < 0 or T.max() >= V.shape[0]:
+        errors.add(f"{prefix}.triangles", f"expected vertex indices in [0, {V.shape[0]}) and at least one triangle")
+        return False
+    return True
 
 
-def _read_controller(t: _Table) -> ControllerSpec:
-    spec = ControllerSpec(
-        state_weight=t.number("state_weight", 1.0, positive=True),
-        velocity_weight=t.number("velocity_weight", 0.1, positive=True),
-        control_weight=t.number("control_weight", 0.1, positive=True),
-        max_speed=t.number("max_speed", 1.0, positive=True),
-        max_accel=t.number("max_accel", 1.0, positive=True),
-        node_radius=t.number("node_radius", 2.0, positive=True),
-        covariance_tolerance=t.number("covariance_tolerance", 0.1, positive=True),
-        max_steps=t.number("max_steps", 300, integer=True, positive=True),
-    )
-    t.finish()
-    return spec
-
-
-def _read_estimation(t: _Table) -> EstimationSpec:
-    spec = EstimationSpec(
-        particles=t.number("particles", 500, integer=True, positive=True),
-        chunk=t.number("chunk", 2000, integer=True, positive=True),
-        max_particle_steps=t.number("max_particle_steps", DEFAULT_MAX_PARTICLE_STEPS, positive=True),
-        target_halfwidth=t.number("target_halfwidth", DEFAULT_TARGET_HALFWIDTH, positive=True),
-        adaptive_particles=t.number("adaptive_particles", None, integer=True, nonnegative=True),
-        start=t.string("start", DEFAULT_START, choices=START_MODES),
-    )
-    if spec.target_halfwidth >= 0.5:
-        raise ScenarioError(t.path, "estimation.target_halfwidth",
-                            f"expected a half-width in (0, 0.5), found {spec.target_halfwidth}")
-    t.finish()
-    return spec
-
-
-def _read_cost(t: _Table) -> CostSpec:
-    spec = CostSpec(
-        alpha_covariance=t.number("alpha_covariance", 1.0, nonnegative=True),
-        alpha_time=t.number("alpha_time", 0.1, nonnegative=True),
-        alpha_control=t.number("alpha_control", 0.0, nonnegative=True),
-        failure_cost=t.number("failure_cost", 100.0, positive=True),
-    )
-    t.finish()
-    return spec
-
-
-def _read_execution(t: _Table) -> ExecutionSpec:
-    spec = ExecutionSpec(max_steps=t.number("max_steps", 5000, integer=True, positive=True))
-    t.finish()
-    return spec
+def _read_task(errors: Errors, data: dict, robot_cls: type | None, world: WorldSpec | None) -> TaskSpec | None:
+    """``[task]``: the start, and a goal state or (robots with goal regions) a goal ball."""
+    if "task" not in data:
+        errors.add("task", "missing required field")
+        return None
+    raw = data["task"]
+    if not isinstance(raw, dict):
+        errors.add("task", "expected a table")
+        return None
+    start = read_value(errors, "task", raw, TASK_FIELDS[0])
+    dims = {"D": world.dim} if world is not None else {}
+    if valid(start):
+        dims["start"] = start.shape[0]
+    if robot_cls is not None and robot_cls.goal_region and "goal" not in raw:
+        values = read_table(errors, "task", raw, GOAL_REGION_FIELDS, dims, known_extra=("start",))
+        if not valid(start, *values.values()):
+            return None
+        return TaskSpec(start=start, goal=None, goal_center=values["goal_center"], goal_radius=values["goal_radius"])
+    values = read_table(errors, "task", raw, TASK_FIELDS[1:], dims, known_extra=("start",))
+    if not valid(start, *values.values()):
+        return None
+    return TaskSpec(start=start, goal=values["goal"])
 
 
 # -- Scenarios from Python values, and back to TOML (the work is done in firmtool.scenario_io) ------

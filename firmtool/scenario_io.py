@@ -50,6 +50,8 @@ _ALIASES = {("model", "link_lengths"): ("links", "link_length")}
 def toml_value(obj: Any) -> Any:
     """``obj`` as TOML types: arrays and tuples as lists, NumPy scalars as numbers, dataclasses as
     tables of their non-None fields."""
+    if hasattr(obj, "to_table") and not isinstance(obj, type):  # an obstacle (firmtool.geometry.shapes)
+        return toml_value(obj.to_table())
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: toml_value(getattr(obj, f.name)) for f in dataclasses.fields(obj)
                 if getattr(obj, f.name) is not None}
@@ -109,6 +111,8 @@ def _same(a: Any, b: Any) -> bool:
                                            for f in dataclasses.fields(a))
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
         return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        return set(a) == set(b) and all(_same(a[k], b[k]) for k in a)
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
     return bool(a == b)
@@ -123,6 +127,14 @@ def same_settings(a: Scenario, b: object) -> bool:
                for f in dataclasses.fields(a) if f.name not in _NOT_SETTINGS)
 
 
+def _settings(spec: Any) -> dict[str, Any]:
+    """A section's settings by name: its dataclass fields, with ``params`` (the keys a robot or a
+    noise form declares, :class:`~firmtool.scenario.ModelSpec`) spread into their own keys."""
+    out = {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec) if f.name != "params"}
+    out.update(getattr(spec, "params", {}))
+    return out
+
+
 def _write(tables: dict[str, Any], section: str, field: str, spec: Any) -> None:
     """Write the typed value of ``section.field`` (from ``spec``) over ``tables``."""
     table = tables.setdefault(section, {})
@@ -130,7 +142,10 @@ def _write(tables: dict[str, Any], section: str, field: str, spec: Any) -> None:
     if key == "bounds":
         table[key] = toml_value([spec.lo, spec.hi])
         return
-    value = getattr(spec, field)
+    if section == "measurement" and spec.kind == "perfect" and field != "kind":
+        table.pop(key, None)  # perfect measurements have no noise keys
+        return
+    value = _settings(spec)[field]
     if value is None:
         table.pop(key, None)
     else:
@@ -157,9 +172,13 @@ def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
     for section in SECTIONS:
         spec = getattr(scenario, section)
         old = getattr(said, section) if said is not None else None
-        for f in dataclasses.fields(spec):
-            if old is None or not _same(getattr(old, f.name), getattr(spec, f.name)):
-                _write(tables, section, f.name, spec)
+        new = _settings(spec)
+        said_settings = _settings(old) if old is not None else {}
+        for name in new:
+            if old is None or name not in said_settings or not _same(said_settings[name], new[name]):
+                _write(tables, section, name, spec)
+        for name in set(said_settings) - set(new):  # keys the changed spec no longer has (another robot)
+            tables.get(section, {}).pop(name, None)
     return tables
 
 

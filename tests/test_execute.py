@@ -318,7 +318,7 @@ def _tiny_unicycle(start="[0.4, 0.4]", goal="[2.6, 0.4]"):
 def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
     """--start on a nonlinear model (no model.A): the belief at a start state is the periodic
     filter's at phase 0 of the orbit through it (at rest its heading is not observable)."""
-    from firmtool.design import design as design_stage, periodic_node
+    from firmtool.design import design as design_stage
     from firmtool.nodes import GOAL, START
 
     problem = _tiny_unicycle()
@@ -331,7 +331,7 @@ def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
     np.testing.assert_allclose(P, d.P[0], rtol=1e-6, atol=1e-12)  # a node's own belief
     start = np.array([0.5, 1.3, 0.7])  # a heading: not a node state
     _, P = ex.start_belief(start)
-    np.testing.assert_allclose(P, periodic_node(problem, start).P)
+    np.testing.assert_allclose(P, problem.robot.periodic_node(problem, start).P)
     assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0)
     rep = execute(problem, d, policy, 3, 0, cost_to_go=np.array([1.0, 0.0]), start=start)
     assert all(ep.events[1].kind == "initial_controller" for ep in rep.episodes)

@@ -159,15 +159,20 @@ def test_engine_selection(monkeypatch):
     monkeypatch.setenv(kernels.ENGINE_ENV, "fortran")
     with pytest.raises(InputError, match="FIRMTOOL_ENGINE"):
         kernels.engine_for(problem)
-    # a problem the kernel does not know (python-fcl geometry) falls back, or is refused when forced
+    # a problem the kernel does not compute exactly (python-fcl geometry) runs on the numpy engine,
+    # with a one-line notice naming why, even when the compiled one is forced; calling the kernel
+    # on it directly is refused
     fcl_text = open_world().replace("[world]", '[world]\ncollision_backend = "fcl"')
     pytest.importorskip("fcl")
     fcl_problem = build_problem(parse_scenario(fcl_text, "test.toml"))
-    monkeypatch.setenv(kernels.ENGINE_ENV, "auto")
-    assert kernels.engine_for(fcl_problem) == "numpy"
-    monkeypatch.setenv(kernels.ENGINE_ENV, "numba")
+    for choice in ("auto", "numba"):
+        monkeypatch.setenv(kernels.ENGINE_ENV, choice)
+        engine, notice = kernels.engine_choice(fcl_problem)
+        assert engine == "numpy" and "collision backend 'fcl'" in notice and "\n" not in notice
+    assert "FIRMTOOL_ENGINE=numba" in notice
+    assert kernels.engine_choice(problem) == ("numba", None)
     with pytest.raises(InputError, match="collision backend"):
-        kernels.engine_for(fcl_problem)
+        kernels.simulate(fcl_problem, None, None, np.zeros((1, 4)), np.zeros((1, 4)), np.random.default_rng(0))
 
 
 def test_unsupported_model_falls_back_to_numpy(monkeypatch):
@@ -186,3 +191,176 @@ def test_unsupported_model_falls_back_to_numpy(monkeypatch):
     monkeypatch.delenv(kernels.ENGINE_ENV, raising=False)
     assert kernels.supports(custom) is not None
     assert kernels.engine_for(custom) == "numpy"
+
+
+# -- each compiled step helper against the numpy function it reproduces ---------------------------
+# (the kernel's arrays are (state, particle) columns; M particles, of which the first `na` are live)
+
+LIGHTDARK_STD = 'kind = "imperfect"\nnoise = "lightdark_std"\nlight_x = 2.0\neta = 0.1\nsigma_b = 0.01'
+LIGHTDARK_VARIANCE = 'kind = "imperfect"\nnoise = "lightdark_variance"\nlight_x = 5.0\na = 0.004\nc = 0.0001'
+
+
+def _columns(a):
+    return np.ascontiguousarray(np.asarray(a, dtype=float).T)
+
+
+@pytest.fixture(scope="module")
+def arm_problem():
+    return build_problem(parse_scenario(_small_arm(), "arm.toml"))
+
+
+def _point_problem(measurement=None):
+    obstacles = "[ { center = [2.5, 2.0], half_size = [0.1, 1.0] }, { center = [4.0, 4.5], half_size = [0.6, 0.3] } ]"
+    return build_problem(parse_scenario(open_world(q=0.4, measurement=measurement, obstacles=obstacles), "test.toml"))
+
+
+def _random_states(problem, M, rng, spread=1.0):
+    """States with configurations spread over (and a little beyond) the problem's bounds, random velocities."""
+    n, c = problem.model.n, problem.config_dim
+    X = rng.normal(size=(M, n))
+    mid, half = 0.5 * (problem.config_lo + problem.config_hi), 0.5 * (problem.config_hi - problem.config_lo)
+    X[:, :c] = mid + spread * half * rng.uniform(-1.1, 1.1, size=(M, c))
+    return X
+
+
+def _local_controller_step(problem, rng):
+    """A stand-in for one step of a LocalController: a reference, a gain with zeros, a Kalman gain."""
+    from types import SimpleNamespace
+
+    n, m, nz = problem.model.n, problem.model.m, problem.model.nz
+    K = rng.normal(size=(1, m, n)) * (rng.random((1, m, n)) < 0.6)
+    return SimpleNamespace(x_ref=rng.normal(size=(1, n)), u_ref=rng.normal(size=(1, m)), K=K,
+                           L=rng.normal(size=(1, n, nz)) * 0.1)
+
+
+@pytest.mark.parametrize("robot", ["point", "arm"])
+def test_control_and_true_step_are_the_numpy_step(robot, arm_problem):
+    """kernels.control and kernels.true_step against edges.control_and_move (u, then f(x, u) + F w)."""
+    from firmtool.edges import control_and_move
+
+    problem = arm_problem if robot == "arm" else _point_problem()
+    rng = np.random.default_rng(3)
+    model, lc = problem.model, _local_controller_step(problem, rng)
+    M, na = 40, 37
+    x, xhat = _random_states(problem, M, rng), _random_states(problem, M, rng)
+    w = rng.normal(size=(M, model.F.shape[1]))
+    x_new, u = control_and_move(model, lc, 0, x[:na], xhat[:na], w[:na])
+    A, B, F, H = kernels._problem_data(problem).mats
+    XH, X, W = _columns(xhat), _columns(x), _columns(w)
+    DX, U = np.zeros((model.n, M)), np.full((model.m, M), 7.0)
+    XN, TMP = np.full((model.n, M), 7.0), np.zeros((model.n, M))
+    kernels.control(XH, lc.x_ref[0], lc.u_ref[0], np.ascontiguousarray(lc.K[0]), DX, U, na)
+    kernels.true_step(A, B, F, X, U, W, XN, TMP, na)
+    np.testing.assert_allclose(U[:, :na].T, u, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(XN[:, :na].T, x_new, rtol=1e-12, atol=1e-12)
+    assert (U[:, na:] == 7.0).all() and (XN[:, na:] == 7.0).all()  # the dead columns are left alone
+
+
+@pytest.mark.parametrize("robot", ["point", "arm"])
+def test_kinematics_are_the_robots_points(robot, arm_problem):
+    """kernels.kinematics (planar point / planar chain, with the kernel's sincos) against Problem.points."""
+    problem = arm_problem if robot == "arm" else _point_problem()
+    rng = np.random.default_rng(4)
+    X = _random_states(problem, 500, rng, spread=3.0)
+    group = kernels._robot_group(kernels._problem_data(problem))
+    P = problem.points(X)
+    PX, PY, PHI = np.empty((P.shape[1], 500)), np.empty((P.shape[1], 500)), np.empty(500)
+    kernels.kinematics(group, _columns(X), PX, PY, PHI, 500)
+    np.testing.assert_allclose(PX.T, P[:, :, 0], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(PY.T, P[:, :, 1], rtol=0, atol=1e-14)
+    a = np.concatenate([np.linspace(-60.0, 60.0, 20001), rng.normal(scale=1e3, size=2000)])
+    sc = np.array([kernels.sincos(v) for v in a])
+    np.testing.assert_allclose(sc[:, 0], np.sin(a), rtol=0, atol=2.3e-16)  # within 2 ulps of libm (1 seen)
+    np.testing.assert_allclose(sc[:, 1], np.cos(a), rtol=0, atol=2.3e-16)
+
+
+@pytest.mark.parametrize("measurement", [None, LIGHTDARK_STD, LIGHTDARK_VARIANCE])
+def test_measurement_variance_is_the_noise_models(measurement):
+    """kernels.measurement_variance, for every compiled noise form, against LightDarkNoise.variance."""
+    problem = _point_problem(measurement)
+    sensor = kernels._problem_data(problem).noise
+    assert sensor[0] == kernels.NOISE_FORMS[problem.model.noise.form]
+    xs = np.random.default_rng(5).uniform(-5.0, 15.0, size=300)
+    got = np.array([kernels.measurement_variance(sensor, v) for v in xs])
+    np.testing.assert_allclose(got, problem.model.noise.variance(xs), rtol=1e-15, atol=0)
+
+
+@pytest.mark.parametrize("robot", ["point", "arm"])
+def test_filter_update_is_the_numpy_update(robot, arm_problem):
+    """kernels.filter_update against edges.filter_update with the variance at the TRUE state's
+    sensing points (model.noise.variance(problem.sensing_from_points(problem.points(x))))."""
+    from firmtool.edges import control_and_move, filter_update
+
+    problem = arm_problem if robot == "arm" else _point_problem(LIGHTDARK_VARIANCE)
+    rng = np.random.default_rng(6)
+    model, lc = problem.model, _local_controller_step(problem, rng)
+    M, na = 40, 33
+    x0, xhat = _random_states(problem, M, rng), _random_states(problem, M, rng)
+    r, nz = model.F.shape[1], model.nz
+    noise = rng.normal(size=(M, r + nz))
+    x, u = control_and_move(model, lc, 0, x0, xhat, noise[:, :r])
+    variance = model.noise.variance(problem.sensing_from_points(problem.points(x)))
+    want = filter_update(model, lc, 0, x, xhat, u, noise[:, r:], variance)[:na]
+    pd = kernels._problem_data(problem)
+    robot_group = kernels._robot_group(pd)
+    A, B, F, H = pd.mats
+    n_pts = problem.points(x[:1]).shape[1]
+    PX, PY, PHI = np.empty((n_pts, M)), np.empty((n_pts, M)), np.empty(M)
+    X, XH, U, W = _columns(x), _columns(xhat), _columns(u), _columns(noise)
+    kernels.kinematics(robot_group, X, PX, PY, PHI, na)
+    work = [np.zeros((model.n, M)), np.zeros((nz, M)), np.zeros((nz, M)), np.zeros((model.n, M))]
+    kernels.filter_update(A, B, H, np.ascontiguousarray(lc.L[0]), X, XH, U, W, PX, pd.noise, robot_group[2], *work, na)
+    np.testing.assert_allclose(XH[:, :na].T, want, rtol=1e-11, atol=1e-12)
+    np.testing.assert_array_equal(XH[:, na:], _columns(xhat)[:, na:])
+
+
+def _rotated(problem, angles):
+    """``problem`` with its obstacles rotated by ``angles`` (radians), as the kernel's world data reads them."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    w = problem.scenario.world
+    obstacles = tuple(SimpleNamespace(center=o.center, half_size=o.half_size, angle=float(a))
+                      for o, a in zip(w.obstacles, angles))
+    sc = dataclasses.replace(problem.scenario, world=dataclasses.replace(w, obstacles=obstacles))
+    return dataclasses.replace(problem, scenario=sc)
+
+
+@pytest.mark.parametrize("robot", ["point", "arm"])
+@pytest.mark.parametrize("rotated", [False, True])
+def test_collision_test_is_the_numpy_backends(robot, rotated, arm_problem):
+    """kernels.collides (and its gate: wherever it collides, the gate passed) against the numpy
+    collision backend, on random configurations of the robot: links (capsules, self-collision) or
+    discs, axis-aligned or rotated boxes, and the world's bounds."""
+    from firmtool.geometry.backends import make_backend
+
+    problem = arm_problem if robot == "arm" else _point_problem()
+    rng = np.random.default_rng(7)
+    w = problem.scenario.world
+    angles = rng.uniform(-np.pi, np.pi, len(w.obstacles)) if rotated else np.zeros(len(w.obstacles))
+    pd = kernels._ProblemData(_rotated(problem, angles) if rotated else problem)
+    group = kernels._robot_group(pd)
+    M = 6000
+    X = _random_states(problem, M, rng, spread=2.0 if robot == "arm" else 1.0)
+    P = problem.points(X)
+    centers, halves = np.array([o.center for o in w.obstacles]), np.array([o.half_size for o in w.obstacles])
+    backend = make_backend("numpy", centers, halves, np.array(w.lo), np.array(w.hi), self_collision=pd.self_collision,
+                           obstacle_angles=angles)
+    if robot == "arm":
+        want = backend.capsules_collide(P[:, :-1], P[:, 1:], w.robot_radius)
+    else:
+        want = backend.capsules_collide(P, P, w.robot_radius)
+    PX, PY = np.ascontiguousarray(P[:, :, 0].T), np.ascontiguousarray(P[:, :, 1].T)
+    n_seg, seg_offset = kernels.robot_segments(group)
+    half = 0.5 * pd.lengths * (1.0 + 1e-12)
+    gate = np.empty(M, dtype=np.uint8)
+    kernels.collision_gate(PX, PY, M, n_seg, seg_offset, pd.world, pd.self_collision, half, gate)
+    got = np.array([kernels.collides(np.ascontiguousarray(PX[:, a]), np.ascontiguousarray(PY[:, a]), n_seg, seg_offset,
+                                     pd.world, pd.self_collision, half) for a in range(M)])
+    assert np.array_equal(got, want)
+    assert not (got & (gate == 0)).any()
+    assert 0.1 < want.mean() < 0.9 and (gate == 0).any()  # both answers, and the gate spares some particles
+    if robot == "arm":  # self-collisions were exercised
+        obstacle_free = make_backend("numpy", np.zeros((0, 2)), np.zeros((0, 2)), np.array(w.lo), np.array(w.hi),
+                                     self_collision=False)
+        assert (want & ~obstacle_free.capsules_collide(P[:, :-1], P[:, 1:], w.robot_radius)).any()

@@ -9,7 +9,7 @@ import pytest
 
 from firmtool.errors import ScenarioError
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
-from firmtool.scenario_io import is_synced, scenario_to_dict, synced
+from firmtool.scenario_io import _settings, is_synced, scenario_to_dict, synced
 from conftest import ROOT, open_world
 
 SHIPPED = sorted(p.stem for p in (ROOT / "scenarios").glob("*.toml"))
@@ -25,9 +25,10 @@ def test_load_to_toml_load_gives_an_equal_scenario(name):
     assert Scenario.from_dict(sc.to_dict()) == sc
     # every typed setting survived, arrays bit for bit (the comparison is not vacuous)
     for section in ("model", "measurement", "world", "task", "roadmap", "controller", "estimation", "cost"):
-        for f in dataclasses.fields(getattr(sc, section)):
-            a, b = getattr(getattr(sc, section), f.name), getattr(getattr(again, section), f.name)
-            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), f"{section}.{f.name}"
+        said = _settings(getattr(again, section))  # dataclass fields, and a robot's or noise form's keys
+        for name, a in _settings(getattr(sc, section)).items():
+            b = said[name]
+            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), f"{section}.{name}"
 
 
 def test_equality_is_of_settings_not_of_file_or_comments(tmp_path):

@@ -236,6 +236,9 @@ def test_cli_end_to_end(tmp_path):
     runner = CliRunner()
     r = runner.invoke(app, ["build", str(path), "-o", str(out), "--workers", "1", "--json"])
     assert r.exit_code == 0, r.output
+    # the report says, in one line on stderr, why the compiled engine did not run
+    assert json.loads(r.stdout)["notices"] == [r.stderr.strip()[len("notice: "):]]
+    assert "robot 'unicycle' has no compiled kinematics" in r.stderr and r.stderr.count("\n") == 1
     r = runner.invoke(app, ["solve", str(out), "--json"])
     assert r.exit_code == 0, r.output
     solve = json.loads(r.stdout)

@@ -17,10 +17,12 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
 # Module-level functions (not a closure): numba caches them on disk (a closure recompiled in every
-# process). firmtool.kernels compiles these distances into its step kernel: numba's cache of a
-# caller does not notice a change here, so after editing them clear firmtool/__pycache__/*.nb*.
+# process). firmtool.kernels compiles these distances into its step kernel; firmtool._jit's cache key
+# covers this file, so the kernel is recompiled after an edit here, not loaded stale.
 if numba is not None:
-    njit = numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+    from firmtool._jit import cached_njit
+
+    njit = cached_njit(nogil=True, fastmath=False, error_model="numpy")
 
     @njit
     def pseg_d2(px, py, ax, ay, bx, by):

@@ -1,21 +1,23 @@
-"""Collision backends: planar capsule robots against rectangles inside a workspace box.
+"""Collision backends: capsule robots against obstacles inside a workspace box.
 
-One interface (:class:`CollisionBackend`), two implementations:
+One interface (:class:`CollisionBackend`), implementations registered by name
+(:mod:`firmtool.geometry.registry`):
 
-* :class:`NumpyCollisionBackend` -- exact planar geometry vectorised over the whole ensemble
-  (no Python loop at all: capsule/obstacle and capsule/capsule candidates are gathered with an AABB
-  prefilter and tested in one batch). This is the production backend.
-* ``NumbaCollisionBackend`` (:mod:`firmtool.geometry._numba`, name ``"numba"``) -- the same formulas
+* :class:`NumpyCollisionBackend` (``"numpy"``) -- exact planar geometry (2-D worlds of boxes)
+  vectorised over the whole ensemble (no Python loop at all: capsule/obstacle and capsule/capsule
+  candidates are gathered with an AABB prefilter and tested in one batch).
+* ``NumbaCollisionBackend`` (:mod:`firmtool.geometry._numba`, ``"numba"``) -- the same formulas
   compiled, one configuration at a time with early exit; about 10x faster than numpy.
-* :class:`FclCollisionBackend` -- python-fcl, a Python loop over configurations; the reference
-  oracle for general geometry.
+* ``FclCollisionBackend`` (:mod:`firmtool.geometry.fcl`, ``"fcl"``) -- python-fcl: 2-D and 3-D
+  worlds of boxes, spheres, capsules and triangle meshes; the general backend and the reference
+  oracle of the planar ones.
 
-Semantics shared by both (and by the tests)
--------------------------------------------
+Semantics shared by all (and by the tests)
+------------------------------------------
 * The robot of one configuration is ``L`` capsules of a common radius ``r > 0``: the set of points
-  within distance ``r`` of a segment ``[start, end]``; a zero-length segment is a disc.
-* Obstacles are solid rectangles (centre, half-size, optional rotation angle in radians,
-  counter-clockwise). A capsule hits an obstacle iff the segment-to-rectangle distance is ``< r``
+  within distance ``r`` of a segment ``[start, end]``; a zero-length segment is a disc (a ball).
+* Obstacles are solids. The planar backends take rectangles (centre, half-size, optional rotation
+  angle in radians, counter-clockwise). A capsule hits an obstacle iff the segment-to-rectangle distance is ``< r``
   (touching, distance exactly ``r``, is *not* a collision in the numpy backend; fcl decides exact
   contact with its own tolerances, which is why cross-checks skip a band around ``|d - r| < 1e-6``).
 * Workspace: the box ``[lo, hi]`` is axis-aligned. A capsule lies inside iff both endpoints lie in
@@ -41,12 +43,12 @@ from firmtool.geometry.distance import (
 
 @runtime_checkable
 class CollisionBackend(Protocol):
-    """Batch collision test for an ensemble of planar capsule robots."""
+    """Batch collision test for an ensemble of capsule robots in a D-dimensional world."""
 
     self_collision: bool
 
     def capsules_collide(self, starts: np.ndarray, ends: np.ndarray, radius: float) -> np.ndarray:
-        """``starts, ends`` (M, L, 2) segment endpoints of L capsules per configuration -> bool (M,).
+        """``starts, ends`` (M, L, D) segment endpoints of L capsules per configuration -> bool (M,).
 
         True where any capsule intersects an obstacle or leaves the workspace box, or (with
         ``self_collision``) two non-adjacent capsules of the same configuration intersect.
@@ -89,11 +91,11 @@ def _check_world(centers, half_sizes, lo, hi, angles) -> tuple[np.ndarray, ...]:
     return c, h, lo, hi, a
 
 
-def _check_capsules(starts, ends, radius) -> tuple[np.ndarray, np.ndarray, float]:
+def _check_capsules(starts, ends, radius, dim: int = 2) -> tuple[np.ndarray, np.ndarray, float]:
     starts = np.asarray(starts, dtype=float)
     ends = np.asarray(ends, dtype=float)
-    if starts.ndim != 3 or starts.shape[2] != 2:
-        raise InputError(f"starts: expected shape (M, L, 2) but found {starts.shape}")
+    if starts.ndim != 3 or starts.shape[2] != dim:
+        raise InputError(f"starts: expected shape (M, L, {dim}) but found {starts.shape}")
     if ends.shape != starts.shape:
         raise InputError(f"ends: expected shape {starts.shape} but found {ends.shape}")
     try:
@@ -103,6 +105,17 @@ def _check_capsules(starts, ends, radius) -> tuple[np.ndarray, np.ndarray, float
     if not (np.isfinite(r) and r > 0):
         raise InputError(f"radius: expected a positive finite number but found {radius!r}")
     return starts, ends, r
+
+
+def planar_world(world, backend: str) -> None:
+    """InputError naming ``world.collision_backend`` unless ``world`` is 2-D with box obstacles only."""
+    if len(world.lo) != 2:
+        raise InputError(f"world.collision_backend: {backend} handles planar (2-D) worlds only, found a "
+                         f"{len(world.lo)}-D world; use 'fcl'")
+    kinds = sorted({o.kind for o in world.obstacles} - {"box"})
+    if kinds:
+        raise InputError(f"world.collision_backend: {backend} handles box obstacles only, found {', '.join(kinds)}; "
+                         "use 'fcl'")
 
 
 def outside_workspace(starts: np.ndarray, ends: np.ndarray, radius: float, lo: np.ndarray,
@@ -160,6 +173,19 @@ class NumpyCollisionBackend:
         ext = np.abs(self._cos)[:, None] * h + np.abs(self._sin)[:, None] * h[:, ::-1]
         self._ext = ext
         self._box_lo, self._box_hi = c - ext, c + ext
+
+    @classmethod
+    def from_boxes(cls, *args, **kwargs) -> "NumpyCollisionBackend":
+        """The constructor (the planar interface of :func:`make_backend`)."""
+        return cls(*args, **kwargs)
+
+    @classmethod
+    def from_world(cls, world, *, self_collision: bool) -> "NumpyCollisionBackend":
+        """The backend of a scenario's world (:class:`firmtool.scenario.WorldSpec`): 2-D, boxes only."""
+        planar_world(world, cls.__name__)
+        return cls(np.array([o.center for o in world.obstacles], dtype=float).reshape(-1, 2),
+                   np.array([o.half_size for o in world.obstacles], dtype=float).reshape(-1, 2),
+                   np.array(world.lo), np.array(world.hi), self_collision=self_collision)
 
     @property
     def n_obstacles(self) -> int:
@@ -269,114 +295,19 @@ class NumpyCollisionBackend:
 
 
 # ---------------------------------------------------------------------------------------------
-# fcl
-
-
-def _capsule_rotation(u: np.ndarray) -> np.ndarray:
-    """3x3 rotation taking local z onto the unit planar direction ``u`` (columns: z, u x z, u)."""
-    ux, uy = float(u[0]), float(u[1])
-    return np.array([[0.0, uy, ux],
-                     [0.0, -ux, uy],
-                     [1.0, 0.0, 0.0]])
-
-
-class FclCollisionBackend:
-    """python-fcl reference backend (the oracle in the cross-checks).
-
-    Obstacles are ``fcl.Box(2 hx, 2 hy, depth)`` centred at z = 0 and rotated about z by their
-    angle, kept in a ``DynamicAABBTreeCollisionManager`` (broadphase). A capsule is an
-    ``fcl.Capsule(r, length)`` whose local z axis is rotated into the plane along the segment and
-    centred at its midpoint; a segment shorter than ``1e-12`` is an ``fcl.Sphere(r)``. Self-collision
-    uses direct ``fcl.collide`` on the non-adjacent pairs. The workspace box is *not* modelled in fcl:
-    it is checked with the same arithmetic as the numpy backend (:func:`outside_workspace`).
-    A Python loop over configurations: slow, general, independent of the numpy geometry.
-    """
-
-    #: segments shorter than this are modelled as spheres
-    MIN_LENGTH = 1e-12
-
-    def __init__(self, obstacle_centers: np.ndarray, obstacle_half_sizes: np.ndarray,
-                 workspace_lo: np.ndarray, workspace_hi: np.ndarray, *, self_collision: bool,
-                 obstacle_angles: np.ndarray | None = None, depth: float = 1.0) -> None:
-        import fcl  # imported lazily: the numpy backend does not need it
-
-        self._fcl = fcl
-        c, h, lo, hi, a = _check_world(obstacle_centers, obstacle_half_sizes, workspace_lo, workspace_hi,
-                                       obstacle_angles)
-        self.centers, self.half_sizes, self.angles = c, h, a
-        self.lo, self.hi = lo, hi
-        self.self_collision = bool(self_collision)
-        self._objects = []
-        for (cx, cy), (hx, hy), ang in zip(c, h, a):
-            R = np.array([[np.cos(ang), -np.sin(ang), 0.0], [np.sin(ang), np.cos(ang), 0.0], [0.0, 0.0, 1.0]])
-            tf = fcl.Transform(R, np.array([cx, cy, 0.0]))
-            self._objects.append(fcl.CollisionObject(fcl.Box(2.0 * hx, 2.0 * hy, float(depth)), tf))
-        self._manager = None
-        if self._objects:
-            self._manager = fcl.DynamicAABBTreeCollisionManager()
-            self._manager.registerObjects(self._objects)
-            self._manager.setup()
-
-    def _capsule(self, p: np.ndarray, q: np.ndarray, r: float):
-        fcl = self._fcl
-        d = q - p
-        length = float(np.hypot(d[0], d[1]))
-        mid = np.array([0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1]), 0.0])
-        if length < self.MIN_LENGTH:
-            return fcl.CollisionObject(fcl.Sphere(r), fcl.Transform(mid))
-        R = _capsule_rotation(d / length)
-        return fcl.CollisionObject(fcl.Capsule(r, length), fcl.Transform(R, mid))
-
-    def _hits_obstacles(self, obj) -> bool:
-        fcl = self._fcl
-        data = fcl.CollisionData()
-        self._manager.collide(obj, data, fcl.defaultCollisionCallback)
-        return bool(data.result.is_collision)
-
-    def capsules_collide(self, starts: np.ndarray, ends: np.ndarray, radius: float) -> np.ndarray:
-        """See :class:`CollisionBackend`. Returns bool (M,)."""
-        fcl = self._fcl
-        starts, ends, r = _check_capsules(starts, ends, radius)
-        M, L = starts.shape[:2]
-        out = np.zeros(M, dtype=bool)
-        if L == 0 or M == 0:
-            return out
-        out |= outside_workspace(starts, ends, r, self.lo, self.hi)
-        pa, pb = nonadjacent_pairs(L) if self.self_collision else (np.zeros(0, int), np.zeros(0, int))
-        request = fcl.CollisionRequest()
-        for m in np.flatnonzero(~out):
-            objs = [self._capsule(starts[m, l], ends[m, l], r) for l in range(L)]
-            hit = False
-            if self._manager is not None:
-                hit = any(self._hits_obstacles(o) for o in objs)
-            if not hit:
-                for a, b in zip(pa, pb):
-                    if fcl.collide(objs[a], objs[b], request, fcl.CollisionResult()):
-                        hit = True
-                        break
-            out[m] = hit
-        return out
-
-
-# ---------------------------------------------------------------------------------------------
-
-_BACKENDS: dict[str, type] = {"numpy": NumpyCollisionBackend, "fcl": FclCollisionBackend}
-
 
 def make_backend(name: str, obstacle_centers: np.ndarray, obstacle_half_sizes: np.ndarray,
                  workspace_lo: np.ndarray, workspace_hi: np.ndarray, *, self_collision: bool,
                  obstacle_angles: np.ndarray | None = None, **options) -> CollisionBackend:
-    """Build the backend called ``name``: ``"numpy"``, ``"fcl"`` or ``"numba"`` (compiled numpy twin).
+    """A planar backend of the registry (``"numpy"``, ``"numba"``, ``"fcl"``) over rectangles.
 
     Extra keyword ``options`` go to the backend's constructor. Raises :class:`InputError` for an
-    unknown name.
+    unknown name. (A world of any kind and dimension: :func:`firmtool.geometry.registry.backend_for_world`.)
     """
-    if name == "numba" and "numba" not in _BACKENDS:
-        from firmtool.geometry._numba import NumbaCollisionBackend
-        _BACKENDS["numba"] = NumbaCollisionBackend
-    try:
-        cls = _BACKENDS[name]
-    except (KeyError, TypeError):
-        raise InputError(f"collision backend: expected one of ['fcl', 'numba', 'numpy'] but found {name!r}") from None
-    return cls(obstacle_centers, obstacle_half_sizes, workspace_lo, workspace_hi,
-               self_collision=self_collision, obstacle_angles=obstacle_angles, **options)
+    from firmtool.geometry.registry import get_backend
+
+    cls = get_backend(name).load()
+    if not hasattr(cls, "from_boxes"):
+        raise InputError(f"collision backend {name!r} does not take planar rectangles")
+    return cls.from_boxes(obstacle_centers, obstacle_half_sizes, workspace_lo, workspace_hi,
+                          self_collision=self_collision, obstacle_angles=obstacle_angles, **options)

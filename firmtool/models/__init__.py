@@ -1,1 +1,2 @@
-"""Robot and system models: linear dynamics, observation noise, kinematics."""
+"""System models: the Model interface (base), linear models (incl. python-control StateSpace), the
+unicycle, planar arm kinematics, and the measurement noise registry (noise)."""

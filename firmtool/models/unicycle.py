@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmtool.errors import NumericalError
-from firmtool.models.linear import LightDarkNoise
+from firmtool.models.noise import NoiseModel
 
 _SMALL = 1e-4  # |a| below which sinc and its derivative use their Taylor series
 
@@ -60,7 +60,7 @@ class UnicycleModel:
     """
 
     F: np.ndarray
-    noise: LightDarkNoise
+    noise: NoiseModel
     dt: float
 
     n: int = 3
@@ -123,7 +123,7 @@ class UnicycleModel:
 
 def turn_drive_turn(model: UnicycleModel, x0: np.ndarray, xf: np.ndarray, max_speed: float,
                     max_turn_rate: float) -> tuple[np.ndarray, np.ndarray]:
-    """A nominal from pose ``x0`` to pose ``xf`` that respects the nonholonomic constraint.
+    """A nominal from pose ``x0`` to pose ``xf`` that respects the unicycle's kinematics (no sideways motion).
 
     Turn in place towards (or away from, to drive backwards) the target position, drive straight to
     it, turn in place to the target heading, each part at the largest whole number of steps that

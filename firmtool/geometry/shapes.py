@@ -1,0 +1,215 @@
+"""Obstacle kinds of a world (2-D or 3-D) and the scenario keys of each.
+
+A world's obstacles are solids, each one of these kinds (``[[world.obstacles]] kind = ...``):
+
+- ``box`` (the default kind): ``center`` (D,), ``half_size`` (D,): an axis-aligned box;
+- ``sphere``: ``center`` (D,), ``radius``: a ball (a disc in a 2-D world);
+- ``capsule``: ``start`` (D,), ``end`` (D,), ``radius``: the points within ``radius`` of a segment;
+- ``mesh`` (3-D worlds): ``vertices`` (V, 3) and ``triangles`` (T, 3) (0-based vertex indices), or
+  ``file``: a Wavefront OBJ file of which only ``v x y z`` and triangular ``f i j k`` lines
+  (1-based, ``i/...`` forms allowed) are read; a relative path is taken from the scenario file's
+  folder. A closed mesh (every edge shared by exactly two triangles) is a solid: a robot inside it
+  collides. An open one is a surface (a thin wall).
+
+Each kind declares its keys (:attr:`Obstacle.fields`) for the scenario schema; a collision backend
+says which kinds it handles (:mod:`firmtool.geometry.registry`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+
+from firmtool.schema import Field
+
+
+class Obstacle:
+    """Base class of obstacle kinds."""
+
+    kind: ClassVar[str] = ""
+    fields: ClassVar[tuple[Field, ...]] = ()
+    dimensions: ClassVar[tuple[int, ...]] = (2, 3)  # world dimensions the kind exists in
+
+    @property
+    def dim(self) -> int:
+        raise NotImplementedError
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper corners (D,) of the obstacle's axis-aligned bounding box."""
+        raise NotImplementedError
+
+    def to_table(self) -> dict[str, Any]:
+        """The obstacle's scenario table (its keys; ``kind`` unless a box, the default kind)."""
+        table = {} if self.kind == "box" else {"kind": self.kind}
+        for f in self.fields:
+            value = getattr(self, f.name)
+            if value is not None:
+                table[f.name] = np.asarray(value).tolist() if f.type.endswith("array") else value
+        return table
+
+
+@dataclass(frozen=True)
+class Box(Obstacle):
+    """An axis-aligned box."""
+
+    center: tuple[float, ...]
+    half_size: tuple[float, ...]
+
+    kind: ClassVar[str] = "box"
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("center", "array", shape=("D",), unit="workspace", doc="centre of the box"),
+        Field("half_size", "array", shape=("D",), bound="positive", unit="workspace", doc="half its size along each axis"),
+    )
+
+    @property
+    def dim(self) -> int:
+        return len(self.center)
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        c, h = np.array(self.center), np.array(self.half_size)
+        return c - h, c + h
+
+
+Rectangle = Box  # the planar name this kind had before worlds became D-dimensional
+
+
+@dataclass(frozen=True)
+class Sphere(Obstacle):
+    """A ball (a disc in a 2-D world)."""
+
+    center: tuple[float, ...]
+    radius: float
+
+    kind: ClassVar[str] = "sphere"
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("center", "array", shape=("D",), unit="workspace", doc="centre of the ball"),
+        Field("radius", "number", bound="positive", unit="workspace", doc="its radius"),
+    )
+
+    @property
+    def dim(self) -> int:
+        return len(self.center)
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        c = np.array(self.center)
+        return c - self.radius, c + self.radius
+
+
+@dataclass(frozen=True)
+class Capsule(Obstacle):
+    """The points within ``radius`` of the segment ``[start, end]``."""
+
+    start: tuple[float, ...]
+    end: tuple[float, ...]
+    radius: float
+
+    kind: ClassVar[str] = "capsule"
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("start", "array", shape=("D",), unit="workspace", doc="one end of the capsule's axis"),
+        Field("end", "array", shape=("D",), unit="workspace", doc="the other end"),
+        Field("radius", "number", bound="positive", unit="workspace", doc="its radius"),
+    )
+
+    @property
+    def dim(self) -> int:
+        return len(self.start)
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        a, b = np.array(self.start), np.array(self.end)
+        return np.minimum(a, b) - self.radius, np.maximum(a, b) + self.radius
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh(Obstacle):
+    """A triangle mesh: a solid if closed, else a surface."""
+
+    vertices: np.ndarray  # (V, 3)
+    triangles: np.ndarray  # (T, 3) int64, 0-based
+    file: str | None = None  # where it was read from (None: given inline)
+
+    kind: ClassVar[str] = "mesh"
+    dimensions: ClassVar[tuple[int, ...]] = (3,)
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("vertices", "array", None, shape=(None, 3), unit="workspace", doc="vertex coordinates (V, 3)"),
+        Field("triangles", "integer_array", None, shape=(None, 3), doc="vertex indices of each triangle (T, 3), 0-based"),
+        Field("file", "string", None, doc="a Wavefront OBJ file (v and triangular f lines) instead of vertices/triangles"),
+    )
+
+    @property
+    def dim(self) -> int:
+        return 3
+
+    @property
+    def closed(self) -> bool:
+        """Every edge shared by exactly two triangles (a watertight surface bounds a solid)."""
+        t = self.triangles
+        edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+        _, counts = np.unique(edges, axis=0, return_counts=True)
+        return bool(t.shape[0] > 0 and np.all(counts == 2))
+
+    def to_table(self) -> dict[str, Any]:
+        """Inline ``vertices`` and ``triangles`` (what was read, also from a file)."""
+        return {"kind": "mesh", "vertices": self.vertices.tolist(), "triangles": self.triangles.tolist()}
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        used = self.vertices[np.unique(self.triangles)]
+        return used.min(axis=0), used.max(axis=0)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """bool (K,): which points (K, 3) lie inside the closed mesh (generalised winding number:
+        the solid angles of the triangles seen from the point sum to 4 pi inside, 0 outside;
+        Van Oosterom & Strackee's formula). All False for an open mesh."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        if not self.closed or points.shape[0] == 0:
+            return np.zeros(points.shape[0], dtype=bool)
+        tri = self.vertices[self.triangles]  # (T, 3, 3)
+        a, b, c = (tri[None, :, i, :] - points[:, None, :] for i in range(3))  # (K, T, 3)
+        la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
+        det = np.einsum("ktj,ktj->kt", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("ktj,ktj->kt", a, b) * lc + np.einsum("ktj,ktj->kt", a, c) * lb
+               + np.einsum("ktj,ktj->kt", b, c) * la)
+        winding = np.arctan2(det, den).sum(axis=1) / (2.0 * np.pi)  # 2 atan2 per triangle / (4 pi)
+        return np.abs(winding) > 0.5
+
+
+KINDS: dict[str, type[Obstacle]] = {cls.kind: cls for cls in (Box, Sphere, Capsule, Mesh)}
+
+KIND_FIELD = Field("kind", "string", "box", choices=tuple(KINDS), doc="the obstacle's kind")
+
+
+def obstacle_from_values(kind: str, values: Mapping[str, Any]) -> Obstacle:
+    """The obstacle of a kind from its validated scenario values (a mesh's file already read)."""
+    cls = KINDS[kind]
+    if cls is Mesh:
+        return Mesh(vertices=values["vertices"], triangles=values["triangles"], file=values.get("file"))
+    return cls(**{f.name: (tuple(float(x) for x in values[f.name]) if f.type == "array" else values[f.name])
+                  for f in cls.fields})
+
+
+def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and 0-based triangles (T, 3) of a Wavefront OBJ file (``v`` and triangular
+    ``f`` lines; other lines are ignored). ValueError saying what is wrong otherwise."""
+    vertices: list[list[float]] = []
+    faces: list[list[int]] = []
+    text = path.read_text(encoding="utf-8")
+    for number, line in enumerate(text.splitlines(), 1):
+        parts = line.split("#", 1)[0].split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            if len(parts) < 4:
+                raise ValueError(f"line {number}: expected 'v x y z'")
+            vertices.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "f":
+            idx = [int(p.split("/", 1)[0]) for p in parts[1:]]
+            if len(idx) != 3:
+                raise ValueError(f"line {number}: expected a triangle (3 vertices), found {len(idx)}")
+            if min(idx) < 1:
+                raise ValueError(f"line {number}: expected 1-based vertex indices >= 1")
+            faces.append([i - 1 for i in idx])
+    if not vertices or not faces:
+        raise ValueError("expected 'v' and 'f' lines")
+    return np.array(vertices, dtype=float), np.array(faces, dtype=np.int64)

@@ -1,0 +1,39 @@
+"""The point robot: a point (a ball of ``world.robot_radius``) in a 2-D or 3-D world, with linear
+dynamics per coordinate (``[model] dynamics``: single or double integrator, or matrices), its
+position measured (or ``measurement.H``), the sensing coordinate its x.
+
+Configuration: the position (D coordinates, D the world's dimension), bounded by ``world.bounds``.
+In a planar world the compiled Monte Carlo engine runs it (``planar_point`` kinematics).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmtool.robots.base import CompiledKinematics, register
+from firmtool.robots.linear import LinearRobot
+
+
+class PointRobot(LinearRobot):
+    """A point robot (see the module docs)."""
+
+    def __init__(self, scenario) -> None:
+        super().__init__(scenario)
+        w = scenario.world
+        self.config_lo, self.config_hi = np.array(w.lo), np.array(w.hi)
+
+    def dof(self) -> int:
+        return self.world_dim
+
+    def points(self, X: np.ndarray) -> np.ndarray:
+        """The point itself: states (M, n) -> (M, 1, D)."""
+        return np.asarray(X)[:, None, :self.world_dim]
+
+    def compiled_kinematics(self) -> CompiledKinematics | None:
+        # a subclass may move its points or sensing elsewhere: it opts in by overriding this
+        if type(self) is not PointRobot or self.world_dim != 2:
+            return None
+        return CompiledKinematics("planar_point", np.zeros(0), self_collision=False)
+
+
+register("point", PointRobot)

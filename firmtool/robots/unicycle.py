@@ -1,0 +1,111 @@
+"""The unicycle (x, y, heading; speed and turn rate) with a light-dark position sensor
+(:class:`firmtool.models.unicycle.UnicycleModel`), paper Examples 3.3 and 3.4.
+
+It cannot be regulated to a pose at rest (its linearisation there is neither controllable nor, with
+a position sensor, observable), so every node stabiliser is a periodic LQG tracking a figure eight
+through the node (:mod:`firmtool.stabilisers`), and edges follow turn-drive-turn nominals that
+respect the nonholonomic constraint and arrive in phase.
+
+``[model]`` keys: ``dynamics = "unicycle"``, ``process_noise_std`` (position, per sqrt(s)),
+``heading_noise_std`` (rad per sqrt(s)), ``max_turn_rate`` (edge nominals; the speed limit is
+``controller.max_speed``), ``orbit_radius`` and ``orbit_speed`` (the node orbit: two circles of
+that radius driven at that speed).
+
+The configuration is the position (``config_dim = 2``); the heading is the one further state
+coordinate, 0 at every sampled node (each node is the phase-0 point of a figure-eight orbit
+facing +x). :meth:`UnicycleRobot.is_valid` (node sampling, nominal checks) keeps the orbit's reach
+``2 orbit_radius`` clear around the robot; :meth:`points_valid` (the Monte Carlo and execution)
+tests the robot's true disc.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from firmtool.errors import ScenarioError
+from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
+from firmtool.robots.base import Robot, register
+from firmtool.schema import Field
+
+
+class UnicycleRobot(Robot):
+    """A unicycle with periodic node stabilisers (see the module docs)."""
+
+    model_fields: ClassVar[tuple[Field, ...]] = (
+        Field("dynamics", "string", choices=("unicycle",), doc="the unicycle's kinematics, exactly discretised"),
+        Field("process_noise_std", "number", bound="nonnegative", unit="m / sqrt(s)", doc="position process noise"),
+        Field("heading_noise_std", "number", 0.0, bound="nonnegative", unit="rad / sqrt(s)", doc="heading process noise"),
+        Field("max_turn_rate", "number", 1.0, bound="positive", unit="rad/s", doc="turn-rate limit of edge nominals"),
+        Field("orbit_radius", "number", 0.1, bound="positive", unit="m", doc="radius of the node orbit's two circles"),
+        Field("orbit_speed", "number", 0.2, bound="positive", unit="m/s", doc="speed along the node orbit"),
+    )
+    rest_state_text: ClassVar[str] = ("expected heading 0 (every node faces +x; give the position only, "
+                                      "or a heading of 0)")
+
+    def __init__(self, scenario) -> None:
+        super().__init__(scenario)
+        spec, w = scenario.model, scenario.world
+        if self.world_dim != 2:
+            raise ScenarioError(scenario.path, "world.bounds", "expected a planar world for robot = 'unicycle'")
+        if scenario.measurement.H is not None:
+            raise ScenarioError(scenario.path, "measurement.H",
+                                "not used for robot = 'unicycle' (its sensor measures the position)")
+        F = np.diag([spec.process_noise_std, spec.process_noise_std, spec.heading_noise_std]) * np.sqrt(spec.dt)
+        self.model = UnicycleModel(F=F, noise=self.noise(), dt=spec.dt)
+        self.config_dim = 2
+        self.config_lo, self.config_hi = np.array(w.lo), np.array(w.hi)
+        self.reach = 2.0 * spec.orbit_radius
+
+    def points(self, X: np.ndarray) -> np.ndarray:
+        """The robot's position: states (M, 3) -> (M, 1, 2)."""
+        return np.asarray(X)[:, None, :2]
+
+    def is_valid(self, X: np.ndarray) -> np.ndarray:
+        """Nodes and nominals keep the node orbit's reach clear around the robot's disc."""
+        P = self.points(X)
+        return ~self.collision().capsules_collide(P, P, self.scenario.world.robot_radius + self.reach)
+
+    # -- periodic node stabilisers -------------------------------------------------------------------
+
+    def _weights(self, problem):
+        from firmtool.design import lqr_weights
+
+        return lqr_weights(problem)
+
+    def periodic_node(self, problem, center: np.ndarray):
+        """The periodic (PLQG / PLQR) stabiliser of the node at ``center``, memoised per centre."""
+        from firmtool.stabilisers import OrbitSpec, cached_periodic_node
+
+        Wx, Wu = self._weights(problem)
+        spec = problem.scenario.model
+        return cached_periodic_node((problem.scenario.sha256,), problem.model, center,
+                                    OrbitSpec(spec.orbit_radius, spec.orbit_speed), Wx, Wu, problem.perfect)
+
+    def design_node(self, problem, center, Wx, Wu, memo):
+        return self.periodic_node(problem, center)
+
+    def node_controller(self, problem, center, stored):
+        """The whole orbit, recomputed from the centre (the roadmap stores its phase-0 values)."""
+        return self.periodic_node(problem, center)
+
+    def start_covariance(self, problem, state):
+        """At rest a unicycle's heading is not observable (its linearisation there is not
+        detectable): no stationary filter exists. Its nodes' belief is the periodic filter's at phase
+        0 of the orbit through the node; so is the belief at a start state."""
+        return self.periodic_node(problem, state).P.copy()
+
+    # -- nominals ------------------------------------------------------------------------------------
+
+    def nominal_trajectory(self, problem, x0, xf):
+        """Kinematically feasible: turn in place, drive straight, turn."""
+        return turn_drive_turn(problem.model, x0, xf, problem.scenario.controller.max_speed,
+                               problem.scenario.model.max_turn_rate)
+
+    def runtime_nominal(self, problem, x0, xf, tries):
+        """The same turn-drive-turn nominal (no speed to brake: the state has none)."""
+        return self.nominal_trajectory(problem, x0, xf)
+
+
+register("unicycle", UnicycleRobot)
