@@ -8,7 +8,7 @@ interval, whether the prediction lies in the executed interval, the difference, 
 calibration flags (Fisher's exact test, Holm). Summary: the fraction of cases whose prediction lies
 in the executed interval, and the largest difference. ``--png`` draws a reliability diagram.
 
-    python benchmarks/calibration.py --json out.json --png docs/calibration.png --markdown table.md
+    python benchmarks/calibration.py --json out.json --png docs/results/reliability.png --markdown table.md
     python benchmarks/calibration.py --scenario scenarios/point_lightdark.toml --seeds 1 2 --episodes 800
     python benchmarks/calibration.py --start region      # node-region starts instead of the scenarios' own
 """

@@ -45,13 +45,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.disturbances import Disturbance
     from firmtool.execute import ReplanSettings
     from firmtool.problem import Problem
+    from firmtool.progress import ProgressCallback
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
 # /policy attributes that hold each policy's prediction interval
 _INTERVAL_ATTRS = {"firm": "success_probability_ci95", "shortest-path": "shortest_path_success_probability_ci95"}
-# Shipped scenarios by name, until firmtool.scenario.resolve_scenario (issue 13) ships them with the
-# package: the source checkout's scenarios/, else ./scenarios/ (an installed copy run from the checkout).
-_SCENARIOS_DIR = Path(__file__).resolve().parents[1] / "scenarios"
 
 
 # -- scenarios -----------------------------------------------------------------------------------------
@@ -76,17 +74,7 @@ def load_scenario(source: str | Path) -> Scenario:
     ScenarioError
         One line naming the file, the field and what was expected.
     """
-    from firmtool import scenario as scenario_module
-
-    resolve = getattr(scenario_module, "resolve_scenario", None)  # shipped names (firmtool scenarios)
-    if resolve is not None:
-        return _load_scenario_file(resolve(source))
-    path = Path(source)
-    if not path.exists() and path.suffix == "" and path.parent == Path("."):
-        for folder in (_SCENARIOS_DIR, Path("scenarios")):  # a source checkout, then the working folder
-            if (folder / f"{path.name}.toml").exists():
-                return _load_scenario_file(folder / f"{path.name}.toml")
-    return _load_scenario_file(path)
+    return _load_scenario_file(source)  # an existing path wins over a name (scenario.resolve_scenario)
 
 
 # -- the roadmap -----------------------------------------------------------------------------------------
@@ -295,7 +283,7 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
 def build(scenario: Scenario | str | Path, *, workers: int | None = None, output: str | Path | None = None,
           executor: str = "process", scheduler: str | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
-          progress: Callable[[int], Callable[[int], None]] | None = None,
+          progress: "ProgressCallback | None" = None,
           checkpoint_seconds: float = pipeline.CHECKPOINT_SECONDS, force: bool = False,
           validity: Callable | None = None) -> Roadmap:
     """Sample the nodes, design their stabilisers and the edges, and estimate every edge by Monte Carlo.
@@ -319,7 +307,8 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
         Densify (paper III-E): add ``add_nodes`` nodes per round until the start node's success
         probability reaches ``p_min`` or the roadmap has ``max_nodes`` nodes.
     progress : callable, optional
-        Called with the number of edges to estimate; returns a callback told how many finished.
+        ``progress(stage, done, total)``, told by every stage of the nodes sampled, the nodes and
+        edges designed and the edges estimated (:mod:`firmtool.progress`).
     checkpoint_seconds : float
         Seconds between saves of finished edges into ``output`` (resume after a kill).
     force : bool
@@ -347,7 +336,7 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
 
     checker = None if validity is None else ValidityChecker(validity)
     options: dict[str, Any] = dict(workers=workers, executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min,
-                                   max_nodes=max_nodes, add_nodes=add_nodes, progress_factory=progress,
+                                   max_nodes=max_nodes, add_nodes=add_nodes, progress=progress,
                                    checkpoint_seconds=checkpoint_seconds, force=force, validity=checker)
     if output is not None:
         report = pipeline.build(scenario, output, **options)
@@ -532,7 +521,8 @@ class Solution:
         return target
 
 
-def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value") -> Solution:
+def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
+          progress: "ProgressCallback | None" = None) -> Solution:
     """Solve the constrained graph DP (paper eq. 12) and the success probabilities (Sec. III-E).
 
     Timeouts count as failures. Nothing is written (:meth:`Solution.save` stores the policy).
@@ -545,6 +535,8 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         J_F (default: the scenario's ``cost.failure_cost``).
     method : {"value", "policy"}
         Value iteration (the paper's) or policy iteration.
+    progress : callable, optional
+        ``progress(stage, done, total)``, told of the solve's steps (:mod:`firmtool.progress`).
 
     Returns
     -------
@@ -556,7 +548,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"failure_cost: expected a finite number > 0, found {failure_cost}")
-    group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method)
+    group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress)
     return Solution._from_group(roadmap, group)
 
 
@@ -564,7 +556,8 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
 
 def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
              start: np.ndarray | None = None, disturbances: Iterable["str | Disturbance"] = (),
-             replan: "ReplanSettings | None" = None, record: bool = True) -> Results:
+             replan: "ReplanSettings | None" = None, record: bool = True,
+             progress: "ProgressCallback | None" = None) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
     Each episode starts at the start node (or at ``start``), follows the policy's edge controllers
@@ -593,6 +586,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     record : bool
         Keep every episode's arrays (``states``, ``estimates`` (T + 1, n), ``covariances``
         (T + 1, n, n), ``controls`` (T, m)); they take ~8 (T + 1) (n^2 + 2n) bytes per episode.
+    progress : callable, optional
+        ``progress(stage, done, total)``, told of the episodes run (:mod:`firmtool.progress`).
 
     Returns
     -------
@@ -616,11 +611,11 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
                    cost_to_go=solution.cost_to_go, replan=replan, disturbances=dists, start=start, record=record,
                    edge_counts=rm.edge_counts,
                    predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
-                   failure_cost=solution.failure_cost, policy_name=policy)
+                   failure_cost=solution.failure_cost, policy_name=policy, progress=progress)
 
 
 def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" = None, *,
-         policy: str | None = None, episode: int | None = None) -> "Axes":
+         policy: str | None = None, episode: int | None = None, unit: str = "m", legend: bool = True) -> "Axes":
     """Draw one panel of the paper's Fig. 1 for a policy: obstacles, sensing field, goal, roadmap,
     the policy's nominal path, the robot at the start, and with ``results`` their success rate and
     one executed episode's estimated mean with 3-sigma ellipses of the followed point (the arm's tip).
@@ -637,6 +632,10 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
         Default: the policy of ``results``, else ``"firm"``.
     episode : int, optional
         Index of the episode of ``results`` to draw (default: the first success, else the first).
+    unit : str
+        The length unit of the scenario's world, for the axis labels.
+    legend : bool
+        Draw the legend under the axes.
 
     Returns
     -------
@@ -668,15 +667,16 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
     if ax is None:
         import matplotlib.pyplot as plt
 
-        _, ax = plt.subplots(figsize=(6.0, 6.0))
+        _, ax = plt.subplots(figsize=(6.0, 6.0), layout="constrained")
     rm = solution.roadmap
     panel(ax, rm.problem, rm.execution_design,
-          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label))
+          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label),
+          unit=unit, legend=legend)
     return ax
 
 
 def plot_policies(solution: Solution, results: Sequence[Results | None], policies: Sequence[str], *,
-                  dpi: int = 120) -> "Figure":
+                  dpi: int = 120, unit: str = "m") -> "Figure":
     """Panels side by side, one :func:`plot` per policy (``firmtool plot``), on a bare matplotlib
     Figure (no pyplot, no backend; write it with :func:`firmtool.figures.save_figure`).
 
@@ -686,14 +686,18 @@ def plot_policies(solution: Solution, results: Sequence[Results | None], policie
     results : one Results (or None) per policy.
     policies : the policies' names.
     dpi : resolution of the figure.
+    unit : the length unit of the axes.
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.0 * len(policies), 6.0), dpi=dpi)
+    from firmtool.figures import legend_below
+
+    sc = solution.roadmap.scenario
+    ratio = (sc.world.hi[1] - sc.world.lo[1]) / (sc.world.hi[0] - sc.world.lo[0])  # panels are drawn to scale
+    fig = Figure(figsize=(6.0 * len(policies), 4.7 * ratio + 2.3), dpi=dpi, layout="constrained")
     axes = fig.subplots(1, len(policies), squeeze=False)[0]
     for ax, res, name in zip(axes, results, policies):
-        plot(solution, res, ax, policy=name)
-    sc = solution.roadmap.scenario
+        plot(solution, res, ax, policy=name, unit=unit, legend=False)
+    legend_below(fig, axes[0])
     fig.suptitle(f"{sc.name} ({sc.measurement.kind} measurements)")
-    fig.tight_layout()
     return fig

@@ -112,13 +112,14 @@ def to_arrays(estimates: list[EdgeEstimate], keys: np.ndarray, spec: CostSpec) -
     rows = [(e, int(code), int(cnt)) for e, r in enumerate(estimates) for code, cnt in zip(r.outcomes, r.counts)]
     table = np.array(rows, dtype=np.int64).reshape(-1, 3)
     E = len(estimates)
+    w = cost_weights(spec)  # once: EdgeEstimate.cost_mean / cost_std with these weights, the same values
     return {
         "source": np.array([r.source for r in estimates], dtype=np.int64),
         "target": np.array([r.target for r in estimates], dtype=np.int64),
         "key": np.asarray(keys, dtype=np.uint8).reshape(E, KEY_BYTES),
         "particles": np.array([r.particles for r in estimates], dtype=np.int64),
-        "cost_mean": np.array([r.cost_mean(spec) for r in estimates]),
-        "cost_std": np.array([r.cost_std(spec) for r in estimates]),
+        "cost_mean": np.array([float(r.terms_mean @ w) for r in estimates]),
+        "cost_std": np.array([float(np.sqrt(max(w @ r.terms_cov @ w, 0.0))) for r in estimates]),
         "cost_terms_mean": np.array([r.terms_mean for r in estimates]).reshape(E, 3),
         "cost_terms_cov": np.array([r.terms_cov for r in estimates]).reshape(E, 3, 3),
         "steps_mean": np.array([r.steps_mean for r in estimates]),

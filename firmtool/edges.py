@@ -188,13 +188,12 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
         xhat = np.repeat(v[None], M, axis=0)
         if problem.perfect:
             return xhat.copy(), xhat
-        chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(n))
-        return xhat + rng.standard_normal((M, n)) @ chol.T, xhat
+        return xhat + rng.standard_normal((M, n)) @ _start_factor(design_, source).T, xhat
     if start != "region":
         raise ValueError(f"start: expected one of {START_MODES}, found {start!r}")
     radius = problem.scenario.controller.node_radius
     chol_s = np.linalg.cholesky(design_.Sigma[source] + 1e-15 * np.eye(n))
-    chol_p = None if problem.perfect else np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(n))
+    chol_p = None if problem.perfect else _start_factor(design_, source)
     scale = design_.scale[source]
     xs, xhats, drawn = [], [], 0
     for _ in range(REGION_DRAW_ROUNDS):  # a node region holds most of the stationary mass: few rounds
@@ -214,23 +213,44 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
     return (xhat.copy(), xhat) if problem.perfect else (x, xhat)
 
 
+_factor_cache: dict[tuple[int, int], tuple[Design, np.ndarray]] = {}
+
+
+def _start_factor(design_: Design, source: int) -> np.ndarray:
+    """The Cholesky factor of node ``source``'s covariance (jittered by 1e-15 I), once per design and
+    node: a worker's batch of edges shares a few sources (edges come sorted by source)."""
+    hit = _factor_cache.get((id(design_), source))
+    if hit is not None and hit[0] is design_:
+        return hit[1]
+    chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(design_.P.shape[1]))
+    if len(_factor_cache) >= 256:
+        _factor_cache.clear()
+    _factor_cache[(id(design_), source)] = (design_, chol)
+    return chol
+
+
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                   particles: int, seed: int, chunk: int, engine: str | None = None,
-                  numpy_noise: bool = False, start: str = "center") -> EdgeEstimate:
+                  numpy_noise: bool = False, start: str | None = None,
+                  controller: LocalController | None = None) -> EdgeEstimate:
     """Monte Carlo of the local controller ``source -> target`` from the source node.
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
     with its own seed derived from ``(seed, source, target, chunk index)``. ``engine`` and
-    ``numpy_noise``: as in :func:`simulate`; ``start``: as in :func:`initial_ensemble`. This is block 0
-    of :func:`estimate_blocks`.
+    ``numpy_noise``: as in :func:`simulate`; ``start``: as in :func:`initial_ensemble` (None: the
+    scenario's ``estimation.start``). ``controller``:
+    the edge's local controller if the caller designed it already
+    (:func:`firmtool.design.local_controllers` designs a batch of edges at once, bit for bit the
+    controller designed here otherwise). This is block 0 of :func:`estimate_blocks`.
     """
     return estimate_blocks(problem, design_, regions, source, target, particles, 0, 1, seed, chunk, engine,
-                           numpy_noise, start)[0]
+                           numpy_noise, start, controller)[0]
 
 
 def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                     block_size: int, first_block: int, blocks: int, seed: int, chunk: int, engine: str | None = None,
-                    numpy_noise: bool = False, start: str = "center") -> list[EdgeEstimate]:
+                    numpy_noise: bool = False, start: str | None = None,
+                    controller: LocalController | None = None) -> list[EdgeEstimate]:
     """Blocks ``first_block .. first_block + blocks - 1`` of an edge's particles, one estimate each.
 
     An edge's particles come in blocks of ``block_size`` (the scenario's ``estimation.particles``);
@@ -239,9 +259,10 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
     chunk drawing from :func:`edge_seed_sequence`. So the particles of an edge with ``k`` blocks are a
     function of the seed, the edge and ``k`` alone: more particles for an edge are new chunks, and an
     estimate with ``k`` blocks is the in-order merge (:func:`merge_estimates`) of blocks 0 to k - 1,
-    whoever computed them and in whatever batches.
+    whoever computed them and in whatever batches. ``controller``: as in :func:`estimate_edge`.
     """
-    lc = local_controller(problem, design_, source, target)
+    lc = controller if controller is not None else local_controller(problem, design_, source, target)
+    start = problem.scenario.estimation.start if start is None else start
     per_block = -(-block_size // chunk)
     out = []
     for b in range(first_block, first_block + blocks):

@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import chi2, norm
+from scipy.stats import binomtest, chi2
 
 from firmtool import disturbances as dist_mod
 from firmtool import kernels
@@ -69,6 +69,7 @@ from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, START_INDEX, NodeRegions, segment_is_valid
 from firmtool.problem import Problem
 from firmtool.calibration import EdgeCounts, edge_calibration
+from firmtool.progress import EXECUTE, Counter, ProgressCallback
 from firmtool.results import Episode, Event, EventKind, Outcome, Results
 
 SUCCESS, COLLISION, TIMEOUT, STUCK = Outcome.SUCCESS, Outcome.COLLISION, Outcome.TIMEOUT, Outcome.STUCK
@@ -114,15 +115,17 @@ class ReplanSettings:
 
 
 def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion."""
+    """Wilson score interval of a binomial proportion (scipy's ``binomtest(...).proportion_ci``).
+
+    Exact at the boundaries (scipy sets them): ``successes == n`` has upper bound 1.0 and
+    ``successes == 0`` lower bound 0.0, where the closed form's rounding gives 0.9999999999999999
+    (an observed 400/400 would fall outside an interval against a prediction of 1.0).
+    ``n == 0`` gives (0.0, 1.0).
+    """
     if n == 0:
         return 0.0, 1.0
-    z = float(norm.ppf(0.5 + confidence / 2))
-    p = successes / n
-    denom = 1 + z * z / n
-    center = (p + z * z / (2 * n)) / denom
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, center - half), min(1.0, center + half)
+    ci = binomtest(int(successes), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(ci.low), float(ci.high)
 
 
 class _Candidates:
@@ -633,7 +636,7 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
             replan: ReplanSettings | None = None, disturbances: tuple = (), start: np.ndarray | None = None,
             record: bool = False, edge_counts: EdgeCounts | None = None,
             predicted_ci95: tuple[float, float] | None = None, failure_cost: float | None = None,
-            policy_name: str | None = None) -> Results:
+            policy_name: str | None = None, progress: ProgressCallback | None = None) -> Results:
     """Run ``episodes`` episodes of ``policy`` and summarise them.
 
     Parameters
@@ -651,6 +654,7 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
     edge_counts : the roadmap's outcome counts: with them, the calibration check of the edges taken.
     predicted_ci95 : the prediction's interval (:func:`firmtool.calibration.predicted_interval`), reported as it is.
     policy_name : the policy's name, reported as it is.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the episodes run.
 
     Returns
     -------
@@ -670,9 +674,12 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
         if not problem.is_valid(start[None])[0]:
             raise InputError(f"start {np.array2string(start, precision=3)} is in collision or out of bounds")
     t0 = time.perf_counter()
-    eps = [runner.run_episode(np.random.default_rng(np.random.SeedSequence([seed, EPISODE_KEY, i])), record,
-                              start=start, disturbance_seed=(seed, dist_mod.DISTURBANCE_KEY, i))
-           for i in range(episodes)]
+    counter = Counter(progress, EXECUTE, episodes).start()
+    eps = []
+    for i in range(episodes):
+        eps.append(runner.run_episode(np.random.default_rng(np.random.SeedSequence([seed, EPISODE_KEY, i])), record,
+                                      start=start, disturbance_seed=(seed, dist_mod.DISTURBANCE_KEY, i)))
+        counter.advance()
     seconds = time.perf_counter() - t0
     count = lambda o: sum(e.outcome == o for e in eps)  # noqa: E731
     successes = count(SUCCESS)

@@ -121,25 +121,41 @@ def reachable_from(n_nodes: int, edge_source: np.ndarray, landing: scipy.sparse.
 
 
 class _Segments:
-    """Per-node minimum over that node's edges, vectorised (edges sorted by source once)."""
+    """Per-node minimum over that node's edges, vectorised (edges sorted by source once).
+
+    Each sweep of value iteration needs only the minima (one ``reduceat``); the choice of edge (the
+    first edge of a segment that attains its minimum) only when a policy is read off. Edges that come
+    sorted by source already (a roadmap's do) are not gathered into that order every sweep."""
 
     def __init__(self, edge_source: np.ndarray, usable: np.ndarray) -> None:
         idx = np.flatnonzero(usable)
         order = idx[np.argsort(edge_source[idx], kind="stable")]
         src = edge_source[order]
         self.order = order
+        # identity order (every edge usable, sorted by source): q need not be gathered
+        self.in_place = order.size == edge_source.size and bool(np.all(order == np.arange(order.size)))
         self.starts = np.flatnonzero(np.r_[True, src[1:] != src[:-1]]) if src.size else np.zeros(0, dtype=np.int64)
         self.nodes = src[self.starts] if src.size else np.zeros(0, dtype=np.int64)
+        self._segment: np.ndarray | None = None
+
+    def _sorted(self, q: np.ndarray) -> np.ndarray:
+        return q if self.in_place else q[self.order]
+
+    def min(self, q: np.ndarray) -> np.ndarray:
+        """The minimum of ``q`` over each node's edges (for ``self.nodes``)."""
+        qs = self._sorted(q)
+        return np.minimum.reduceat(qs, self.starts) if qs.size else qs
 
     def argmin(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(min value, edge achieving it) for each node in ``self.nodes``."""
-        qs = q[self.order]
+        """(min value, edge achieving it) for each node in ``self.nodes``: the first edge of the
+        node's segment (in source order) equal to its minimum."""
+        qs = self._sorted(q)
         mins = np.minimum.reduceat(qs, self.starts) if qs.size else qs
-        # first edge of each segment equal to its minimum
-        seg = np.repeat(np.arange(self.starts.size), np.diff(np.r_[self.starts, qs.size]))
-        hit = qs <= mins[seg]
-        first = np.full(self.starts.size, qs.size)
-        np.minimum.at(first, seg[hit], np.flatnonzero(hit))
+        if self._segment is None:
+            self._segment = np.repeat(np.arange(self.starts.size), np.diff(np.r_[self.starts, qs.size]))
+        seg = self._segment
+        hit = np.flatnonzero(qs <= mins[seg])  # sorted; every segment holds at least its minimum
+        first = hit[np.r_[True, seg[hit[1:]] != seg[hit[:-1]]]] if hit.size else hit
         return mins, self.order[first]
 
 
@@ -195,7 +211,7 @@ def solve_dp(n_nodes: int, goal: int, edge_source: np.ndarray, edge_cost: np.nda
     status, residual, it = SolveStatus.MAX_ITERATIONS, np.inf, 0
     if method == "value":
         for it in range(1, max_iterations + 1):
-            mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
+            mins = seg.min(_bellman(c, landing, effective(J)))
             J_new = J.copy()
             J_new[seg.nodes] = mins
             finite = np.isfinite(J_new)
@@ -248,8 +264,7 @@ def _policy_iteration(n_nodes, is_goal, c, landing, seg, reach, effective, failu
     J = np.where(reach, 0.0, np.inf)
     J[is_goal] = 0.0
     for _ in range(min(50, max_iterations)):
-        mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
-        J[seg.nodes] = mins
+        J[seg.nodes] = seg.min(_bellman(c, landing, effective(J)))
     policy = np.full(n_nodes, -1, dtype=np.int64)
     _, policy[seg.nodes] = seg.argmin(_bellman(c, landing, effective(J)))
     status, it = SolveStatus.MAX_ITERATIONS, 0
@@ -257,8 +272,7 @@ def _policy_iteration(n_nodes, is_goal, c, landing, seg, reach, effective, failu
         J_pi = _evaluate(n_nodes, is_goal, policy, c, landing, reach, failure_cost)
         if J_pi is None:  # a closed loop with no exit: fall back to more value iteration sweeps
             for _ in range(1000):
-                mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
-                J[seg.nodes] = mins
+                J[seg.nodes] = seg.min(_bellman(c, landing, effective(J)))
             _, policy[seg.nodes] = seg.argmin(_bellman(c, landing, effective(J)))
             continue
         J = J_pi
@@ -270,7 +284,7 @@ def _policy_iteration(n_nodes, is_goal, c, landing, seg, reach, effective, failu
             status = SolveStatus.CONVERGED
             break
         policy[seg.nodes[improve]] = best[improve]
-    mins, _ = seg.argmin(_bellman(c, landing, effective(J)))
+    mins = seg.min(_bellman(c, landing, effective(J)))
     finite = J[seg.nodes]
     residual = float(np.max(np.abs(mins - finite), initial=0.0))
     return J, it, residual, status

@@ -15,7 +15,7 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
-from firmtool import interrupts
+from firmtool import interrupts, warmup
 from firmtool.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
 from firmtool.atomic import check_target
 from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
@@ -29,8 +29,10 @@ from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, so
 from firmtool.kernels import engine_choice
 from firmtool.locking import writer_lock
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
-from firmtool.parallel import EstimationJob, default_workers, job_extras, run_edges
+from firmtool.parallel import (EstimationJob, Workers, default_workers, job_extras, parallel_design,
+                               parallel_validity, remember_problem, run_edges)
 from firmtool.problem import Problem, ValidityChecker, build_problem
+from firmtool.progress import DESIGN_NODES, ESTIMATE, SOLVE, Counter, ProgressCallback
 from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
                               DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget, check_workers
@@ -145,7 +147,8 @@ def as_scenario(scenario: Scenario | str | Path) -> Scenario:
 
 
 def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False, *,
-                 validity: Callable | None = None) -> SampleReport:
+                 validity: Callable | None = None, session: Workers | None = None,
+                 progress: ProgressCallback | None = None) -> SampleReport:
     """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
 
     Parameters
@@ -155,6 +158,9 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     force : replace an existing file there even if it is not a firmtool roadmap.
     validity : a user's vectorised checker (:func:`firmtool.problem.build_problem`); the roadmap
         records its identity, and the later stages need the same checker.
+    session : workers (:class:`firmtool.parallel.Workers`) that check large batches of states
+        (the collision checks of node pairs); the nodes are the same without them.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the nodes sampled.
     """
     t0 = time.perf_counter()
     scenario = as_scenario(scenario)
@@ -164,7 +170,8 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
         raise InputError(f"{scenario.path}: task.goal: expected a goal apart from the start, found the start itself")
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
-    centers, kinds = roadmap_nodes(problem, rng)
+    centers, kinds = roadmap_nodes(parallel_validity(problem, session) if session else problem, rng,
+                                   progress=progress)
     _check_start_apart_from_goals(problem, centers, kinds)
     budget = scenario.roadmap.bridge_nodes
     centers, kinds, added, reason = connect_goals(problem, centers, kinds, budget, rng)
@@ -200,20 +207,40 @@ def controllers_inputs(roadmap: Roadmap) -> str:
     return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
 
 
-def design_stage(path: str | Path, *, validity: Callable | None = None) -> DesignReport:
+def design_stage(path: str | Path, *, validity: Callable | None = None, workers: int | None = None,
+                 executor: str = "process", scheduler: str | None = None, session: Workers | None = None,
+                 progress: ProgressCallback | None = None) -> DesignReport:
     """Design node stabilisers, node regions and edges (nominal trajectories); ``validity``: the
-    roadmap's Python validity checker, if it was built with one."""
+    roadmap's Python validity checker, if it was built with one.
+
+    The node stabilisers, the collision checks of node pairs and the edges' nominals run on the
+    workers of ``session`` (a :class:`firmtool.parallel.Workers` of the calling command), or of
+    ``workers`` / ``executor`` / ``scheduler`` as in :func:`estimate_stage` (default: in this
+    process). The design is the same, bit for bit, however it runs. ``progress``: told of the nodes
+    and edges designed (:mod:`firmtool.progress`)."""
+    if workers is not None:
+        check_workers(workers)
+    _check_executor(executor)
     with writer_lock(path):
-        return _design_stage(path, validity)
+        if session is not None:
+            return _design_stage(path, validity, session, progress)
+        with Workers(workers or 1, executor, scheduler) as own:
+            return _design_stage(path, validity, own, progress)
 
 
-def _design_stage(path: str | Path, validity: Callable | None = None) -> DesignReport:
+def _design_stage(path: str | Path, validity: Callable | None = None, session: Workers | None = None,
+                  progress: ProgressCallback | None = None) -> DesignReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
-    d = design(problem, centers, nodes["kind"])
+    if session is not None and session.parallel:
+        counter = Counter(progress, DESIGN_NODES, int(centers.shape[0])).start()
+        d = parallel_design(problem, centers, nodes["kind"], session, counter.callback())
+        counter.finish()
+    else:
+        d = design(problem, centers, nodes["kind"], progress=progress)
     if d.edge_source.size == 0:
         raise RunFailure(f"{path}: no collision-free edge between any two nodes; add nodes or neighbours")
     arrays = {name: getattr(d, name) for name in ("u_eq", "K", "S", "L", "P", "Sigma", "scale",
@@ -228,8 +255,9 @@ def _design_stage(path: str | Path, validity: Callable | None = None) -> DesignR
 
 def estimate_stage(path: str | Path, *, workers: int | None = None, executor: str = "process",
                    scheduler: str | None = None,
-                   progress_factory: Callable[[int], Callable[[int], None]] | None = None,
-                   checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None) -> EstimateReport:
+                   progress: ProgressCallback | None = None,
+                   checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None,
+                   session: Workers | None = None) -> EstimateReport:
     """Monte Carlo estimation of every edge, in parallel, then adaptive rounds; writes ``/edges``.
 
     A uniform first pass gives every edge ``estimation.particles`` particles; then, unless
@@ -250,18 +278,20 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     path : a roadmap file with designed controllers.
     workers : worker processes (default: all cores).
     executor : ``"process"`` (local) or ``"dask"`` (dask.distributed, ``scheduler`` its address).
-    progress_factory : called with the number of edges to estimate; returns a callback that is
-        told how many more edges finished.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the edges
+        estimated (``total``: the edges this run estimates).
     checkpoint_seconds : seconds between checkpoints (the first comes after the first batch).
     validity : the roadmap's Python validity checker, if it was built with one.
+    session : the :class:`firmtool.parallel.Workers` of the calling command (a build keeps one for
+        all its stages); ``workers`` and ``executor`` are then its own.
     """
     if workers is not None:
         check_workers(workers)  # refused before anything is read (again with the memory per worker below)
     _check_executor(executor)
     with writer_lock(path):
         return _estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
-                               progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds,
-                               validity=validity)
+                               progress=progress, checkpoint_seconds=checkpoint_seconds,
+                               validity=validity, session=session)
 
 
 def _check_executor(executor: str) -> None:
@@ -270,8 +300,9 @@ def _check_executor(executor: str) -> None:
 
 
 def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, scheduler: str | None,
-                    progress_factory: Callable[[int], Callable[[int], None]] | None,
-                    checkpoint_seconds: float, validity: Callable | None = None) -> EstimateReport:
+                    progress: ProgressCallback | None,
+                    checkpoint_seconds: float, validity: Callable | None = None,
+                    session: Workers | None = None) -> EstimateReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap, validity)
@@ -288,6 +319,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
         table_hash = inputs_hash(table_hash, sc.estimation.target_halfwidth, sc.estimation.adaptive_particles,
                                  digest(sc.cost).hex(), "adaptive", ADAPTIVE_VERSION)
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
+        warmup.stop()  # nothing to estimate: no compile to wait for
         e = roadmap.require("edges", "particle_steps", fresh=False)
         if "edges" in roadmap.stale_stages():  # the same inputs under a new scenario text (e.g. a comment)
             restamp(path, ("edges",))
@@ -300,21 +332,30 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     reused = sum(x is not None for x in est)
     todo = [e for e in range(E) if est[e] is None]
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
+    if todo and engine == "numba":  # on a cold cache: compiled once (or by build's start), before the workers
+        warmup.start(engine)
+        warmup.wait()
+    else:
+        warmup.stop()
     workers = check_workers(workers or default_workers(), problem)
-    job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=str(path), design=d,
+    job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=sc.path, design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
                         engine=engine, **job_extras(problem))
-    progress = progress_factory(len(todo)) if progress_factory and todo else None
+    remember_problem(job, problem)  # in-process and forked workers use this problem as it is
+    counter = Counter(progress, ESTIMATE, len(todo)).start() if todo else None
     fresh: list[tuple[EdgeEstimate, np.ndarray]] = []  # estimates made by this run, with their keys
     saved = 0
+    converted: dict[str, np.ndarray] = {}  # the table of the edges checkpointed so far (grows by the new ones)
     failed: dict[int, str] = {}
     simulated = 0
 
     def checkpoint() -> None:
-        nonlocal saved
+        nonlocal saved, converted
         if len(fresh) > saved:
-            table = to_arrays([x for x, _ in fresh], np.array([k for _, k in fresh]), sc.cost)
-            write_edge_cache(path, concat_edge_tables(cache, table), {"controllers_sha256": table_hash})
+            batch = fresh[saved:]
+            converted = concat_edge_tables(converted, to_arrays([x for x, _ in batch],
+                                                                np.array([k for _, k in batch]), sc.cost))
+            write_edge_cache(path, concat_edge_tables(cache, converted), {"controllers_sha256": table_hash})
             saved = len(fresh)
 
     last = [time.monotonic()]
@@ -329,7 +370,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
         # Ctrl-C (with the CLI's handler) is raised only between edges, where the finished ones can be saved
         with interrupts.deferred():
             for r in run_edges(job, todo, workers=workers, executor=executor, scheduler=scheduler,
-                               progress=progress):
+                               progress=counter.callback() if counter else None, session=session):
                 if r.error is not None:
                     failed[r.edges[0]] = r.error
                 for e, x in zip(r.edges, r.estimates):
@@ -370,7 +411,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
                         tasks.append((e, k0, k_target - k0))
                     block_job = dataclasses.replace(job, block_tasks=np.array(tasks, dtype=np.int64).reshape(-1, 3))
                     for r in run_edges(block_job, list(range(len(tasks))), workers=workers, executor=executor,
-                                       scheduler=scheduler):
+                                       scheduler=scheduler, session=session):
                         if r.error is not None:  # the edge keeps its particles so far
                             failed[int(tasks[r.edges[0]][0])] = r.error
                             continue
@@ -471,7 +512,8 @@ def policy_inputs(edges_inputs: str, failure_cost: float, method: str, cost: obj
     return inputs_hash(edges_inputs, failure_cost, method, digest(cost).hex())
 
 
-def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value") -> PolicyGroup:
+def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
+                 progress: ProgressCallback | None = None) -> PolicyGroup:
     """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
     baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
 
@@ -480,8 +522,11 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     roadmap : a roadmap with estimated edges.
     failure_cost : J_F (default: the scenario's ``cost.failure_cost``).
     method : ``"value"`` (value iteration) or ``"policy"`` (policy iteration).
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the solve's steps
+        (the DP, the success probabilities, the shortest-path baseline).
     """
     t0 = time.perf_counter()
+    steps = Counter(progress, SOLVE, 3).start()
     problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     if edges["source"].size == 0:
@@ -494,7 +539,9 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     JF = float(failure_cost if failure_cost is not None else problem.scenario.cost.failure_cost)
     res = solve_dp(N, goals, edges["source"].astype(np.int64), cost, landing,
                    fail + timeout, JF, method=method)
+    steps.advance()
     p = success_probability(N, goals, res.policy, landing)
+    steps.advance()
     next_node = np.where(res.policy >= 0, edges["target"][np.maximum(res.policy, 0)], -1)
     # The baseline that ignores uncertainty: shortest configuration-space path on the same roadmap.
     centers = roadmap.require("nodes", "centers")["centers"][:, :problem.config_dim]
@@ -505,6 +552,7 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     intervals = {f"{prefix}success_probability_ci95": np.asarray(
         predicted_interval(counts, N, goals, pol, roadmap.seed, node=START_INDEX, point=float(prob[START_INDEX])))
         for prefix, pol, prob in (("", res.policy, p), ("shortest_path_", sp, p_sp))}
+    steps.finish()
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
@@ -550,7 +598,8 @@ def unreachable_failure(roadmap_path: str | Path | None, unreachable: int, nodes
                       f"edges ({unreachable} of {nodes} nodes cannot reach it); add nodes or neighbours")
 
 
-def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: str = "value") -> SolveReport:
+def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: str = "value",
+                progress: ProgressCallback | None = None) -> SolveReport:
     """Solve the roadmap file at ``path`` (:func:`solve_policy`) and write ``/policy``.
 
     Raises
@@ -560,7 +609,7 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     """
     with writer_lock(path):
         roadmap = Roadmap(path)
-        group = solve_policy(roadmap, failure_cost=failure_cost, method=method)
+        group = solve_policy(roadmap, failure_cost=failure_cost, method=method, progress=progress)
         write_policy(path, group)
     J = group.arrays["cost_to_go"]
     if not np.isfinite(J[START_INDEX]):
@@ -644,7 +693,7 @@ def _add_nodes_stage(path: str | Path, count: int, connect: bool, validity: Call
 
 def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers: int | None = None,
           executor: str = "process", scheduler: str | None = None,
-          progress_factory: Callable[[int], Callable[[int], None]] | None = None, fresh: bool = False,
+          progress: ProgressCallback | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
           checkpoint_seconds: float = CHECKPOINT_SECONDS, force: bool = False,
           validity: Callable | None = None) -> BuildReport:
@@ -664,7 +713,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     ----------
     scenario : a scenario, or the path of a scenario file.
     output : the roadmap file (default ``artifacts/NAME.h5``).
-    workers, executor, scheduler, progress_factory, checkpoint_seconds : see :func:`estimate_stage`.
+    workers, executor, scheduler, checkpoint_seconds : see :func:`estimate_stage`.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told by every stage.
     force : replace an existing file at ``output`` even if it is not a firmtool roadmap.
     validity : a user's vectorised validity checker (:func:`firmtool.problem.build_problem`), used
         by every stage; the roadmap records its identity.
@@ -678,22 +728,30 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     if workers is not None:
         check_workers(workers)
     _check_executor(executor)
-    with writer_lock(out):
+    # one set of workers for every stage of the build (local processes start on first use, a dask
+    # cluster is joined once)
+    with writer_lock(out), Workers(workers or default_workers(), executor, scheduler) as session:
+        # a fresh install: compile the engine while sampling and designing (a user's validity checker
+        # runs the numpy engine: nothing to compile)
+        if validity is None and not warmup.engine_is_cached():
+            warmup.start(engine_choice(build_problem(scenario))[0])
         return _build(scenario, out, workers=workers, executor=executor, scheduler=scheduler,
-                      progress_factory=progress_factory, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
+                      progress=progress, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
                       add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds,
                       validity=None if validity is None else (validity if isinstance(validity, ValidityChecker)
-                                                              else ValidityChecker(validity)))
+                                                              else ValidityChecker(validity)),
+                      session=session)
 
 
 def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str, scheduler: str | None,
-           progress_factory: Callable[[int], Callable[[int], None]] | None, fresh: bool, p_min: float | None,
+           progress: ProgressCallback | None, fresh: bool, p_min: float | None,
            max_nodes: int | None, add_nodes: int | None, checkpoint_seconds: float,
-           validity: ValidityChecker | None = None) -> BuildReport:
+           validity: ValidityChecker | None = None, session: Workers | None = None) -> BuildReport:
     seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
     existing = None if fresh else _resumable(out, scenario, validity.identity if validity else "")
     if existing is None:
-        seconds["sample"] = sample_stage(scenario, out, force=True, validity=validity).seconds  # check_output passed
+        seconds["sample"] = sample_stage(scenario, out, force=True, validity=validity,  # check_output passed
+                                         session=session, progress=progress).seconds
     elif existing.scenario_sha256 != scenario.sha256:
         # the nodes' inputs are unchanged (_resumable); so are the controllers if their inputs hash matches
         keep = ("nodes",) + (("controllers",) if existing.has("controllers") and
@@ -708,10 +766,10 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
         rm = Roadmap(out)
         if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
                 and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
-            seconds["design"] += design_stage(out, validity=validity).seconds
+            seconds["design"] += design_stage(out, validity=validity, session=session, progress=progress).seconds
         e = estimate_stage(out, workers=workers, executor=executor, scheduler=scheduler,
-                           progress_factory=progress_factory, checkpoint_seconds=checkpoint_seconds,
-                           validity=validity)
+                           progress=progress,
+                           checkpoint_seconds=checkpoint_seconds, validity=validity, session=session)
         notices.extend(n for n in e.notices if n not in notices)
         seconds["estimate"] += e.seconds
         totals["estimated_edges"] += e.estimated_edges

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.resources
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -258,7 +259,8 @@ MODEL_FIELDS = (  # and the robot's model_fields
 MEASUREMENT_FIELDS = (  # and, when imperfect, the noise form's fields
     Field("kind", "string", choices=MEASUREMENT_KINDS, doc="perfect (state space, SLQR) or imperfect (belief space, SLQG)"),
     Field("noise", "string", choices=lambda: _noise_names(), doc="the noise form (firmtool.models.noise), imperfect only"),
-    Field("H", "array", None, shape=(None, None), doc="observation matrix (nz, n) (default: the robot's)"),
+    Field("H", "array", None, shape=(None, None), doc="observation matrix (nz, n) (default: the robot's)",
+          example=[[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]),
 )
 WORLD_FIELDS = (
     Field("bounds", "array", shape=(2, None), unit="workspace",
@@ -352,13 +354,68 @@ def _backend_names() -> tuple[str, ...]:
 # reading
 
 
+# The package the shipped scenarios are installed as (the repository's scenarios/ folder; setup.py).
+SHIPPED_PACKAGE = "firmtool.scenarios"
+
+
+def shipped_scenarios() -> dict[str, Path]:
+    """The scenarios installed with firmtool: name (the file's stem) -> file, sorted by name.
+
+    Returns
+    -------
+    dict of str to Path
+        Empty if the scenario package is missing (a broken install) and there is no source tree's
+        ``scenarios/`` folder next to the ``firmtool`` package.
+    """
+    try:
+        folder = importlib.resources.files(SHIPPED_PACKAGE)
+    except ModuleNotFoundError:  # a source tree used without installing it: the repository's folder
+        folder = Path(__file__).resolve().parents[1] / "scenarios"
+        if not folder.is_dir():
+            return {}
+    files = sorted((Path(str(f)) for f in folder.iterdir() if f.name.endswith(".toml")), key=lambda f: f.stem)
+    return {f.stem: f for f in files}
+
+
+def scenario_description(path: str | Path) -> str:
+    """The ``scenario.description`` of a scenario file ('' if it has none or cannot be read)."""
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return ""
+    section = data.get("scenario")
+    description = section.get("description", "") if isinstance(section, dict) else ""
+    return description if isinstance(description, str) else ""
+
+
+def resolve_scenario(name_or_path: str | Path) -> Path:
+    """The scenario file meant by ``name_or_path``: a path that exists, else a shipped scenario's name.
+
+    An existing path wins over a shipped name (``smoke`` is the file ``./smoke`` if there is one).
+
+    Raises
+    ------
+    ScenarioError
+        Neither an existing path nor a shipped name; the message lists the shipped names.
+    """
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    shipped = shipped_scenarios()
+    if str(name_or_path) in shipped:
+        return shipped[str(name_or_path)]
+    names = ", ".join(shipped) or "none (the firmtool.scenarios package is missing: reinstall firmtool)"
+    raise ScenarioError(str(name_or_path), "", f"no such file, nor a shipped scenario (shipped: {names})")
+
+
 def load_scenario(path: str | Path) -> Scenario:
-    """Read, parse and validate a scenario file.
+    """Read, parse and validate a scenario file, or a shipped scenario by name.
 
     Parameters
     ----------
     path : str or Path
-        A TOML file.
+        A TOML file, or the name of a shipped scenario (:func:`shipped_scenarios`, e.g.
+        ``"arm8_lightdark"``); an existing path wins (:func:`resolve_scenario`).
 
     Returns
     -------
@@ -370,7 +427,7 @@ def load_scenario(path: str | Path) -> Scenario:
     ScenarioError
         One line naming the file, and each field with what was expected.
     """
-    p = Path(path)
+    p = resolve_scenario(path)
     try:
         raw = read_regular_file(p)  # a regular file of bounded size, checked before reading it
     except FileNotFoundError:

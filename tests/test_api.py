@@ -26,7 +26,11 @@ def cli(*args, cwd=None) -> dict:
     r = subprocess.run([sys.executable, "-m", "firmtool.cli", *map(str, args), "--json"], capture_output=True,
                        text=True, cwd=cwd, timeout=600)
     assert r.returncode == 0, r.stderr
-    return json.loads(r.stdout)
+    out = json.loads(r.stdout)
+    # every --json output is stamped with the versions (the API's reports are not): compare the rest
+    assert out.pop("firmtool_version") == ft.__version__
+    out.pop("schema_version", None)
+    return out
 
 
 def _group(path: Path, name: str) -> tuple[dict, dict]:

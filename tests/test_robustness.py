@@ -46,11 +46,13 @@ def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
-def assert_clean_error(result, code: int, *phrases: str) -> str:
-    """Exit ``code``, one line on the output starting with 'error:', no traceback, every phrase in it."""
+def assert_clean_error(result, code: int, *phrases: str, per_mistake: bool = False) -> str:
+    """Exit ``code``, one line on the output starting with 'error:', no traceback, every phrase in it.
+    ``per_mistake``: a scenario file's mistakes, one 'error:' line each (all reported at once)."""
     out = result.output.strip()
     assert result.exit_code == code, f"exit {result.exit_code}: {out!r} {result.exception!r}"
-    assert out.startswith("error: ") and "\n" not in out, out
+    assert out.startswith("error: ") and ("\n" not in out or per_mistake), out
+    assert all(line.startswith("error: ") for line in out.splitlines()), out
     assert "Traceback" not in out
     for phrase in phrases:
         assert phrase in out, f"{phrase!r} not in {out!r}"
@@ -79,11 +81,11 @@ def test_corpus_is_large_and_distinct():
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.stem)
-def test_bad_scenario_gives_one_line_exit_2(path, tmp_path):
+def test_bad_scenario_gives_one_line_per_mistake_exit_2(path, tmp_path):
     _, field = _expectation(path)
     out = tmp_path / "out.h5"
     r = invoke("sample", path, "-o", out)
-    assert_clean_error(r, 2, str(path), field)
+    assert_clean_error(r, 2, str(path), field, per_mistake=True)
     assert not out.exists()  # refused before anything is written
 
 
@@ -147,12 +149,12 @@ def test_generated_bad_scenario_gives_one_line(name, tmp_path):
     path = tmp_path / f"{name}.toml"
     make(path)
     out = tmp_path / "out.h5"
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # this process's CPU time: other processes loading the machine do not count
     r = invoke(command, path, "-o", out, *(["-w", "1"] if command == "build" else []))
-    assert_clean_error(r, code, *phrases)
+    assert_clean_error(r, code, *phrases, per_mistake=True)
     if code == 2:
         assert not out.exists()  # refused before anything is written
-        assert time.perf_counter() - t0 < 30  # refused from the size or the text, not after parsing for minutes
+        assert time.process_time() - t0 < 30  # refused from the size or the text, not after parsing for minutes
 
 
 def test_brackets_in_strings_and_comments_are_not_nesting(tmp_path):
@@ -169,7 +171,7 @@ def test_real_process_prints_no_traceback(tmp_path):
     """The console entry point itself (not CliRunner): stderr is one line, exit 2."""
     bad = BAD / "not_stabilisable.toml"
     p = subprocess.run([sys.executable, "-c", "from firmtool.cli import main; main()", "sample", str(bad),
-                        "-o", str(tmp_path / "x.h5")], capture_output=True, text=True, timeout=120)
+                        "-o", str(tmp_path / "x.h5")], capture_output=True, text=True, timeout=900)
     assert p.returncode == 2, p.stderr
     assert p.stderr.strip().count("\n") == 0 and "Traceback" not in p.stderr
     assert "model.A/B: (A, B) is not stabilisable" in p.stderr
@@ -709,7 +711,7 @@ def test_roadmap_open_for_writing_elsewhere(command, roadmap_copy):
     """h5py's file lock: a roadmap held open for writing by another process is refused clearly."""
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys, time, h5py\nf = h5py.File(sys.argv[1], 'a')\nprint('open', flush=True)\n"
-                               "time.sleep(60)", str(roadmap_copy)],
+                               "time.sleep(3600)", str(roadmap_copy)],  # killed below; outlives any slow test
         stdout=subprocess.PIPE, text=True, env={**os.environ, "HDF5_USE_FILE_LOCKING": "TRUE"})
     try:
         assert holder.stdout.readline().strip() == "open"
@@ -804,7 +806,7 @@ def test_mutated_scenarios_are_accepted_or_refused_in_one_line(data, tmp_path):
         assert out.exists()
         out.unlink()
         return
-    assert_clean_error(r, 2, f"error: {path}: ")
+    assert_clean_error(r, 2, f"error: {path}: ", per_mistake=True)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -885,12 +887,16 @@ def test_shipped_scenarios_are_within_the_budget(name):
     check_budget(build_problem(load_scenario(ROOT / "scenarios" / name)))
 
 
-def test_too_much_work_is_refused_up_front_with_the_estimate():
+def test_too_much_work_is_refused_up_front_with_the_estimate(tmp_path):
     text = SMOKE.read_text().replace("particles = 100", "particles = 100000000")
-    t0 = time.perf_counter()
     with pytest.raises(ScenarioError, match=r"estimation\.particles: .*particle-steps.* h at") as info:
         check_budget(build_problem(parse_scenario(text, "big.toml")))
-    assert time.perf_counter() - t0 < 5 and "\n" not in str(info.value)
+    assert "\n" not in str(info.value)
+    # up front: the build refuses before its first stage writes anything (no timing involved)
+    scenario = tmp_path / "big.toml"
+    scenario.write_text(text)
+    assert_clean_error(invoke("build", scenario, "-o", tmp_path / "big.h5"), 2, "estimation.particles")
+    assert not (tmp_path / "big.h5").exists()
 
 
 def test_the_budget_can_be_raised_in_the_scenario():
