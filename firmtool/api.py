@@ -40,13 +40,16 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from firmtool.calibration import EdgeCounts
     from firmtool.design import Design
     from firmtool.disturbances import Disturbance
-    from firmtool.execute import EdgeCounts, ReplanSettings
+    from firmtool.execute import ReplanSettings
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
+# /policy attributes that hold each policy's prediction interval
+_INTERVAL_ATTRS = {"firm": "success_probability_ci95", "shortest-path": "shortest_path_success_probability_ci95"}
 
 
 # -- scenarios -----------------------------------------------------------------------------------------
@@ -201,8 +204,8 @@ class Roadmap:
 
     @functools.cached_property
     def edge_counts(self) -> "EdgeCounts":
-        """The outcome counts in sparse form (``firmtool.execute.EdgeCounts``), for calibration."""
-        from firmtool.execute import edge_counts_of  # execution is loaded when first needed
+        """The outcome counts in sparse form (``firmtool.calibration.EdgeCounts``), for calibration."""
+        from firmtool.calibration import edge_counts_of
 
         return edge_counts_of(self._data)
 
@@ -220,7 +223,8 @@ class Roadmap:
         """Write the roadmap as a versioned HDF5 file (the schema ``firmtool build`` writes), atomically.
 
         Every stage it holds is written (``/policy`` too, when it was read from a solved file); the
-        ``/edge_cache`` of an interrupted build is not (it only saves work when resuming).
+        ``/edge_cache`` is not (the estimates of an interrupted build, and the earlier particle blocks
+        of edges that adaptive Monte Carlo refined: they only save work when a build resumes).
 
         Parameters
         ----------
@@ -389,6 +393,7 @@ class Solution:
     seconds: float = 0.0
     _inputs_sha256: str = dataclasses.field(default="", repr=False)
     _intervals: dict = dataclasses.field(default_factory=dict, repr=False)
+    _interval_attrs: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def __repr__(self) -> str:
         return (f"<firmtool.Solution {self.status.name}: success probability {self.success_probability:.4f}, "
@@ -404,7 +409,11 @@ class Solution:
                    unreachable_nodes=np.asarray(a["unreachable"], dtype=np.int64),
                    iterations=int(at["iterations"]), residual=float(at["residual"]),
                    failure_cost=float(at["failure_cost"]), method=str(at["method"]), seconds=group.seconds,
-                   _inputs_sha256=str(at.get("inputs_sha256", "")))
+                   _inputs_sha256=str(at.get("inputs_sha256", "")),
+                   _intervals={name: (float(at[key][0]), float(at[key][1])) for name, key in _INTERVAL_ATTRS.items()
+                               if key in at},
+                   _interval_attrs={k: at[k] for k in ("interval_method", "interval_prior", "interval_samples")
+                                    if k in at})
 
     def _group(self) -> pipeline.PolicyGroup:
         edges = self.roadmap.edges
@@ -414,7 +423,9 @@ class Solution:
                   "shortest_path_edge": self.shortest_path_policy,
                   "shortest_path_success_probability": self.shortest_path_success_probabilities}
         attrs = {"inputs_sha256": self._inputs_sha256, "status": self.status.name, "iterations": self.iterations,
-                 "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method}
+                 "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method,
+                 **{key: np.asarray(self._intervals[name]) for name, key in _INTERVAL_ATTRS.items()
+                    if name in self._intervals}, **self._interval_attrs}
         return pipeline.PolicyGroup(arrays=arrays, attrs=attrs, seconds=self.seconds)
 
     # summaries
@@ -435,30 +446,31 @@ class Solution:
 
     @property
     def success_probability_ci95(self) -> tuple[float, float]:
-        """95% interval of :attr:`success_probability` from the edge-count uncertainty
-        (:meth:`success_probability_interval`; computed on first use, about a thousand sparse solves)."""
+        """95% interval of :attr:`success_probability` from the edge-count uncertainty, computed when
+        the roadmap was solved (:meth:`success_probability_interval`)."""
         return self.success_probability_interval()
 
-    def success_probability_interval(self, policy: str = "firm", samples: int = 1000) -> tuple[float, float]:
+    def success_probability_interval(self, policy: str = "firm") -> tuple[float, float]:
         """95% interval of the start node's success probability under ``policy``, from the
-        uncertainty of the edge counts: every policy edge's outcome distribution is drawn from its
-        Dirichlet posterior ``samples`` times (:func:`firmtool.execute.predicted_interval`), from a
-        stream keyed by the roadmap's seed.
+        uncertainty of the edge counts (:func:`firmtool.calibration.predicted_interval`): every
+        policy edge's outcome distribution is drawn from its Dirichlet posterior (prior 1/2 on every
+        observed outcome and on failure), and the interval is the shortest one holding 95% of the
+        draws and the point estimate. Computed once when the roadmap is solved, from a stream keyed by
+        the roadmap's seed, and stored with the policy; for a policy solved before intervals were
+        stored it is computed here on first use.
 
         Parameters
         ----------
         policy : ``"firm"`` or ``"shortest-path"``.
-        samples : posterior draws.
         """
-        from firmtool.execute import predicted_interval
+        from firmtool.calibration import predicted_interval
 
-        key = (policy, samples)
-        if key not in self._intervals:
-            edges, _ = self._policy(policy)
+        if policy not in self._intervals:
+            edges, probabilities = self._policy(policy)
             rm = self.roadmap
-            self._intervals[key] = predicted_interval(rm.edge_counts, rm.nodes.shape[0], rm.goals, edges, rm.seed,
-                                                      samples)
-        return self._intervals[key]
+            self._intervals[policy] = predicted_interval(rm.edge_counts, rm.nodes.shape[0], rm.goals, edges, rm.seed,
+                                                         point=float(probabilities[START_INDEX]))
+        return self._intervals[policy]
 
     def _policy(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(edge per node, success probability per node) of a policy by name."""

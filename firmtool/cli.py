@@ -351,6 +351,22 @@ def _build_human(r: dict) -> str:
             f"{r['simulated_particle_steps']:,} particle-steps simulated\n"
             f"time: sample {console.seconds(s['sample'])}, design {console.seconds(s['design'])}, "
             f"estimate {console.seconds(s['estimate'])} on {r['workers']} workers")
+    a = r.get("adaptive")
+    if a:
+        last = a["rounds"][-1]
+        text += (f"\nadaptive Monte Carlo: {a['particles_added']:,} particles added in {len(a['rounds']) - 1} rounds "
+                 f"to the {a['first_pass_particles']:,} of the first pass; start success probability "
+                 f"{last['start_success_probability']:.4f}, 95% interval +-{a['halfwidth']:.4f} (target "
+                 f"+-{a['target_halfwidth']:g} at p = 1/2): {a['reason']}")
+    c = r.get("connectivity")
+    if c:
+        text += (f"\nconnected: {len(c['connected_goal_nodes'])} of {len(c['goal_nodes'])} goal nodes in the start's "
+                 f"component ({c['start_component_nodes']} of {r['nodes']} nodes, {c['components']} components); "
+                 f"connection stage added {c['added_nodes']} nodes (budget roadmap.bridge_nodes = {c['budget']})")
+        if c.get("reachable_goal_nodes") is not None:
+            text += (f"\nreachable under the estimated edges: {len(c['reachable_goal_nodes'])} of "
+                     f"{len(c['goal_nodes'])} goal nodes")
+        text += "".join(f"\nmissing: {m}" for m in c["missing"])
     if r.get("densify"):
         text += "\n" + "\n".join(f"  {x['nodes']} nodes: start success probability {prob(x['start_success_probability'])}"
                                   for x in r["densify"]["rounds"])
@@ -396,13 +412,26 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     _exit_on_failed_edges(report)
     if report["densify"] and not report["densify"]["reached"]:
         _fail(report["densify"]["reason"], 1)
+    _exit_if_unreachable(report)
     console.next_step(report["roadmap"], f"firmtool solve {report['roadmap']}")
+
+
+def _exit_if_unreachable(report: dict) -> None:
+    """Exit 1 when no goal node can be reached from the start (the roadmap cannot be solved)."""
+    c = report.get("connectivity")
+    if c and c.get("reachable_goal_nodes") is not None and not c["reachable_goal_nodes"]:
+        why = "; ".join(c["missing"]) or "edges leave the start's component but none lands in a goal node"
+        _fail(f"{report['roadmap']}: no goal node is reachable from the start: {why}; raise roadmap.bridge_nodes "
+              "or roadmap.nodes, or use --p-min to densify", 1)
 
 
 def _solve_human(r: dict) -> str:
     lines = [f"solve: {r['status'].lower()} after {r['iterations']} {r['method']} iterations "
              f"(residual {num(r['residual'], 2)}), failure cost {num(r['failure_cost'])}",
-             f"start: success probability {prob(r['start_success_probability'])}, cost-to-go "
+             f"start: success probability {prob(r['start_success_probability'])}"
+             + (f" (95% interval from the edge counts {prob(r['start_success_probability_ci95'][0])}-"
+                f"{prob(r['start_success_probability_ci95'][1])})" if r.get("start_success_probability_ci95") else "")
+             + ", cost-to-go "
              f"{num(r['start_cost_to_go'])} (shortest path: success probability "
              f"{prob(r['shortest_path_start_success_probability'])})",
              f"policy path: {' -> '.join(map(str, r['path']))}"]

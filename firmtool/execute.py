@@ -57,7 +57,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 from scipy.spatial import cKDTree
 from scipy.stats import binomtest, chi2
 
@@ -67,14 +66,14 @@ from firmtool.controllers import LocalController, plan_local_controller
 from firmtool.design import Design, local_controller, lqr_weights, node_controller
 from firmtool.edges import FAILURE, TIMEOUT as EDGE_TIMEOUT, control_and_move, filter_update, simulate
 from firmtool.errors import InputError, NumericalError
-from firmtool.graph import success_probability
 from firmtool.nodes import GOAL, START_INDEX, NodeRegions, segment_is_valid
 from firmtool.problem import Problem
+from firmtool.calibration import EdgeCounts, edge_calibration
 from firmtool.progress import EXECUTE, Counter, ProgressCallback
-from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
+from firmtool.results import Episode, Event, EventKind, Outcome, Results
 
 SUCCESS, COLLISION, TIMEOUT, STUCK = Outcome.SUCCESS, Outcome.COLLISION, Outcome.TIMEOUT, Outcome.STUCK
-EPISODE_KEY, CI_KEY = 0xE7EC, 0xC1B0  # stable keys of the episode and prediction-interval streams
+EPISODE_KEY = 0xE7EC  # stable key of the episode streams
 
 DEFAULT_REPLAN_THRESHOLD = 3.0  # rms-scaled deviation (node regions use 1.5 by default)
 MAX_REPLANS_PER_EPISODE = 50  # then the current controller runs on without replanning
@@ -82,7 +81,6 @@ REPLAN_CANDIDATES = 8  # nearest nodes scored for an initial controller or a rep
 CANDIDATE_BLOCK = 16  # steps whose node covariance candidates are computed at once
 PROJECTION_SAMPLES = 256  # draws from the belief to find the most likely valid state
 RISK_PARTICLES = 32  # Monte Carlo particles per replan candidate (0: rank by the cost-to-go alone)
-MIN_EDGE_TRAVERSALS = 20  # executed traversals an edge needs before its calibration is checked
 RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at run time
 INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
 INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
@@ -631,96 +629,6 @@ class Executor:
         return ep
 
 
-# -- calibration -------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class EdgeCounts:
-    """The Monte Carlo outcome counts of ``/edges`` in sparse form (see pipeline.estimate_stage)."""
-
-    edge: np.ndarray  # (K,) edge index of each row
-    code: np.ndarray  # (K,) landed node id, edges.FAILURE or edges.TIMEOUT
-    count: np.ndarray  # (K,) particles
-    particles: np.ndarray  # (E,) particles per edge
-    target: np.ndarray  # (E,) target node per edge
-
-
-def predicted_interval(counts: EdgeCounts, n_nodes: int, goals: np.ndarray, policy: np.ndarray, seed: int,
-                       samples: int = 1000, node: int = START_INDEX) -> tuple[float, float]:
-    """95% interval of the predicted success probability from the edge-count uncertainty.
-
-    Each policy edge's outcome distribution is drawn from its Dirichlet posterior (the observed
-    counts plus 1/2 for every observed outcome and for failure, which always stays possible), and
-    ``(I - Q) p = r`` is re-solved per draw (:func:`firmtool.graph.success_probability`); the
-    interval is the 2.5 and 97.5 percentiles of ``p[node]``. Draws come from
-    ``SeedSequence([seed, CI_KEY])``.
-    """
-    policy = np.asarray(policy, dtype=np.int64)
-    E = counts.particles.size
-    used = np.zeros(E, dtype=bool)
-    used[policy[policy >= 0]] = True
-    rows = used[counts.edge]
-    edge, code, alpha = counts.edge[rows], counts.code[rows], counts.count[rows].astype(float) + 0.5
-    has_fail = np.zeros(E, dtype=bool)
-    has_fail[edge[code == FAILURE]] = True
-    extra = np.flatnonzero(used & ~has_fail)  # failure pseudo-outcome for edges that never failed
-    edge = np.concatenate([edge, extra])
-    code = np.concatenate([code, np.full(extra.size, FAILURE)])
-    alpha = np.concatenate([alpha, np.full(extra.size, 0.5)])
-    land = code >= 0
-    rng = np.random.default_rng(np.random.SeedSequence([seed, CI_KEY]))
-    values = np.empty(samples)
-    for s in range(samples):
-        g = rng.gamma(alpha)
-        g /= np.bincount(edge, weights=g, minlength=E)[edge]
-        landing = scipy.sparse.csr_matrix((g[land], (edge[land], code[land])), shape=(E, n_nodes))
-        values[s] = success_probability(n_nodes, goals, policy, landing)[node]
-    lo, hi = np.percentile(values, [2.5, 97.5])
-    return float(lo), float(hi)
-
-
-def edge_calibration(episodes: list[Episode], counts: EdgeCounts,
-                     min_traversals: int = MIN_EDGE_TRAVERSALS) -> Calibration:
-    """Executed vs estimated outcome frequencies of the policy edges the episodes took.
-
-    Only traversals run from the edge's source node to their end with no replan and no disturbance
-    count. For every edge with at least ``min_traversals`` of them, two frequencies are checked:
-    landing in the edge's target and failure (collision or timeout). Each gets the Wilson 95%
-    interval of the executed and of the estimated (Monte Carlo) frequency; an edge is flagged when
-    the two intervals of either frequency do not overlap.
-    """
-    per_edge: dict[int, list[int]] = {}
-    for ep in episodes:
-        for e, o in ep.traversals:
-            per_edge.setdefault(int(e), []).append(int(o))
-    checked, flagged = [], []
-    for e in sorted(per_edge):
-        out = np.asarray(per_edge[e])
-        n_exec = out.size
-        if n_exec < min_traversals:
-            continue
-        rows = counts.edge == e
-        code, cnt = counts.code[rows], counts.count[rows]
-        n_est = int(counts.particles[e])
-        target = int(counts.target[e])
-        est = {"target": int(cnt[code == target].sum()), "failure": int(cnt[code < 0].sum())}
-        exe = {"target": int((out == target).sum()), "failure": int((out < 0).sum())}
-        row: dict = {}
-        bad = []
-        for name in ("target", "failure"):
-            ci_x, ci_e = wilson_interval(exe[name], n_exec), wilson_interval(est[name], n_est)
-            row[f"{name}_executed"] = exe[name] / n_exec
-            row[f"{name}_estimated"] = est[name] / n_est
-            row[f"{name}_executed_ci95"] = ci_x
-            row[f"{name}_estimated_ci95"] = ci_e
-            if ci_x[1] < ci_e[0] or ci_e[1] < ci_x[0]:
-                bad.append(name)
-        checked.append(EdgeCheck(edge=e, target=target, traversals=n_exec, particles=n_est, flagged=tuple(bad), **row))
-        if bad:
-            flagged.append(e)
-    return Calibration(min_traversals=min_traversals, edges_taken=len(per_edge), edges_checked=len(checked),
-                       flagged_edges=tuple(flagged), ok=not flagged, edges=tuple(checked))
-
-
 # -- the run -------------------------------------------------------------------------------------------
 
 def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int, seed: int,
@@ -744,7 +652,7 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
     start : (config_dim,) or (n,) start configuration or state instead of the start node.
     record : keep every episode's states, estimates, covariances and controls.
     edge_counts : the roadmap's outcome counts: with them, the calibration check of the edges taken.
-    predicted_ci95 : the prediction's interval (:func:`predicted_interval`), reported as it is.
+    predicted_ci95 : the prediction's interval (:func:`firmtool.calibration.predicted_interval`), reported as it is.
     policy_name : the policy's name, reported as it is.
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the episodes run.
 
@@ -807,11 +715,3 @@ def execute(problem: Problem, design_: Design, policy: np.ndarray, episodes: int
         replans_per_episode=replans / episodes if episodes else 0.0,
         calibration=edge_calibration(eps, edge_counts) if edge_counts is not None else None,
         policy=policy_name)
-
-
-def edge_counts_of(roadmap) -> EdgeCounts:
-    """The outcome counts of a roadmap's ``/edges`` group."""
-    e = roadmap.require("edges", "target", "particles", "outcome_edge", "outcome_code", "outcome_count")
-    return EdgeCounts(edge=e["outcome_edge"].astype(np.int64), code=e["outcome_code"].astype(np.int64),
-                      count=e["outcome_count"].astype(np.int64), particles=e["particles"].astype(np.int64),
-                      target=e["target"].astype(np.int64))
