@@ -5,7 +5,9 @@
     python benchmarks/run.py --only edges dp
 
 Parts: edges (Monte Carlo throughput), build (arm build by stage), dp (DP + success probability),
-online (execution step / replan time), memory (peak memory vs simulated steps).
+online (execution step / replan time), memory (peak memory vs simulated steps); not run unless named
+with --only: overhead (end to end vs the engine alone), dask (dask vs local processes), scale (the
+arm with ten times the nodes).
 """
 
 from __future__ import annotations
@@ -26,12 +28,16 @@ def main(argv=None) -> None:
     ap.add_argument("--only", nargs="+", default=["edges", "build", "dp", "online", "memory"])
     ap.add_argument("--out", default=str(HERE / "results" / "latest.json"))
     args = ap.parse_args(argv)
-    import bench_build, bench_dp, bench_edges, bench_memory, bench_online  # noqa: E401
+    import bench_build, bench_dask, bench_dp, bench_edges, bench_memory, bench_online, bench_scale  # noqa: E401
+    import profile_edges
     from _common import machine
     q = args.quick
     parts = {
         "edges": lambda: bench_edges.main(["--edges", "20" if q else "40", "--repeat", "3" if q else "5"]),
-        "build": lambda: bench_build.main(["--repeat", "1" if q else "2", "--workers", "1", "2"]),
+        "build": lambda: bench_build.main(["--rounds", "1" if q else "2", "--workers", "1", "2"]),
+        "overhead": lambda: profile_edges.main(["--repeat", "3" if q else "5"]),
+        "dask": lambda: bench_dask.main(["--rounds", "1" if q else "3"]),
+        "scale": lambda: bench_scale.main(["--particles", "20" if q else "200"]),
         "dp": lambda: bench_dp.main(["--repeat", "1" if q else "3"]),
         "online": lambda: bench_online.main(["--episodes", "20" if q else "50", "--repeat", "2" if q else "3"]),
         "memory": lambda: bench_memory.main(["--edges", "5" if q else "10"]),

@@ -148,9 +148,8 @@ def main(out_png: Path) -> int:
     print(f"episode 0: {ep.outcome}, altitude {ep.states[0, 2]:.2f} -> {ep.states[-1, 2]:.2f} m, "
           f"{len(ep.states) - 1} steps")
 
-    fig, ax = plt.subplots(figsize=(9, 5.5))
+    fig, ax = plt.subplots(figsize=(9, 6), layout="constrained")
     ft.plot(sol, res, ax=ax)  # a 3-D world is drawn from above
-    fig.tight_layout()
     fig.savefig(out_png, dpi=80)
     print(f"wrote {out_png}")
     return 0

@@ -25,7 +25,7 @@ def main() -> None:
     print(f"policy: success probability {sol.success_probability:.3f} (95% {lo:.3f}-{hi:.3f}), "
           f"nominal path {sol.path()}")
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 6))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6), layout="constrained")
     for ax, pushes in zip(axes, [[], ["push:40:1.5"]]):
         res = ft.simulate(sol, episodes=100, seed=0, disturbances=pushes)
         lo, hi = res.ci95
@@ -41,7 +41,6 @@ def main() -> None:
 
     out = Path("artifacts") / "quickstart_2d.png"
     out.parent.mkdir(exist_ok=True)
-    fig.tight_layout()
     fig.savefig(out, dpi=80)
     print(f"wrote {out}")
 

@@ -40,13 +40,16 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from firmtool.calibration import EdgeCounts
     from firmtool.design import Design
     from firmtool.disturbances import Disturbance
-    from firmtool.execute import EdgeCounts
     from firmtool.online.replanning import ReplanSettings
     from firmtool.problem import Problem
+    from firmtool.progress import ProgressCallback
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
+# /policy attributes that hold each policy's prediction interval
+_INTERVAL_ATTRS = {"firm": "success_probability_ci95", "shortest-path": "shortest_path_success_probability_ci95"}
 
 
 # -- scenarios -----------------------------------------------------------------------------------------
@@ -201,8 +204,8 @@ class Roadmap:
 
     @functools.cached_property
     def edge_counts(self) -> "EdgeCounts":
-        """The outcome counts in sparse form (``firmtool.execute.EdgeCounts``), for calibration."""
-        from firmtool.execute import edge_counts_of  # execution is loaded when first needed
+        """The outcome counts in sparse form (``firmtool.calibration.EdgeCounts``), for calibration."""
+        from firmtool.calibration import edge_counts_of
 
         return edge_counts_of(self._data)
 
@@ -220,7 +223,8 @@ class Roadmap:
         """Write the roadmap as a versioned HDF5 file (the schema ``firmtool build`` writes), atomically.
 
         Every stage it holds is written (``/policy`` too, when it was read from a solved file); the
-        ``/edge_cache`` of an interrupted build is not (it only saves work when resuming).
+        ``/edge_cache`` is not (the estimates of an interrupted build, and the earlier particle blocks
+        of edges that adaptive Monte Carlo refined: they only save work when a build resumes).
 
         Parameters
         ----------
@@ -279,7 +283,7 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
 def build(scenario: Scenario | str | Path, *, workers: int | None = None, output: str | Path | None = None,
           executor: str = "process", scheduler: str | None = None, fresh: bool = False,
           p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
-          progress: Callable[[int], Callable[[int], None]] | None = None,
+          progress: "ProgressCallback | None" = None,
           checkpoint_seconds: float = pipeline.CHECKPOINT_SECONDS, force: bool = False,
           validity: Callable | None = None) -> Roadmap:
     """Sample the nodes, design their stabilisers and the edges, and estimate every edge by Monte Carlo.
@@ -303,7 +307,8 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
         Densify (paper III-E): add ``add_nodes`` nodes per round until the start node's success
         probability reaches ``p_min`` or the roadmap has ``max_nodes`` nodes.
     progress : callable, optional
-        Called with the number of edges to estimate; returns a callback told how many finished.
+        ``progress(stage, done, total)``, told by every stage of the nodes sampled, the nodes and
+        edges designed and the edges estimated (:mod:`firmtool.progress`).
     checkpoint_seconds : float
         Seconds between saves of finished edges into ``output`` (resume after a kill).
     force : bool
@@ -331,7 +336,7 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
 
     checker = None if validity is None else ValidityChecker(validity)
     options: dict[str, Any] = dict(workers=workers, executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min,
-                                   max_nodes=max_nodes, add_nodes=add_nodes, progress_factory=progress,
+                                   max_nodes=max_nodes, add_nodes=add_nodes, progress=progress,
                                    checkpoint_seconds=checkpoint_seconds, force=force, validity=checker)
     if output is not None:
         report = pipeline.build(scenario, output, **options)
@@ -388,6 +393,7 @@ class Solution:
     seconds: float = 0.0
     _inputs_sha256: str = dataclasses.field(default="", repr=False)
     _intervals: dict = dataclasses.field(default_factory=dict, repr=False)
+    _interval_attrs: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def __repr__(self) -> str:
         return (f"<firmtool.Solution {self.status.name}: success probability {self.success_probability:.4f}, "
@@ -403,7 +409,11 @@ class Solution:
                    unreachable_nodes=np.asarray(a["unreachable"], dtype=np.int64),
                    iterations=int(at["iterations"]), residual=float(at["residual"]),
                    failure_cost=float(at["failure_cost"]), method=str(at["method"]), seconds=group.seconds,
-                   _inputs_sha256=str(at.get("inputs_sha256", "")))
+                   _inputs_sha256=str(at.get("inputs_sha256", "")),
+                   _intervals={name: (float(at[key][0]), float(at[key][1])) for name, key in _INTERVAL_ATTRS.items()
+                               if key in at},
+                   _interval_attrs={k: at[k] for k in ("interval_method", "interval_prior", "interval_samples")
+                                    if k in at})
 
     def _group(self) -> pipeline.PolicyGroup:
         edges = self.roadmap.edges
@@ -413,7 +423,9 @@ class Solution:
                   "shortest_path_edge": self.shortest_path_policy,
                   "shortest_path_success_probability": self.shortest_path_success_probabilities}
         attrs = {"inputs_sha256": self._inputs_sha256, "status": self.status.name, "iterations": self.iterations,
-                 "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method}
+                 "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method,
+                 **{key: np.asarray(self._intervals[name]) for name, key in _INTERVAL_ATTRS.items()
+                    if name in self._intervals}, **self._interval_attrs}
         return pipeline.PolicyGroup(arrays=arrays, attrs=attrs, seconds=self.seconds)
 
     # summaries
@@ -434,30 +446,31 @@ class Solution:
 
     @property
     def success_probability_ci95(self) -> tuple[float, float]:
-        """95% interval of :attr:`success_probability` from the edge-count uncertainty
-        (:meth:`success_probability_interval`; computed on first use, about a thousand sparse solves)."""
+        """95% interval of :attr:`success_probability` from the edge-count uncertainty, computed when
+        the roadmap was solved (:meth:`success_probability_interval`)."""
         return self.success_probability_interval()
 
-    def success_probability_interval(self, policy: str = "firm", samples: int = 1000) -> tuple[float, float]:
+    def success_probability_interval(self, policy: str = "firm") -> tuple[float, float]:
         """95% interval of the start node's success probability under ``policy``, from the
-        uncertainty of the edge counts: every policy edge's outcome distribution is drawn from its
-        Dirichlet posterior ``samples`` times (:func:`firmtool.execute.predicted_interval`), from a
-        stream keyed by the roadmap's seed.
+        uncertainty of the edge counts (:func:`firmtool.calibration.predicted_interval`): every
+        policy edge's outcome distribution is drawn from its Dirichlet posterior (prior 1/2 on every
+        observed outcome and on failure), and the interval is the shortest one holding 95% of the
+        draws and the point estimate. Computed once when the roadmap is solved, from a stream keyed by
+        the roadmap's seed, and stored with the policy; for a policy solved before intervals were
+        stored it is computed here on first use.
 
         Parameters
         ----------
         policy : ``"firm"`` or ``"shortest-path"``.
-        samples : posterior draws.
         """
-        from firmtool.execute import predicted_interval
+        from firmtool.calibration import predicted_interval
 
-        key = (policy, samples)
-        if key not in self._intervals:
-            edges, _ = self._policy(policy)
+        if policy not in self._intervals:
+            edges, probabilities = self._policy(policy)
             rm = self.roadmap
-            self._intervals[key] = predicted_interval(rm.edge_counts, rm.nodes.shape[0], rm.goals, edges, rm.seed,
-                                                      samples)
-        return self._intervals[key]
+            self._intervals[policy] = predicted_interval(rm.edge_counts, rm.nodes.shape[0], rm.goals, edges, rm.seed,
+                                                         point=float(probabilities[START_INDEX]))
+        return self._intervals[policy]
 
     def _policy(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(edge per node, success probability per node) of a policy by name."""
@@ -508,7 +521,8 @@ class Solution:
         return target
 
 
-def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value") -> Solution:
+def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
+          progress: "ProgressCallback | None" = None) -> Solution:
     """Solve the constrained graph DP (paper eq. 12) and the success probabilities (Sec. III-E).
 
     Timeouts count as failures. Nothing is written (:meth:`Solution.save` stores the policy).
@@ -521,6 +535,8 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         J_F (default: the scenario's ``cost.failure_cost``).
     method : {"value", "policy"}
         Value iteration (the paper's) or policy iteration.
+    progress : callable, optional
+        ``progress(stage, done, total)``, told of the solve's steps (:mod:`firmtool.progress`).
 
     Returns
     -------
@@ -532,7 +548,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"failure_cost: expected a finite number > 0, found {failure_cost}")
-    group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method)
+    group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress)
     return Solution._from_group(roadmap, group)
 
 
@@ -541,7 +557,8 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
 def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
              start: np.ndarray | None = None,
              disturbances: Iterable["str | Disturbance | Callable[[int, np.ndarray, np.random.Generator], np.ndarray | None]"] = (),
-             replan: "ReplanSettings | None" = None, record: bool = True) -> Results:
+             replan: "ReplanSettings | None" = None, record: bool = True,
+             progress: "ProgressCallback | None" = None) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
     Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
@@ -576,6 +593,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     record : bool
         Keep every episode's arrays (``states``, ``estimates`` (T + 1, n), ``covariances``
         (T + 1, n, n), ``controls`` (T, m)); they take ~8 (T + 1) (n^2 + 2n) bytes per episode.
+    progress : callable, optional
+        ``progress(stage, done, total)``, told of the episodes run (:mod:`firmtool.progress`).
 
     Returns
     -------
@@ -599,11 +618,11 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
                         predicted=float(probabilities[START_INDEX]) if at_start_node else None,
                         predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
-                        edge_counts=rm.edge_counts)
+                        edge_counts=rm.edge_counts, progress=progress)
 
 
 def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" = None, *,
-         policy: str | None = None, episode: int | None = None) -> "Axes":
+         policy: str | None = None, episode: int | None = None, unit: str = "m", legend: bool = True) -> "Axes":
     """Draw one panel of the paper's Fig. 1 for a policy: obstacles, sensing field, goal, roadmap,
     the policy's nominal path, the robot at the start, and with ``results`` their success rate and
     one executed episode's estimated mean with 3-sigma ellipses of the followed point (the arm's tip).
@@ -620,6 +639,10 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
         Default: the policy of ``results``, else ``"firm"``.
     episode : int, optional
         Index of the episode of ``results`` to draw (default: the first success, else the first).
+    unit : str
+        The length unit of the scenario's world, for the axis labels.
+    legend : bool
+        Draw the legend under the axes.
 
     Returns
     -------
@@ -651,15 +674,16 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
     if ax is None:
         import matplotlib.pyplot as plt
 
-        _, ax = plt.subplots(figsize=(6.0, 6.0))
+        _, ax = plt.subplots(figsize=(6.0, 6.0), layout="constrained")
     rm = solution.roadmap
     panel(ax, rm.problem, rm.execution_design,
-          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label))
+          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label),
+          unit=unit, legend=legend)
     return ax
 
 
 def plot_policies(solution: Solution, results: Sequence[Results | None], policies: Sequence[str], *,
-                  dpi: int = 120) -> "Figure":
+                  dpi: int = 120, unit: str = "m") -> "Figure":
     """Panels side by side, one :func:`plot` per policy (``firmtool plot``), on a bare matplotlib
     Figure (no pyplot, no backend; write it with :func:`firmtool.figures.save_figure`).
 
@@ -669,14 +693,18 @@ def plot_policies(solution: Solution, results: Sequence[Results | None], policie
     results : one Results (or None) per policy.
     policies : the policies' names.
     dpi : resolution of the figure.
+    unit : the length unit of the axes.
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.0 * len(policies), 6.0), dpi=dpi)
+    from firmtool.figures import legend_below
+
+    sc = solution.roadmap.scenario
+    ratio = (sc.world.hi[1] - sc.world.lo[1]) / (sc.world.hi[0] - sc.world.lo[0])  # panels are drawn to scale
+    fig = Figure(figsize=(6.0 * len(policies), 4.7 * ratio + 2.3), dpi=dpi, layout="constrained")
     axes = fig.subplots(1, len(policies), squeeze=False)[0]
     for ax, res, name in zip(axes, results, policies):
-        plot(solution, res, ax, policy=name)
-    sc = solution.roadmap.scenario
+        plot(solution, res, ax, policy=name, unit=unit, legend=False)
+    legend_below(fig, axes[0])
     fig.suptitle(f"{sc.name} ({sc.measurement.kind} measurements)")
-    fig.tight_layout()
     return fig

@@ -19,8 +19,9 @@ import numpy as np
 import typer
 from typer.core import TyperGroup
 
-from firmtool import __version__, interrupts
-from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure
+from firmtool import __version__, console, interrupts
+from firmtool.console import interval, items, num, prob
+from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure, ScenarioError
 
 DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 # The click that typer's commands raise from: recent typer vendors its own copy as typer._click,
@@ -89,6 +90,8 @@ CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
 SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
                             "without it --executor dask starts a LocalCluster.")
+QuietOpt = typer.Option(False, "--quiet", "-q", help="Print only errors, notices and --json output: no progress "
+                                                     "bar, no summary, no next step.")
 SCENARIO_HELP = "Scenario: a TOML file, or the name of a shipped scenario (see 'firmtool scenarios')."
 
 
@@ -105,6 +108,7 @@ def _options(version: bool = typer.Option(False, "--version", callback=_print_ve
 
 
 def _fail(message: str, code: int) -> None:
+    console.close_progress()
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(code)
 
@@ -124,6 +128,7 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        console.configure(quiet=bool(kwargs.get("quiet", False)), json=bool(kwargs.get("as_json", False)))
         try:
             import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
             from threadpoolctl import threadpool_limits
@@ -133,6 +138,8 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
             with threadpool_limits(limits=1):
                 return fn(*args, **kwargs)
+        except ScenarioError as exc:
+            _fail_scenario(exc)
         except InputError as exc:
             _fail(str(exc), 2)
         except KeyboardInterrupt as exc:
@@ -161,21 +168,32 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
                 raise
             _fail(f"unexpected error (a bug in firmtool; rerun with FIRMTOOL_DEBUG=1 for the traceback): "
                   f"{type(exc).__name__}: {_first_line(exc)}", 1)
+        finally:
+            console.close_progress()
 
     return wrapper
+
+
+def _fail_scenario(exc: ScenarioError) -> None:
+    """Every mistake of a scenario file, one line each (``error: FILE: FIELD: expected``), exit 2."""
+    console.close_progress()
+    for field, expected in exc.errors:
+        typer.echo(f"error: {exc.path}: {field}: {expected}" if field else f"error: {exc.path}: {expected}", err=True)
+    raise typer.Exit(2)
 
 
 def _emit(report: dict, as_json: bool, human: Callable[[dict], str], roadmap: bool = True) -> None:
     """Print ``report`` (its keys without a leading underscore) as text, or as JSON stamped with
     ``firmtool_version`` and, for a command that reads or writes a roadmap, its ``schema_version``."""
     public = {k: v for k, v in report.items() if not k.startswith("_")}
+    console.close_progress()  # the bars go before the results
     if as_json:
         stamp: dict[str, Any] = {"firmtool_version": __version__}
         if roadmap:
             from firmtool.roadmap import SCHEMA_VERSION
             stamp["schema_version"] = SCHEMA_VERSION  # inspect reports the file's own version instead
         typer.echo(to_json({**stamp, **public}))
-    else:
+    elif not console.quiet():
         typer.echo(human(public))
 
 
@@ -203,29 +221,6 @@ def _plain(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def _progress_factory(label: str) -> Callable[[int], Callable[[int], None]] | None:
-    """A rich progress bar on a terminal; nothing in CI or when stderr is not a TTY."""
-    if not sys.stderr.isatty() or os.environ.get("CI"):
-        return None
-
-    def factory(total: int) -> Callable[[int], None]:
-        from rich.progress import Progress
-        progress = Progress(transient=True, console=None)
-        progress.start()
-        task = progress.add_task(label, total=total)
-        state = {"done": 0}
-
-        def advance(n: int) -> None:
-            state["done"] += n
-            progress.update(task, advance=n)
-            if state["done"] >= total:
-                progress.stop()
-
-        return advance
-
-    return factory
-
-
 def _check_exists(path: Path, what: str) -> None:
     if not path.exists():
         raise InputError(f"{path}: no such {what}")
@@ -233,31 +228,79 @@ def _check_exists(path: Path, what: str) -> None:
 
 @app.command()
 @handles_errors
+def init(name: str = typer.Argument(..., help="The scenario's name: writes NAME.toml (letters, digits, '-', '_', '.')."),
+         robot: Optional[str] = typer.Option(None, "--robot", "-r",
+                                             help="The robot (default point): a built-in one (point, arm, unicycle), "
+                                                  "or a registered robot that has a template."),
+         output: Optional[Path] = typer.Option(None, "--output", "-o", help="Scenario file (default NAME.toml)."),
+         force: bool = typer.Option(False, "--force", help="Replace an existing file."),
+         quiet: bool = QuietOpt) -> None:
+    """Write a commented scenario for a built-in robot that builds as it is: every key listed with
+    what it is (from the scenario schema), the keys at their defaults commented out.
+
+    Example: firmtool init my_room --robot point
+    """
+    from firmtool.robots.base import DEFAULT_ROBOT
+    from firmtool.scenario_docs import write_template
+    out = write_template(output or Path(f"{name}.toml"), name, robot or DEFAULT_ROBOT, force=force)
+    console.next_step(str(out), f"firmtool check {out}")
+
+
+def _check_human(r: dict) -> str:
+    world = f"{r['world_dim']}-D world, {r['obstacles']} obstacle{'s' if r['obstacles'] != 1 else ''} " \
+            f"({r['collision_backend']})"
+    sensing = "perfect measurements" if r["measurement"] == "perfect" else \
+        f"{r['measurements']} imperfect measurements ({r['noise']} noise)"
+    return (f"ok: {r['scenario']}: scenario {r['name']!r}: robot {r['robot']} ({r['states']} states, "
+            f"{r['inputs']} inputs), {sensing}, {world}, goal {r['goal']}; {r['nodes']} nodes x "
+            f"{r['particles']} particles per edge, at most ~{num(r['max_particle_steps'], 2)} particle-steps")
+
+
+@app.command()
+@handles_errors
+def check(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
+          as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
+    """Validate a scenario without building: every mistake of the file at once (one line each), then
+    the problem it describes (start and goal valid, the model stabilisable, the work within budget).
+
+    Example: firmtool check my_room.toml
+    """
+    from firmtool.checking import check_scenario
+    report = check_scenario(scenario).to_dict()
+    _emit(report, as_json, _check_human)
+    console.next_step(None, f"firmtool build {scenario}")
+
+
+@app.command()
+@handles_errors
 def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
            output: Optional[Path] = typer.Option(None, "--output", "-o", help="Roadmap file (default artifacts/NAME.h5)."),
-           force: bool = ForceOpt, as_json: bool = JsonOpt) -> None:
+           force: bool = ForceOpt, as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Sample the nodes (start, goal, valid configurations at rest) into a new roadmap file.
 
     Example: firmtool sample smoke -o artifacts/smoke.h5
     """
     from firmtool.api import load_scenario
     from firmtool.pipeline import sample_stage
-    _emit(sample_stage(load_scenario(scenario), output, force=force).to_dict(), as_json,
-          lambda r: f"sampled {r['nodes']} nodes -> {r['roadmap']}")
+    report = sample_stage(load_scenario(scenario), output, force=force, progress=console.progress()).to_dict()
+    _emit(report, as_json, lambda r: f"sampled {r['nodes']} nodes in {console.seconds(r['seconds'])}")
+    console.next_step(report["roadmap"], f"firmtool design {report['roadmap']}")
 
 
 @app.command()
 @handles_errors
 def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled nodes."),
-           as_json: bool = JsonOpt) -> None:
+           as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Design node stabilisers (SLQR/SLQG), node regions and edges (nominal trajectories).
 
     Example: firmtool design artifacts/smoke.h5
     """
     from firmtool.pipeline import design_stage
     _check_exists(roadmap, "roadmap file")
-    _emit(design_stage(roadmap).to_dict(), as_json,
-          lambda r: f"designed {r['nodes']} node stabilisers and {r['edges']} edges")
+    _emit(design_stage(roadmap, progress=console.progress()).to_dict(), as_json,
+          lambda r: f"designed {r['nodes']} node stabilisers and {r['edges']} edges (mean nominal "
+                    f"{num(r['mean_edge_steps'], 3)} steps) in {console.seconds(r['seconds'])}")
+    console.next_step(str(roadmap), f"firmtool estimate {roadmap}")
 
 
 @app.command()
@@ -265,7 +308,7 @@ def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled n
 def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designed controllers."),
              workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
              scheduler: Optional[str] = SchedulerOpt, checkpoint_seconds: float = CheckpointOpt,
-             as_json: bool = JsonOpt) -> None:
+             as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Estimate every edge by Monte Carlo (landing, failure, timeout counts; cost), in parallel.
 
     Edges already estimated with the same inputs (in the file, or saved by an interrupted run) are
@@ -276,14 +319,14 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
     from firmtool.pipeline import estimate_stage
     _check_exists(roadmap, "roadmap file")
     report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
-                            progress_factory=_progress_factory("estimating edges"),
-                            checkpoint_seconds=checkpoint_seconds).to_dict()
+                            progress=console.progress(), checkpoint_seconds=checkpoint_seconds).to_dict()
     _emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
                                       f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
-                                      f"{r['simulated_particle_steps']:,} particle-steps, {r['seconds']:.1f} s, "
-                                      f"{r['workers']} workers)"))
+                                      f"{r['simulated_particle_steps']:,} particle-steps in "
+                                      f"{console.seconds(r['seconds'])} on {r['workers']} workers)"))
     _print_notices(report)
     _exit_on_failed_edges(report)
+    console.next_step(str(roadmap), f"firmtool solve {roadmap}")
 
 
 def _print_notices(report: dict) -> None:
@@ -305,10 +348,27 @@ def _build_human(r: dict) -> str:
     s = r["seconds"]
     text = (f"built {r['roadmap']}: {r['nodes']} nodes, {r['edges']} edges ({r['estimated_edges']} estimated, "
             f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
-            f"{r['simulated_particle_steps']:,} particle-steps simulated; sample {s['sample']:.1f} s, "
-            f"design {s['design']:.1f} s, estimate {s['estimate']:.1f} s on {r['workers']} workers")
+            f"{r['simulated_particle_steps']:,} particle-steps simulated\n"
+            f"time: sample {console.seconds(s['sample'])}, design {console.seconds(s['design'])}, "
+            f"estimate {console.seconds(s['estimate'])} on {r['workers']} workers")
+    a = r.get("adaptive")
+    if a:
+        last = a["rounds"][-1]
+        text += (f"\nadaptive Monte Carlo: {a['particles_added']:,} particles added in {len(a['rounds']) - 1} rounds "
+                 f"to the {a['first_pass_particles']:,} of the first pass; start success probability "
+                 f"{last['start_success_probability']:.4f}, 95% interval +-{a['halfwidth']:.4f} (target "
+                 f"+-{a['target_halfwidth']:g} at p = 1/2): {a['reason']}")
+    c = r.get("connectivity")
+    if c:
+        text += (f"\nconnected: {len(c['connected_goal_nodes'])} of {len(c['goal_nodes'])} goal nodes in the start's "
+                 f"component ({c['start_component_nodes']} of {r['nodes']} nodes, {c['components']} components); "
+                 f"connection stage added {c['added_nodes']} nodes (budget roadmap.bridge_nodes = {c['budget']})")
+        if c.get("reachable_goal_nodes") is not None:
+            text += (f"\nreachable under the estimated edges: {len(c['reachable_goal_nodes'])} of "
+                     f"{len(c['goal_nodes'])} goal nodes")
+        text += "".join(f"\nmissing: {m}" for m in c["missing"])
     if r.get("densify"):
-        text += "\n" + "\n".join(f"  {x['nodes']} nodes: start success probability {x['start_success_probability']:.4f}"
+        text += "\n" + "\n".join(f"  {x['nodes']} nodes: start success probability {prob(x['start_success_probability'])}"
                                   for x in r["densify"]["rounds"])
         text += f"\n{r['densify']['reason']}"
     return text
@@ -329,7 +389,7 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
           add_nodes: Optional[int] = typer.Option(None, "--add-nodes", min=1,
                                                   help="Nodes added per densification round (default: a quarter "
                                                        "of the current count, at least 5)."),
-          force: bool = ForceOpt, as_json: bool = JsonOpt) -> None:
+          force: bool = ForceOpt, as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Run the offline stages: sample, design, estimate (and, with --p-min, densify and solve).
 
     An existing roadmap at the output, sampled from the same scenario settings, is continued: an
@@ -344,7 +404,7 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
         raise InputError("--max-nodes: only meaningful with --p-min")
     sc = ft.load_scenario(scenario)
     rm = ft.build(sc, output=output or default_output(sc), workers=workers, executor=executor, scheduler=scheduler,
-                  progress=_progress_factory("estimating edges"), fresh=fresh, p_min=p_min, max_nodes=max_nodes,
+                  progress=console.progress(), fresh=fresh, p_min=p_min, max_nodes=max_nodes,
                   add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds, force=force)
     report = rm.report.to_dict()
     _emit(report, as_json, _build_human)
@@ -352,15 +412,31 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     _exit_on_failed_edges(report)
     if report["densify"] and not report["densify"]["reached"]:
         _fail(report["densify"]["reason"], 1)
+    _exit_if_unreachable(report)
+    console.next_step(report["roadmap"], f"firmtool solve {report['roadmap']}")
+
+
+def _exit_if_unreachable(report: dict) -> None:
+    """Exit 1 when no goal node can be reached from the start (the roadmap cannot be solved)."""
+    c = report.get("connectivity")
+    if c and c.get("reachable_goal_nodes") is not None and not c["reachable_goal_nodes"]:
+        why = "; ".join(c["missing"]) or "edges leave the start's component but none lands in a goal node"
+        _fail(f"{report['roadmap']}: no goal node is reachable from the start: {why}; raise roadmap.bridge_nodes "
+              "or roadmap.nodes, or use --p-min to densify", 1)
 
 
 def _solve_human(r: dict) -> str:
-    p = r["start_success_probability"]
-    lines = [f"solve: {r['status']} after {r['iterations']} iterations (residual {r['residual']:.2e})",
-             f"start: cost-to-go {r['start_cost_to_go']}, success probability {p:.4f}",
-             f"most likely path: {' -> '.join(map(str, r['path']))}"]
+    lines = [f"solve: {r['status'].lower()} after {r['iterations']} {r['method']} iterations "
+             f"(residual {num(r['residual'], 2)}), failure cost {num(r['failure_cost'])}",
+             f"start: success probability {prob(r['start_success_probability'])}"
+             + (f" (95% interval from the edge counts {prob(r['start_success_probability_ci95'][0])}-"
+                f"{prob(r['start_success_probability_ci95'][1])})" if r.get("start_success_probability_ci95") else "")
+             + ", cost-to-go "
+             f"{num(r['start_cost_to_go'])} (shortest path: success probability "
+             f"{prob(r['shortest_path_start_success_probability'])})",
+             f"policy path: {' -> '.join(map(str, r['path']))}"]
     if r["unreachable_nodes"]:
-        lines.append(f"{len(r['unreachable_nodes'])} nodes cannot reach the goal: {r['unreachable_nodes'][:20]}")
+        lines.append(f"{len(r['unreachable_nodes'])} nodes cannot reach the goal: {items(r['unreachable_nodes'])}")
     return "\n".join(lines)
 
 
@@ -369,7 +445,7 @@ def _solve_human(r: dict) -> str:
 def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated edges."),
           failure_cost: Optional[float] = typer.Option(None, "--failure-cost", help="Override the scenario's J_F."),
           method: str = typer.Option("value", "--method", help="'value' (value iteration) or 'policy'."),
-          as_json: bool = JsonOpt) -> None:
+          as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Solve the constrained graph DP (eq. 12) and the success probability of every node.
 
     Example: firmtool solve artifacts/smoke.h5 --failure-cost 500
@@ -381,37 +457,37 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
-    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method)
+    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress())
     sol.save()
     if not sol.start_reachable:
         raise unreachable_failure(roadmap, sol.unreachable_nodes.size, sol.cost_to_go.size)
     _emit(sol.to_dict(), as_json, _solve_human)
+    console.next_step(f"the policy into {roadmap}", f"firmtool execute {roadmap}")
 
 
 def _execute_human(r: dict) -> str:
-    lo, hi = r["success_rate_ci95"]
     pred = r["predicted_success_probability"]
     stuck = f", {r['stuck']} stuck (no policy edge or no controller to a node)" if r.get("stuck") else ""
+    predicted = "" if pred is None else f"; predicted {prob(pred)}" + (
+        f" (95% {interval(r['predicted_success_probability_ci95'])}, from the edge counts)"
+        if r.get("predicted_success_probability_ci95") else "")
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
-            f"{r['timeouts']} timeouts{stuck}\nsuccess rate {r['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}); "
-            f"predicted {pred if pred is None else round(pred, 4)}\n"
-            f"mean steps {r['mean_steps']:.1f}, mean cost {r['mean_cost']:.2f}, replans {r['replans']}"
+            f"{r['timeouts']} timeouts{stuck}\n"
+            f"success rate {prob(r['success_rate'])} (95% {interval(r['success_rate_ci95'])}){predicted}\n"
+            f"mean steps {num(r['mean_steps'], 3)}, mean cost {num(r['mean_cost'])}, replans {r['replans']}"
             + _execute_extra_human(r))
 
 
 def _execute_extra_human(r: dict) -> str:
     lines = []
-    if r.get("predicted_success_probability_ci95"):
-        lo, hi = r["predicted_success_probability_ci95"]
-        lines.append(f"predicted probability 95% interval (edge-count uncertainty) {lo:.3f}-{hi:.3f}")
     if r.get("disturbances"):
         lines.append(f"disturbances {', '.join(r['disturbances'])}: {r['disturbances_applied']} applied")
     if "step_time_us_mean" in r:
         rt = r.get("replan_time_us_mean")
-        lines.append(f"policy compute per control step {r['step_time_us_mean']:.1f} us mean, "
-                     f"{r['step_time_us_p99']:.1f} us p99"
-                     + ("" if rt is None else f"; per replan decision {rt / 1000:.2f} ms mean, "
-                        f"{r['replan_time_us_p99'] / 1000:.2f} ms p99"))
+        lines.append(f"policy compute per control step {num(r['step_time_us_mean'], 3)} us mean, "
+                     f"{num(r['step_time_us_p99'], 3)} us p99"
+                     + ("" if rt is None else f"; per replan decision {num(rt / 1000, 3)} ms mean, "
+                        f"{num(r['replan_time_us_p99'] / 1000, 3)} ms p99"))
     if r.get("replan_decisions"):
         lines.append(f"replan deadline {1000 * r['replan_deadline_s']:.0f} ms ({r['replan_clock']} clock): "
                      f"{r['replan_deadline_hits']} of {r['replan_decisions']} decisions cut short, "
@@ -419,7 +495,7 @@ def _execute_extra_human(r: dict) -> str:
     cal = r.get("calibration")
     if cal:
         lines.append(f"calibration: {cal['edges_checked']} of {cal['edges_taken']} edges taken checked "
-                     f"(>= {cal['min_traversals']} traversals), flagged {cal['flagged_edges'] or 'none'}")
+                     f"(>= {cal['min_traversals']} traversals), flagged: {items(cal['flagged_edges'])}")
     return "".join("\n" + line for line in lines)
 
 
@@ -479,7 +555,8 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                 None, "--save-episodes",
                 help="Write every episode (true states, estimates, covariances, controls, nodes, events) to "
                      "this HDF5 file (atomic write)."),
-            force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt, as_json: bool = JsonOpt) -> None:
+            force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt, as_json: bool = JsonOpt,
+            quiet: bool = QuietOpt) -> None:
     """Run closed-loop episodes of the policy on a simulated true system, with real-time replanning
     after large disturbances, and check the plan against what happened (predicted success probability
     with its interval from the edge counts, executed rate with its Wilson interval, per-edge landing
@@ -522,7 +599,7 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     settings = ReplanSettings(enabled=not no_replan, threshold=replan_threshold, deadline=replan_deadline,
                               clock=replan_clock, latency=replan_latency)
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
-                      replan=settings, record=save_episodes is not None)
+                      replan=settings, record=save_episodes is not None, progress=console.progress())
     report = res.to_dict()
     if save_episodes is not None:
         from firmtool.episodes_io import save_episodes as write_episodes
@@ -533,6 +610,8 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         report["episodes_file"] = str(save_episodes)
     _emit(report, as_json, _execute_human)
     _exit_if_all_stuck(report, roadmap)
+    console.next_step(str(save_episodes) if save_episodes is not None else None,
+                      f"firmtool plot {roadmap}" + (f" --seed {seed}" if seed else ""))
 
 
 def _exit_if_all_stuck(report: dict, roadmap: Path) -> None:
@@ -557,40 +636,58 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                                       help="Episodes run per policy: the panel shows their success rate and draws "
                                            "the first successful one (0: the roadmap and the policy only)."),
          dpi: int = typer.Option(120, "--dpi", min=30, max=600), force: bool = ForceOpt,
-         max_total_steps: float = MaxStepsOpt) -> None:
+         kind: str = typer.Option("paths", "--kind", help="'paths' (the paper's Fig. 1) or 'calibration' (predicted "
+                                                          "vs executed probabilities of the policy edges)."),
+         unit: str = typer.Option("m", "--unit", help="The length unit of the scenario's world (axis labels)."),
+         max_total_steps: float = MaxStepsOpt, quiet: bool = QuietOpt) -> None:
     """Draw the paper's Fig. 1: obstacles, sensing field, goal, roadmap, policy path, and an executed
-    episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip).
+    episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip); or,
+    with --kind calibration, the predicted vs executed probabilities of the policy edges.
 
-    Example: firmtool plot artifacts/arm8_lightdark.h5 -o fig.png --episodes 100
+    Examples:
+
+      firmtool plot artifacts/arm8_lightdark.h5 -o fig.png --episodes 100
+
+      firmtool plot artifacts/point_lightdark.h5 --kind calibration -n 400 -o calibration.png
     """
     import firmtool.api as ft
-    from firmtool.figures import check_output, save_figure
+    from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
     from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
         raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
+    if kind not in FIGURE_KINDS:
+        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
     rm = ft.open_roadmap(roadmap)
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
-    sol = rm.solution()
-    results = [ft.simulate(sol, episodes, seed, policy=name) if episodes else None for name in names[policy_name]]
-    save_figure(ft.plot_policies(sol, results, names[policy_name], dpi=dpi), out, force=force)
-    typer.echo(f"wrote {out}")
+    options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
+                            progress=console.progress())
+    save_figure(make_figure(kind, rm.solution(), options), out, force=force)
+    console.next_step(str(out))
 
 
 @app.command()
 @handles_errors
-def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: bool = JsonOpt) -> None:
+def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: bool = JsonOpt,
+            quiet: bool = QuietOpt) -> None:
     """Summarise a roadmap file: stages done, nodes, edges, particles, solve status.
 
     Example: firmtool inspect artifacts/smoke.h5 --json
     """
     from firmtool import inspect as inspect_module
     _check_exists(roadmap, "roadmap file")
-    _emit(inspect_module.summarize(roadmap).to_dict(), as_json,
-          lambda r: "\n".join(f"{k}: {v}" for k, v in r.items() if v is not None))
+    report = inspect_module.summarize(roadmap).to_dict()
+    _emit(report, as_json, lambda r: "\n".join(f"{k.replace('_', ' ')}: {console.value(v, k)}" for k, v in r.items()
+                                               if v is not None and v != []))
+    stages = report.get("stages") or []
+    stale = report.get("stale_stages") or []
+    following = {"nodes": "design", "controllers": "estimate", "edges": "solve", "policy": "execute"}
+    done = [s for s in stages if s not in stale]
+    if done and done[-1] in following:
+        console.next_step(None, f"firmtool {following[done[-1]]} {roadmap}")
 
 
 @app.command()
@@ -600,7 +697,7 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
         episodes: int = typer.Option(200, "--episodes", "-n", min=1),
         seed: int = typer.Option(0, "--seed", min=0),
         workers: Optional[int] = WorkersOpt, force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt,
-        as_json: bool = JsonOpt) -> None:
+        as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment):
     the same calls, and the same numbers, as 'firmtool build', 'solve' and 'execute' one by one.
 
@@ -613,17 +710,19 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
     sc = ft.load_scenario(scenario)
     check_execution(build_problem(sc), episodes, max_total_steps=max_total_steps)
     out = output or default_output(sc)
-    rm = ft.build(sc, output=out, workers=workers, progress=_progress_factory("estimating edges"), force=force)
+    bar = console.progress()
+    rm = ft.build(sc, output=out, workers=workers, progress=bar, force=force)
     _exit_on_failed_edges(rm.report.to_dict())
-    sol = ft.solve(rm)
+    sol = ft.solve(rm, progress=bar)
     sol.save()
     if not sol.start_reachable:
         raise unreachable_failure(out, sol.unreachable_nodes.size, sol.cost_to_go.size)
-    res = ft.simulate(sol, episodes, seed, record=False)
+    res = ft.simulate(sol, episodes, seed, record=False, progress=bar)
     report = {"build": rm.report.to_dict(), "solve": sol.to_dict(), "execute": res.to_dict()}
     _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
                                                   _execute_human(r["execute"])]))
     _print_notices(report["build"])
+    console.next_step(str(out), f"firmtool plot {out}" + (f" --seed {seed}" if seed else ""))
 
 
 @app.command()

@@ -116,8 +116,13 @@ def _sandwich(M, X, D, W1, W2, W3, out):
 @njit
 def _cholesky_solve(S, B, C, out):
     """``out = S^-1 B`` for a symmetric positive definite ``S`` (Cholesky factor in ``C``); returns
-    False if ``S`` is not numerically positive definite."""
+    False if ``S`` is not numerically positive definite.
+
+    The substitutions run row by row with the columns of ``B`` as the inner loop (so they vectorise);
+    every entry still gets its terms subtracted in the order of the textbook column-by-column loop
+    (``s = b_i; s -= C[i, l] x_l for l < i; x_i = s / C[i, i]``), hence the same value bit for bit."""
     q = S.shape[0]
+    nc = B.shape[1]
     for i in range(q):
         for j in range(i + 1):
             s = S[i, j]
@@ -129,17 +134,24 @@ def _cholesky_solve(S, B, C, out):
                 C[i, i] = np.sqrt(s)
             else:
                 C[i, j] = s / C[j, j]
-    for c in range(B.shape[1]):
-        for i in range(q):  # C y = b
-            s = B[i, c]
-            for l in range(i):
-                s -= C[i, l] * out[l, c]
-            out[i, c] = s / C[i, i]
-        for i in range(q - 1, -1, -1):  # C' x = y
-            s = out[i, c]
-            for l in range(i + 1, q):
-                s -= C[l, i] * out[l, c]
-            out[i, c] = s / C[i, i]
+    for i in range(q):  # C y = b
+        for c in range(nc):
+            out[i, c] = B[i, c]
+        for l in range(i):
+            a = C[i, l]
+            for c in range(nc):
+                out[i, c] -= a * out[l, c]
+        d = C[i, i]
+        for c in range(nc):
+            out[i, c] = out[i, c] / d
+    for i in range(q - 1, -1, -1):  # C' x = y
+        for l in range(i + 1, q):
+            a = C[l, i]
+            for c in range(nc):
+                out[i, c] -= a * out[l, c]
+        d = C[i, i]
+        for c in range(nc):
+            out[i, c] = out[i, c] / d
     return True
 
 
@@ -340,6 +352,55 @@ def min_energy_trajectory(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.n
     miss = float(np.linalg.norm(x[-1] - xf))
     if not miss <= 1e-6 * max(1.0, np.linalg.norm(xf)):
         raise NumericalError(_miss_diagnosis(A, W, A_steps, steps, miss))
+    return x, u
+
+
+@njit
+def _rollouts(A, B, x0, u, x):
+    """:func:`_rollout` of every edge of a batch: ``x0`` (E, n), ``u`` (E, steps, m), ``x`` (E, steps + 1, n)."""
+    for e in range(x0.shape[0]):
+        _rollout(A, B, x0[e], u[e], x[e])
+
+
+def min_energy_trajectories(A: np.ndarray, B: np.ndarray, x0: np.ndarray, xf: np.ndarray,
+                            steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`min_energy_trajectory` of a batch of edges of one length, bit for bit.
+
+    The twin computes what the single-edge function computes, for every edge at once: the same
+    memoised reachability blocks, each edge's ``A^steps x0`` and ``W^-1 (.)`` as a stacked product and a
+    stacked solve (numpy runs the single-edge LAPACK call per item), the inputs by one einsum
+    (the same sums per entry) and the compiled rollout (tests/test_controllers.py pins the twins).
+
+    Parameters
+    ----------
+    x0, xf : (E, n) start and final states.
+
+    Returns
+    -------
+    x : (E, steps + 1, n) states; u : (E, steps, m) inputs.
+
+    Raises
+    ------
+    NumericalError
+        As :func:`min_energy_trajectory`, for the first edge (in order) whose nominal misses its target.
+    """
+    x0 = np.ascontiguousarray(x0, dtype=float)
+    xf = np.asarray(xf, dtype=float)
+    E, n = x0.shape
+    blocks, W, A_steps = _reachability(A, B, steps)
+    rhs = xf - (A_steps @ x0[:, :, None])[:, :, 0]
+    try:
+        lam = np.linalg.solve(np.broadcast_to(W, (E, n, n)), rhs[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        raise NumericalError(f"no trajectory in {steps} steps: the reachability Gramian over {steps} steps is "
+                             "singular, so the pair (A, B) is not controllable in that many steps") from None
+    u = np.einsum("kim,ei->ekm", blocks, lam)
+    x = np.empty((E, steps + 1, n))
+    _rollouts(np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(B, dtype=float), x0, u, x)
+    for e in range(E):  # the single-edge check, with the single-edge norms
+        miss = float(np.linalg.norm(x[e, -1] - xf[e]))
+        if not miss <= 1e-6 * max(1.0, np.linalg.norm(xf[e])):
+            raise NumericalError(_miss_diagnosis(A, W, A_steps, steps, miss))
     return x, u
 
 
@@ -640,3 +701,151 @@ def plan_local_controller(model: Model, x_nominal: np.ndarray, u_nominal: np.nda
                                 model.process_cov, perfect, L, P, innovation_buf, spread)
     return LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota,
                            innovation_cov=None if perfect else innovation_buf, spread=spread, forward=forward)
+
+
+@njit
+def _filter_recursions(A_steps, H_steps, index, variances, Qd, L, P, innovation, start, k_end):
+    """:func:`_filter_recursion` of a batch of edges, each from its step 0 to ``k_end[e]``.
+
+    Edge ``e`` owns rows ``start[e]:start[e + 1]`` of ``variances``, ``L`` and ``innovation`` and rows
+    ``start[e] + e : start[e + 1] + e + 1`` of ``P`` (one more: ``P[0]`` is its start covariance); the
+    models' matrices and the step index are shared. Each edge runs exactly the single-edge recursion."""
+    for e in range(k_end.shape[0]):
+        a, b = start[e], start[e + 1]
+        _filter_recursion(A_steps, H_steps, index, variances[a:b], Qd, L[a:b], P[a + e:b + e + 1],
+                          innovation[a:b], 0, k_end[e])
+
+
+def _stationary_batchable(model: Model, targets: list[NodeController], nominals: list) -> bool:
+    """Whether :func:`plan_local_controllers` may take its batched path: a linear model (the same
+    matrices at every state) and stationary targets, as the single-edge function then uses."""
+    return (type(model) is LinearGaussianModel and all(t.periodic is None for t in targets)
+            and all(u.shape[0] >= 1 for _, u in nominals))
+
+
+def _backward_gains(A: np.ndarray, B: np.ndarray, S: np.ndarray, Wx: np.ndarray, Wu: np.ndarray,
+                    steps: int) -> tuple[list[np.ndarray], int | None]:
+    """The backward Riccati recursion of :func:`plan_local_controller` for a linear model from the
+    terminal cost ``S``: the gains ``K[iota - 1 - j]`` for ``j = 0, 1, ...`` (at most ``steps``), and the
+    ``j`` at which S became stationary (the single-edge loop's break), or None. They depend on the
+    target only, so a batch computes them once per target."""
+    gains: list[np.ndarray] = []
+    for j in range(steps):
+        BS = B.T @ S
+        K = np.linalg.solve(Wu + BS @ B, BS @ A)
+        gains.append(K)
+        S_prev = S
+        S = Wx + A.T @ S @ (A - B @ K)
+        S = 0.5 * (S + S.T)
+        if np.linalg.norm(S - S_prev) <= BACKWARD_RTOL * np.linalg.norm(S_prev):
+            return gains, j
+    return gains, None
+
+
+def plan_local_controllers(model: Model, nominals: list[tuple[np.ndarray, np.ndarray]], P0s: list[np.ndarray],
+                           targets: list[NodeController], Wx: np.ndarray, Wu: np.ndarray, stabiliser_steps: int,
+                           perfect: bool, filter_steps_past_edge: int | None = None) -> list[LocalController]:
+    """:func:`plan_local_controller` for a batch of edges: the same controllers, bit for bit.
+
+    For a linear model with stationary stabilisers (the arm, the point robot) the per-step Python of
+    the single-edge function goes: the backward Riccati recursion runs once per target (it depends on
+    nothing else), the measurement variances along every nominal come from one call, the per-step
+    arrays of all edges are slices of a few shared buffers, and with ``filter_steps_past_edge`` the
+    forward Kalman recursion of every edge runs through ``edge_steps + filter_steps_past_edge`` in one
+    compiled call (the Monte Carlo's first segment; the rest stays lazy). Other models and periodic
+    stabilisers take the single-edge function per edge.
+
+    Parameters
+    ----------
+    nominals : per edge ``(x (iota + 1, n), u (iota, m))``.
+    P0s : per edge the start covariance (n, n); targets : per edge the target's stabiliser.
+    filter_steps_past_edge : run the filter recursion this far past each edge now (None: not at all).
+
+    Returns
+    -------
+    One :class:`LocalController` per edge, equal to :func:`plan_local_controller`'s in every array
+    (tests/test_controllers.py).
+    """
+    if not _stationary_batchable(model, targets, nominals):
+        out = [plan_local_controller(model, x, u, P0, t, Wx, Wu, stabiliser_steps, perfect)
+               for (x, u), P0, t in zip(nominals, P0s, targets)]
+        if filter_steps_past_edge is not None:
+            for lc in out:
+                lc.compute(lc.edge_steps + filter_steps_past_edge)
+        return out
+    n, m, nz = model.n, model.m, model.nz
+    A, B = model.A, model.B
+    E = len(nominals)
+    iotas = np.array([u.shape[0] for _, u in nominals], dtype=np.int64)
+    Ts = iotas + stabiliser_steps
+    start = np.concatenate([[0], np.cumsum(Ts)]).astype(np.int64)
+    total = int(start[-1])
+    # Shared buffers. The filter's (L, P, innovation) are left uninitialised where it will run: the
+    # recursion writes each row before anything reads it (compute(k) first), and zeroing ~0.5 MB per
+    # edge of rows that are mostly never reached cost more than the rest of the design. With
+    # perfect measurements no filter runs, and they are zeros as in the single-edge function.
+    alloc = np.zeros if perfect else np.empty
+    L_all = alloc((total, n, nz))
+    P_all = alloc((total + E, n, n))
+    innovation_all = alloc((total, nz, nz))
+    spread_all = np.zeros((total + E, n))
+    backward: dict[bytes, tuple[list[np.ndarray], int | None]] = {}
+    longest = int(iotas.max())
+    if not perfect:
+        landing_states = np.concatenate([np.concatenate([x[1:], t.center[None]]) for (x, _), t in zip(nominals, targets)])
+        landing_all = model.measurement_variance(landing_states)  # row by row: the same values as per edge
+        variances_all = np.empty((total, nz))
+        H_steps = np.stack([model.observation_jacobian(nominals[0][0][1])])
+        Qd = model.process_cov
+    else:
+        variances_all = np.zeros((total, 0))
+        H_steps = np.zeros((1, 0, n))
+        Qd = model.process_cov
+    A_steps, B_steps = A[None], B[None]
+    index = np.zeros(int(Ts.max()), dtype=np.int64)
+    out = []
+    row = 0
+    for e, ((x_nom, u_nom), P0, target) in enumerate(zip(nominals, P0s, targets)):
+        iota, T = int(iotas[e]), int(Ts[e])
+        a, b = int(start[e]), int(start[e + 1])
+        x_ref = np.empty((T, n))
+        u_ref = np.empty((T, m))
+        x_ref[:iota], u_ref[:iota] = x_nom[:-1], u_nom
+        x_ref[iota:], u_ref[iota:] = target.center, target.u_eq
+        key = target.S.tobytes()
+        if key not in backward:
+            backward[key] = _backward_gains(A, B, target.S, Wx, Wu, longest)
+        gains, stop = backward[key]
+        K = np.empty((T, m, n))
+        K[iota:] = target.K
+        if stop is not None and stop < iota:
+            for j in range(stop + 1):
+                K[iota - 1 - j] = gains[j]
+            K[:iota - 1 - stop] = gains[stop]
+        else:
+            for j in range(iota):
+                K[iota - 1 - j] = gains[j]
+        P = P_all[a + e:b + e + 1]
+        if not perfect:
+            landing = landing_all[row:row + iota + 1]
+            row += iota + 1
+            variances = variances_all[a:b]
+            variances[:iota] = landing[:iota]
+            variances[iota:] = landing[iota]
+            P[0] = P0
+        else:
+            variances = variances_all[a:b]
+        L, innovation, spread = L_all[a:b], innovation_all[a:b], spread_all[a + e:b + e + 1]
+        forward = _ForwardRecursion(A_steps, B_steps, H_steps, index[:T], K, variances, Qd, perfect, L, P,
+                                    innovation, spread)
+        out.append(LocalController(x_ref=x_ref, u_ref=u_ref, K=K, L=L, P=P, edge_steps=iota,
+                                   innovation_cov=None if perfect else innovation, spread=spread, forward=forward))
+    if filter_steps_past_edge is not None and not perfect:
+        k_end = np.minimum(Ts, np.maximum(1, iotas + filter_steps_past_edge)).astype(np.int64)
+        _filter_recursions(A_steps, H_steps, index, variances_all, Qd, L_all, P_all, innovation_all, start, k_end)
+        for lc, k in zip(out, k_end):
+            lc._forward.done = int(k)
+    elif filter_steps_past_edge is not None:
+        for lc in out:
+            lc.compute(lc.edge_steps + filter_steps_past_edge)
+    return out

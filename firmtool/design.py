@@ -11,10 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.controllers import LocalController, NodeController, plan_local_controller, weights
+from firmtool.controllers import (LocalController, NodeController, plan_local_controller, plan_local_controllers,
+                                  weights)
 from firmtool.errors import NumericalError
 from firmtool.nodes import GOAL, NodeRegions, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
+from firmtool.progress import DESIGN_EDGES, DESIGN_NODES, Counter, ProgressCallback
 
 
 @dataclass(frozen=True)
@@ -54,16 +56,22 @@ def node_controller(problem: Problem, design_: Design, j: int) -> NodeController
     return problem.robot.node_controller(problem, design_.centers[j], design_.node(j))
 
 
-def design_nodes(problem: Problem, centers: np.ndarray) -> list[NodeController]:
-    """Stabiliser of every node (R at the node's centre; the robot's kind: stationary or periodic)."""
+def design_nodes(problem: Problem, centers: np.ndarray, indices: list[int] | None = None,
+                 progress: ProgressCallback | None = None) -> list[NodeController]:
+    """Stabiliser of every node (R at the node's centre; the robot's kind: stationary or periodic).
+
+    ``indices``: the nodes' numbers in the roadmap, for messages (default ``0, 1, ...``; a worker
+    designs a slice of the nodes). ``progress``: told of the nodes designed (:mod:`firmtool.progress`)."""
     Wx, Wu = lqr_weights(problem)
     memo: dict = {}  # what the robot shares between the nodes of this design (a linear model's LQR gain)
     out = []
+    counter = Counter(progress, DESIGN_NODES, len(centers)).start()
     for j, v in enumerate(centers):
         try:
             out.append(problem.robot.design_node(problem, v, Wx, Wu, memo))
         except NumericalError as exc:
-            raise NumericalError(f"node {j}: {exc}") from None
+            raise NumericalError(f"node {j if indices is None else indices[j]}: {exc}") from None
+        counter.advance()
     return out
 
 
@@ -79,7 +87,8 @@ def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tupl
     return problem.robot.nominal_trajectory(problem, x0, xf)
 
 
-def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
+            progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
 
     No edge leaves a goal node (goals are absorbing).
@@ -88,27 +97,30 @@ def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[n
     -------
     source, target, steps : (E,) int64 arrays sorted by (source, target).
     """
+    counter = Counter(progress, DESIGN_EDGES, 3).start()  # the pairs' validity, the nominals, their checks
     directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
-    src, dst, steps = [], [], []
+    counter.advance()
+    ij = np.array(directed, dtype=np.int64).reshape(-1, 2)
+    # the nominals of all edges, those of one length together (bit for bit nominal_trajectory's)
+    nominals = problem.robot.nominal_trajectories(problem, centers[ij[:, 0]], centers[ij[:, 1]]) if len(ij) else []
     # A nominal along the straight configuration segment was checked above with its node pair;
     # other nominals may bend and are checked along their states.
+    counter.advance()
     straight = problem.robot.nominals_are_straight()
-    for i, j in directed:
-        x, u = nominal_trajectory(problem, centers[i], centers[j])
-        if not straight and not trajectory_is_valid(problem, x):
-            continue
-        src.append(i)
-        dst.append(j)
-        steps.append(u.shape[0])
-    return (np.array(src, dtype=np.int64), np.array(dst, dtype=np.int64), np.array(steps, dtype=np.int64))
+    keep = np.array([straight or trajectory_is_valid(problem, x) for x, _ in nominals], dtype=bool)
+    steps = np.array([u.shape[0] for _, u in nominals], dtype=np.int64)
+    counter.finish()
+    return ij[keep, 0].copy(), ij[keep, 1].copy(), steps[keep]
 
 
-def design(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> Design:
-    """Run the whole design stage for the given node centres and kinds."""
-    nodes = design_nodes(problem, centers)
+def design(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
+           progress: ProgressCallback | None = None) -> Design:
+    """Run the whole design stage for the given node centres and kinds (``progress``: told of the
+    nodes and edges designed, :mod:`firmtool.progress`)."""
+    nodes = design_nodes(problem, centers, progress=progress)
     stack = lambda name: np.stack([getattr(nc, name) for nc in nodes])  # noqa: E731
     Sigma = stack("Sigma")
-    src, dst, steps = connect(problem, centers, kinds)
+    src, dst, steps = connect(problem, centers, kinds, progress)
     return Design(centers=centers, kinds=np.asarray(kinds), u_eq=stack("u_eq"), K=stack("K"), S=stack("S"), L=stack("L"), P=stack("P"),
                   Sigma=Sigma, scale=region_scale(Sigma), edge_source=src, edge_target=dst, edge_steps=steps)
 
@@ -126,3 +138,28 @@ def local_controller(problem: Problem, design_: Design, source: int, target: int
     Wx, Wu = lqr_weights(problem)
     return plan_local_controller(problem.model, x, u, P0, node_controller(problem, design_, target), Wx, Wu,
                                  problem.scenario.controller.max_steps, problem.perfect)
+
+
+def local_controllers(problem: Problem, design_: Design, pairs: list[tuple[int, int]],
+                      filter_steps_past_edge: int | None = None) -> list[LocalController]:
+    """:func:`local_controller` of many edges ``(source, target)`` from their source nodes, designed
+    together: the nominals of one length at once (:meth:`~firmtool.robots.Robot.nominal_trajectories`)
+    and the gains by :func:`~firmtool.controllers.plan_local_controllers`. Every array equals the
+    single-edge function's bit for bit (tests/test_controllers.py), so an estimate does not depend on
+    how its edges were batched.
+
+    ``filter_steps_past_edge``: run each edge's Kalman recursion this many steps past the edge now,
+    all edges in one compiled call (the Monte Carlo's first segment), instead of lazily one by one.
+    """
+    if not pairs:
+        return []
+    src = np.array([p[0] for p in pairs], dtype=np.int64)
+    dst = np.array([p[1] for p in pairs], dtype=np.int64)
+    nominals = problem.robot.nominal_trajectories(problem, design_.centers[src], design_.centers[dst])
+    Wx, Wu = lqr_weights(problem)
+    targets: dict[int, NodeController] = {}
+    for j in np.unique(dst).tolist():
+        targets[j] = node_controller(problem, design_, j)
+    return plan_local_controllers(problem.model, nominals, [design_.P[s] for s in src.tolist()],
+                                  [targets[t] for t in dst.tolist()], Wx, Wu, problem.scenario.controller.max_steps,
+                                  problem.perfect, filter_steps_past_edge)

@@ -18,6 +18,7 @@ import io
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from matplotlib.collections import LineCollection
@@ -34,6 +35,7 @@ from firmtool.results import Episode
 OBSTACLE_COLOR = "#8c564b"  # brown, as in the paper
 GOAL_COLOR = "#9467bd"  # purple
 ELLIPSE_EVERY = 6  # draw a covariance ellipse every this many steps
+DEFAULT_UNIT = "m"  # the length unit of the axes (a scenario's world has no unit of its own)
 
 
 @dataclass(frozen=True)
@@ -83,46 +85,69 @@ def _ellipse(center: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, **kw) -> 
     return Ellipse(center, 2 * sigmas * np.sqrt(w[1]), 2 * sigmas * np.sqrt(w[0]), angle=angle, **kw)
 
 
-def _background(ax, problem: Problem) -> None:
+def _background(ax, problem: Problem, unit: str = DEFAULT_UNIT):
+    """Bounds, obstacles, and the sensing field of a light-dark law (its noise std, shaded, with the
+    light line); returns the field's image (for a colour bar) or None."""
     sc = problem.scenario
     lo, hi = np.array(sc.world.lo)[:2], np.array(sc.world.hi)[:2]
     noise = problem.model.noise
     lx = getattr(noise, "light_x", None)  # a light-dark law of the sensing x: shade the field
+    image = None
     if not problem.perfect and lx is not None:
         xs = np.linspace(lo[0], hi[0], 400)
         std = np.sqrt(noise.variance(xs))
-        ax.imshow(std[None, :], extent=(lo[0], hi[0], lo[1], hi[1]), origin="lower", aspect="auto",
-                  cmap="Greys", alpha=0.55, vmin=0.0, vmax=float(std.max()) * 1.2, zorder=0)
+        image = ax.imshow(std[None, :], extent=(lo[0], hi[0], lo[1], hi[1]), origin="lower", aspect="auto",
+                          cmap="Greys", alpha=0.55, vmin=0.0, vmax=float(std.max()) * 1.2, zorder=0)
         if lo[0] <= lx <= hi[0]:
             ax.axvline(lx, color="gold", lw=2.5, zorder=1, label="light")
     alpha = 1.0 if problem.workspace_dim == 2 else 0.5  # seen from above, 3-D obstacles overlap
-    for o in sc.world.obstacles:  # each obstacle's disc, or its x-y bounding box
+    for i, o in enumerate(sc.world.obstacles):  # each obstacle's disc, or its x-y bounding box
+        label = "obstacle" if i == 0 else None
         if o.kind == "sphere":
-            ax.add_patch(Circle(np.array(o.center)[:2], o.radius, color=OBSTACLE_COLOR, alpha=alpha, zorder=2))
+            ax.add_patch(Circle(np.array(o.center)[:2], o.radius, color=OBSTACLE_COLOR, alpha=alpha, zorder=2,
+                                label=label))
             continue
         a, b = (v[:2] for v in o.aabb())
-        ax.add_patch(Rectangle(a, *(b - a), color=OBSTACLE_COLOR, alpha=alpha, zorder=2))
+        ax.add_patch(Rectangle(a, *(b - a), color=OBSTACLE_COLOR, alpha=alpha, zorder=2, label=label))
     ax.add_patch(Rectangle(lo, *(hi - lo), fill=False, lw=1.0, color="k", zorder=2))
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
+    ax.set_xlabel(f"x [{unit}]")
+    ax.set_ylabel(f"y [{unit}]")
+    return image
 
 
 def _robot(ax, problem: Problem, state: np.ndarray, color: str, label: str, lw: float = 2.0) -> None:
     problem.robot.draw(ax, state, color=color, label=label, lw=lw)
 
 
-def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
+def _headings(ax, problem: Problem, states: np.ndarray, points: np.ndarray, color: str) -> None:
+    """Arrows of the robot's heading along a path (robots with one, e.g. the unicycle)."""
+    heading = problem.robot.heading(states) if problem.robot is not None else None
+    if heading is None:
+        return
+    r = problem.scenario.world.robot_radius
+    ax.quiver(points[:, 0], points[:, 1], np.cos(heading), np.sin(heading), color=color, angles="xy",
+              scale_units="xy", scale=1.0 / (2.5 * r), width=0.004, zorder=5, alpha=0.8)
+
+
+def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = DEFAULT_UNIT,
+          colorbar: bool = True, legend: bool = True) -> None:
     """Draw one panel into ``ax``: obstacles, sensing field, goal, roadmap, the policy's path, the
     robot at the start, and the episode's belief of the followed point. ``design``'s edge arrays
-    must be the ones ``data.policy`` indexes."""
+    must be the ones ``data.policy`` indexes.
+
+    Axes are labelled in ``unit`` (the scenario's length unit); the sensing field gets a colour bar
+    as tall as the axes (``colorbar``); the legend (``legend``) is placed under the axes, outside the
+    data (a figure of several panels draws one legend for all: :func:`legend_below`)."""
     from firmtool.pipeline import policy_path
 
-    _background(ax, problem)
+    image = _background(ax, problem, unit)
     tips = problem.points(design.centers)[:, -1, :2]
     segs = np.stack([tips[design.edge_source], tips[design.edge_target]], axis=1)
     ax.add_collection(LineCollection(segs, colors="tab:blue", alpha=0.06, lw=0.5, zorder=3))
-    ax.plot(tips[:, 0], tips[:, 1], ".", color="tab:blue", ms=2.5, alpha=0.6, zorder=3)
+    ax.plot(tips[:, 0], tips[:, 1], ".", color="tab:blue", ms=2.5, alpha=0.6, zorder=3, label="roadmap nodes")
     goals = np.flatnonzero(design.kinds == GOAL)
     if problem.goal_disc is not None:
         c, r = problem.goal_disc
@@ -137,13 +162,15 @@ def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
     if ep is not None and ep.estimates is not None:
         mean = problem.points(ep.estimates)[:, -1, :2]
         ax.plot(mean[:, 0], mean[:, 1], "-", color="red", lw=1.2, zorder=5, label="estimated mean")
+        idx = np.arange(0, len(ep.estimates), ELLIPSE_EVERY)
         if not problem.perfect:
-            idx = np.arange(0, len(ep.estimates), ELLIPSE_EVERY)
             covs = point_covariance(problem, ep.estimates[idx], ep.covariances[idx])
-            for center, cov in zip(mean[idx], covs):
-                e = _ellipse(center, cov, fill=False, color="red", lw=0.6, alpha=0.8, zorder=5)
+            for k, (center, cov) in enumerate(zip(mean[idx], covs)):
+                e = _ellipse(center, cov, fill=False, color="red", lw=0.6, alpha=0.8, zorder=5,
+                             label="3-sigma ellipse" if k == 0 else None)
                 if e is not None:
                     ax.add_patch(e)
+        _headings(ax, problem, ep.estimates[idx[::2]], mean[idx[::2]], "red")
         _robot(ax, problem, ep.states[-1], "green", f"final true ({ep.outcome})")
         _robot(ax, problem, ep.estimates[-1], "blue", "final estimate", lw=1.2)
     title = data.name
@@ -155,7 +182,153 @@ def panel(ax, problem: Problem, design: Design, data: PanelData) -> None:
     if ep is not None and data.label is not None:
         title += f"\n{data.label}: {ep.outcome}, {ep.steps} steps"
     ax.set_title(title, fontsize=9)
-    ax.legend(loc="lower left", fontsize=6, framealpha=0.8)
+    if image is not None and colorbar:
+        cax = ax.inset_axes([1.03, 0.0, 0.035, 1.0])  # as tall as the drawn axes, whatever its aspect
+        ax.figure.colorbar(image, cax=cax, label="measurement noise std")
+    if legend:
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=7, frameon=False)
+
+
+def legend_below(fig: Figure, ax) -> None:
+    """One legend for a figure of panels, under them (outside the data; constrained layout makes room)."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
+
+
+# -- the calibration of the policy edges -----------------------------------------------------------------
+
+def calibration_panels(axes, calibration, *, title: str = "") -> None:
+    """Predicted (Monte Carlo) against executed frequencies of every checked policy edge, each with
+    its 95% interval: failure (collision or timeout) on ``axes[0]``, landing in the edge's target on
+    ``axes[1]``; flagged edges in red and labelled with their ids.
+
+    Parameters
+    ----------
+    axes : two matplotlib Axes.
+    calibration : a :class:`firmtool.results.Calibration` (``Results.calibration``).
+    """
+    checks = list(calibration.edges)
+    for ax, what, name in zip(axes, ("failure", "target"), ("failure: collision or timeout", "landing in the target")):
+        ax.plot([0, 1], [0, 1], "--", color="0.5", lw=1, zorder=1, label="executed = predicted")
+        for c in checks:
+            x, y = getattr(c, f"{what}_estimated"), getattr(c, f"{what}_executed")
+            xlo, xhi = getattr(c, f"{what}_estimated_ci95")
+            ylo, yhi = getattr(c, f"{what}_executed_ci95")
+            flagged = what in c.flagged
+            xerr = np.maximum([[x - xlo], [xhi - x]], 0.0)  # an interval holds its estimate (rounding aside)
+            yerr = np.maximum([[y - ylo], [yhi - y]], 0.0)
+            ax.errorbar([x], [y], xerr=xerr, yerr=yerr, fmt="o",
+                        ms=3 + 3 * min(c.traversals, 200) / 200, color="tab:red" if flagged else "tab:blue",
+                        elinewidth=0.8, capsize=2, alpha=0.85, zorder=3)
+            if flagged:
+                ax.annotate(str(c.edge), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7,
+                            color="tab:red")
+        ax.set_xlim(-0.02, 1.02)
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_aspect("equal")
+        ax.set_xlabel("predicted probability (edge Monte Carlo, 95% interval)")
+        ax.set_ylabel("executed frequency (episodes, 95% interval)")
+        ax.set_title(name, fontsize=9)
+    axes[0].legend(loc="upper left", fontsize=7, frameon=False)
+    if title:
+        axes[0].figure.suptitle(title, fontsize=10)
+
+
+def calibration_figure(results, *, dpi: int = 120, title: str | None = None) -> Figure:
+    """The calibration plot of executed episodes (:func:`calibration_panels`) on a bare Figure.
+
+    Parameters
+    ----------
+    results : :class:`firmtool.Results` with a calibration check (``simulate`` on a roadmap).
+    dpi : resolution.
+    title : the figure's title (default: how many edges were checked and which were flagged).
+
+    Raises
+    ------
+    InputError
+        The results have no calibration check (no edge counts) or no edge was taken often enough.
+    """
+    from firmtool.errors import InputError
+
+    cal = results.calibration
+    if cal is None or not cal.edges:
+        raise InputError("calibration: no policy edge was taken often enough to be checked "
+                         f"(>= {cal.min_traversals if cal else '?'} clean traversals); run more episodes")
+    fig = Figure(figsize=(9.0, 4.8), dpi=dpi, layout="constrained")
+    axes = fig.subplots(1, 2)
+    flagged = ", ".join(map(str, cal.flagged_edges)) or "none"
+    calibration_panels(axes, cal, title=title if title is not None else
+                       f"{cal.edges_checked} of {cal.edges_taken} policy edges checked (>= {cal.min_traversals} "
+                       f"traversals) in {len(results.episodes)} episodes; flagged: {flagged}; marker size: "
+                       "traversals")
+    return fig
+
+
+# -- figure kinds (firmtool plot --kind KIND) --------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FigureOptions:
+    """What ``firmtool plot`` asks of a figure kind.
+
+    Attributes
+    ----------
+    episodes : episodes to run per policy (0: none).
+    seed : seed of the episodes (as in ``firmtool execute``).
+    policies : the policies to draw (``"firm"``, ``"shortest-path"``).
+    dpi : resolution.
+    unit : length unit of the axes.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), or None.
+    """
+
+    episodes: int = 20
+    seed: int = 0
+    policies: tuple[str, ...] = ("firm", "shortest-path")
+    dpi: int = 120
+    unit: str = DEFAULT_UNIT
+    progress: Callable[[str, int, int], None] | None = None
+
+
+def _relabel(progress, stage: str):
+    """A progress callback reporting under ``stage`` (episodes run for a figure)."""
+    return None if progress is None else (lambda _stage, done, total: progress(stage, done, total))
+
+
+def paths_figure(solution, options: FigureOptions) -> Figure:
+    """The paper's Fig. 1, one panel per policy (:func:`firmtool.api.plot_policies`)."""
+    import firmtool.api as ft
+
+    results = [ft.simulate(solution, options.episodes, options.seed, policy=name,
+                           progress=_relabel(options.progress, f"plot: {name} episodes"))
+               if options.episodes else None for name in options.policies]
+    return ft.plot_policies(solution, results, list(options.policies), dpi=options.dpi, unit=options.unit)
+
+
+def calibration_kind_figure(solution, options: FigureOptions) -> Figure:
+    """The calibration plot of the FIRM policy's edges over ``options.episodes`` episodes."""
+    import firmtool.api as ft
+
+    results = ft.simulate(solution, max(options.episodes, 1), options.seed, record=False,
+                          progress=_relabel(options.progress, "plot: episodes"))
+    return calibration_figure(results, dpi=options.dpi)
+
+
+FIGURE_KINDS: dict[str, Callable[..., Figure]] = {"paths": paths_figure, "calibration": calibration_kind_figure}
+
+
+def register_figure(kind: str, make: Callable[..., Figure]) -> None:
+    """Add a figure kind to ``firmtool plot --kind``: ``make(solution, options: FigureOptions) -> Figure``
+    (a bare matplotlib Figure, saved by :func:`save_figure`). The disturbance sweep and the
+    reliability diagram plug in here."""
+    FIGURE_KINDS[kind] = make
+
+
+def make_figure(kind: str, solution, options: FigureOptions) -> Figure:
+    """The figure of a kind (:data:`FIGURE_KINDS`) for a solved roadmap."""
+    from firmtool.errors import InputError
+
+    if kind not in FIGURE_KINDS:
+        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
+    return FIGURE_KINDS[kind](solution, options)
 
 
 PNG_SOFTWARE = f"firmtool {__version__}"  # the PNG's Software text: marks a figure firmtool may replace
@@ -195,7 +368,8 @@ def save_figure(fig: Figure, path: str | Path, force: bool = False) -> None:
     try:
         check_output(path, force)
         image = io.BytesIO()
-        fig.savefig(image, format="png", metadata={"Software": PNG_SOFTWARE})
+        # bbox_inches="tight": nothing outside the figure's edge is cut (tick labels, outside legends)
+        fig.savefig(image, format="png", metadata={"Software": PNG_SOFTWARE}, bbox_inches="tight", pad_inches=0.05)
         write_bytes(path, image.getbuffer())
     finally:
         if fig.canvas.manager is not None:  # a pyplot figure: let pyplot forget it

@@ -858,9 +858,11 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     from firmtool.edges import ParticleOutcomes, cost_terms
     from firmtool.errors import InputError
 
-    reason = supports(problem)
-    if reason is not None:
-        raise InputError(f"the compiled Monte Carlo engine cannot run this problem: {reason}")
+    hit = _problem_cache.get(id(problem))
+    if hit is None or hit[0] is not problem:  # checked once per problem (a frozen dataclass), not per edge
+        reason = supports(problem)
+        if reason is not None:
+            raise InputError(f"the compiled Monte Carlo engine cannot run this problem: {reason}")
     run = kernel()
     pd = _problem_data(problem)
     perfect = problem.perfect

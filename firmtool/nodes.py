@@ -17,11 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-import scipy.sparse
-import scipy.sparse.csgraph
-
 from firmtool.errors import RunFailure, ScenarioError
 from firmtool.problem import Problem
+from firmtool.progress import SAMPLE, ProgressCallback, report
 
 REGULAR, START, GOAL = 0, 1, 2
 SEGMENT_CHECK_SPACING = 0.5  # validity checks per robot radius of workspace motion along a segment
@@ -41,26 +39,93 @@ def sample_nodes(problem: Problem, count: int, rng: np.random.Generator, *,
     centers : (k, n) states at rest, ``k <= count`` (fewer if the attempts run out).
     """
     lo, hi, d = problem.config_lo, problem.config_hi, problem.config_dim
-    accepted: list[np.ndarray] = [] if existing is None else [c[:d] for c in existing]
-    first_new = len(accepted)
+    accepted = _Points(d, [] if existing is None else [np.asarray(existing)[:, :d]])
+    first_new = accepted.count
     attempts = 0
     max_attempts = max_attempts or 200 * count + 10_000
-    while len(accepted) - first_new < count and attempts < max_attempts:
+    while accepted.count - first_new < count and attempts < max_attempts:
         batch = rng.uniform(lo, hi, size=(256, d))
         attempts += batch.shape[0]
         batch = batch[problem.is_valid(problem.state_of(batch))]
-        for q in batch:  # greedy separation over accepted nodes (not particles)
-            if min_separation > 0 and accepted:
-                if np.min(np.linalg.norm(np.asarray(accepted) - q, axis=1)) < min_separation:
-                    continue
-            accepted.append(q)
-            if len(accepted) - first_new == count:
-                break
-    return problem.state_of(np.asarray(accepted[first_new:]).reshape(-1, d))
+        # greedy separation, in order: each candidate against the accepted nodes and the candidates
+        # of this batch accepted before it (what a loop over the candidates would do, batched)
+        keep = accepted.separated(batch, min_separation) if min_separation > 0 else np.ones(len(batch), bool)
+        taken = _greedy(batch, keep, min_separation, count - (accepted.count - first_new))
+        accepted.add(batch[taken])
+    return problem.state_of(accepted.array[first_new:].reshape(-1, d))
 
 
-def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Start node, goal node, then sampled regular nodes.
+class _Points:
+    """Accepted configurations (k, d) in a growing buffer, with the separation test of candidates.
+
+    :meth:`separated` finds the accepted points within the separation by a k-d tree query (a bound
+    a little wider than the separation, so no neighbour is missed through the tree's own rounding),
+    then decides with the same norm a loop over the candidates computed (``np.linalg.norm(accepted -
+    q, axis=1)``, row by row the same value), so the accepted nodes are bit for bit the same."""
+
+    def __init__(self, d: int, parts: list[np.ndarray]) -> None:
+        start = np.concatenate([np.asarray(p, dtype=float).reshape(-1, d) for p in parts]) if parts else np.zeros((0, d))
+        self._buf = np.empty((max(64, 2 * start.shape[0]), d))
+        self._buf[:start.shape[0]] = start
+        self.count = start.shape[0]
+        self._tree: cKDTree | None = None
+        self._tree_count = -1
+
+    @property
+    def array(self) -> np.ndarray:
+        return self._buf[:self.count]
+
+    def add(self, points: np.ndarray) -> None:
+        k = points.shape[0]
+        if self.count + k > self._buf.shape[0]:
+            grown = np.empty((max(2 * self._buf.shape[0], self.count + k), self._buf.shape[1]))
+            grown[:self.count] = self.array
+            self._buf = grown
+        self._buf[self.count:self.count + k] = points
+        self.count += k
+
+    def separated(self, candidates: np.ndarray, separation: float) -> np.ndarray:
+        """bool (k,): candidates at least ``separation`` from every accepted point."""
+        ok = np.ones(candidates.shape[0], dtype=bool)
+        if self.count == 0 or candidates.shape[0] == 0:
+            return ok
+        if self._tree_count != self.count:
+            self._tree, self._tree_count = cKDTree(self.array), self.count
+        near = self._tree.query_ball_point(candidates, separation * (1 + 1e-9) + 1e-300)
+        pts = self.array
+        for i in np.flatnonzero([len(idx) > 0 for idx in near]):  # the few with a neighbour that close
+            if np.min(np.linalg.norm(pts[near[i]] - candidates[i], axis=1)) < separation:
+                ok[i] = False
+        return ok
+
+
+def _greedy(batch: np.ndarray, keep: np.ndarray, separation: float, room: int) -> np.ndarray:
+    """Indices of the candidates a loop in batch order accepts: those in ``keep`` (clear of the
+    accepted nodes) and at least ``separation`` from every candidate accepted before them, at most
+    ``room`` of them."""
+    cand = np.flatnonzero(keep)
+    if separation <= 0 or cand.size <= 1:
+        return cand[:room]
+    pts = batch[cand]
+    close = cKDTree(pts).query_pairs(separation * (1 + 1e-9) + 1e-300, output_type="ndarray")
+    if close.size == 0:
+        return cand[:room]
+    rivals: dict[int, list[int]] = {}
+    for a, b in close.tolist():  # a < b: a candidate is checked against the earlier ones near it
+        rivals.setdefault(b, []).append(a)
+    accepted = np.ones(cand.size, dtype=bool)  # a candidate without a close earlier one is accepted
+    for i in sorted(rivals):  # in order: its earlier rivals are decided already
+        earlier = [a for a in rivals[i] if accepted[a]]
+        if earlier and np.min(np.linalg.norm(pts[earlier] - pts[i], axis=1)) < separation:
+            accepted[i] = False
+    return cand[np.flatnonzero(accepted)[:room]]
+
+
+def roadmap_nodes(problem: Problem, rng: np.random.Generator,
+                  progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Start node, goal node(s), then sampled regular nodes (``progress``: told of the nodes found,
+    phase by phase, :mod:`firmtool.progress`); the connection stage,
+    :func:`firmtool.connectivity.connect_goals`, may add more.
 
     Returns
     -------
@@ -72,11 +137,15 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
         If no valid configuration can be found (empty free space).
     """
     spec = problem.scenario.roadmap
+    total = spec.nodes + 1 + spec.goal_nodes  # at most
+    report(progress, SAMPLE, 0, total)
     fixed = np.stack([problem.start, problem.goal])
     extra_goals = _goal_region_nodes(problem, spec.goal_nodes - 1, rng, fixed) if problem.goal_disc else fixed[:0]
     fixed = np.concatenate([fixed, extra_goals])
+    report(progress, SAMPLE, fixed.shape[0], total)
     biased = int(round(spec.goal_bias * spec.nodes))
     grown = grow_from_goals(problem, biased, rng, fixed) if biased else fixed[:0]
+    report(progress, SAMPLE, fixed.shape[0] + grown.shape[0], total)
     sampled = sample_nodes(problem, spec.nodes - grown.shape[0], rng, min_separation=spec.min_separation,
                            existing=np.concatenate([fixed, grown]))
     sampled = np.concatenate([grown, sampled])
@@ -90,8 +159,7 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator) -> tuple[np.ndarra
     kinds = np.full(centers.shape[0], REGULAR, dtype=np.int8)
     kinds[START_INDEX], kinds[GOAL_INDEX] = START, GOAL
     kinds[2:2 + extra_goals.shape[0]] = GOAL
-    if spec.bridge_nodes:
-        centers, kinds = add_bridges(problem, centers, kinds, spec.bridge_nodes, rng)
+    report(progress, SAMPLE, centers.shape[0], centers.shape[0])
     return centers, kinds
 
 
@@ -109,6 +177,48 @@ def segment_is_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> bool:
     return bool(np.all(problem.is_valid(q0[None] + t[:, None] * (q1 - q0)[None])))
 
 
+# States one validity call of segments_valid checks at most (bounds its memory).
+SEGMENT_BATCH_STATES = 65536
+
+
+def segments_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """:func:`segment_is_valid` of many segments (``q0``, ``q1`` (K, n)) -> bool (K,), in few validity
+    calls: each segment's checked states are the single-segment function's, bit for bit (its
+    length by the same norm, the same ``linspace``, the same interpolation), and a state's validity
+    does not depend on the other states of the call."""
+    d = problem.config_dim
+    K = q0.shape[0]
+    out = np.ones(K, dtype=bool)
+    if K == 0:
+        return out
+    spacing = SEGMENT_CHECK_SPACING * problem.scenario.world.robot_radius / problem.workspace_gain
+    counts = np.array([max(2, int(np.ceil(float(np.linalg.norm(b[:d] - a[:d])) / spacing)) + 1)
+                       for a, b in zip(q0, q1)], dtype=np.int64)
+    step = q1 - q0
+    # blocks of the segments with c checks each (their states built at once), gathered into calls of
+    # at most SEGMENT_BATCH_STATES states
+    blocks: list[tuple[np.ndarray, int, np.ndarray]] = []
+    for c in np.unique(counts).tolist():
+        t = np.linspace(0.0, 1.0, c)
+        same = np.flatnonzero(counts == c)
+        per_block = max(1, SEGMENT_BATCH_STATES // c)
+        for a in range(0, same.size, per_block):
+            group = same[a:a + per_block]
+            states = q0[group][:, None, :] + t[None, :, None] * step[group][:, None, :]
+            blocks.append((group, c, states.reshape(-1, q0.shape[1])))
+    while blocks:
+        call, size = [], 0
+        while blocks and (not call or size + blocks[0][2].shape[0] <= SEGMENT_BATCH_STATES):
+            call.append(blocks.pop(0))
+            size += call[-1][2].shape[0]
+        ok = problem.is_valid(np.concatenate([states for _, _, states in call]))
+        at = 0
+        for group, c, states in call:
+            out[group] = ok[at:at + states.shape[0]].reshape(group.size, c).all(axis=1)
+            at += states.shape[0]
+    return out
+
+
 def trajectory_is_valid(problem: Problem, x: np.ndarray) -> bool:
     """Whether a state trajectory (T, n) is collision-free, checked densely between its states."""
     return all(segment_is_valid(problem, a, b) for a, b in zip(x[:-1], x[1:]))
@@ -124,63 +234,22 @@ def neighbour_pairs(problem: Problem, centers: np.ndarray) -> list[tuple[int, in
     ok = (idx != np.arange(N)[:, None]) & (idx < N) & (dist <= spec.max_edge_length)
     i, j = np.nonzero(ok)
     a, b = np.minimum(i, idx[i, j]), np.maximum(i, idx[i, j])
-    return sorted(set(zip(a.tolist(), b.tolist())))
+    pair = np.unique(a.astype(np.int64) * N + b)  # sorted by (a, b), each pair once
+    return list(zip((pair // N).tolist(), (pair % N).tolist()))
 
 
 def valid_pairs(problem: Problem, centers: np.ndarray, cache: dict | None = None) -> list[tuple[int, int]]:
     """The neighbour pairs whose segment is collision-free (``cache`` keeps results between calls)."""
     cache = {} if cache is None else cache
-    out = []
-    for i, j in neighbour_pairs(problem, centers):  # loop over node pairs, not particles
-        key = (centers[i].tobytes(), centers[j].tobytes())
-        if key not in cache:
-            cache[key] = segment_is_valid(problem, centers[i], centers[j])
-        if cache[key]:
-            out.append((i, j))
-    return out
-
-
-def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget: int,
-                rng: np.random.Generator, per_round: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """Add nodes between the start's component and goal components that it does not reach.
-
-    Each round connects the roadmap (k nearest neighbours, collision-free segments), and for every
-    goal component apart from the start's samples valid nodes near the midpoints of the closest
-    node pairs across the two components (a Gaussian around the midpoint, spread a third of the gap).
-    Stops when every goal is connected to the start or ``budget`` nodes were added.
-    """
-    d = problem.config_dim
-    cache: dict = {}
-    added, rounds = 0, 0
-    while added < budget and rounds < 4 * budget // per_round + 10:  # bounded even if no sample is valid
-        rounds += 1
-        pairs = valid_pairs(problem, centers, cache)
-        N = centers.shape[0]
-        a = np.array([p[0] for p in pairs], dtype=np.int64)
-        b = np.array([p[1] for p in pairs], dtype=np.int64)
-        graph = scipy.sparse.csr_matrix((np.ones(a.size), (a, b)), shape=(N, N))
-        _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
-        stranded = sorted(set(label[kinds == GOAL].tolist()) - {label[START_INDEX]})
-        if not stranded:
-            break
-        new = []
-        here = np.flatnonzero(label == label[START_INDEX])
-        for comp in stranded:
-            there = np.flatnonzero(label == comp)
-            gap = np.linalg.norm(centers[here, None, :d] - centers[None, there, :d], axis=2)
-            flat = np.argsort(gap, axis=None)[:per_round]
-            hi, ti = np.unravel_index(flat, gap.shape)
-            mid = 0.5 * (centers[here[hi], :d] + centers[there[ti], :d])
-            spread = gap[hi, ti][:, None] / 3.0
-            q = np.clip(mid + spread * rng.standard_normal(mid.shape), problem.config_lo, problem.config_hi)
-            new.append(q[problem.is_valid(problem.state_of(q))])
-        q = np.concatenate(new)[: budget - added]
-        if q.shape[0] == 0:
-            continue
-        centers = np.concatenate([centers, problem.state_of(q)])
-        kinds = np.concatenate([kinds, np.full(q.shape[0], REGULAR, dtype=np.int8)])
-        added += q.shape[0]
-    return centers, kinds
+    pairs = neighbour_pairs(problem, centers)
+    node_key = [c.tobytes() for c in centers]
+    keys = [(node_key[i], node_key[j]) for i, j in pairs]
+    todo = [k for k, key in enumerate(keys) if key not in cache]
+    if todo:  # the unchecked segments in one batch of validity checks
+        ij = np.array([pairs[k] for k in todo], dtype=np.int64)
+        for k, ok in zip(todo, segments_valid(problem, centers[ij[:, 0]], centers[ij[:, 1]]).tolist()):
+            cache[keys[k]] = ok
+    return [p for p, key in zip(pairs, keys) if cache[key]]
 
 
 def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixed: np.ndarray,
@@ -194,23 +263,22 @@ def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixe
     spec = problem.scenario.roadmap
     d = problem.config_dim
     # one tree per goal node, grown in turn, so that every way into the goal region gets nodes
-    trees = [[x[:d]] for x in fixed[1:]]  # fixed = start, goal, extra goals
-    accepted = [x[:d] for x in fixed]
-    grown: list[np.ndarray] = []
+    trees = [_Points(d, [x[None, :d]]) for x in fixed[1:]]  # fixed = start, goal, extra goals
+    accepted = _Points(d, [fixed[:, :d]])
+    first = accepted.count
     attempts, max_attempts = 0, max_attempts or 400 * count
-    while len(grown) < count and attempts < max_attempts:
+    while accepted.count - first < count and attempts < max_attempts:
         tree = trees[(attempts // 64) % len(trees)]
-        base = np.asarray(tree)[rng.integers(len(tree), size=64)]
+        base = tree.array[rng.integers(tree.count, size=64)]
         q = np.clip(base + spec.bias_step * rng.standard_normal(base.shape), problem.config_lo, problem.config_hi)
         attempts += q.shape[0]
         q = q[problem.is_valid(problem.state_of(q))]
         for x in q[:1]:  # at most one node per batch, so the trees grow evenly
-            if np.min(np.linalg.norm(np.asarray(accepted) - x, axis=1)) < spec.min_separation:
+            if np.min(np.linalg.norm(accepted.array - x, axis=1)) < spec.min_separation:
                 continue
-            accepted.append(x)
-            tree.append(x)
-            grown.append(x)
-    return problem.state_of(np.asarray(grown).reshape(-1, d))
+            accepted.add(x[None])
+            tree.add(x[None])
+    return problem.state_of(accepted.array[first:].reshape(-1, d))
 
 
 def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, existing: np.ndarray,
@@ -223,6 +291,7 @@ def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, e
     center, radius = problem.goal_disc
     d = problem.config_dim
     min_sep = problem.scenario.roadmap.min_separation
+    placed = _Points(d, [existing[:, :d]])
     found: list[np.ndarray] = []
     for _ in range(batches):
         if len(found) >= count:
@@ -232,12 +301,11 @@ def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, e
         inside = np.linalg.norm(problem.points(X)[:, -1] - center, axis=1) < radius
         X = X[inside]
         X = X[problem.is_valid(X)]
-        for x in X:
-            others = np.concatenate([existing[:, :d]] + [f[None, :d] for f in found])
-            if np.min(np.linalg.norm(others - x[:d], axis=1)) >= min_sep:
-                found.append(x)
-                if len(found) >= count:
-                    break
+        # greedy separation in order, from the existing nodes and those found before
+        keep = placed.separated(X[:, :d], min_sep) if min_sep > 0 else np.ones(X.shape[0], dtype=bool)
+        taken = _greedy(X[:, :d], keep, min_sep, count - len(found))
+        placed.add(X[taken, :d])
+        found.extend(X[taken])
     return np.asarray(found).reshape(-1, problem.model.n)
 
 
@@ -257,22 +325,54 @@ class NodeRegions:
         object.__setattr__(self, "_outer", self.scale.max(axis=0))
         object.__setattr__(self, "_tree", cKDTree(self.centers / self._outer))
         flat = self.P.reshape(self.P.shape[0], -1)
-        object.__setattr__(self, "_P_flat", flat)
         object.__setattr__(self, "_P_norm2", np.einsum("ij,ij->i", flat, flat))
+        # The covariance test on the upper triangles (off-diagonal entries weighted by sqrt 2: the same
+        # Frobenius products of symmetric matrices, at half the work), and the nodes in the order of
+        # their ||P_j|| (the reverse triangle inequality leaves a window of them: covariance_candidates).
+        n = self.P.shape[1]
+        iu = np.triu_indices(n)
+        weight = np.where(iu[0] == iu[1], 1.0, np.sqrt(2.0))
+        object.__setattr__(self, "_upper", (iu, weight))
+        object.__setattr__(self, "_P_upper", np.ascontiguousarray(self.P[:, iu[0], iu[1]] * weight))
+        by_norm = np.argsort(self._P_norm2, kind="stable")
+        object.__setattr__(self, "_by_norm", by_norm)
+        object.__setattr__(self, "_sorted_norm", np.sqrt(self._P_norm2[by_norm]))
 
     @property
     def count(self) -> int:
         return self.centers.shape[0]
 
     def covariance_candidates(self, P_steps: np.ndarray) -> np.ndarray:
-        """Which nodes' covariance test each covariance passes: (T, n, n) -> bool (T, N)."""
+        """Which nodes' covariance test each covariance passes: (T, n, n) -> bool (T, N).
+
+        ``||P - P_j||^2 = ||P||^2 + ||P_j||^2 - 2 <P, P_j>`` (Frobenius, the inner products over the
+        upper triangles of the symmetric matrices), evaluated only for the nodes that can pass: by the
+        reverse triangle inequality ``| ||P|| - ||P_j|| | <= tol ||P_j||``, i.e. ``||P_j||`` within
+        ``[||P|| / (1 + tol), ||P|| / (1 - tol)]`` (widened by 1e-9 for rounding). Decisions are those of
+        the full product (tests/test_sampling.py); only a covariance within rounding of a region's
+        boundary could tell them apart, as any change of summation order could."""
         T = P_steps.shape[0]
+        N = self.count
         if self.perfect:
-            return np.ones((T, self.count), dtype=bool)
-        flat = P_steps.reshape(T, -1)
-        own = np.einsum("ij,ij->i", flat, flat)
-        dist2 = own[:, None] + self._P_norm2[None, :] - 2.0 * flat @ self._P_flat.T
-        return dist2 <= (self.cov_tol**2) * self._P_norm2[None, :]
+            return np.ones((T, N), dtype=bool)
+        (i0, i1), weight = self._upper
+        U = P_steps[:, i0, i1] * weight
+        own = np.einsum("ij,ij->i", U, U)
+        out = np.zeros((T, N), dtype=bool)
+        if T == 0 or N == 0:
+            return out
+        tol = self.cov_tol
+        norm = np.sqrt(own)
+        lo = float(norm.min()) / (1.0 + tol) * (1.0 - 1e-9)
+        hi = float(norm.max()) / (1.0 - tol) * (1.0 + 1e-9) if tol < 1.0 else np.inf
+        a, b = np.searchsorted(self._sorted_norm, lo, side="left"), np.searchsorted(self._sorted_norm, hi, side="right")
+        if a >= b:
+            return out
+        cols = self._by_norm[a:b]
+        norm2 = self._P_norm2[cols]
+        dist2 = own[:, None] + norm2[None, :] - 2.0 * U @ self._P_upper[cols].T
+        out[:, cols] = dist2 <= (tol**2) * norm2[None, :]
+        return out
 
     def locate(self, xhat: np.ndarray, candidates: np.ndarray, k: int = 8) -> np.ndarray:
         """Node whose region holds each estimate, or -1.

@@ -175,7 +175,7 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     else:
         def is_valid(X: np.ndarray) -> np.ndarray:
             return robot.is_valid(X) & checker(X)
-    start, goal, goal_disc = robot.task_states(is_valid)
+    start, goal, goal_disc = _task_states(robot, scenario, is_valid, checker)
     problem = Problem(scenario=scenario, model=robot.model, perfect=scenario.perfect, config_dim=robot.config_dim,
                       config_lo=np.asarray(robot.config_lo), config_hi=np.asarray(robot.config_hi),
                       is_valid=is_valid, start=start, goal=goal, points=robot.points,
@@ -185,6 +185,31 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     _check_task(problem)
     robot.check(problem)
     return problem
+
+
+_task_cache: dict[tuple, tuple] = {}
+
+
+def _task_states(robot: "Robot", scenario: Scenario, is_valid: Callable[[np.ndarray], np.ndarray],
+                 checker: ValidityChecker | None) -> tuple:
+    """``robot.task_states(is_valid)``, once per process for the same robot code, task inputs and
+    checker: every stage of a build, and every worker, rebuilds the problem from the scenario text,
+    and a robot's task setup can be costly (the arm's goal state by inverse kinematics, ~0.1-0.5 s).
+    The key holds everything a task's states depend on: the seed, model, measurement, world and task
+    sections, the robot's code identity and the checker's."""
+    from firmtool.edge_table import digest
+
+    key = (type(robot), robot.identity, checker.identity if checker is not None else "",
+           digest(scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task))
+    hit = _task_cache.get(key)
+    if hit is None:
+        hit = robot.task_states(is_valid)
+        if len(_task_cache) >= 16:
+            _task_cache.clear()
+        _task_cache[key] = hit
+    start, goal, disc = hit
+    return (np.array(start, copy=True), np.array(goal, copy=True),
+            None if disc is None else (np.array(disc[0], copy=True), disc[1]))
 
 
 def _check_task(problem: Problem) -> None:

@@ -123,10 +123,13 @@ class Episode:
 
 @dataclass(frozen=True)
 class EdgeCheck(Report):
-    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.execute.edge_calibration`).
+    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.calibration.edge_calibration`).
 
     ``target_*``: landing in the edge's target node; ``failure_*``: collision or timeout. Each with
-    its Wilson 95% interval; ``flagged`` names the frequencies whose two intervals do not overlap.
+    its Wilson 95% interval, the two-sided p-value of Fisher's exact test of executed against
+    estimated (``*_p_value``) and that p-value adjusted by Holm's method over every comparison of the
+    check (``*_p_adjusted``); ``flagged`` names the frequencies whose adjusted p-value is <= the
+    check's ``alpha``.
     """
 
     edge: int
@@ -142,6 +145,10 @@ class EdgeCheck(Report):
     failure_executed_ci95: tuple[float, float]
     failure_estimated_ci95: tuple[float, float]
     flagged: tuple[str, ...]
+    target_p_value: float = 1.0
+    target_p_adjusted: float = 1.0
+    failure_p_value: float = 1.0
+    failure_p_adjusted: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -152,9 +159,12 @@ class Calibration(Report):
     ----------
     min_traversals : clean traversals an edge needs to be checked.
     edges_taken, edges_checked : policy edges taken, and checked.
-    flagged_edges : edges whose executed frequencies disagree with their estimates.
+    flagged_edges : edges whose executed frequencies disagree with their estimates (adjusted p-value
+        <= ``alpha``).
     ok : no edge flagged.
     edges : one :class:`EdgeCheck` per checked edge.
+    test, correction, alpha : the per-frequency test (``"fisher_exact"``), the multiple-testing
+        correction over all of them (``"holm"``) and the family-wise error rate.
     """
 
     min_traversals: int
@@ -163,6 +173,9 @@ class Calibration(Report):
     flagged_edges: tuple[int, ...]
     ok: bool
     edges: tuple[EdgeCheck, ...]
+    test: str = "fisher_exact"
+    correction: str = "holm"
+    alpha: float = 0.05
 
 
 @dataclass(frozen=True)

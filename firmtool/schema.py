@@ -65,6 +65,10 @@ class Field:
     choices : strings: the allowed values, or a callable returning them (registries).
     bound : numbers: ``"positive"`` (> 0) or ``"nonnegative"`` (>= 0); arrays: every element.
     check : a further check of the converted value: returns None, or what was expected.
+    example : a value to show in the scenario reference (TOML-ready Python value), for keys whose
+        default is not a useful example and that no shipped scenario sets; None: the reference
+        takes the value from a shipped scenario, else the default
+        (:func:`firmtool.scenario_docs.reference`).
     """
 
     name: str
@@ -76,6 +80,7 @@ class Field:
     choices: tuple[str, ...] | Callable[[], tuple[str, ...]] = ()
     bound: str = ""
     check: Callable[[Any], str | None] | None = None
+    example: Any = None
 
     def __post_init__(self) -> None:
         if self.type not in TYPES:

@@ -166,7 +166,7 @@ def test_save_writes_the_schema_the_cli_writes_and_open_reads_it_back(point, poi
     built = point_cli[0]  # built and solved by the CLI
     with h5py.File(path, "r") as a, h5py.File(built, "r") as b:
         assert set(a.attrs) == set(b.attrs) and set(a) == {"nodes", "controllers", "edges"}
-        assert set(b) == set(a) | {"policy"}
+        assert set(b) - {"edge_cache"} == set(a) | {"policy"}  # the cache (blocks kept for reuse) is not saved
         for key in ("schema_version", "scenario_toml", "scenario_sha256", "seed"):
             assert a.attrs[key] == b.attrs[key]
         for group in a:
@@ -189,7 +189,8 @@ def test_save_writes_the_schema_the_cli_writes_and_open_reads_it_back(point, poi
 def test_scenario_changes_reach_the_roadmap(tmp_path):
     sc = ft.load_scenario("smoke").replace(seed=11, estimation={"particles": 40})
     rm = ft.build(sc, workers=1)
-    assert rm.scenario == sc and rm.seed == 11 and set(rm.particles.tolist()) == {40}
+    # 40 particles per edge in the first pass; adaptive Monte Carlo adds blocks of 40 to some
+    assert rm.scenario == sc and rm.seed == 11 and rm.particles.min() == 40 and np.all(rm.particles % 40 == 0)
     assert ft.load_scenario("smoke") == ft.load_scenario(ROOT / "scenarios" / "smoke.toml")
     with pytest.raises(ft.ScenarioError, match="no such file"):
         ft.load_scenario("no_such_scenario")

@@ -219,3 +219,91 @@ def test_filter_recursion_reports_an_innovation_covariance_that_is_not_positive_
     assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P[1:]) > 0)
     with pytest.raises(NumericalError, match="not positive definite"):  # R < 0: S = P- + R < 0
         _filter_recursion(*args, np.full((T, nz), -10.0), 0.01 * np.eye(n), L, P, innovation, 0, T)
+
+
+def test_cholesky_solve_gives_the_textbook_column_loop_bit_for_bit():
+    """The compiled solve runs its substitutions with the columns inside (to vectorise); each entry
+    must still be the column-by-column loop's value, subtraction for subtraction."""
+    from firmtool.controllers import _cholesky_solve
+
+    rng = np.random.default_rng(5)
+    for q, nc in ((1, 3), (4, 7), (8, 16)):
+        M = rng.standard_normal((q, q))
+        S = M @ M.T + q * np.eye(q)
+        B = rng.standard_normal((q, nc))
+        C, out = np.zeros((q, q)), np.zeros((q, nc))
+        assert _cholesky_solve(S, B, C, out)
+        ref = np.zeros((q, nc))
+        for c in range(nc):
+            for i in range(q):
+                s = B[i, c]
+                for j in range(i):
+                    s -= C[i, j] * ref[j, c]
+                ref[i, c] = s / C[i, i]
+            for i in range(q - 1, -1, -1):
+                s = ref[i, c]
+                for j in range(i + 1, q):
+                    s -= C[j, i] * ref[j, c]
+                ref[i, c] = s / C[i, i]
+        np.testing.assert_array_equal(out, ref)
+        np.testing.assert_allclose(out, np.linalg.solve(S, B), rtol=1e-10)
+
+
+def test_min_energy_trajectories_equal_the_single_edge_ones():
+    from firmtool.controllers import min_energy_trajectories
+
+    A, B, _ = double_integrator()
+    rng = np.random.default_rng(2)
+    x0 = np.hstack([rng.uniform(-3, 3, (9, 2)), np.zeros((9, 2))])
+    xf = np.hstack([rng.uniform(-3, 3, (9, 2)), np.zeros((9, 2))])
+    for steps in (3, 17, 60):
+        x, u = min_energy_trajectories(A, B, x0, xf, steps)
+        for e in range(9):
+            xs, us = min_energy_trajectory(A, B, x0[e], xf[e], steps)
+            np.testing.assert_array_equal(x[e], xs)
+            np.testing.assert_array_equal(u[e], us)
+
+
+_LC_ARRAYS = ("x_ref", "u_ref", "K", "L", "P", "innovation_cov", "spread")
+
+
+def _assert_same_controller(a, b) -> None:
+    assert a.edge_steps == b.edge_steps and a.steps == b.steps
+    for name in _LC_ARRAYS:
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None) == (y is None), name
+        if x is not None:
+            assert x.shape == y.shape and np.array_equal(x, y), name
+
+
+@pytest.mark.parametrize("scenario", ["arm", "point_perfect", "unicycle_perfect", "smoke"])
+def test_batched_local_controllers_equal_the_single_edge_ones(scenario):
+    """design.local_controllers (the estimate stage's batched design) gives every edge the controller
+    local_controller designs for it alone, bit for bit: the batched path (linear models, stationary
+    stabilisers: the arm with light-dark sensing, the point robot perfect and imperfect) and the
+    per-edge fallback (the unicycle's periodic stabilisers); with the filter's first segment run in
+    the batch or not, and whatever the batch's size and order."""
+    import re
+    from pathlib import Path
+
+    from firmtool.design import design, local_controller, local_controllers
+    from firmtool.nodes import roadmap_nodes
+    from firmtool.problem import build_problem
+    from firmtool.scenario import parse_scenario
+
+    root = Path(__file__).resolve().parents[1] / "scenarios"
+    text = (root / f"{'arm8_lightdark' if scenario == 'arm' else scenario}.toml").read_text()
+    for key, value in (("nodes", 14), ("goal_nodes", 2), ("goal_bias", 0.3), ("bridge_nodes", 0), ("neighbors", 4)):
+        text = re.sub(rf"(?m)^{key} = .*$", f"{key} = {value}", text)
+    problem = build_problem(parse_scenario(text, "test.toml"))
+    centers, kinds = roadmap_nodes(problem, np.random.default_rng(0))
+    d = design(problem, centers, kinds)
+    pairs = [(int(s), int(t)) for s, t in zip(d.edge_source, d.edge_target)][:40]
+    assert len(pairs) >= 8
+    reference = [local_controller(problem, d, s, t) for s, t in pairs]
+    for past_edge, order in ((None, pairs), (8, pairs[::-1]), (0, pairs[3:9])):
+        batch = local_controllers(problem, d, order, past_edge)
+        if past_edge is not None and not problem.perfect:
+            assert all(lc._forward.done >= min(lc.steps, lc.edge_steps + past_edge) for lc in batch)
+        for (s, t), lc in zip(order, batch):
+            _assert_same_controller(lc, reference[pairs.index((s, t))])

@@ -1,6 +1,8 @@
 """The figure: a real PNG of the expected size, and the covariance push-forward against closed forms."""
 
+import matplotlib.container
 import matplotlib.image
+import matplotlib.text
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -19,9 +21,77 @@ def test_plot_command_writes_a_real_figure(smoke_roadmap, tmp_path):
     r = CliRunner().invoke(app, ["plot", str(roadmap), "-o", str(out), "--dpi", "50", "--episodes", "5"])
     assert r.exit_code == 0, r.output
     img = matplotlib.image.imread(out)
-    assert img.shape[:2] == (300, 600)  # two 6 x 6 inch panels at 50 dpi
+    assert 500 <= img.shape[1] <= 620 and img.shape[0] < img.shape[1]  # two 6-inch panels side by side at 50 dpi
     assert img[..., :3].std() > 0.05  # not a blank canvas
     assert not list(tmp_path.glob("*.png.*"))  # no temporary file left
+
+
+def _sticks_out(fig) -> list[float]:
+    """How far (inches) what a figure draws sticks out of its canvas on each side (left, bottom,
+    right, top; 0 where it does not): what a plain savefig would cut off."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)  # a bare Figure has no drawing canvas of its own
+    canvas.draw()
+    drawn = fig.get_tightbbox(canvas.get_renderer())  # every drawn artist, in inches
+    w, h = fig.get_size_inches()
+    return [max(0.0, -drawn.x0), max(0.0, -drawn.y0), max(0.0, drawn.x1 - w), max(0.0, drawn.y1 - h)]
+
+
+@pytest.mark.parametrize("scenario", ["smoke", "arm"])
+def test_figures_fit_for_a_paper(scenario, smoke_roadmap, tmp_path):
+    """Axis labels with units, a colour bar for the sensing field, one legend under the panels (outside
+    the data), and no text outside the canvas (the arm's tick labels used to be cut at the bottom)."""
+    import firmtool as ft
+    from firmtool.api import plot_policies
+
+    if scenario == "smoke":
+        rm = ft.open_roadmap(smoke_roadmap[0])
+    else:  # a tiny arm roadmap: the arm's figure is the one whose tick labels were clipped
+        sc = ft.load_scenario(ROOT / "scenarios" / "arm8_lightdark.toml").replace(
+            roadmap={"nodes": 20, "goal_nodes": 2, "bridge_nodes": 0}, estimation={"particles": 20})
+        rm = ft.build(sc, workers=1)
+    sol = rm.solution() if scenario == "smoke" else ft.solve(rm)
+    res = ft.simulate(sol, episodes=2, seed=0)
+    fig = plot_policies(sol, [res, None], ["firm", "shortest-path"], dpi=60, unit="m")
+    assert max(_sticks_out(fig)) < 0.01
+    panels = [ax for ax in fig.axes if ax.get_xlabel() == "x [m]"]
+    assert len(panels) == 2 and all(ax.get_ylabel() == "y [m]" for ax in panels)
+    bars = [c for ax in panels for c in ax.child_axes if c.get_ylabel() == "measurement noise std"]
+    assert len(bars) == 2  # a colour bar per panel
+    (legend,) = fig.legends
+    renderer = fig.canvas.get_renderer()  # the Agg canvas _sticks_out attached
+    assert legend.get_window_extent(renderer).y1 <= min(ax.get_window_extent(renderer).y0 for ax in panels)
+    assert {"start", "goal", "policy path", "estimated mean"} <= {t.get_text() for t in legend.get_texts()}
+
+
+def test_calibration_figure_draws_every_checked_edge(smoke_roadmap):
+    import firmtool as ft
+    from firmtool.figures import calibration_figure
+
+    sol = ft.open_roadmap(smoke_roadmap[0]).solution()
+    res = ft.simulate(sol, episodes=60, seed=0, record=False)
+    fig = calibration_figure(res, dpi=60)
+    assert max(_sticks_out(fig)) < 0.01
+    checked = len(res.calibration.edges)
+    assert checked >= 1
+    for ax in fig.axes:  # one error-bar container per checked edge, on both panels
+        assert sum(isinstance(c, matplotlib.container.ErrorbarContainer) for c in ax.containers) == checked
+        assert "predicted probability" in ax.get_xlabel() and "executed frequency" in ax.get_ylabel()
+
+
+def test_the_unicycle_is_drawn_with_its_heading():
+    from matplotlib.figure import Figure
+    from matplotlib.patches import FancyArrow
+
+    problem = build_problem(load_scenario(ROOT / "scenarios" / "unicycle_lightdark.toml"))
+    for heading in (0.0, 2.0):
+        ax = Figure().subplots()
+        state = np.array([3.0, 2.0, heading])
+        problem.robot.draw(ax, state, color="k", label="robot")
+        (arrow,) = [p for p in ax.patches if isinstance(p, FancyArrow)]
+        tip = arrow.get_path().vertices.mean(axis=0) - state[:2]  # the arrow points along the heading
+        assert np.dot(tip / np.linalg.norm(tip), [np.cos(heading), np.sin(heading)]) > 0.99
 
 
 def test_point_robot_covariance_is_the_position_block():

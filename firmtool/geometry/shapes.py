@@ -85,8 +85,8 @@ class Sphere(Obstacle):
 
     kind: ClassVar[str] = "sphere"
     fields: ClassVar[tuple[Field, ...]] = (
-        Field("center", "array", shape=("D",), unit="workspace", doc="centre of the ball"),
-        Field("radius", "number", bound="positive", unit="workspace", doc="its radius"),
+        Field("center", "array", shape=("D",), unit="workspace", doc="centre of the ball", example=[2.0, 1.0]),
+        Field("radius", "number", bound="positive", unit="workspace", doc="its radius", example=0.3),
     )
 
     @property
@@ -108,9 +108,10 @@ class Capsule(Obstacle):
 
     kind: ClassVar[str] = "capsule"
     fields: ClassVar[tuple[Field, ...]] = (
-        Field("start", "array", shape=("D",), unit="workspace", doc="one end of the capsule's axis"),
-        Field("end", "array", shape=("D",), unit="workspace", doc="the other end"),
-        Field("radius", "number", bound="positive", unit="workspace", doc="its radius"),
+        Field("start", "array", shape=("D",), unit="workspace", doc="one end of the capsule's axis",
+              example=[1.0, 1.0]),
+        Field("end", "array", shape=("D",), unit="workspace", doc="the other end", example=[2.0, 1.5]),
+        Field("radius", "number", bound="positive", unit="workspace", doc="its radius", example=0.2),
     )
 
     @property
@@ -133,9 +134,12 @@ class Mesh(Obstacle):
     kind: ClassVar[str] = "mesh"
     dimensions: ClassVar[tuple[int, ...]] = (3,)
     fields: ClassVar[tuple[Field, ...]] = (
-        Field("vertices", "array", None, shape=(None, 3), unit="workspace", doc="vertex coordinates (V, 3)"),
-        Field("triangles", "integer_array", None, shape=(None, 3), doc="vertex indices of each triangle (T, 3), 0-based"),
-        Field("file", "string", None, doc="a Wavefront OBJ file (v and triangular f lines) instead of vertices/triangles"),
+        Field("vertices", "array", None, shape=(None, 3), unit="workspace", doc="vertex coordinates (V, 3)",
+              example=[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+        Field("triangles", "integer_array", None, shape=(None, 3), doc="vertex indices of each triangle (T, 3), 0-based",
+              example=[[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]),
+        Field("file", "string", None, doc="a Wavefront OBJ file (v and triangular f lines) instead of vertices/triangles",
+              example="meshes/chair.obj"),
     )
 
     @property

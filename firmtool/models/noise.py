@@ -113,7 +113,8 @@ class ConstantNoise(NoiseModel):
     form: ClassVar[str] = "constant"
     compiled: ClassVar[str | None] = "constant"
     fields: ClassVar[tuple[Field, ...]] = (
-        Field("std", "number", bound="positive", unit="measurement", doc="noise std of every measurement"),
+        Field("std", "number", bound="positive", unit="measurement", doc="noise std of every measurement",
+              example=0.05),
     )
 
     def variance(self, sensing: np.ndarray) -> np.ndarray:

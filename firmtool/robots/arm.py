@@ -31,7 +31,8 @@ class ArmRobot(LinearRobot):
     model_fields: ClassVar[tuple[Field, ...]] = LinearRobot.model_fields + (
         Field("links", "integer", None, bound="positive", doc="number of links (with link_length)"),
         Field("link_length", "number", None, bound="positive", unit="workspace", doc="length of every link (with links)"),
-        Field("link_lengths", "array", None, shape=(None,), unit="workspace", doc="length of each link"),
+        Field("link_lengths", "array", None, shape=(None,), unit="workspace", doc="length of each link",
+              example=[0.3, 0.25, 0.2]),
         Field("first_joint_range", "array", np.array([-math.pi, math.pi]), shape=(2,), unit="rad",
               doc="[low, high] of the first (absolute) joint angle"),
         Field("joint_range", "number", math.pi, bound="positive", unit="rad", doc="bound of the other (relative) joint angles"),
@@ -39,6 +40,20 @@ class ArmRobot(LinearRobot):
     goal_region: ClassVar[bool] = True
     shape: ClassVar[str] = "chain"
     replan_candidate_seconds: ClassVar[float] = 2e-3  # 1.7-1.8 ms of thread CPU time (bench_online.py)
+    # firmtool init: a 3-link arm whose tip must reach a disc beside a block, light-dark sensing
+    template = {
+        "model": {"robot": "arm", "dynamics": "double_integrator", "dt": 0.05, "process_noise_std": 0.03,
+                  "links": 3, "link_length": 0.4, "joint_range": 2.0},
+        "measurement": {"kind": "imperfect", "noise": "lightdark_std", "light_x": -1.2, "eta": 0.1,
+                        "sigma_b": 0.001},
+        "world": {"bounds": [[-1.4, -1.4], [1.4, 1.4]], "robot_radius": 0.03,
+                  "obstacles": [{"center": [0.0, 0.8], "half_size": [0.15, 0.1]}]},
+        "task": {"start": [-0.5, 0.5, 0.5], "goal_center": [0.5, 0.7], "goal_radius": 0.1},
+        "roadmap": {"nodes": 25, "neighbors": 6, "min_separation": 0.3, "max_edge_length": 2.0},
+        "controller": {"velocity_weight": 0.2, "control_weight": 0.2, "max_accel": 2.0, "node_radius": 1.5,
+                       "covariance_tolerance": 0.3, "max_steps": 200},
+        "estimation": {"particles": 100},
+    }
     bounds_name: ClassVar[str] = "the joint ranges"
 
     @classmethod

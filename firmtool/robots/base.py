@@ -111,6 +111,10 @@ class Robot:
     #: its 32-particle Monte Carlo), what the deterministic work clock of a replan decision charges
     #: (:mod:`firmtool.online.replanning`); measure it with ``benchmarks/bench_online.py``
     replan_candidate_seconds: ClassVar[float] = 2e-3
+    #: the tables of a small scenario for this robot that builds as it is, in seconds (``firmtool init
+    #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario_docs.template`);
+    #: ``[scenario]`` is added; None: no template
+    template: ClassVar[dict[str, dict[str, Any]] | None] = None
 
     model: "Model"
     config_dim: int
@@ -307,6 +311,51 @@ class Robot:
             steps = int(np.ceil(steps * 1.1)) + 1
         raise NumericalError(f"no nominal trajectory within the speed/input limits from {x0} to {xf}")
 
+    def nominal_trajectories(self, problem: "Problem", x0: np.ndarray, xf: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`nominal_trajectory` of many node pairs (``x0``, ``xf`` (E, n)): a list of ``(x, u)``.
+
+        A robot that overrides :meth:`nominal_trajectory` gets it per pair. The default nominal is
+        searched for all pairs at once: every pair's length starts from the analytic bound and grows
+        by 10% until the limits hold, as in :meth:`nominal_trajectory`, with the pairs of one length
+        computed together (:func:`firmtool.controllers.min_energy_trajectories`, bit for bit the
+        single-pair trajectory)."""
+        x0, xf = np.atleast_2d(x0), np.atleast_2d(xf)
+        if type(self).nominal_trajectory is not Robot.nominal_trajectory:
+            return [self.nominal_trajectory(problem, a, b) for a, b in zip(x0, xf)]
+        from firmtool.controllers import min_energy_trajectories
+
+        model, c = problem.model, problem.scenario.controller
+        dt, d = model.dt, problem.config_dim
+        dist = np.max(np.abs(xf[:, :d] - x0[:, :d]), axis=1)
+        if problem.velocity_dim:
+            T = np.maximum(1.5 * dist / c.max_speed, np.sqrt(6.0 * dist / c.max_accel))
+        else:
+            T = dist / c.max_speed
+        min_steps = max(2, -(-model.n // model.m))
+        steps = np.maximum(min_steps, np.ceil(T / dt - 1e-9)).astype(np.int64)
+        out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * x0.shape[0]
+        todo = np.arange(x0.shape[0])
+        for _ in range(60):
+            if todo.size == 0:
+                return out  # type: ignore[return-value]
+            retry = []
+            for length in np.unique(steps[todo]):
+                group = todo[steps[todo] == length]
+                x, u = min_energy_trajectories(model.A, model.B, x0[group], xf[group], int(length))
+                speed = np.max(np.abs(np.diff(x[:, :, :d], axis=1)), axis=(1, 2)) / dt
+                ok = (speed <= c.max_speed * (1 + 1e-9)) & \
+                    (np.max(np.abs(u), axis=(1, 2)) <= problem.max_input() * (1 + 1e-9))
+                for i, e in enumerate(group):
+                    if ok[i]:
+                        out[e] = (x[i], u[i])
+                retry.extend(group[~ok].tolist())
+            todo = np.array(sorted(retry), dtype=np.int64)
+            steps[todo] = np.ceil(steps[todo] * 1.1).astype(np.int64) + 1
+        if todo.size == 0:
+            return out  # type: ignore[return-value]
+        e = int(todo[0])
+        raise NumericalError(f"no nominal trajectory within the speed/input limits from {x0[e]} to {xf[e]}")
+
     def runtime_nominal(self, problem: "Problem", x0: np.ndarray, xf: np.ndarray,
                         tries: int) -> tuple[np.ndarray, np.ndarray]:
         """A nominal from a (possibly moving) state designed in real time (execution). Default: the
@@ -336,14 +385,28 @@ class Robot:
         exactly that kind's (:class:`CompiledKinematics`)."""
         return None
 
+    def heading(self, X: np.ndarray) -> np.ndarray | None:
+        """The robot's heading in the workspace's x-y plane (radians) at states (M, n) -> (M,), for
+        figures; None (the default) for a robot without one."""
+        return None
+
     def draw(self, ax, state: np.ndarray, *, color: str, label: str, lw: float = 2.0) -> None:
         """Draw the robot at ``state`` (n,) on a matplotlib Axes in the workspace's x-y plane (a 3-D
-        robot seen from above): a disc for one key point, a polyline through several."""
-        from matplotlib.patches import Circle
+        robot seen from above): a disc for one key point (with an arrow along its :meth:`heading`,
+        if it has one), a polyline through several."""
+        from matplotlib.patches import Circle, FancyArrow
 
-        pts = self.points(np.asarray(state, dtype=float)[None])[0][:, :2]
+        X = np.asarray(state, dtype=float)[None]
+        pts = self.points(X)[0][:, :2]
         if pts.shape[0] == 1:
-            ax.add_patch(Circle(pts[0], self.scenario.world.robot_radius, color=color, zorder=6, label=label))
+            r = self.scenario.world.robot_radius
+            ax.add_patch(Circle(pts[0], r, color=color, zorder=6, label=label))
+            heading = self.heading(X)
+            if heading is not None:
+                length = 3.0 * r
+                ax.add_patch(FancyArrow(pts[0, 0], pts[0, 1], length * np.cos(heading[0]),
+                                        length * np.sin(heading[0]), width=0.35 * r, head_width=1.1 * r,
+                                        head_length=0.9 * r, length_includes_head=True, color=color, zorder=7))
         else:
             ax.plot(pts[:, 0], pts[:, 1], "-o", color=color, lw=lw, ms=3, zorder=6, label=label)
 

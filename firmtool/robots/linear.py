@@ -39,10 +39,14 @@ class LinearRobot(Robot):
               doc="an integrator per configuration coordinate, or continuous matrices A, B, G, Q"),
         Field("process_noise_std", "number", None, bound="nonnegative", unit="per sqrt(s)",
               doc="std of the white noise on each integrator's input (required unless dynamics = 'matrices')"),
-        Field("A", "array", None, shape=(None, None), doc="continuous dynamics matrix (n, n) (dynamics = 'matrices')"),
-        Field("B", "array", None, shape=(None, None), doc="continuous input matrix (n, m) (dynamics = 'matrices')"),
-        Field("G", "array", None, shape=(None, None), doc="noise input matrix (n, r) (dynamics = 'matrices')"),
-        Field("Q", "array", None, shape=(None, None), doc="noise intensity (r, r), symmetric PSD (dynamics = 'matrices')"),
+        Field("A", "array", None, shape=(None, None), doc="continuous dynamics matrix (n, n) (dynamics = 'matrices')",
+              example=[[0.0, 0.0], [0.0, 0.0]]),
+        Field("B", "array", None, shape=(None, None), doc="continuous input matrix (n, m) (dynamics = 'matrices')",
+              example=[[1.0, 0.0], [0.0, 1.0]]),
+        Field("G", "array", None, shape=(None, None), doc="noise input matrix (n, r) (dynamics = 'matrices')",
+              example=[[1.0, 0.0], [0.0, 1.0]]),
+        Field("Q", "array", None, shape=(None, None), doc="noise intensity (r, r), symmetric PSD (dynamics = 'matrices')",
+              example=[[0.0025, 0.0], [0.0, 0.0025]]),
     )
 
     @classmethod

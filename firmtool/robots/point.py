@@ -18,6 +18,17 @@ class PointRobot(LinearRobot):
     """A point robot (see the module docs)."""
 
     replan_candidate_seconds = 1e-3  # 0.55-0.9 ms of thread CPU time on 2 cores (bench_online.py)
+    # firmtool init: a double integrator in a 4 x 3 room with one box, light-dark sensing
+    template = {
+        "model": {"robot": "point", "dynamics": "double_integrator", "dt": 0.1, "process_noise_std": 0.05},
+        "measurement": {"kind": "imperfect", "noise": "lightdark_variance", "light_x": 4.0, "a": 0.02, "c": 0.0004},
+        "world": {"bounds": [[0.0, 0.0], [4.0, 3.0]], "robot_radius": 0.08,
+                  "obstacles": [{"center": [2.0, 1.2], "half_size": [0.3, 0.7]}]},
+        "task": {"start": [0.5, 0.5], "goal": [3.5, 0.6]},
+        "roadmap": {"nodes": 20, "neighbors": 5, "min_separation": 0.5, "max_edge_length": 2.0},
+        "controller": {"node_radius": 1.5, "covariance_tolerance": 0.3, "max_steps": 150},
+        "estimation": {"particles": 100},
+    }
 
     def __init__(self, scenario) -> None:
         super().__init__(scenario)

@@ -46,6 +46,20 @@ class UnicycleRobot(Robot):
     )
     rest_state_text: ClassVar[str] = ("expected heading 0 (every node faces +x; give the position only, "
                                       "or a heading of 0)")
+    # firmtool init: a unicycle driving past a box in a 5 x 3 room, light-dark position sensing
+    template = {
+        "model": {"robot": "unicycle", "dynamics": "unicycle", "dt": 0.1, "process_noise_std": 0.03,
+                  "heading_noise_std": 0.03},
+        "measurement": {"kind": "imperfect", "noise": "lightdark_variance", "light_x": 5.0, "a": 0.002,
+                        "c": 0.0001},
+        "world": {"bounds": [[0.0, 0.0], [5.0, 3.0]], "robot_radius": 0.1,
+                  "obstacles": [{"center": [2.5, 1.2], "half_size": [0.3, 0.6]}]},
+        "task": {"start": [0.6, 0.6], "goal": [4.4, 0.8]},
+        "roadmap": {"nodes": 20, "neighbors": 6, "min_separation": 0.6, "max_edge_length": 2.5},
+        "controller": {"velocity_weight": 0.5, "control_weight": 0.5, "max_speed": 0.5, "node_radius": 1.5,
+                       "covariance_tolerance": 0.3, "max_steps": 300},
+        "estimation": {"particles": 100},
+    }
 
     def __init__(self, scenario) -> None:
         super().__init__(scenario)
@@ -64,6 +78,10 @@ class UnicycleRobot(Robot):
     def points(self, X: np.ndarray) -> np.ndarray:
         """The robot's position: states (M, 3) -> (M, 1, 2)."""
         return np.asarray(X)[:, None, :2]
+
+    def heading(self, X: np.ndarray) -> np.ndarray:
+        """The heading, the state's third coordinate: states (M, 3) -> (M,)."""
+        return np.asarray(X, dtype=float)[:, 2]
 
     def is_valid(self, X: np.ndarray) -> np.ndarray:
         """Nodes and nominals keep the node orbit's reach clear around the robot's disc."""

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from firmtool.errors import InputError
 from firmtool.online.policy import Policy, PolicyStatus
 from firmtool.results import Episode, Event, EventKind, Outcome, Results
 from firmtool.sim.environment import SimulatedSystem
+
+if TYPE_CHECKING:
+    from firmtool.progress import ProgressCallback
 
 EPISODE_KEY = 0xE7EC  # stable key of the episode streams
 
@@ -176,7 +180,7 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
 def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray | None = None,
                  disturbances=(), record: bool = False, predicted: float | None = None,
                  predicted_ci95: tuple[float, float] | None = None, edge_counts=None,
-                 system: SimulatedSystem | None = None) -> Results:
+                 system: SimulatedSystem | None = None, progress: "ProgressCallback | None" = None) -> Results:
     """Run ``episodes`` episodes of ``policy`` on the simulated system and summarise them.
 
     Parameters
@@ -189,22 +193,27 @@ def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray 
     record : keep every episode's states, estimates, covariances and controls.
     predicted, predicted_ci95 : the plan's success probability from the start node and its interval
         (reported next to the executed rate).
-    edge_counts : the roadmap's outcome counts (:class:`firmtool.execute.EdgeCounts`): with them, the
+    edge_counts : the roadmap's outcome counts (:class:`firmtool.calibration.EdgeCounts`): with them, the
         calibration check of the edges taken.
     system : the environment (default: a :class:`SimulatedSystem` of the policy's problem).
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the episodes run.
 
     Returns
     -------
     Results
     """
-    from firmtool.execute import edge_calibration  # the calibration check (its own module later)
+    from firmtool.calibration import edge_calibration
+    from firmtool.progress import EXECUTE, Counter
 
     dists = dist_mod.as_disturbances(disturbances)
     start = start_state(policy, start)
     system = system or SimulatedSystem(policy.problem)
     t0 = time.perf_counter()
-    eps = [run_episode(policy, system, episode_seeds(seed, i), start=start, disturbances=dists, record=record)
-           for i in range(episodes)]
+    counter = Counter(progress, EXECUTE, episodes).start()
+    eps = []
+    for i in range(episodes):
+        eps.append(run_episode(policy, system, episode_seeds(seed, i), start=start, disturbances=dists, record=record))
+        counter.advance()
     seconds = time.perf_counter() - t0
     calibration = edge_calibration(eps, edge_counts) if edge_counts is not None else None
     return summarize(eps, policy, seed=seed, seconds=seconds, start=start, disturbances=dists, predicted=predicted,
