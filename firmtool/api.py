@@ -43,7 +43,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.calibration import EdgeCounts
     from firmtool.design import Design
     from firmtool.disturbances import Disturbance
-    from firmtool.execute import ReplanSettings
+    from firmtool.online.replanning import ReplanSettings
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
 
@@ -555,14 +555,18 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
 # -- execution ------------------------------------------------------------------------------------------
 
 def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
-             start: np.ndarray | None = None, disturbances: Iterable["str | Disturbance"] = (),
+             start: np.ndarray | None = None,
+             disturbances: Iterable["str | Disturbance | Callable[[int, np.ndarray, np.random.Generator], np.ndarray | None]"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
              progress: "ProgressCallback | None" = None) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
-    Each episode starts at the start node (or at ``start``), follows the policy's edge controllers
-    node to node, replans in real time after large deviations, and ends at the goal, on a
-    collision or at the step limit. The filter is never told of disturbances.
+    Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
+    the measurements) against the simulated system (:class:`firmtool.sim.SimulatedSystem`: true
+    state, noise at the true state, collisions, disturbances). The policy starts at the start node
+    (or at ``start``), follows its edge controllers node to node, replans in real time after large
+    deviations, and declares the goal; the system ends an episode on a collision. The filter is never
+    told of disturbances.
 
     Parameters
     ----------
@@ -570,19 +574,22 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     episodes : int
         Number of episodes (>= 1).
     seed : int
-        Episode ``i`` draws from ``SeedSequence([seed, 0xE7EC, i])``: reproducible, and the same
-        numbers as ``firmtool execute --seed``.
+        Episode ``i``'s true system draws from ``SeedSequence([seed, 0xE7EC, i])`` and the policy's
+        own draws from its first spawned child (:func:`firmtool.sim.episode_seeds`): reproducible,
+        and the same numbers as ``firmtool execute --seed``.
     policy : {"firm", "shortest-path"}
         The DP's policy, or the baseline that ignores uncertainty.
     start : (config_dim,) or (n,) array, optional
         Start at this configuration or state instead of the start node (a start in no node gets an
         initial controller to the best nearby node).
-    disturbances : iterable of str or Disturbance
+    disturbances : iterable of str, Disturbance or callable
         ``"push:STEP:SIZE"``, ``"push:random:SIZE:RATE"``, ``"kidnap:STEP"``,
-        ``"kidnap:random:RATE"`` (see :mod:`firmtool.disturbances`).
+        ``"kidnap:random:RATE"`` (see :mod:`firmtool.disturbances`), or a callable
+        ``fn(step, state, rng) -> new state (n,) or None`` asked before every step.
     replan : ReplanSettings, optional
-        Replanning settings (default: on, threshold 3); ``ReplanSettings(enabled=False)`` follows
-        the stored controllers only.
+        Replanning settings (default: on, threshold 3, a decision's deadline the control period on
+        the deterministic work clock); ``ReplanSettings(enabled=False)`` follows the stored
+        controllers only.
     record : bool
         Keep every episode's arrays (``states``, ``estimates`` (T + 1, n), ``covariances``
         (T + 1, n, n), ``controls`` (T, m)); they take ~8 (T + 1) (n^2 + 2n) bytes per episode.
@@ -593,25 +600,25 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     -------
     Results
         Success rate with its Wilson interval, the prediction with its interval, the calibration
-        check of the edges taken, and the episodes.
+        check of the edges taken, compute per step and per decision, and the episodes.
     """
-    from firmtool.disturbances import Disturbance, parse_disturbance
-    from firmtool.execute import execute
+    from firmtool.disturbances import as_disturbances
+    from firmtool.online.policy import Policy
+    from firmtool.sim.episodes import run_episodes
 
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise InputError(f"episodes: expected an integer >= 1, found {episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed: expected an integer >= 0, found {seed!r}")
-    edges, probabilities = solution._policy(policy)
-    dists = tuple(d if isinstance(d, Disturbance) else parse_disturbance(d) for d in disturbances)
+    _, probabilities = solution._policy(policy)
+    dists = as_disturbances(disturbances)
+    agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
     at_start_node = start is None
-    return execute(rm.problem, rm.execution_design, edges, int(episodes), int(seed),
-                   predicted=float(probabilities[START_INDEX]) if at_start_node else None,
-                   cost_to_go=solution.cost_to_go, replan=replan, disturbances=dists, start=start, record=record,
-                   edge_counts=rm.edge_counts,
-                   predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
-                   failure_cost=solution.failure_cost, policy_name=policy, progress=progress)
+    return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
+                        predicted=float(probabilities[START_INDEX]) if at_start_node else None,
+                        predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
+                        edge_counts=rm.edge_counts, progress=progress)
 
 
 def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" = None, *,

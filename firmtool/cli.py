@@ -484,9 +484,14 @@ def _execute_extra_human(r: dict) -> str:
         lines.append(f"disturbances {', '.join(r['disturbances'])}: {r['disturbances_applied']} applied")
     if "step_time_us_mean" in r:
         rt = r.get("replan_time_us_mean")
-        lines.append(f"compute per control step {num(r['step_time_us_mean'], 3)} us mean, "
+        lines.append(f"policy compute per control step {num(r['step_time_us_mean'], 3)} us mean, "
                      f"{num(r['step_time_us_p99'], 3)} us p99"
-                     + ("" if rt is None else f"; per replan {num(rt / 1000, 3)} ms mean"))
+                     + ("" if rt is None else f"; per replan decision {num(rt / 1000, 3)} ms mean, "
+                        f"{num(r['replan_time_us_p99'] / 1000, 3)} ms p99"))
+    if r.get("replan_decisions"):
+        lines.append(f"replan deadline {1000 * r['replan_deadline_s']:.0f} ms ({r['replan_clock']} clock): "
+                     f"{r['replan_deadline_hits']} of {r['replan_decisions']} decisions cut short, "
+                     f"{r['replan_over_deadline']} over it in wall time")
     cal = r.get("calibration")
     if cal:
         lines.append(f"calibration: {cal['edges_checked']} of {cal['edges_taken']} edges taken checked "
@@ -528,6 +533,20 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                 help="Replan when the estimate leaves the running controller's nominal by more than this, in "
                      "the rms-scaled norm of node regions (rms over coordinates of deviation / node spread; "
                      "node regions default to 1.5). A windowed innovation test also triggers a replan."),
+            replan_deadline: Optional[float] = typer.Option(
+                None, "--replan-deadline",
+                help="Seconds a replan decision may take (default: the control period dt). When the Monte "
+                     "Carlo scoring of candidates runs out of time, the best candidate scored so far is "
+                     "taken (an anytime decision)."),
+            replan_clock: str = typer.Option(
+                "work", "--replan-clock",
+                help="How the deadline is counted: 'work' (default: each scored candidate costs a fixed, "
+                     "measured time, so results do not depend on the machine's load) or 'wall' (real "
+                     "time: as on a robot; results then depend on the load)."),
+            replan_latency: str = typer.Option(
+                "0", "--replan-latency",
+                help="'0' (default): a replanned controller runs from the next step. 'measured': the "
+                     "running controller goes on for ceil(t / dt) steps, t the decision's time on its clock."),
             start: Optional[str] = typer.Option(
                 None, "--start",
                 help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "
@@ -557,12 +576,18 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     """
     import firmtool.api as ft
     from firmtool.disturbances import parse_disturbances
-    from firmtool.execute import ReplanSettings
+    from firmtool.online.replanning import CLOCKS, LATENCIES, ReplanSettings
     from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
     if not (np.isfinite(replan_threshold) and replan_threshold > 0):
         raise InputError(f"--replan-threshold: expected a finite number > 0, found {replan_threshold}")
+    if replan_deadline is not None and not (np.isfinite(replan_deadline) and replan_deadline > 0):
+        raise InputError(f"--replan-deadline: expected a number of seconds > 0, found {replan_deadline}")
+    if replan_clock not in CLOCKS:
+        raise InputError(f"--replan-clock: expected one of {', '.join(CLOCKS)}, found {replan_clock!r}")
+    if replan_latency not in LATENCIES:
+        raise InputError(f"--replan-latency: expected one of {', '.join(LATENCIES)}, found {replan_latency!r}")
     start_state = _parse_start(start)
     _check_policy(policy_name)
     if save_episodes is not None:
@@ -571,9 +596,10 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     rm = ft.open_roadmap(roadmap)
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
+    settings = ReplanSettings(enabled=not no_replan, threshold=replan_threshold, deadline=replan_deadline,
+                              clock=replan_clock, latency=replan_latency)
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
-                      replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
-                      record=save_episodes is not None, progress=console.progress())
+                      replan=settings, record=save_episodes is not None, progress=console.progress())
     report = res.to_dict()
     if save_episodes is not None:
         from firmtool.episodes_io import save_episodes as write_episodes

@@ -78,8 +78,15 @@ class Episode:
     traversals : ``(edge, outcome)`` of policy edges run from their source node to their end with no
         replan or disturbance; outcome a node id, or ``firmtool.edges.FAILURE`` / ``TIMEOUT``
         (compared with the edge estimates by the calibration check).
-    step_times : (T,) seconds of compute per control step.
-    replan_times : seconds per replan (design included).
+    step_times : (T,) seconds of the policy's compute per control step (act + observe, replan
+        decisions apart; the simulated system's own step is not counted).
+    act_times, observe_times : (T,) the two parts of ``step_times``.
+    replan_times : wall seconds per replan decision (design and Monte Carlo included; the initial
+        controller's design too).
+    replan_cpu_times : per decision, its thread's CPU seconds (less sensitive to the machine's load).
+    replan_work_times : per decision, its time on the deadline's clock (``ReplanSettings.clock``).
+    replan_scored : per decision, the candidates scored by Monte Carlo (the running controller included).
+    deadline_hits : decisions the deadline cut short (an anytime decision: the best candidate scored so far).
     states, estimates : (T + 1, n) true states and filter estimates, row 0 the start (when recorded).
     covariances : (T + 1, n, n) filter covariances (when recorded).
     controls : (T, m) applied controls (when recorded).
@@ -97,6 +104,12 @@ class Episode:
     traversals: list[tuple[int, int]] = field(default_factory=list)
     step_times: np.ndarray | None = None
     replan_times: list[float] = field(default_factory=list)
+    act_times: np.ndarray | None = None
+    observe_times: np.ndarray | None = None
+    replan_cpu_times: list[float] = field(default_factory=list)
+    replan_work_times: list[float] = field(default_factory=list)
+    replan_scored: list[int] = field(default_factory=list)
+    deadline_hits: int = 0
     states: np.ndarray | None = None
     estimates: np.ndarray | None = None
     covariances: np.ndarray | None = None
@@ -189,9 +202,17 @@ class Results(Report):
     event_counts : events per kind over all episodes (``events`` in ``to_dict()``).
     seed : seed of the simulated true system.
     seconds : wall time of the episodes.
-    step_time_us_mean, step_time_us_p99 : compute per control step.
-    replan_time_us_mean, replan_time_us_p99, replan_time_us_max : compute per replan (None without).
+    step_time_us_mean, step_time_us_p99 : the policy's compute per control step (act + observe,
+        replan decisions apart).
+    replan_time_us_mean, replan_time_us_p99, replan_time_us_max : wall time per replan decision (None without).
     replans_per_episode : mean.
+    act_time_us_mean, act_time_us_p99, observe_time_us_mean, observe_time_us_p99 : the two parts of a step.
+    replan_decisions : decisions taken (replans, kept controllers, failed replans, initial controllers).
+    replan_deadline_s : a decision's deadline (the control period unless set).
+    replan_clock : how the deadline was counted: ``"work"`` (deterministic budget) or ``"wall"``.
+    replan_deadline_hits : decisions the deadline cut short (anytime: the best candidate scored so far).
+    replan_over_deadline : decisions whose wall time exceeded the deadline (measured, whatever the clock).
+    replan_latency : ``"0"`` or ``"measured"`` (a new controller applied after the decision's time).
     calibration : executed vs estimated edge frequencies (None without the edge counts).
     policy : the policy's name (``"firm"`` or ``"shortest-path"``), None when run on a bare edge array.
     """
@@ -226,6 +247,16 @@ class Results(Report):
     replans_per_episode: float
     calibration: Calibration | None = None
     policy: str | None = None
+    act_time_us_mean: float = 0.0
+    act_time_us_p99: float = 0.0
+    observe_time_us_mean: float = 0.0
+    observe_time_us_p99: float = 0.0
+    replan_decisions: int = 0
+    replan_deadline_s: float | None = None
+    replan_clock: str = "work"
+    replan_deadline_hits: int = 0
+    replan_over_deadline: int = 0
+    replan_latency: str = "0"
 
     _json_names: ClassVar[dict[str, str]] = {"event_counts": "events"}
 

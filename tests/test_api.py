@@ -227,7 +227,7 @@ def test_a_failed_edge_does_not_shift_the_policy_onto_other_controllers(monkeypa
     """Edges whose Monte Carlo failed are left out of the edge table, so the policy's edge indices
     (rows of that table) no longer address the design's rows: execution must run the controller of
     the edge the policy chose."""
-    from firmtool.execute import Executor
+    from firmtool.online import Policy
 
     sc = ft.load_scenario("smoke")
     first = ft.build(sc, workers=1)
@@ -244,9 +244,9 @@ def test_a_failed_edge_does_not_shift_the_policy_onto_other_controllers(monkeypa
     assert (failed.source, failed.target) == bad and len(rm.edges) == len(first.edges) - 1
     sol = ft.solve(rm)
     used = np.flatnonzero(sol.policy >= 0)
-    designed = Executor(rm.problem, rm.design, sol.policy)  # the design's rows: shifted by one
+    designed = Policy.from_design(rm.problem, rm.design, sol.policy)  # the design's rows: shifted by one
     assert any(designed._controller(int(sol.policy[i])).target != rm.edges[sol.policy[i], 1] for i in used)
-    runner = Executor(rm.problem, rm.execution_design, sol.policy)
+    runner = Policy.from_design(rm.problem, rm.execution_design, sol.policy)
     assert all(runner._controller(int(sol.policy[i])).target == rm.edges[sol.policy[i], 1] for i in used)
     res = ft.simulate(sol, episodes=30, seed=0)
     assert res.calibration.ok and res.successes >= 25

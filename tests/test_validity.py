@@ -198,18 +198,14 @@ def test_workers_and_the_roadmap_honour_the_checker(checked_roadmap, tmp_path):
 
 
 def test_execution_honours_the_checker(checked_roadmap, tmp_path):
-    from firmtool.execute import execute
-    from firmtool.pipeline import design_of
+    import firmtool as ft
 
     _, one, _ = checked_roadmap
     copy = tmp_path / "solved.h5"
     shutil.copyfile(one, copy)
     solve_stage(copy)
-    rm = Roadmap(copy)
-    problem = problem_of(rm, disc_checker())
-    policy = rm.require("policy", "edge", "cost_to_go")
-    rep = execute(problem, design_of(rm), policy["edge"].astype(np.int64), 30, 0, cost_to_go=policy["cost_to_go"],
-                  record=True)
+    sol = ft.open_roadmap(copy, validity=disc_checker()).solution()
+    rep = ft.simulate(sol, 30, 0, record=True)
     inside = lambda X: np.linalg.norm(X[:, :2] - DISC, axis=1) < RADIUS  # noqa: E731
     for ep in rep.episodes:
         assert not inside(ep.states[:-1]).any()  # a true state in the disc ends the episode,
