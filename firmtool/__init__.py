@@ -9,6 +9,9 @@ The public API, NumPy arrays in and out::
     res = ft.simulate(sol, episodes=200, seed=0)   # -> ft.Results: success rate, episodes
     ft.plot(sol, res, ax=ax)                       # -> matplotlib Axes
 
+    policy = ft.Policy(sol)                        # the policy as an online agent, for a robot's own loop
+    policy.reset(); u = policy.act(); events = policy.observe(z)
+
 The ``firmtool`` command line is a thin layer over these calls. Names are imported on first use,
 so ``import firmtool`` stays cheap (the Monte Carlo engine and matplotlib load when needed).
 """
@@ -38,7 +41,12 @@ _EXPORTS = {
     "Outcome": "firmtool.results",
     "Calibration": "firmtool.results",
     "EdgeCheck": "firmtool.results",
-    "ReplanSettings": "firmtool.execute",
+    "ReplanSettings": "firmtool.online.replanning",
+    "Policy": "firmtool.online.policy",
+    "PolicyStatus": "firmtool.online.policy",
+    "SimulatedSystem": "firmtool.sim.environment",
+    "episode_seeds": "firmtool.sim.episodes",
+    "UserDisturbance": "firmtool.disturbances",
     "Disturbance": "firmtool.disturbances",
     "SolveStatus": "firmtool.graph",
     "SampleReport": "firmtool.reports",
@@ -61,14 +69,17 @@ __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
     from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, plot, simulate, solve
-    from firmtool.disturbances import Disturbance
+    from firmtool.disturbances import Disturbance, UserDisturbance
     from firmtool.errors import FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError
-    from firmtool.execute import ReplanSettings
+    from firmtool.online.policy import Policy, PolicyStatus
+    from firmtool.online.replanning import ReplanSettings
     from firmtool.graph import SolveStatus
     from firmtool.reports import (BuildReport, DensifyReport, DesignReport, EstimateReport, FailedEdge,
                                   RoadmapSummary, SampleReport, SolveReport)
     from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
     from firmtool.scenario import Scenario
+    from firmtool.sim.environment import SimulatedSystem
+    from firmtool.sim.episodes import episode_seeds
 
 
 # subpackages reachable as attributes (``ft.robots.register(name, cls)``), imported on first use

@@ -40,13 +40,16 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from firmtool.calibration import EdgeCounts
     from firmtool.design import Design
     from firmtool.disturbances import Disturbance
-    from firmtool.execute import EdgeCounts, ReplanSettings
+    from firmtool.online.replanning import ReplanSettings
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
+# /policy attributes that hold each policy's prediction interval
+_INTERVAL_ATTRS = {"firm": "success_probability_ci95", "shortest-path": "shortest_path_success_probability_ci95"}
 
 
 # -- scenarios -----------------------------------------------------------------------------------------
@@ -207,8 +210,8 @@ class Roadmap:
 
     @functools.cached_property
     def edge_counts(self) -> "EdgeCounts":
-        """The outcome counts in sparse form (``firmtool.execute.EdgeCounts``), for calibration."""
-        from firmtool.execute import edge_counts_of  # execution is loaded when first needed
+        """The outcome counts in sparse form (``firmtool.calibration.EdgeCounts``), for calibration."""
+        from firmtool.calibration import edge_counts_of
 
         return edge_counts_of(self._data)
 
@@ -226,7 +229,8 @@ class Roadmap:
         """Write the roadmap as a versioned HDF5 file (the schema ``firmtool build`` writes), atomically.
 
         Every stage it holds is written (``/policy`` too, when it was read from a solved file); the
-        ``/edge_cache`` of an interrupted build is not (it only saves work when resuming).
+        ``/edge_cache`` is not (the estimates of an interrupted build, and the earlier particle blocks
+        of edges that adaptive Monte Carlo refined: they only save work when a build resumes).
 
         Parameters
         ----------
@@ -395,6 +399,7 @@ class Solution:
     seconds: float = 0.0
     _inputs_sha256: str = dataclasses.field(default="", repr=False)
     _intervals: dict = dataclasses.field(default_factory=dict, repr=False)
+    _interval_attrs: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def __repr__(self) -> str:
         return (f"<firmtool.Solution {self.status.name}: success probability {self.success_probability:.4f}, "
@@ -410,7 +415,11 @@ class Solution:
                    unreachable_nodes=np.asarray(a["unreachable"], dtype=np.int64),
                    iterations=int(at["iterations"]), residual=float(at["residual"]),
                    failure_cost=float(at["failure_cost"]), method=str(at["method"]), seconds=group.seconds,
-                   _inputs_sha256=str(at.get("inputs_sha256", "")))
+                   _inputs_sha256=str(at.get("inputs_sha256", "")),
+                   _intervals={name: (float(at[key][0]), float(at[key][1])) for name, key in _INTERVAL_ATTRS.items()
+                               if key in at},
+                   _interval_attrs={k: at[k] for k in ("interval_method", "interval_prior", "interval_samples")
+                                    if k in at})
 
     def _group(self) -> pipeline.PolicyGroup:
         edges = self.roadmap.edges
@@ -420,7 +429,9 @@ class Solution:
                   "shortest_path_edge": self.shortest_path_policy,
                   "shortest_path_success_probability": self.shortest_path_success_probabilities}
         attrs = {"inputs_sha256": self._inputs_sha256, "status": self.status.name, "iterations": self.iterations,
-                 "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method}
+                 "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method,
+                 **{key: np.asarray(self._intervals[name]) for name, key in _INTERVAL_ATTRS.items()
+                    if name in self._intervals}, **self._interval_attrs}
         return pipeline.PolicyGroup(arrays=arrays, attrs=attrs, seconds=self.seconds)
 
     # summaries
@@ -441,30 +452,31 @@ class Solution:
 
     @property
     def success_probability_ci95(self) -> tuple[float, float]:
-        """95% interval of :attr:`success_probability` from the edge-count uncertainty
-        (:meth:`success_probability_interval`; computed on first use, about a thousand sparse solves)."""
+        """95% interval of :attr:`success_probability` from the edge-count uncertainty, computed when
+        the roadmap was solved (:meth:`success_probability_interval`)."""
         return self.success_probability_interval()
 
-    def success_probability_interval(self, policy: str = "firm", samples: int = 1000) -> tuple[float, float]:
+    def success_probability_interval(self, policy: str = "firm") -> tuple[float, float]:
         """95% interval of the start node's success probability under ``policy``, from the
-        uncertainty of the edge counts: every policy edge's outcome distribution is drawn from its
-        Dirichlet posterior ``samples`` times (:func:`firmtool.execute.predicted_interval`), from a
-        stream keyed by the roadmap's seed.
+        uncertainty of the edge counts (:func:`firmtool.calibration.predicted_interval`): every
+        policy edge's outcome distribution is drawn from its Dirichlet posterior (prior 1/2 on every
+        observed outcome and on failure), and the interval is the shortest one holding 95% of the
+        draws and the point estimate. Computed once when the roadmap is solved, from a stream keyed by
+        the roadmap's seed, and stored with the policy; for a policy solved before intervals were
+        stored it is computed here on first use.
 
         Parameters
         ----------
         policy : ``"firm"`` or ``"shortest-path"``.
-        samples : posterior draws.
         """
-        from firmtool.execute import predicted_interval
+        from firmtool.calibration import predicted_interval
 
-        key = (policy, samples)
-        if key not in self._intervals:
-            edges, _ = self._policy(policy)
+        if policy not in self._intervals:
+            edges, probabilities = self._policy(policy)
             rm = self.roadmap
-            self._intervals[key] = predicted_interval(rm.edge_counts, rm.nodes.shape[0], rm.goals, edges, rm.seed,
-                                                      samples)
-        return self._intervals[key]
+            self._intervals[policy] = predicted_interval(rm.edge_counts, rm.nodes.shape[0], rm.goals, edges, rm.seed,
+                                                         point=float(probabilities[START_INDEX]))
+        return self._intervals[policy]
 
     def _policy(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(edge per node, success probability per node) of a policy by name."""
@@ -550,14 +562,18 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
 # -- execution ------------------------------------------------------------------------------------------
 
 def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
-             start: np.ndarray | None = None, disturbances: Iterable["str | Disturbance"] = (),
+             start: np.ndarray | None = None,
+             disturbances: Iterable["str | Disturbance | Callable[[int, np.ndarray, np.random.Generator], np.ndarray | None]"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
              progress: "ProgressCallback | None" = None) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
-    Each episode starts at the start node (or at ``start``), follows the policy's edge controllers
-    node to node, replans in real time after large deviations, and ends at the goal, on a
-    collision or at the step limit. The filter is never told of disturbances.
+    Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
+    the measurements) against the simulated system (:class:`firmtool.sim.SimulatedSystem`: true
+    state, noise at the true state, collisions, disturbances). The policy starts at the start node
+    (or at ``start``), follows its edge controllers node to node, replans in real time after large
+    deviations, and declares the goal; the system ends an episode on a collision. The filter is never
+    told of disturbances.
 
     Parameters
     ----------
@@ -565,19 +581,22 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     episodes : int
         Number of episodes (>= 1).
     seed : int
-        Episode ``i`` draws from ``SeedSequence([seed, 0xE7EC, i])``: reproducible, and the same
-        numbers as ``firmtool execute --seed``.
+        Episode ``i``'s true system draws from ``SeedSequence([seed, 0xE7EC, i])`` and the policy's
+        own draws from its first spawned child (:func:`firmtool.sim.episode_seeds`): reproducible,
+        and the same numbers as ``firmtool execute --seed``.
     policy : {"firm", "shortest-path"}
         The DP's policy, or the baseline that ignores uncertainty.
     start : (config_dim,) or (n,) array, optional
         Start at this configuration or state instead of the start node (a start in no node gets an
         initial controller to the best nearby node).
-    disturbances : iterable of str or Disturbance
+    disturbances : iterable of str, Disturbance or callable
         ``"push:STEP:SIZE"``, ``"push:random:SIZE:RATE"``, ``"kidnap:STEP"``,
-        ``"kidnap:random:RATE"`` (see :mod:`firmtool.disturbances`).
+        ``"kidnap:random:RATE"`` (see :mod:`firmtool.disturbances`), or a callable
+        ``fn(step, state, rng) -> new state (n,) or None`` asked before every step.
     replan : ReplanSettings, optional
-        Replanning settings (default: on, threshold 3); ``ReplanSettings(enabled=False)`` follows
-        the stored controllers only.
+        Replanning settings (default: on, threshold 3, a decision's deadline the control period on
+        the deterministic work clock); ``ReplanSettings(enabled=False)`` follows the stored
+        controllers only.
     record : bool
         Keep every episode's arrays (``states``, ``estimates`` (T + 1, n), ``covariances``
         (T + 1, n, n), ``controls`` (T, m)); they take ~8 (T + 1) (n^2 + 2n) bytes per episode.
@@ -588,25 +607,25 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     -------
     Results
         Success rate with its Wilson interval, the prediction with its interval, the calibration
-        check of the edges taken, and the episodes.
+        check of the edges taken, compute per step and per decision, and the episodes.
     """
-    from firmtool.disturbances import Disturbance, parse_disturbance
-    from firmtool.execute import execute
+    from firmtool.disturbances import as_disturbances
+    from firmtool.online.policy import Policy
+    from firmtool.sim.episodes import run_episodes
 
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise InputError(f"episodes: expected an integer >= 1, found {episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed: expected an integer >= 0, found {seed!r}")
-    edges, probabilities = solution._policy(policy)
-    dists = tuple(d if isinstance(d, Disturbance) else parse_disturbance(d) for d in disturbances)
+    _, probabilities = solution._policy(policy)
+    dists = as_disturbances(disturbances)
+    agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
     at_start_node = start is None
-    return execute(rm.problem, rm.execution_design, edges, int(episodes), int(seed),
-                   predicted=float(probabilities[START_INDEX]) if at_start_node else None,
-                   cost_to_go=solution.cost_to_go, replan=replan, disturbances=dists, start=start, record=record,
-                   edge_counts=rm.edge_counts,
-                   predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
-                   failure_cost=solution.failure_cost, policy_name=policy, progress=progress)
+    return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
+                        predicted=float(probabilities[START_INDEX]) if at_start_node else None,
+                        predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
+                        edge_counts=rm.edge_counts, progress=progress)
 
 
 def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" = None, *,

@@ -351,6 +351,22 @@ def _build_human(r: dict) -> str:
             f"{r['simulated_particle_steps']:,} particle-steps simulated\n"
             f"time: sample {console.seconds(s['sample'])}, design {console.seconds(s['design'])}, "
             f"estimate {console.seconds(s['estimate'])} on {r['workers']} workers")
+    a = r.get("adaptive")
+    if a:
+        last = a["rounds"][-1]
+        text += (f"\nadaptive Monte Carlo: {a['particles_added']:,} particles added in {len(a['rounds']) - 1} rounds "
+                 f"to the {a['first_pass_particles']:,} of the first pass; start success probability "
+                 f"{last['start_success_probability']:.4f}, 95% interval +-{a['halfwidth']:.4f} (target "
+                 f"+-{a['target_halfwidth']:g} at p = 1/2): {a['reason']}")
+    c = r.get("connectivity")
+    if c:
+        text += (f"\nconnected: {len(c['connected_goal_nodes'])} of {len(c['goal_nodes'])} goal nodes in the start's "
+                 f"component ({c['start_component_nodes']} of {r['nodes']} nodes, {c['components']} components); "
+                 f"connection stage added {c['added_nodes']} nodes (budget roadmap.bridge_nodes = {c['budget']})")
+        if c.get("reachable_goal_nodes") is not None:
+            text += (f"\nreachable under the estimated edges: {len(c['reachable_goal_nodes'])} of "
+                     f"{len(c['goal_nodes'])} goal nodes")
+        text += "".join(f"\nmissing: {m}" for m in c["missing"])
     if r.get("densify"):
         text += "\n" + "\n".join(f"  {x['nodes']} nodes: start success probability {prob(x['start_success_probability'])}"
                                   for x in r["densify"]["rounds"])
@@ -396,13 +412,26 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     _exit_on_failed_edges(report)
     if report["densify"] and not report["densify"]["reached"]:
         _fail(report["densify"]["reason"], 1)
+    _exit_if_unreachable(report)
     console.next_step(report["roadmap"], f"firmtool solve {report['roadmap']}")
+
+
+def _exit_if_unreachable(report: dict) -> None:
+    """Exit 1 when no goal node can be reached from the start (the roadmap cannot be solved)."""
+    c = report.get("connectivity")
+    if c and c.get("reachable_goal_nodes") is not None and not c["reachable_goal_nodes"]:
+        why = "; ".join(c["missing"]) or "edges leave the start's component but none lands in a goal node"
+        _fail(f"{report['roadmap']}: no goal node is reachable from the start: {why}; raise roadmap.bridge_nodes "
+              "or roadmap.nodes, or use --p-min to densify", 1)
 
 
 def _solve_human(r: dict) -> str:
     lines = [f"solve: {r['status'].lower()} after {r['iterations']} {r['method']} iterations "
              f"(residual {num(r['residual'], 2)}), failure cost {num(r['failure_cost'])}",
-             f"start: success probability {prob(r['start_success_probability'])}, cost-to-go "
+             f"start: success probability {prob(r['start_success_probability'])}"
+             + (f" (95% interval from the edge counts {prob(r['start_success_probability_ci95'][0])}-"
+                f"{prob(r['start_success_probability_ci95'][1])})" if r.get("start_success_probability_ci95") else "")
+             + ", cost-to-go "
              f"{num(r['start_cost_to_go'])} (shortest path: success probability "
              f"{prob(r['shortest_path_start_success_probability'])})",
              f"policy path: {' -> '.join(map(str, r['path']))}"]
@@ -461,9 +490,14 @@ def _execute_extra_human(r: dict) -> str:
         lines.append(f"disturbances {', '.join(r['disturbances'])}: {r['disturbances_applied']} applied")
     if "step_time_us_mean" in r:
         rt = r.get("replan_time_us_mean")
-        lines.append(f"compute per control step {num(r['step_time_us_mean'], 3)} us mean, "
+        lines.append(f"policy compute per control step {num(r['step_time_us_mean'], 3)} us mean, "
                      f"{num(r['step_time_us_p99'], 3)} us p99"
-                     + ("" if rt is None else f"; per replan {num(rt / 1000, 3)} ms mean"))
+                     + ("" if rt is None else f"; per replan decision {num(rt / 1000, 3)} ms mean, "
+                        f"{num(r['replan_time_us_p99'] / 1000, 3)} ms p99"))
+    if r.get("replan_decisions"):
+        lines.append(f"replan deadline {1000 * r['replan_deadline_s']:.0f} ms ({r['replan_clock']} clock): "
+                     f"{r['replan_deadline_hits']} of {r['replan_decisions']} decisions cut short, "
+                     f"{r['replan_over_deadline']} over it in wall time")
     cal = r.get("calibration")
     if cal:
         lines.append(f"calibration: {cal['edges_checked']} of {cal['edges_taken']} edges taken checked "
@@ -505,6 +539,20 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                 help="Replan when the estimate leaves the running controller's nominal by more than this, in "
                      "the rms-scaled norm of node regions (rms over coordinates of deviation / node spread; "
                      "node regions default to 1.5). A windowed innovation test also triggers a replan."),
+            replan_deadline: Optional[float] = typer.Option(
+                None, "--replan-deadline",
+                help="Seconds a replan decision may take (default: the control period dt). When the Monte "
+                     "Carlo scoring of candidates runs out of time, the best candidate scored so far is "
+                     "taken (an anytime decision)."),
+            replan_clock: str = typer.Option(
+                "work", "--replan-clock",
+                help="How the deadline is counted: 'work' (default: each scored candidate costs a fixed, "
+                     "measured time, so results do not depend on the machine's load) or 'wall' (real "
+                     "time: as on a robot; results then depend on the load)."),
+            replan_latency: str = typer.Option(
+                "0", "--replan-latency",
+                help="'0' (default): a replanned controller runs from the next step. 'measured': the "
+                     "running controller goes on for ceil(t / dt) steps, t the decision's time on its clock."),
             start: Optional[str] = typer.Option(
                 None, "--start",
                 help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "
@@ -534,12 +582,18 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     """
     import firmtool.api as ft
     from firmtool.disturbances import parse_disturbances
-    from firmtool.execute import ReplanSettings
+    from firmtool.online.replanning import CLOCKS, LATENCIES, ReplanSettings
     from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
     if not (np.isfinite(replan_threshold) and replan_threshold > 0):
         raise InputError(f"--replan-threshold: expected a finite number > 0, found {replan_threshold}")
+    if replan_deadline is not None and not (np.isfinite(replan_deadline) and replan_deadline > 0):
+        raise InputError(f"--replan-deadline: expected a number of seconds > 0, found {replan_deadline}")
+    if replan_clock not in CLOCKS:
+        raise InputError(f"--replan-clock: expected one of {', '.join(CLOCKS)}, found {replan_clock!r}")
+    if replan_latency not in LATENCIES:
+        raise InputError(f"--replan-latency: expected one of {', '.join(LATENCIES)}, found {replan_latency!r}")
     start_state = _parse_start(start)
     _check_policy(policy_name)
     if save_episodes is not None:
@@ -548,9 +602,10 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     rm = ft.open_roadmap(roadmap)
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
+    settings = ReplanSettings(enabled=not no_replan, threshold=replan_threshold, deadline=replan_deadline,
+                              clock=replan_clock, latency=replan_latency)
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
-                      replan=ReplanSettings(enabled=not no_replan, threshold=replan_threshold),
-                      record=save_episodes is not None, progress=console.progress())
+                      replan=settings, record=save_episodes is not None, progress=console.progress())
     report = res.to_dict()
     if save_episodes is not None:
         from firmtool.episodes_io import save_episodes as write_episodes

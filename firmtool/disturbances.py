@@ -18,14 +18,21 @@ collision (up to 64 draws; a robot boxed in on all sides is pushed anyway): the 
 disturbance, not a teleport through a wall. Velocities are left unchanged by a push and set to zero
 by a kidnap.
 
+In Python a disturbance may also be a user's callable (:class:`UserDisturbance`):
+``fn(step, state, rng) -> new state or None``, asked before every control step with the true
+state (n,); returning a state (n,) puts the true system there (an event ``disturbance`` named
+``user:NAME``), None leaves it alone.
+
 Reproducibility: the random times of an episode are drawn once at its start from
 ``SeedSequence([seed, 0xD157, episode])`` and the direction / destination of its ``i``-th event from
 ``SeedSequence([seed, 0xD157, episode, i + 1])``, so the same disturbances hit the same episode
-whatever the controller does (replanning on or off).
+whatever the controller does (replanning on or off). A user's callable number ``j`` (in the order
+given) draws from ``SeedSequence([seed, 0xD157, episode, 0, j])``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,6 +117,44 @@ def parse_disturbance(spec: str) -> Disturbance:
 
 def parse_disturbances(specs: list[str] | tuple[str, ...] | None) -> tuple[Disturbance, ...]:
     return tuple(parse_disturbance(s) for s in (specs or ()))
+
+
+@dataclass(frozen=True)
+class UserDisturbance:
+    """A user's disturbance: ``fn(step, state, rng)`` is asked before every control step.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(step: int, state: ndarray (n,), rng: numpy Generator) -> ndarray (n,) or None``: the
+        new true state, or None for no disturbance at this step. ``step`` counts control steps from
+        the start of the episode; ``state`` is a copy.
+    name : str
+        For events and reports (default: the callable's ``__name__``).
+    """
+
+    fn: Callable[[int, np.ndarray, np.random.Generator], np.ndarray | None]
+    name: str = ""
+
+    def __str__(self) -> str:
+        return "user:" + (self.name or getattr(self.fn, "__name__", type(self.fn).__name__))
+
+
+def as_disturbances(items: Iterable[str | Disturbance | UserDisturbance | Callable] | None
+                    ) -> tuple[Disturbance | UserDisturbance, ...]:
+    """Specification strings, :class:`Disturbance` and callables (wrapped as :class:`UserDisturbance`)."""
+    out: list[Disturbance | UserDisturbance] = []
+    for item in items or ():
+        if isinstance(item, (Disturbance, UserDisturbance)):
+            out.append(item)
+        elif isinstance(item, str):
+            out.append(parse_disturbance(item))
+        elif callable(item):
+            out.append(UserDisturbance(item))
+        else:
+            raise InputError(f"disturbance: expected a specification string, a Disturbance or a callable, "
+                             f"found {type(item).__name__}")
+    return tuple(out)
 
 
 def schedule(disturbances: tuple[Disturbance, ...], max_steps: int,

@@ -5,8 +5,8 @@ An edge's key is a sha256 over everything its Monte Carlo depends on: the engine
 (:data:`ENGINE_VERSION`) and which engine runs it (the compiled one draws its own noise, so the
 two give statistically equal, not identical, estimates), the scenario's model, measurement,
 world, task and controller settings, the robot's code (its class and version) and the identity of
-a user's validity checker (if any), the seed, the particle count and chunk size, the two node
-indices (they seed the random streams),
+a user's validity checker (if any), the seed, the particle count and chunk size, where the particles
+start (``estimation.start``), the two node indices (they seed the random streams),
 both nodes' centres and stabilisers, and the nominal length. Not in it: the cost weights (the
 table stores cost terms, weighted at solve time) and the other nodes of the roadmap. The latter is
 a deliberate approximation: when nodes are added, existing edges keep their estimates, whose
@@ -21,9 +21,10 @@ import hashlib
 from typing import Any, Iterable, Mapping
 
 import numpy as np
+import scipy.sparse
 
 from firmtool.design import Design
-from firmtool.edges import EdgeEstimate, cost_weights
+from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, cost_weights
 from firmtool.problem import Problem
 from firmtool.scenario import CostSpec
 
@@ -84,8 +85,11 @@ def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = N
         from firmtool.kernels import engine_for
 
         engine = engine_for(problem)
-    base = digest(ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
-                  sc.estimation.particles, sc.estimation.chunk, robot_identity(problem), validity_identity(problem))
+    parts = [ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
+             sc.estimation.particles, sc.estimation.chunk, robot_identity(problem), validity_identity(problem)]
+    if sc.estimation.start != "center":  # keys of centre starts are those of the files written before the option
+        parts.append(f"start={sc.estimation.start}")
+    base = digest(*parts)
     idx = np.arange(design_.edge_source.size) if edges is None else np.asarray(list(edges), dtype=np.int64)
     node_digest: dict[int, bytes] = {}
 
@@ -153,3 +157,40 @@ def edge_costs(arrays: Mapping[str, np.ndarray], spec: CostSpec) -> np.ndarray:
     if "cost_terms_mean" in arrays:
         return np.asarray(arrays["cost_terms_mean"]) @ cost_weights(spec)
     return np.asarray(arrays["cost_mean"])
+
+
+def outcome_probabilities(arrays: Mapping[str, np.ndarray], n_nodes: int) -> tuple[scipy.sparse.csr_matrix, np.ndarray,
+                                                                                  np.ndarray, np.ndarray]:
+    """Outcome frequencies of an edge table: landing (E, N) sparse, failure and timeout (E,), and the
+    particles (E,). Failure includes the goal misses (:data:`firmtool.edges.GOAL_MISS`: a belief that
+    declared arrival with the true state outside the goal), so that the DP and the success
+    probabilities are for success judged on the true state.
+
+    Raises
+    ------
+    ValueError
+        If an outcome code lies outside the node range.
+    """
+    E = np.asarray(arrays["source"]).size
+    n = np.asarray(arrays["particles"]).astype(float)
+    edge, code = np.asarray(arrays["outcome_edge"]), np.asarray(arrays["outcome_code"])
+    count = np.asarray(arrays["outcome_count"]).astype(float)
+    if np.any(code >= n_nodes) or np.any(code < GOAL_MISS):
+        raise ValueError("holds outcome codes outside the node range")
+    land = code >= 0
+    landing = scipy.sparse.csr_matrix((count[land] / n[edge[land]], (edge[land], code[land])), shape=(E, n_nodes))
+    failed = (code == FAILURE) | (code == GOAL_MISS)
+    fail = np.bincount(edge[failed], weights=count[failed], minlength=E) / n
+    timeout = np.bincount(edge[code == TIMEOUT], weights=count[code == TIMEOUT], minlength=E) / n
+    return landing, fail, timeout, np.asarray(arrays["particles"])
+
+
+def blocks_key(base: np.ndarray, blocks: int) -> np.ndarray:
+    """The key of an edge's estimate with ``blocks`` blocks of particles (:func:`firmtool.edges.estimate_blocks`):
+    the edge's key (:func:`edge_keys`, which covers the block size) for one block, else a sha256 of it
+    and the block count."""
+    base = np.asarray(base, dtype=np.uint8)
+    if blocks == 1:
+        return base
+    h = hashlib.sha256(base.tobytes() + f"blocks={blocks}".encode())
+    return np.frombuffer(h.digest(), dtype=np.uint8).copy()

@@ -107,6 +107,19 @@ def can_reach(n_nodes: int, goal: int | np.ndarray, edge_source: np.ndarray,
     return ok[:n_nodes]
 
 
+def reachable_from(n_nodes: int, edge_source: np.ndarray, landing: scipy.sparse.spmatrix, node: int) -> np.ndarray:
+    """Boolean (N,): nodes some chain of edges reaches from ``node`` with positive probability
+    (``node`` itself included; edges leave any node, goals too, as given)."""
+    coo = scipy.sparse.coo_matrix(landing)
+    positive = coo.data > 0
+    rows, cols = np.asarray(edge_source)[coo.row[positive]], coo.col[positive]
+    graph = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n_nodes, n_nodes))
+    order = scipy.sparse.csgraph.breadth_first_order(graph, node, directed=True, return_predecessors=False)
+    out = np.zeros(n_nodes, dtype=bool)
+    out[order] = True
+    return out
+
+
 class _Segments:
     """Per-node minimum over that node's edges, vectorised (edges sorted by source once).
 
@@ -325,6 +338,131 @@ def success_probability(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray
             raise NumericalError(f"success probabilities outside [0, 1] (min {sol.min():.3g}, max {sol.max():.3g})")
         p[act] = np.clip(sol, 0.0, 1.0)
     return p
+
+
+def policy_support(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray, edge: np.ndarray, code: np.ndarray,
+                   node: int) -> np.ndarray:
+    """Transient nodes reachable from ``node`` under ``policy`` (``node`` first, then in BFS order).
+
+    ``edge``, ``code``: the sparse outcome rows that may have positive probability (row ``k``: edge
+    ``edge[k]`` can end in node ``code[k]``; negative codes are failure or timeout and lead nowhere).
+    Goals and nodes without an edge are not transient and are left out.
+    """
+    policy = np.asarray(policy, dtype=np.int64)
+    is_goal = goal_mask(n_nodes, goal)
+    land = code >= 0
+    order = np.argsort(edge[land], kind="stable")
+    e_sorted, c_sorted = edge[land][order], code[land][order]
+    bounds = np.searchsorted(e_sorted, np.arange(int(edge.max(initial=-1)) + 2))
+    if is_goal[node] or policy[node] < 0:
+        return np.zeros(0, dtype=np.int64)
+    seen = {int(node)}
+    out, frontier = [int(node)], [int(node)]
+    while frontier:  # a loop over nodes of the policy's chain, not over particles
+        nxt = []
+        for i in frontier:
+            e = int(policy[i])
+            for j in c_sorted[bounds[e]:bounds[e + 1]] if e + 1 < bounds.size else ():
+                j = int(j)
+                if j not in seen and not is_goal[j] and policy[j] >= 0:
+                    seen.add(j)
+                    out.append(j)
+                    nxt.append(j)
+        frontier = nxt
+    return np.asarray(out, dtype=np.int64)
+
+
+def success_probability_samples(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray, edge: np.ndarray,
+                                code: np.ndarray, probabilities: np.ndarray, node: int,
+                                max_entries: int = 2**24) -> np.ndarray:
+    """Success probability of ``node`` under ``policy`` for each of S draws of the outcome probabilities.
+
+    The absorbing chain of :func:`success_probability`, restricted to the transient nodes reachable
+    from ``node`` (:func:`policy_support`), solved as a batch of dense systems ``(I - Q_s) p_s = r_s``.
+
+    Parameters
+    ----------
+    edge, code : (R,) the sparse outcome rows (edge index; landed node, or a negative code for failure
+        or timeout).
+    probabilities : (S, R) the probability of each row in each draw (rows of one edge sum to at most 1).
+    node : the node whose success probability is wanted.
+    max_entries : bound on ``S_batch * K * K`` held at once (memory).
+
+    Returns
+    -------
+    (S,) success probabilities of ``node``.
+
+    Raises
+    ------
+    NumericalError
+        If a draw's chain has a closed loop with no exit (``I - Q`` singular) or leaves [0, 1].
+    """
+    policy = np.asarray(policy, dtype=np.int64)
+    probabilities = np.atleast_2d(np.asarray(probabilities, dtype=float))
+    S = probabilities.shape[0]
+    is_goal = goal_mask(n_nodes, goal)
+    if is_goal[node]:
+        return np.ones(S)
+    nodes = policy_support(n_nodes, goal, policy, edge, code, node)
+    if nodes.size == 0:
+        return np.zeros(S)
+    K = nodes.size
+    index = np.full(n_nodes, -1, dtype=np.int64)
+    index[nodes] = np.arange(K)
+    chosen = np.full(int(edge.max(initial=-1)) + 1, -1, dtype=np.int64)
+    chosen[policy[nodes]] = np.arange(K)  # the chain row of each policy edge (policy edges are distinct)
+    row_of = np.where(edge < chosen.size, chosen[np.minimum(edge, chosen.size - 1)], -1)
+    keep = row_of >= 0
+    to_goal = keep & (code >= 0) & is_goal[np.maximum(code, 0)]
+    to_node = keep & (code >= 0) & (index[np.maximum(code, 0)] >= 0)
+    out = np.empty(S)
+    batch = max(1, max_entries // (K * K))
+    eye = np.eye(K)
+    for s0 in range(0, S, batch):
+        w = probabilities[s0:s0 + batch]
+        b = w.shape[0]
+        A = np.broadcast_to(eye, (b, K, K)).copy()
+        rows, cols = row_of[to_node], index[code[to_node]]
+        np.add.at(A, (slice(None), rows, cols), -w[:, to_node])
+        r = np.zeros((b, K))
+        np.add.at(r, (slice(None), row_of[to_goal]), w[:, to_goal])
+        try:
+            p = np.linalg.solve(A, r[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            raise NumericalError("a drawn policy chain has a closed loop with no exit (I - Q singular)") from None
+        if not np.all(np.isfinite(p)) or p.min() < -1e-9 or p.max() > 1 + 1e-9:
+            raise NumericalError("drawn success probabilities outside [0, 1] (inconsistent outcome probabilities)")
+        out[s0:s0 + b] = np.clip(p[:, 0], 0.0, 1.0)
+    return out
+
+
+def expected_visits(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray, landing: scipy.sparse.spmatrix,
+                    node: int) -> np.ndarray:
+    """Expected number of visits to every node before absorption, starting at ``node`` under ``policy``.
+
+    The row of ``node`` in the fundamental matrix ``(I - Q)^{-1}`` of the absorbing chain (the start
+    visit counts once). Goals and nodes without an edge get 0.
+
+    Returns
+    -------
+    (N,) expected visits.
+    """
+    policy = np.asarray(policy, dtype=np.int64)
+    is_goal = goal_mask(n_nodes, goal)
+    T = policy_transition_matrix(n_nodes, goal, policy, landing)
+    act = np.flatnonzero((policy >= 0) & ~is_goal)
+    visits = np.zeros(n_nodes)
+    if node not in set(act.tolist()):
+        return visits
+    Q = T[act][:, act]
+    A = (scipy.sparse.identity(act.size, format="csc") - Q.tocsc()).T.tocsc()
+    e = (act == node).astype(float)
+    with np.errstate(all="ignore"):
+        v = np.atleast_1d(scipy.sparse.linalg.spsolve(A, e))
+    if not np.all(np.isfinite(v)) or v.min(initial=0.0) < -1e-9:
+        raise NumericalError("expected visits are not finite: the policy's chain has a closed loop with no exit")
+    visits[act] = np.maximum(v, 0.0)
+    return visits
 
 
 def shortest_path_policy(n_nodes: int, goal: int | np.ndarray, edge_source: np.ndarray, edge_target: np.ndarray,

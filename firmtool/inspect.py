@@ -39,6 +39,7 @@ def summarize(path: str | Path) -> RoadmapSummary:
     if rm.has("edges"):
         e = rm.require("edges", "particles", "particle_steps", fresh=False)
         out["particles_per_edge"] = int(np.median(e["particles"])) if e["particles"].size else 0
+        out["particles"] = int(e["particles"].sum())
         out["particle_steps"] = int(e["particle_steps"].sum())
         out["estimated_edges"] = int(e["particles"].size)
         out["densify_rounds"] = int(rm.attrs("nodes").get("densify_rounds", 0)) if rm.has("nodes") else 0
@@ -51,6 +52,8 @@ def summarize(path: str | Path) -> RoadmapSummary:
         out["solve_status"] = str(a.get("status"))
         out["solve_iterations"] = int(a.get("iterations", 0))
         out["start_success_probability"] = float(p["success_probability"][START_INDEX])
+        if "success_probability_ci95" in a:  # stored at solve time (validated by the reader)
+            out["start_success_probability_ci95"] = tuple(float(v) for v in a["success_probability_ci95"])
         j = float(p["cost_to_go"][START_INDEX])
         out["start_cost_to_go"] = j if np.isfinite(j) else None
     return RoadmapSummary(roadmap=str(path), schema_version=rm.schema_version, scenario=scenario.name,

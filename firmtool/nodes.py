@@ -30,9 +30,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-import scipy.sparse
-import scipy.sparse.csgraph
-
 from firmtool.errors import RunFailure, ScenarioError
 from firmtool.goal import GoalRegion
 from firmtool.problem import Problem
@@ -140,8 +137,9 @@ def _greedy(batch: np.ndarray, keep: np.ndarray, separation: float, room: int) -
 
 def roadmap_nodes(problem: Problem, rng: np.random.Generator,
                   progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Start node, goal node, then sampled regular nodes (``progress``: told of the nodes found,
-    phase by phase, :mod:`firmtool.progress`).
+    """Start node, goal node(s), then sampled regular nodes (``progress``: told of the nodes found,
+    phase by phase, :mod:`firmtool.progress`); the connection stage,
+    :func:`firmtool.connectivity.connect_goals`, may add more.
 
     Returns
     -------
@@ -153,7 +151,7 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator,
         If no valid configuration can be found (empty free space).
     """
     spec = problem.scenario.roadmap
-    total = spec.nodes + 1 + spec.goal_nodes + spec.bridge_nodes  # at most; the bridges may need fewer
+    total = spec.nodes + 1 + spec.goal_nodes  # at most
     report(progress, SAMPLE, 0, total)
     fixed = np.stack([problem.start, problem.goal])
     extra_goals = _goal_region_nodes(problem, spec.goal_nodes - 1, rng, fixed) if problem.goal_disc else fixed[:0]
@@ -175,9 +173,6 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator,
     kinds = np.full(centers.shape[0], REGULAR, dtype=np.int8)
     kinds[START_INDEX], kinds[GOAL_INDEX] = START, GOAL
     kinds[2:2 + extra_goals.shape[0]] = GOAL
-    report(progress, SAMPLE, centers.shape[0], total)
-    if spec.bridge_nodes:
-        centers, kinds = add_bridges(problem, centers, kinds, spec.bridge_nodes, rng)
     report(progress, SAMPLE, centers.shape[0], centers.shape[0])
     return centers, kinds
 
@@ -287,62 +282,6 @@ def start_belief_targets(problem: Problem, centers: np.ndarray) -> list[int]:
     dist, idx = np.atleast_1d(dist), np.atleast_1d(idx)
     keep = (idx != START_INDEX) & (idx < N) & (dist <= spec.max_edge_length)
     return [int(j) for j in idx[keep] if segment_is_valid(problem, centers[START_INDEX], centers[j])]
-
-
-def add_bridges(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budget: int,
-                rng: np.random.Generator, per_round: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """Add nodes between the start's component and goal components that it does not reach.
-
-    Each round connects the roadmap (k nearest neighbours, collision-free segments), and for every
-    goal component apart from the start's samples valid nodes near the midpoints of the closest
-    node pairs across the two components (a Gaussian around the midpoint, spread a third of the gap).
-    Stops when every goal is connected to the start or ``budget`` nodes were added.
-    """
-    d = problem.config_dim
-    cache: dict = {}
-    added, rounds = 0, 0
-    while added < budget and rounds < 4 * budget // per_round + 10:  # bounded even if no sample is valid
-        rounds += 1
-        pairs = valid_pairs(problem, centers, cache)
-        N = centers.shape[0]
-        a = np.array([p[0] for p in pairs], dtype=np.int64)
-        b = np.array([p[1] for p in pairs], dtype=np.int64)
-        graph = scipy.sparse.csr_matrix((np.ones(a.size), (a, b)), shape=(N, N))
-        _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
-        stranded = sorted(set(label[kinds == GOAL].tolist()) - {label[START_INDEX]})
-        if not stranded:
-            break
-        new = []
-        here = np.flatnonzero(label == label[START_INDEX])
-        for comp in stranded:
-            there = np.flatnonzero(label == comp)
-            hi, ti, gap = _closest_pairs(centers[here, :d], centers[there, :d], per_round)
-            mid = 0.5 * (centers[here[hi], :d] + centers[there[ti], :d])
-            spread = gap[:, None] / 3.0
-            q = np.clip(mid + spread * rng.standard_normal(mid.shape), problem.config_lo, problem.config_hi)
-            new.append(q[problem.is_valid(problem.state_of(q))])
-        q = np.concatenate(new)[: budget - added]
-        if q.shape[0] == 0:
-            continue
-        centers = np.concatenate([centers, problem.state_of(q)])
-        kinds = np.concatenate([kinds, np.full(q.shape[0], REGULAR, dtype=np.int8)])
-        added += q.shape[0]
-    return centers, kinds
-
-
-def _closest_pairs(A: np.ndarray, B: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The ``k`` closest pairs (row of ``A``, row of ``B``), nearest first: ``(ia, ib, distance)``.
-
-    What sorting the whole distance matrix gives (``np.argsort(norm(A[:, None] - B[None]), axis=None)``),
-    without forming it: each of the k closest pairs has its ``A`` row among the k nearest of its
-    ``B`` row (a k-d tree query), and the candidates' distances are the same norms."""
-    kk = min(k, A.shape[0])
-    _, idx = cKDTree(A).query(B, k=kk)
-    ia = idx.reshape(B.shape[0], kk).ravel()
-    ib = np.repeat(np.arange(B.shape[0]), kk)
-    gap = np.linalg.norm(A[ia] - B[ib], axis=1)
-    order = np.lexsort((ia * B.shape[0] + ib, gap))[:k]  # ties as the flat argsort would meet them
-    return ia[order], ib[order], gap[order]
 
 
 def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixed: np.ndarray,

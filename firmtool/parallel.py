@@ -58,7 +58,7 @@ import numpy as np
 from firmtool import interrupts
 from firmtool.controllers import NodeController
 from firmtool.design import Design, design_nodes, local_controllers, region_scale
-from firmtool.edges import EdgeEstimate, estimate_edge
+from firmtool.edges import estimate_blocks, estimate_edge
 from firmtool.errors import InputError
 from firmtool.kernels import engine_for
 from firmtool.nodes import neighbour_pairs, segments_valid, trajectory_is_valid
@@ -84,6 +84,10 @@ class EstimationJob:
     # worker with another FIRMTOOL_ENGINE or without numba cannot silently run a different one
     # (it fails the edge instead). None: each worker chooses (kernels.engine_for).
     engine: str | None = None
+    # Later blocks of particles (adaptive Monte Carlo): row t = (edge, first block, blocks); the work
+    # items are then the rows' indices, and each gives its blocks' estimates
+    # (firmtool.edges.estimate_blocks, blocks of ``particles``). None: block 0 of every edge given.
+    block_tasks: np.ndarray | None = None
     # What the scenario text cannot carry, pickled with cloudpickle (job_extras): a user's validity
     # checker, and a robot class a fresh process cannot find by its name (defined in a script).
     validity: bytes | None = None
@@ -188,22 +192,31 @@ def _context(job: EstimationJob) -> tuple[Problem, Design, object]:
 # task functions: (job, items) -> one result per item; module level, so that they travel by name
 
 
-def run_batch(job: EstimationJob, edges: Sequence[int]) -> list[EdgeEstimate]:
-    """Estimate a batch of edges (indices into the design's edge arrays). Their local controllers are
+def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
+    """Estimate a batch of edges (indices into the design's edge arrays): one EdgeEstimate each; or,
+    with ``job.block_tasks``, a batch of its rows: one list of block estimates each (adaptive Monte
+    Carlo's later blocks, :func:`firmtool.edges.estimate_blocks`). Their local controllers are
     designed together first (:func:`firmtool.design.local_controllers`, bit for bit the single-edge
     ones), the compiled engine's first segment of every edge's filter recursion included."""
     problem, design, regions = _context(job)
     src, dst = design.edge_source, design.edge_target
-    pairs = [(int(src[e]), int(dst[e])) for e in edges]
+    start = problem.scenario.estimation.start  # from the job's scenario text, like every other setting
+    tasks = [tuple(int(v) for v in job.block_tasks[t]) for t in edges] if job.block_tasks is not None else \
+        [(int(e), 0, 0) for e in edges]  # (edge, first block, blocks); blocks 0: the edge's first pass
+    pairs = [(int(src[e]), int(dst[e])) for e, _, _ in tasks]
     from firmtool.kernels import FIRST_SEGMENT_PAST_EDGE
 
     engine = job.engine or engine_for(problem)
     controllers = local_controllers(problem, design, pairs, FIRST_SEGMENT_PAST_EDGE if engine == "numba" else None)
     out = []
-    for (s, t), lc in zip(pairs, controllers):
+    for (s, t), (_, first, count), lc in zip(pairs, tasks, controllers):
         interrupts.check()  # a deferred Ctrl-C, between edges (in this process only)
-        out.append(estimate_edge(problem, design, regions, s, t, job.particles, job.seed, job.chunk, job.engine,
-                                 controller=lc))
+        if job.block_tasks is not None:
+            out.append(estimate_blocks(problem, design, regions, s, t, job.particles, first, count, job.seed,
+                                       job.chunk, job.engine, start=start, controller=lc))
+        else:
+            out.append(estimate_edge(problem, design, regions, s, t, job.particles, job.seed, job.chunk, job.engine,
+                                     start=start, controller=lc))
     return out
 
 

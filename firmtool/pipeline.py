@@ -16,12 +16,16 @@ import numpy as np
 import scipy.sparse
 
 from firmtool import interrupts, warmup
+from firmtool.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
 from firmtool.atomic import check_target
+from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
+from firmtool.connectivity import connect_goals, connectivity_report
 from firmtool.design import Design, design, start_covariance
-from firmtool.edge_table import ENGINE_VERSION, digest, edge_costs, edge_keys, from_arrays, to_arrays
-from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate
+from firmtool.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, edge_costs, edge_keys, from_arrays,
+                                 outcome_probabilities, to_arrays)
+from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
-from firmtool.graph import SolveStatus, shortest_path_policy, solve_dp, success_probability
+from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, solve_dp, success_probability
 from firmtool.kernels import engine_choice
 from firmtool.locking import writer_lock
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
@@ -29,8 +33,8 @@ from firmtool.parallel import (EstimationJob, Workers, default_workers, job_extr
                                parallel_validity, remember_problem, run_edges)
 from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import DESIGN_NODES, ESTIMATE, SOLVE, Counter, ProgressCallback
-from firmtool.reports import (AddNodesReport, BuildReport, DensifyReport, DensifyRound, DesignReport, EstimateReport,
-                              FailedEdge, SampleReport, SolveReport)
+from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
+                              DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
 from firmtool.resources import check_budget, check_workers
 from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, is_roadmap_file,
                               read_edge_cache, restamp, update_scenario, write_edge_cache, write_stage)
@@ -169,13 +173,16 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     centers, kinds = roadmap_nodes(parallel_validity(problem, session) if session else problem, rng,
                                    progress=progress)
     _check_start_apart_from_goals(problem, centers, kinds)
+    budget = scenario.roadmap.bridge_nodes
+    centers, kinds, added, reason = connect_goals(problem, centers, kinds, budget, rng)
     with writer_lock(out):
         create_roadmap(out, scenario.text, scenario.sha256, scenario.seed)
         write_stage(out, "nodes", {"centers": centers, "kind": kinds},
                     {"inputs_sha256": nodes_inputs(scenario, _identity(problem)), "densify_rounds": 0,
-                     "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: _identity(problem)})
+                     "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: _identity(problem),
+                     "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
     return SampleReport(roadmap=str(out), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
-                        seconds=time.perf_counter() - t0)
+                        seconds=time.perf_counter() - t0, connect_added=added)
 
 
 def _check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> None:
@@ -234,6 +241,9 @@ def _design_stage(path: str | Path, validity: Callable | None = None, session: W
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
     if session is not None and session.parallel:
+        # a fresh install: the background compile does the design's functions first; the workers then
+        # load them from the cache instead of each compiling them at once (no-op with a warm cache)
+        warmup.wait_design()
         counter = Counter(progress, DESIGN_NODES, int(centers.shape[0])).start()
         d = parallel_design(problem, centers, nodes["kind"], session, counter.callback())
         counter.finish()
@@ -256,14 +266,20 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
                    progress: ProgressCallback | None = None,
                    checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None,
                    session: Workers | None = None) -> EstimateReport:
-    """Monte Carlo estimation of every edge, in parallel; writes ``/edges``.
+    """Monte Carlo estimation of every edge, in parallel, then adaptive rounds; writes ``/edges``.
 
-    Edges whose key (:func:`firmtool.edge_table.edge_keys`) matches a stored estimate, in ``/edges``
+    A uniform first pass gives every edge ``estimation.particles`` particles; then, unless
+    ``estimation.adaptive_particles`` is 0, :func:`firmtool.adaptive.refine` adds particles to the
+    edges the DP's policy depends on until the start's success probability is known to
+    ``estimation.target_halfwidth`` (its 95% interval) or the budget is spent.
+
+    Estimates whose key (:func:`firmtool.edge_table.edge_keys`, and
+    :func:`firmtool.edge_table.blocks_key` for more particles) matches a stored one, in ``/edges``
     or in ``/edge_cache``, are reused. Finished edges are checkpointed to ``/edge_cache`` every
     ``checkpoint_seconds`` and on Ctrl-C, so an interrupted run resumes where it stopped. An edge
-    that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges``. Where
-    the compiled engine was asked for but cannot run the problem (e.g. a Python validity checker),
-    the numpy engine runs and the report's ``notices`` say why.
+    that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges`` (and the
+    adaptive rounds do not run). Where the compiled engine was asked for but cannot run the problem
+    (e.g. a Python validity checker), the numpy engine runs and the report's ``notices`` say why.
 
     Parameters
     ----------
@@ -306,6 +322,10 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     keys = edge_keys(problem, d, engine=engine)
     table_hash = inputs_hash(roadmap.attrs("controllers").get("inputs_sha256", ""), ENGINE_VERSION, keys,
                              digest(sc.cost).hex())
+    adaptive_on = sc.estimation.adaptive_particles != 0
+    if adaptive_on:  # the rounds' allocation depends on the DP, so on the cost weights and J_F too
+        table_hash = inputs_hash(table_hash, sc.estimation.target_halfwidth, sc.estimation.adaptive_particles,
+                                 digest(sc.cost).hex(), "adaptive", ADAPTIVE_VERSION)
     if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
         warmup.stop()  # nothing to estimate: no compile to wait for
         e = roadmap.require("edges", "particle_steps", fresh=False)
@@ -331,20 +351,29 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
                         engine=engine, **job_extras(problem))
     remember_problem(job, problem)  # in-process and forked workers use this problem as it is
     counter = Counter(progress, ESTIMATE, len(todo)).start() if todo else None
-    new: list[int] = []
+    fresh: list[tuple[EdgeEstimate, np.ndarray]] = []  # estimates made by this run, with their keys
     saved = 0
     converted: dict[str, np.ndarray] = {}  # the table of the edges checkpointed so far (grows by the new ones)
     failed: dict[int, str] = {}
+    simulated = 0
 
     def checkpoint() -> None:
         nonlocal saved, converted
-        if len(new) > saved:
-            batch = new[saved:]
-            converted = concat_edge_tables(converted, to_arrays([est[e] for e in batch], keys[batch], sc.cost))
+        if len(fresh) > saved:
+            batch = fresh[saved:]
+            converted = concat_edge_tables(converted, to_arrays([x for x, _ in batch],
+                                                                np.array([k for _, k in batch]), sc.cost))
             write_edge_cache(path, concat_edge_tables(cache, converted), {"controllers_sha256": table_hash})
-            saved = len(new)
+            saved = len(fresh)
 
-    last = time.monotonic()
+    last = [time.monotonic()]
+
+    def maybe_checkpoint() -> None:
+        if not saved or time.monotonic() - last[0] >= checkpoint_seconds:  # the first after the first batch
+            checkpoint()
+            last[0] = time.monotonic()
+
+    new = 0
     try:
         # Ctrl-C (with the CLI's handler) is raised only between edges, where the finished ones can be saved
         with interrupts.deferred():
@@ -354,40 +383,105 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
                     failed[r.edges[0]] = r.error
                 for e, x in zip(r.edges, r.estimates):
                     est[e] = x
-                    new.append(e)
-                if not saved or time.monotonic() - last >= checkpoint_seconds:  # first after the first batch
-                    checkpoint()
-                    last = time.monotonic()
+                    fresh.append((x, keys[e]))
+                    simulated += x.particle_steps
+                    new += 1
+                maybe_checkpoint()
                 interrupts.check()
             interrupts.check()
+            adaptive = None
+            history = {bytes(keys[e]): est[e] for e in range(E) if est[e] is not None}  # the first pass, by key
+            if adaptive_on and not failed and E:
+                B = sc.estimation.particles
+                settings = AdaptiveSettings(
+                    target_halfwidth=sc.estimation.target_halfwidth,
+                    budget=int(sc.estimation.adaptive_particles if sc.estimation.adaptive_particles is not None
+                               else B * E),
+                    block_size=B, failure_cost=sc.cost.failure_cost)
+
+                def run_blocks(want: dict[int, int], current: list[EdgeEstimate]) -> dict[int, EdgeEstimate]:
+                    nonlocal simulated
+                    out: dict[int, EdgeEstimate] = {}
+                    tasks, start = [], {}
+                    for e, n in sorted(want.items()):
+                        k_target, k_now = n // B, current[e].particles // B
+                        hit = known.get(bytes(blocks_key(keys[e], k_target)))
+                        if hit is not None:
+                            out[e] = hit
+                            continue
+                        begin, k0 = current[e], k_now
+                        for k in range(k_target - 1, k_now, -1):  # the largest stored block count on the way
+                            stored = known.get(bytes(blocks_key(keys[e], k)))
+                            if stored is not None:
+                                begin, k0 = stored, k
+                                break
+                        start[len(tasks)] = begin
+                        tasks.append((e, k0, k_target - k0))
+                    block_job = dataclasses.replace(job, block_tasks=np.array(tasks, dtype=np.int64).reshape(-1, 3))
+                    for r in run_edges(block_job, list(range(len(tasks))), workers=workers, executor=executor,
+                                       scheduler=scheduler, session=session):
+                        if r.error is not None:  # the edge keeps its particles so far
+                            failed[int(tasks[r.edges[0]][0])] = r.error
+                            continue
+                        for t, blocks in zip(r.edges, r.estimates):
+                            e = int(tasks[t][0])
+                            merged = start[t]
+                            for b in blocks:  # in block order: the same numbers however the work was split
+                                merged = merge_estimates(merged, b)
+                                simulated += b.particle_steps
+                            key = blocks_key(keys[e], merged.particles // B)
+                            out[e] = known[bytes(key)] = history[bytes(key)] = merged
+                            fresh.append((merged, key))
+                        maybe_checkpoint()
+                        interrupts.check()
+                    for e, x in out.items():
+                        history.setdefault(bytes(blocks_key(keys[e], x.particles // B)), x)
+                    return out
+
+                goals = np.flatnonzero(d.kinds == GOAL)
+                refined, adaptive = refine(est, keys, d.centers.shape[0], goals, sc.cost,  # type: ignore[arg-type]
+                                           settings, sc.seed, run_blocks)
+                est = list(refined)
+                failed = {}  # a refinement that failed keeps the edge's earlier estimate: nothing is left out
+                interrupts.check()
     except KeyboardInterrupt:
         checkpoint()
         raise EstimationInterrupted(f"{path}: interrupted; {saved} newly estimated edges saved "
                                     f"({reused} reused, {E - reused - saved} still to do); run the same "
                                     "command again to resume") from None
     done = [e for e in range(E) if est[e] is not None]
-    arrays = to_arrays([est[e] for e in done], keys[done], sc.cost)
+    final_keys = np.array([blocks_key(keys[e], est[e].particles // sc.estimation.particles)  # type: ignore[union-attr]
+                           for e in done]).reshape(-1, KEY_BYTES)
+    arrays = to_arrays([est[e] for e in done], final_keys, sc.cost)
+    # keep for reuse what the table does not hold: the earlier blocks of the refined edges
+    final = {bytes(k) for k in final_keys}
+    spare = [(x, np.frombuffer(k, dtype=np.uint8)) for k, x in history.items() if k not in final]
+    spare_table = to_arrays([x for x, _ in spare], np.array([k for _, k in spare]).reshape(-1, KEY_BYTES), sc.cost) \
+        if spare else None
     write_stage(path, "edges", arrays,
                 {"inputs_sha256": table_hash if not failed else "incomplete",
                  "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT, "goal_miss_code": GOAL_MISS,
-                 "engine_version": ENGINE_VERSION, "failed_edges": len(failed)})
+                 "engine_version": ENGINE_VERSION, "failed_edges": len(failed),
+                 "particles_first_pass": sc.estimation.particles,
+                 "particles_added": adaptive.particles_added if adaptive else 0}, cache=spare_table)
     failures = [FailedEdge(edge=e, source=int(d.edge_source[e]), target=int(d.edge_target[e]), error=failed[e])
                 for e in sorted(failed)]
-    simulated = int(sum(est[e].particle_steps for e in new))  # type: ignore[union-attr]
-    return _estimate_report(path, sc, E, len(new), reused, failures, int(arrays["particle_steps"].sum()), simulated,
-                            workers, executor, time.perf_counter() - t0, notices=notices)
+    return _estimate_report(path, sc, E, new, reused, failures, int(arrays["particle_steps"].sum()), simulated,
+                            workers, executor, time.perf_counter() - t0, adaptive=adaptive, notices=notices)
 
 
 def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list[FailedEdge],
                      steps: int, simulated: int, workers: int, executor: str, seconds: float,
-                     up_to_date: bool = False, notices: tuple[str, ...] = ()) -> EstimateReport:
+                     up_to_date: bool = False, adaptive: AdaptiveReport | None = None,
+                     notices: tuple[str, ...] = ()) -> EstimateReport:
     """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
     return EstimateReport(roadmap=str(path), edges=E, estimated_edges=estimated, reused_edges=reused,
                           failed_edges=tuple(failures), up_to_date=up_to_date,
                           particles_per_edge=sc.estimation.particles, particle_steps=steps,
                           simulated_particle_steps=simulated,
                           particle_steps_per_second=simulated / seconds if seconds and simulated else 0.0,
-                          workers=workers, executor=executor, seconds=seconds, notices=tuple(notices))
+                          workers=workers, executor=executor, seconds=seconds, adaptive=adaptive,
+                          notices=tuple(notices))
 
 
 def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
@@ -398,17 +492,10 @@ def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.nd
     probabilities are for success judged on the true state."""
     e = roadmap.require("edges", "source", "particles", "outcome_edge", "outcome_code", "outcome_count")
     N = roadmap.require("nodes", "centers")["centers"].shape[0]
-    E = e["source"].size
-    n = e["particles"].astype(float)
-    edge, code, count = e["outcome_edge"], e["outcome_code"], e["outcome_count"].astype(float)
-    if np.any(code >= N) or np.any(code < GOAL_MISS):
-        raise RoadmapError(f"{roadmap.path}: /edges holds outcome codes outside the node range")
-    land = code >= 0
-    landing = scipy.sparse.csr_matrix((count[land] / n[edge[land]], (edge[land], code[land])), shape=(E, N))
-    failed = (code == FAILURE) | (code == GOAL_MISS)
-    fail = np.bincount(edge[failed], weights=count[failed], minlength=E) / n
-    timeout = np.bincount(edge[code == TIMEOUT], weights=count[code == TIMEOUT], minlength=E) / n
-    return landing, fail, timeout, e["particles"]
+    try:
+        return outcome_probabilities(e, N)
+    except ValueError as exc:
+        raise RoadmapError(f"{roadmap.path}: /edges {exc}") from None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -420,7 +507,10 @@ class PolicyGroup:
     arrays : ``cost_to_go``, ``edge``, ``next_node``, ``success_probability``, ``unreachable``,
         ``shortest_path_edge``, ``shortest_path_success_probability`` (N,) (``unreachable``: node ids).
     attrs : ``inputs_sha256``, ``status`` (a :class:`SolveStatus` name), ``iterations``, ``residual``,
-        ``failure_cost``, ``method``.
+        ``failure_cost``, ``method``; the prediction intervals of the start node's success probability
+        under each policy, ``success_probability_ci95`` and ``shortest_path_success_probability_ci95``
+        (2,), with ``interval_method``, ``interval_prior`` and ``interval_samples``
+        (:func:`firmtool.calibration.predicted_interval`; absent in files solved before them).
     seconds : wall time of the solve (0 for a group read from a file).
     """
 
@@ -451,6 +541,9 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     steps = Counter(progress, SOLVE, 3).start()
     problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
     edges = roadmap.require("edges", "source", "target", "cost_mean")
+    if edges["source"].size == 0:
+        raise RunFailure(f"{roadmap.path}: no edge was estimated (every edge's Monte Carlo failed); "
+                         "run 'firmtool estimate' again")
     cost = edge_costs(edges, problem.scenario.cost)
     landing, fail, timeout, _ = edge_probabilities(roadmap)
     N = landing.shape[1]
@@ -467,6 +560,10 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     length = np.linalg.norm(centers[edges["target"]] - centers[edges["source"]], axis=1)
     sp = shortest_path_policy(N, goals, edges["source"], edges["target"], length)
     p_sp = success_probability(N, goals, sp, landing)
+    counts = edge_counts_of(roadmap)
+    intervals = {f"{prefix}success_probability_ci95": np.asarray(
+        predicted_interval(counts, N, goals, pol, roadmap.seed, node=START_INDEX, point=float(prob[START_INDEX])))
+        for prefix, pol, prob in (("", res.policy, p), ("shortest_path_", sp, p_sp))}
     steps.finish()
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
@@ -474,7 +571,8 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     attrs = {"inputs_sha256": policy_inputs(str(roadmap.attrs("edges")["inputs_sha256"]), JF, method,
                                             problem.scenario.cost),
              "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
-             "failure_cost": JF, "method": method}
+             "failure_cost": JF, "method": method, **intervals, "interval_method": INTERVAL_METHOD,
+             "interval_prior": PRIOR, "interval_samples": INTERVAL_SAMPLES}
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
 
 
@@ -499,7 +597,14 @@ def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_targe
                            a["shortest_path_success_probability"][START_INDEX]),
                        unreachable_nodes=tuple(int(i) for i in a["unreachable"]), path=path, seconds=group.seconds,
                        path_task_points=() if task_points is None else
-                       tuple(tuple(float(v) for v in task_points[j]) for j in path))
+                       tuple(tuple(float(v) for v in task_points[j]) for j in path),
+                       start_success_probability_ci95=_interval_or_none(at.get("success_probability_ci95")),
+                       shortest_path_start_success_probability_ci95=_interval_or_none(
+                           at.get("shortest_path_success_probability_ci95")))
+
+
+def _interval_or_none(value: Any) -> tuple[float, float] | None:
+    return None if value is None else (float(value[0]), float(value[1]))
 
 
 def unreachable_failure(roadmap_path: str | Path | None, unreachable: int, nodes: int) -> RunFailure:
@@ -577,15 +682,20 @@ def _resumable(out: Path, scenario: Scenario, validity: str = "") -> Roadmap | N
     return rm
 
 
-def add_nodes_stage(path: str | Path, count: int, *, validity: Callable | None = None) -> AddNodesReport:
+def add_nodes_stage(path: str | Path, count: int, connect: bool = False, *,
+                    validity: Callable | None = None) -> AddNodesReport:
     """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
     scenario's minimum separation from the others, from a random stream keyed by the seed and the
-    round number (so a densified build is reproducible). Later stages are rebuilt by the caller."""
+    round number (so a densified build is reproducible). Later stages are rebuilt by the caller.
+
+    With ``connect`` (the start cannot reach the goal), the nodes go first where connections fail
+    (:func:`firmtool.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
+    the rest."""
     with writer_lock(path):
-        return _add_nodes_stage(path, count, validity)
+        return _add_nodes_stage(path, count, connect, validity)
 
 
-def _add_nodes_stage(path: str | Path, count: int, validity: Callable | None = None) -> AddNodesReport:
+def _add_nodes_stage(path: str | Path, count: int, connect: bool, validity: Callable | None = None) -> AddNodesReport:
     t0 = time.perf_counter()
     roadmap = Roadmap(path)
     problem = problem_of(roadmap, validity)
@@ -594,16 +704,20 @@ def _add_nodes_stage(path: str | Path, count: int, validity: Callable | None = N
     rounds = int(attrs.get("densify_rounds", 0)) + 1
     rng = np.random.default_rng(np.random.SeedSequence([problem.scenario.seed, 0xD5, rounds]))
     spec = problem.scenario.roadmap
-    new = sample_nodes(problem, count, rng, min_separation=spec.min_separation, existing=nodes["centers"])
+    centers, kinds, connected, _ = (connect_goals(problem, nodes["centers"], nodes["kind"], count, rng) if connect
+                                    else (nodes["centers"], nodes["kind"], 0, ""))
+    count -= connected
+    new = sample_nodes(problem, count, rng, min_separation=spec.min_separation, existing=centers)
     if new.shape[0] < count:  # the separation leaves no room: fill the rest without it
-        more = sample_nodes(problem, count - new.shape[0], rng, existing=np.concatenate([nodes["centers"], new]))
+        more = sample_nodes(problem, count - new.shape[0], rng, existing=np.concatenate([centers, new]))
         new = np.concatenate([new, more])
-    centers = np.concatenate([nodes["centers"], new])
-    kinds = np.concatenate([nodes["kind"], np.full(new.shape[0], REGULAR, dtype=nodes["kind"].dtype)])
+    centers = np.concatenate([centers, new])
+    kinds = np.concatenate([kinds, np.full(new.shape[0], REGULAR, dtype=kinds.dtype)])
     write_stage(path, "nodes", {"centers": centers, "kind": kinds},
                 {**{k: v for k, v in attrs.items() if k not in ("encoding-type", "encoding-version")},
-                 "densify_rounds": rounds})
-    return AddNodesReport(added=int(new.shape[0]), nodes=int(centers.shape[0]), seconds=time.perf_counter() - t0)
+                 "densify_rounds": rounds, "connect_added": int(attrs.get("connect_added", 0)) + connected})
+    return AddNodesReport(added=int(new.shape[0]) + connected, nodes=int(centers.shape[0]),
+                          seconds=time.perf_counter() - t0, connect_added=connected)
 
 
 def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers: int | None = None,
@@ -702,13 +816,35 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
         del seconds["solve"]
     rm = Roadmap(out)
     nodes = rm.require("nodes", "centers")["centers"].shape[0]
+    connectivity = roadmap_connectivity(rm, validity)
     rate = totals["simulated_particle_steps"] / seconds["estimate"] if seconds["estimate"] else 0.0
     return BuildReport(roadmap=str(out), resumed=existing is not None, nodes=int(nodes), edges=e.edges,
                        estimated_edges=totals["estimated_edges"], reused_edges=e.reused_edges,
                        failed_edges=tuple(failed), particles_per_edge=e.particles_per_edge,
                        particle_steps=e.particle_steps, simulated_particle_steps=totals["simulated_particle_steps"],
                        particle_steps_per_second=rate, workers=workers or default_workers(), executor=executor,
-                       seconds=seconds, densify=densify, notices=tuple(notices))
+                       seconds=seconds, densify=densify, connectivity=connectivity, adaptive=e.adaptive,
+                       notices=tuple(notices))
+
+
+def roadmap_connectivity(roadmap: Roadmap, validity: Callable | None = None) -> ConnectivityReport:
+    """The connected structure of a roadmap's nodes (:func:`firmtool.connectivity.connectivity_report`),
+    what its connection stage added, and the goal nodes the start reaches under the estimated edges
+    (when ``/edges`` is there). ``validity``: the roadmap's Python validity checker, if it was built
+    with one (the free segments between nodes depend on it)."""
+    problem = problem_of(roadmap, validity)
+    nodes = roadmap.require("nodes", "centers", "kind")
+    attrs = roadmap.attrs("nodes")
+    report = connectivity_report(problem, nodes["centers"], nodes["kind"],
+                                 added=int(attrs.get("connect_added", 0)), budget=int(attrs.get("connect_budget", 0)),
+                                 reason=str(attrs.get("connect_stop_reason", "")))
+    if roadmap.has("edges"):
+        landing, _, _, _ = edge_probabilities(roadmap)
+        source = roadmap.require("edges", "source")["source"].astype(np.int64)
+        reach = reachable_from(landing.shape[1], source, landing, START_INDEX)
+        goals = np.flatnonzero(nodes["kind"] == GOAL)
+        report = dataclasses.replace(report, reachable_goal_nodes=tuple(int(g) for g in goals[reach[goals]]))
+    return report
 
 
 def _restamp_policy(out: Path) -> None:
@@ -737,12 +873,13 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
     rounds = []
     last = None
     while True:
+        reachable = True
         try:
             sol = solve_stage(out)
             p = sol.start_success_probability
             seconds["solve"] += sol.seconds
         except RunFailure:  # the goal is not reachable yet: that is what densification is for
-            p = 0.0
+            p, reachable = 0.0, False
         nodes = Roadmap(out).require("nodes", "centers")["centers"].shape[0]
         rounds.append(DensifyRound(nodes=int(nodes), start_success_probability=float(p),
                                    estimated_edges=last.estimated_edges if last else None))
@@ -754,7 +891,7 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
                       f"probability is {p:.4f} < p_min {p_min:g}")
             break
         count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
-        added = add_nodes_stage(out, count, validity=validity)
+        added = add_nodes_stage(out, count, connect=not reachable, validity=validity)
         seconds["sample"] += added.seconds
         if added.added == 0:
             reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"

@@ -75,12 +75,14 @@ class SampleReport(Report):
     nodes : nodes sampled (start and goal nodes included).
     requested_nodes : the scenario's ``roadmap.nodes``.
     seconds : wall time of the stage.
+    connect_added : nodes the connection stage added to reach stranded goal nodes.
     """
 
     roadmap: str
     nodes: int
     requested_nodes: int
     seconds: float
+    connect_added: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,6 +115,50 @@ class FailedEdge(Report):
 
 
 @dataclasses.dataclass(frozen=True)
+class AdaptiveRound(Report):
+    """The roadmap after a round of adaptive Monte Carlo (the first row: after the uniform pass).
+
+    Attributes
+    ----------
+    start_success_probability : the DP policy's success probability from the start.
+    ci95, halfwidth : its 95% posterior interval and half that interval's width.
+    particles : particles of the whole edge table; ``policy_particles`` those of the policy's edges.
+    """
+
+    start_success_probability: float
+    ci95: tuple[float, float]
+    halfwidth: float
+    particles: int
+    policy_particles: int
+
+
+@dataclasses.dataclass(frozen=True)
+class AdaptiveReport(Report):
+    """Adaptive Monte Carlo (:func:`firmtool.adaptive.refine`): particles where they change the answer.
+
+    Attributes
+    ----------
+    target_halfwidth : ``estimation.target_halfwidth``.
+    budget : ``estimation.adaptive_particles`` (particles the rounds may add).
+    first_pass_particles : particles of the uniform first pass; ``particles_added`` by the rounds.
+    rounds : the roadmap after the first pass and after every round.
+    reached : the start's interval half-width reached the target (scaled to the probability:
+        :func:`firmtool.adaptive.required_halfwidth`).
+    reason : why the rounds stopped.
+    halfwidth : the last half-width.
+    """
+
+    target_halfwidth: float
+    budget: int
+    first_pass_particles: int
+    particles_added: int
+    rounds: tuple[AdaptiveRound, ...]
+    reached: bool
+    reason: str
+    halfwidth: float
+
+
+@dataclasses.dataclass(frozen=True)
 class EstimateReport(Report):
     """The estimate stage: Monte Carlo outcome counts of every edge.
 
@@ -130,6 +176,7 @@ class EstimateReport(Report):
     particle_steps_per_second : ``simulated_particle_steps`` over ``seconds`` (0 when nothing ran).
     workers, executor : how the Monte Carlo ran.
     seconds : wall time of the stage.
+    adaptive : the adaptive rounds (None when ``estimation.adaptive_particles`` is 0 or nothing ran).
     notices : one-line remarks for the user, e.g. why the numpy Monte Carlo engine ran where the
         compiled one was asked for (a Python validity checker, a robot without compiled kinematics).
     """
@@ -147,16 +194,19 @@ class EstimateReport(Report):
     workers: int
     executor: str
     seconds: float
+    adaptive: AdaptiveReport | None = None
     notices: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
 class AddNodesReport(Report):
-    """One densification round's new nodes (paper III-E)."""
+    """One densification round's new nodes (paper III-E); ``connect_added`` of them placed where
+    connections to the goal failed (:func:`firmtool.connectivity.connect_goals`)."""
 
     added: int
     nodes: int
     seconds: float
+    connect_added: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,6 +232,64 @@ class DensifyReport(Report):
 
 
 @dataclasses.dataclass(frozen=True)
+class GoalComponent(Report):
+    """A component of the roadmap graph that holds goal nodes.
+
+    Attributes
+    ----------
+    goal_nodes : the goal nodes in it.
+    nodes : its size.
+    connected : whether it is the start's component.
+    closest_pair : (node in the start's component, node in this one) closest across the gap (None
+        when connected).
+    distance : their configuration-space distance.
+    blocked : the first and last fraction of that pair's straight segment in collision, None when
+        the segment is free (then it is too long, or neither node is among the other's nearest).
+    """
+
+    goal_nodes: tuple[int, ...]
+    nodes: int
+    connected: bool
+    closest_pair: tuple[int, int] | None = None
+    distance: float | None = None
+    blocked: tuple[float, float] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class ConnectivityReport(Report):
+    """The roadmap's connected structure (each node with its k nearest neighbours within the edge
+    length, where the straight segment is collision-free: the edges design will build).
+
+    Attributes
+    ----------
+    components : connected components of the roadmap graph.
+    start_component_nodes : nodes in the start's component.
+    goal_nodes, connected_goal_nodes : the goal nodes sampling found, and those in the start's component.
+    goal_components : every component holding goal nodes (the start's first).
+    added_nodes : nodes the connection stage added (:func:`firmtool.connectivity.connect_goals`).
+    budget : its node budget (``roadmap.bridge_nodes``).
+    complete : every goal node is connected to the start.
+    stop_reason : why the connection stage stopped: ``connected``, ``budget`` (nodes spent) or
+        ``attempts`` (its sampling work bound).
+    missing : one sentence per stranded goal component: what is not connected and where the gap is.
+    reachable_goal_nodes : goal nodes reachable from the start under the estimated edges (a chain of
+        edges with positive landing counts); None before the edges are estimated.
+    """
+
+    components: int
+    start_component_nodes: int
+    goal_nodes: tuple[int, ...]
+    connected_goal_nodes: tuple[int, ...]
+    goal_components: tuple[GoalComponent, ...]
+    added_nodes: int
+    budget: int
+    complete: bool
+    stop_reason: str
+    missing: tuple[str, ...]
+    reachable_goal_nodes: tuple[int, ...] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class BuildReport(Report):
     """sample + design + estimate (+ densification): what a build did.
 
@@ -197,6 +305,9 @@ class BuildReport(Report):
     workers, executor : how the Monte Carlo ran.
     seconds : wall time per stage (``sample``, ``design``, ``estimate``, and ``solve`` when densifying).
     densify : the densification loop, when ``p_min`` was given.
+    connectivity : the roadmap's connected structure at the end of the build: which goal nodes and
+        components the start reaches, what the connection stage added, and what is missing.
+    adaptive : the last estimate stage's adaptive Monte Carlo rounds (None when off or up to date).
     notices : the estimate stages' notices (:class:`EstimateReport`).
     """
 
@@ -215,6 +326,8 @@ class BuildReport(Report):
     executor: str
     seconds: Mapping[str, float]
     densify: DensifyReport | None = None
+    connectivity: ConnectivityReport | None = None
+    adaptive: AdaptiveReport | None = None
     notices: tuple[str, ...] = ()
 
 
@@ -235,6 +348,9 @@ class SolveReport(Report):
     unreachable_nodes : nodes (goal excluded) that cannot reach the goal.
     path : the policy's most likely node sequence from the start.
     seconds : wall time of the solve.
+    start_success_probability_ci95, shortest_path_start_success_probability_ci95 : 95% intervals of
+        the two start success probabilities from the edge-count uncertainty, computed at solve time
+        (:func:`firmtool.calibration.predicted_interval`); None for a policy solved before they were.
     path_task_points : the task point (a point robot's position, the arm's tip) of each node of
         ``path``, where the caller knows the robot (empty otherwise).
     """
@@ -251,6 +367,8 @@ class SolveReport(Report):
     unreachable_nodes: tuple[int, ...]
     path: tuple[int, ...]
     seconds: float
+    start_success_probability_ci95: tuple[float, float] | None = None
+    shortest_path_start_success_probability_ci95: tuple[float, float] | None = None
     path_task_points: tuple[tuple[float, ...], ...] = ()
 
 
@@ -265,10 +383,13 @@ class RoadmapSummary(Report):
     stages : the stages present, in order.
     nodes, state_dim : size of ``/nodes``.
     edges : designed edges (``/controllers``).
-    particles_per_edge, particle_steps, estimated_edges, densify_rounds : of ``/edges``.
+    particles_per_edge, particle_steps, estimated_edges, densify_rounds : of ``/edges``
+        (``particles_per_edge`` the median: adaptive Monte Carlo gives some edges more; ``particles``
+        the total).
     cached_edges : estimates an interrupted estimate stage left for reuse (``/edge_cache``).
     solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
-        (``start_cost_to_go`` None when the goal is unreachable from the start).
+        (``start_cost_to_go`` None when the goal is unreachable from the start);
+        ``start_success_probability_ci95`` its interval stored at solve time.
     validity_checker : the identity of the Python validity checker the roadmap was built with
         (None without one; the command line cannot rebuild such a roadmap's problem).
     stale_stages : stages computed from another scenario text than the stored one (a build with
@@ -294,5 +415,7 @@ class RoadmapSummary(Report):
     solve_iterations: int | None = None
     start_success_probability: float | None = None
     start_cost_to_go: float | None = None
+    start_success_probability_ci95: tuple[float, float] | None = None
+    particles: int | None = None
     validity_checker: str | None = None
     stale_stages: tuple[str, ...] = ()

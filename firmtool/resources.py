@@ -59,7 +59,9 @@ def budget(problem: Problem, edges: int | None = None, mean_nominal_steps: float
     sc = problem.scenario
     rm, c, est = sc.roadmap, sc.controller, sc.estimation
     n = int(problem.model.n)
-    nodes = rm.nodes + rm.goal_nodes + 1 + rm.bridge_nodes
+    # the connection stage's nodes (up to roadmap.bridge_nodes, usually a handful) are counted once the
+    # designed edges are known (estimate_stage checks again with them)
+    nodes = rm.nodes + rm.goal_nodes + 1
     if edges is None:
         edges = nodes * min(rm.neighbors, max(nodes - 1, 1))
     if mean_nominal_steps is None:

@@ -80,8 +80,15 @@ class Episode:
     traversals : ``(edge, outcome)`` of policy edges run from their source node to their end with no
         replan or disturbance; outcome a node id, or ``firmtool.edges.FAILURE`` / ``TIMEOUT``
         (compared with the edge estimates by the calibration check).
-    step_times : (T,) seconds of compute per control step.
-    replan_times : seconds per replan (design included).
+    step_times : (T,) seconds of the policy's compute per control step (act + observe, replan
+        decisions apart; the simulated system's own step is not counted).
+    act_times, observe_times : (T,) the two parts of ``step_times``.
+    replan_times : wall seconds per replan decision (design and Monte Carlo included; the initial
+        controller's design too).
+    replan_cpu_times : per decision, its thread's CPU seconds (less sensitive to the machine's load).
+    replan_work_times : per decision, its time on the deadline's clock (``ReplanSettings.clock``).
+    replan_scored : per decision, the candidates scored by Monte Carlo (the running controller included).
+    deadline_hits : decisions the deadline cut short (an anytime decision: the best candidate scored so far).
     states, estimates : (T + 1, n) true states and filter estimates, row 0 the start (when recorded).
     covariances : (T + 1, n, n) filter covariances (when recorded).
     controls : (T, m) applied controls (when recorded).
@@ -99,6 +106,12 @@ class Episode:
     traversals: list[tuple[int, int]] = field(default_factory=list)
     step_times: np.ndarray | None = None
     replan_times: list[float] = field(default_factory=list)
+    act_times: np.ndarray | None = None
+    observe_times: np.ndarray | None = None
+    replan_cpu_times: list[float] = field(default_factory=list)
+    replan_work_times: list[float] = field(default_factory=list)
+    replan_scored: list[int] = field(default_factory=list)
+    deadline_hits: int = 0
     states: np.ndarray | None = None
     estimates: np.ndarray | None = None
     covariances: np.ndarray | None = None
@@ -112,10 +125,13 @@ class Episode:
 
 @dataclass(frozen=True)
 class EdgeCheck(Report):
-    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.execute.edge_calibration`).
+    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.calibration.edge_calibration`).
 
     ``target_*``: landing in the edge's target node; ``failure_*``: collision or timeout. Each with
-    its Wilson 95% interval; ``flagged`` names the frequencies whose two intervals do not overlap.
+    its Wilson 95% interval, the two-sided p-value of Fisher's exact test of executed against
+    estimated (``*_p_value``) and that p-value adjusted by Holm's method over every comparison of the
+    check (``*_p_adjusted``); ``flagged`` names the frequencies whose adjusted p-value is <= the
+    check's ``alpha``.
     """
 
     edge: int
@@ -131,6 +147,10 @@ class EdgeCheck(Report):
     failure_executed_ci95: tuple[float, float]
     failure_estimated_ci95: tuple[float, float]
     flagged: tuple[str, ...]
+    target_p_value: float = 1.0
+    target_p_adjusted: float = 1.0
+    failure_p_value: float = 1.0
+    failure_p_adjusted: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -141,9 +161,12 @@ class Calibration(Report):
     ----------
     min_traversals : clean traversals an edge needs to be checked.
     edges_taken, edges_checked : policy edges taken, and checked.
-    flagged_edges : edges whose executed frequencies disagree with their estimates.
+    flagged_edges : edges whose executed frequencies disagree with their estimates (adjusted p-value
+        <= ``alpha``).
     ok : no edge flagged.
     edges : one :class:`EdgeCheck` per checked edge.
+    test, correction, alpha : the per-frequency test (``"fisher_exact"``), the multiple-testing
+        correction over all of them (``"holm"``) and the family-wise error rate.
     """
 
     min_traversals: int
@@ -152,6 +175,9 @@ class Calibration(Report):
     flagged_edges: tuple[int, ...]
     ok: bool
     edges: tuple[EdgeCheck, ...]
+    test: str = "fisher_exact"
+    correction: str = "holm"
+    alpha: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -181,9 +207,17 @@ class Results(Report):
     event_counts : events per kind over all episodes (``events`` in ``to_dict()``).
     seed : seed of the simulated true system.
     seconds : wall time of the episodes.
-    step_time_us_mean, step_time_us_p99 : compute per control step.
-    replan_time_us_mean, replan_time_us_p99, replan_time_us_max : compute per replan (None without).
+    step_time_us_mean, step_time_us_p99 : the policy's compute per control step (act + observe,
+        replan decisions apart).
+    replan_time_us_mean, replan_time_us_p99, replan_time_us_max : wall time per replan decision (None without).
     replans_per_episode : mean.
+    act_time_us_mean, act_time_us_p99, observe_time_us_mean, observe_time_us_p99 : the two parts of a step.
+    replan_decisions : decisions taken (replans, kept controllers, failed replans, initial controllers).
+    replan_deadline_s : a decision's deadline (the control period unless set).
+    replan_clock : how the deadline was counted: ``"work"`` (deterministic budget) or ``"wall"``.
+    replan_deadline_hits : decisions the deadline cut short (anytime: the best candidate scored so far).
+    replan_over_deadline : decisions whose wall time exceeded the deadline (measured, whatever the clock).
+    replan_latency : ``"0"`` or ``"measured"`` (a new controller applied after the decision's time).
     calibration : executed vs estimated edge frequencies (None without the edge counts).
     estimate_success_rate, estimate_success_rate_ci95 : the episodes whose policy declared arrival,
         whatever the true state (the criterion before issue 15: the estimate reached the goal).
@@ -220,6 +254,16 @@ class Results(Report):
     replans_per_episode: float
     calibration: Calibration | None = None
     policy: str | None = None
+    act_time_us_mean: float = 0.0
+    act_time_us_p99: float = 0.0
+    observe_time_us_mean: float = 0.0
+    observe_time_us_p99: float = 0.0
+    replan_decisions: int = 0
+    replan_deadline_s: float | None = None
+    replan_clock: str = "work"
+    replan_deadline_hits: int = 0
+    replan_over_deadline: int = 0
+    replan_latency: str = "0"
     goal_misses: int = 0
     estimate_success_rate: float | None = None
     estimate_success_rate_ci95: tuple[float, float] | None = None

@@ -144,7 +144,7 @@ def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
 
 
 def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
-                drop_later: bool = True) -> None:
+                drop_later: bool = True, cache: Mapping[str, np.ndarray] | None = None) -> None:
     """Replace one stage group atomically. Later stages are dropped: they depend on this one.
 
     Parameters
@@ -153,6 +153,9 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
     arrays : datasets of the group.
     attrs : attributes of the group (must include ``inputs_sha256``).
     drop_later : remove the groups of the stages after ``stage`` (they are stale now).
+    cache : with ``stage == "edges"``: the new ``/edge_cache`` (estimates kept for reuse that the new
+        table does not hold: the earlier particle blocks of edges that adaptive Monte Carlo refined);
+        without it the cache is removed.
     """
     if stage not in STAGES:
         raise ValueError(f"unknown stage {stage!r}")
@@ -163,6 +166,8 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
         later = STAGES[STAGES.index(stage):] if drop_later else (stage,)
         if stage == "edges":
             _delete(f, CACHE)  # its estimates are in the new table or no longer wanted
+            if cache:
+                _write_table(f, CACHE, cache, {"description": "edge estimates keyed by their inputs, for reuse"})
         elif "edges" in later and "edges" in f:
             _cache_edges(f)  # keep the estimates: edges whose inputs are unchanged are reused
         for name in later:
@@ -700,7 +705,7 @@ def _check_edges_stage(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Map
 
 
 def _check_policy(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
-    from firmtool.nodes import GOAL
+    from firmtool.nodes import GOAL, START_INDEX
     p, dims = rm.path, rm._dims
     N, F = dims.get("N"), dims.get("F", 0)
     at = lambda name: _where(p, "policy", name)  # noqa: E731
@@ -745,6 +750,22 @@ def _check_policy(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[
         jf = attrs["failure_cost"]
         if not isinstance(jf, (int, float, np.integer, np.floating)) or not (np.isfinite(jf) and jf > 0):
             raise RoadmapError(f"{p}: attribute 'failure_cost' of '/policy' is not a finite number > 0 (file damaged)")
+    # the prediction intervals stored at solve time (firmtool.calibration.predicted_interval): absent in
+    # files solved before them; where present, (low, high) in [0, 1] holding the point estimate
+    for name, point in (("success_probability_ci95", "success_probability"),
+                        ("shortest_path_success_probability_ci95", "shortest_path_success_probability")):
+        if name not in attrs:
+            continue
+        ci = np.asarray(attrs[name])
+        if ci.shape != (2,) or ci.dtype.kind not in "iuf" or not np.all(np.isfinite(ci)) or not \
+                (0.0 <= ci[0] <= ci[1] <= 1.0):
+            raise RoadmapError(f"{p}: attribute '{name}' of '/policy' is not an interval (low, high) within [0, 1] "
+                               "(file damaged)")
+        if point in arrays and START_INDEX < np.asarray(arrays[point]).size:
+            value = float(np.asarray(arrays[point])[START_INDEX])
+            if not ci[0] - 1e-12 <= value <= ci[1] + 1e-12:
+                raise RoadmapError(f"{p}: attribute '{name}' of '/policy' does not hold the start's "
+                                   f"{point} {value:.6g} (file damaged)")
 
 
 _CHECKS = {"nodes": _check_nodes, "controllers": _check_controllers, "edges": _check_edges_stage,

@@ -152,6 +152,8 @@ class RoadmapSpec:
     max_edge_length: float
     goal_nodes: int = 1
     goal_bias: float = 0.0
+    # Node budget of the connection stage (firmtool.connectivity.connect_goals): nodes added between
+    # the start's component and goal nodes it does not reach (default: default_bridge_nodes(nodes)).
     bridge_nodes: int = 0
     bias_step: float = 0.3
 
@@ -173,11 +175,35 @@ class ControllerSpec:
 DEFAULT_MAX_PARTICLE_STEPS = 1e10
 
 
+# Where an edge's Monte Carlo starts (firmtool.edges.initial_ensemble): "center" (the paper's eq. 8,
+# the node centre represents the node) or "region" (beliefs spread over the node's region).
+START_MODES = ("center", "region")
+DEFAULT_START = "region"
+# Default target of adaptive Monte Carlo: the 95% interval of the start's success probability at
+# most +-0.02 (firmtool.adaptive).
+DEFAULT_TARGET_HALFWIDTH = 0.02
+
+
 @dataclass(frozen=True)
 class EstimationSpec:
+    """Monte Carlo settings.
+
+    ``particles`` per edge in the uniform first pass (and the block size of later ones), simulated in
+    chunks of ``chunk``; ``target_halfwidth`` and ``adaptive_particles`` steer adaptive Monte Carlo
+    (:mod:`firmtool.adaptive`): rounds add particles to the policy's edges and their competitors until
+    the 95% interval of the start's success probability is at most +-``target_halfwidth`` (at a
+    probability of 1/2; scaled like a binomial proportion's, :func:`firmtool.adaptive.required_halfwidth`) or
+    ``adaptive_particles`` more particles were spent (None: as many as the first pass; 0: no rounds).
+    ``start``: where each particle starts (:func:`firmtool.edges.initial_ensemble`), ``"center"`` or
+    ``"region"``.
+    """
+
     particles: int
     chunk: int
     max_particle_steps: float = DEFAULT_MAX_PARTICLE_STEPS
+    target_halfwidth: float = DEFAULT_TARGET_HALFWIDTH
+    adaptive_particles: int | None = None
+    start: str = DEFAULT_START
 
 
 @dataclass(frozen=True)
@@ -226,6 +252,10 @@ def _name_problem(name: str) -> str | None:
     if not name or not all(ch.isalnum() or ch in "-_." for ch in name):
         return "expected a non-empty name of letters, digits, '-', '_' or '.'"
     return None
+
+
+def _halfwidth(x: float) -> str | None:
+    return None if x < 0.5 else f"expected a half-width in (0, 0.5), found {x}"
 
 
 def _fraction(x: float) -> str | None:
@@ -294,7 +324,9 @@ ROADMAP_FIELDS = (
     Field("goal_nodes", "integer", 1, bound="positive", doc="goal nodes (in a goal region: one per way in)"),
     Field("goal_bias", "number", 0.0, bound="nonnegative", check=_fraction,
           doc="fraction of the nodes grown from the goal nodes"),
-    Field("bridge_nodes", "integer", 0, bound="nonnegative", doc="budget of nodes added between disconnected components"),
+    Field("bridge_nodes", "integer", None, bound="nonnegative",
+          doc="node budget of the connection stage: nodes added between the start's component and goal nodes it "
+              "does not reach (default: half the nodes, at least 10; 0: none)"),
     Field("bias_step", "number", 0.3, bound="positive", unit="configuration", doc="step of the nodes grown from the goals"),
 )
 CONTROLLER_FIELDS = (
@@ -315,6 +347,13 @@ ESTIMATION_FIELDS = (
     Field("chunk", "integer", 2000, bound="positive", doc="particles simulated at once"),
     Field("max_particle_steps", "number", DEFAULT_MAX_PARTICLE_STEPS, bound="positive",
           doc="work budget of a build (particles x edges x steps); refused above it"),
+    Field("target_halfwidth", "number", DEFAULT_TARGET_HALFWIDTH, bound="positive", check=_halfwidth,
+          doc="adaptive Monte Carlo's target: the half-width of the start's 95% interval at p = 1/2 "
+              "(scaled like a binomial proportion's towards 0 and 1)"),
+    Field("adaptive_particles", "integer", None, bound="nonnegative",
+          doc="particles the adaptive rounds may add (default: as many as the first pass; 0: no rounds)"),
+    Field("start", "string", DEFAULT_START, choices=START_MODES,
+          doc="where each edge's Monte Carlo starts: the node's centre (eq. 8) or beliefs over its region"),
 )
 COST_FIELDS = (
     Field("alpha_covariance", "number", 1.0, bound="nonnegative", doc="weight of sum tr(P_k) (eq. 16)"),
@@ -483,6 +522,8 @@ def parse_scenario(text: str, path: str = "<string>") -> Scenario:
     errors.raise_if_any()
     assert sc is not None and model and measurement and world and task  # no error recorded: all read
     specs = {k: v for k, v in tables.items()}
+    if specs["roadmap"]["bridge_nodes"] is None:
+        specs["roadmap"]["bridge_nodes"] = default_bridge_nodes(specs["roadmap"]["nodes"])
     return Scenario(
         path=path, text=text, sha256=hashlib.sha256(text.encode()).hexdigest(), name=sc["name"], seed=sc["seed"],
         model=model, measurement=measurement, world=world, task=task, roadmap=RoadmapSpec(**specs["roadmap"]),
@@ -614,6 +655,12 @@ def _read_obstacle(errors: Errors, prefix: str, item: Any, D: int | None, path: 
     if cls is Mesh and not _read_mesh(errors, prefix, values, path):
         return None
     return obstacle_from_values(kind, values)
+
+
+def default_bridge_nodes(nodes: int) -> int:
+    """Default node budget of the connection stage (``roadmap.bridge_nodes``): half the sampled nodes,
+    at least 10. Nothing is added to a roadmap whose goal nodes are all connected to the start."""
+    return max(10, nodes // 2)
 
 
 def _read_mesh(errors: Errors, prefix: str, values: dict, path: str) -> bool:

@@ -10,6 +10,11 @@ them in one background process (``python -m firmtool.warmup``: the first edge of
 caller goes on; :func:`wait` blocks until it is done, before the workers start, and the workers
 then load the cache. With a warm cache nothing is started.
 
+It compiles in the order a build needs: the design's functions first (the nominals' rollouts), then
+reports ``design`` so that a build's design stage, which runs on several worker processes, waits for
+that instead of letting every worker compile the same functions at once (:func:`wait_design`); then
+the estimation workers' path (the batched filter recursions, the kernel) on a batch of edges.
+
 The background process reports on its stdout; :func:`set_notifier` registers what to call when it
 starts compiling (the CLI prints one line on stderr). The library itself never prints.
 """
@@ -25,7 +30,7 @@ from pathlib import Path
 from typing import Callable
 
 # The background process's reports (one line each on its stdout).
-COMPILING, DONE = "compiling", "done"
+COMPILING, DESIGN, DONE = "compiling", "design", "done"
 # A compile that takes longer is abandoned (the workers then compile for themselves): a guard
 # against a stuck process, far above the ~10-60 s a cold compile takes on a loaded 2-core machine.
 WAIT_SECONDS = 900.0
@@ -52,14 +57,24 @@ class _Warmup:
         self.process = subprocess.Popen([sys.executable, "-m", "firmtool.warmup"], cwd=home,
                                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                         stderr=None if debug else subprocess.DEVNULL, text=True)
+        self.design_ready = threading.Event()  # the design's functions are in the cache (or the process ended)
         self.reader = threading.Thread(target=self._read, name="firmtool-warmup", daemon=True)
         self.reader.start()
 
     def _read(self) -> None:
         assert self.process.stdout is not None
-        for line in self.process.stdout:
-            if line.strip() == COMPILING and _notifier is not None:
-                _notifier()
+        try:
+            for line in self.process.stdout:
+                if line.strip() == COMPILING and _notifier is not None:
+                    _notifier()
+                elif line.strip() == DESIGN:
+                    self.design_ready.set()
+        finally:
+            self.design_ready.set()  # ended (or failed): nothing more to wait for
+
+    def wait_design(self) -> None:
+        if not self.design_ready.wait(WAIT_SECONDS):
+            self.stop()
 
     def wait(self) -> None:
         try:
@@ -77,7 +92,8 @@ class _Warmup:
 def engine_functions() -> list:
     """The numba dispatchers whose compile :func:`start` takes off the critical path."""
     from firmtool import controllers, kernels
-    return [kernels.run, controllers._filter_recursion, controllers._spread_recursion]
+    return [kernels.run, controllers._filter_recursion, controllers._filter_recursions,
+            controllers._spread_recursion, controllers._rollout, controllers._rollouts]
 
 
 def _disk_cached(dispatcher) -> bool:
@@ -124,6 +140,14 @@ def wait() -> None:
         _running = None
 
 
+def wait_design() -> None:
+    """Block until a background compile started by :func:`start` has compiled the design stage's
+    functions (no-op without one). A design on several worker processes calls this first: each
+    worker then loads them from the cache instead of compiling them again, all at once."""
+    if _running is not None:
+        _running.wait_design()
+
+
 def stop() -> None:
     """Abandon a background compile (its caller needs no edge estimated after all)."""
     global _running
@@ -132,21 +156,30 @@ def stop() -> None:
         _running = None
 
 
-def compile_engine() -> None:
-    """Compile (or load from the disk cache) the engine's functions: estimate the first edge of the
-    shipped ``smoke`` scenario with a few particles, and its controller's spread recursion (which
-    execution reads)."""
+def compile_engine(on_design: Callable[[], None] | None = None) -> None:
+    """Compile (or load from the disk cache) the engine's functions on the shipped ``smoke``
+    scenario: its sampling and design (then ``on_design()``), a batch of edges as an estimation
+    worker runs them (batched controllers, the kernel) with a few particles, one edge alone, and its
+    controller's spread recursion (which execution reads)."""
     import numpy as np
 
     from firmtool.design import design, local_controller
     from firmtool.edges import estimate_edge
     from firmtool.nodes import roadmap_nodes
+    from firmtool.parallel import EstimationJob, job_extras, remember_problem, run_batch
     from firmtool.problem import build_problem
     from firmtool.scenario import load_scenario
 
-    problem = build_problem(load_scenario(WARMUP_SCENARIO))
+    scenario = load_scenario(WARMUP_SCENARIO)
+    problem = build_problem(scenario)
     centers, kinds = roadmap_nodes(problem, np.random.default_rng(0))
     d = design(problem, centers, kinds)
+    if on_design is not None:
+        on_design()
+    job = EstimationJob(scenario_text=scenario.text, scenario_path=str(scenario.path), design=d, particles=16,
+                        chunk=16, seed=0, engine="numba", **job_extras(problem))
+    remember_problem(job, problem)
+    run_batch(job, list(range(min(2, d.edge_source.size))))
     source, target = int(d.edge_source[0]), int(d.edge_target[0])
     estimate_edge(problem, d, d.regions(problem), source, target, 16, 0, 16, "numba")
     local_controller(problem, d, source, target).spread  # noqa: B018 - runs the spread recursion
@@ -169,7 +202,7 @@ def _main() -> int:
 
     event.register("numba:compile", Reporter())
     try:
-        compile_engine()
+        compile_engine(on_design=lambda: print(DESIGN, flush=True))
     except KeyboardInterrupt:
         return 130
     print(DONE, flush=True)

@@ -168,7 +168,7 @@ def test_save_writes_the_schema_the_cli_writes_and_open_reads_it_back(point, poi
     built = point_cli[0]  # built and solved by the CLI
     with h5py.File(path, "r") as a, h5py.File(built, "r") as b:
         assert set(a.attrs) == set(b.attrs) and set(a) == {"nodes", "controllers", "edges"}
-        assert set(b) == set(a) | {"policy"}
+        assert set(b) - {"edge_cache"} == set(a) | {"policy"}  # the cache (blocks kept for reuse) is not saved
         for key in ("schema_version", "scenario_toml", "scenario_sha256", "seed"):
             assert a.attrs[key] == b.attrs[key]
         for group in a:
@@ -191,7 +191,8 @@ def test_save_writes_the_schema_the_cli_writes_and_open_reads_it_back(point, poi
 def test_scenario_changes_reach_the_roadmap(tmp_path):
     sc = ft.load_scenario("smoke").replace(seed=11, estimation={"particles": 40})
     rm = ft.build(sc, workers=1)
-    assert rm.scenario == sc and rm.seed == 11 and set(rm.particles.tolist()) == {40}
+    # 40 particles per edge in the first pass; adaptive Monte Carlo adds blocks of 40 to some
+    assert rm.scenario == sc and rm.seed == 11 and rm.particles.min() == 40 and np.all(rm.particles % 40 == 0)
     assert ft.load_scenario("smoke") == ft.load_scenario(ROOT / "scenarios" / "smoke.toml")
     with pytest.raises(ft.ScenarioError, match="no such file"):
         ft.load_scenario("no_such_scenario")
@@ -228,7 +229,7 @@ def test_a_failed_edge_does_not_shift_the_policy_onto_other_controllers(monkeypa
     """Edges whose Monte Carlo failed are left out of the edge table, so the policy's edge indices
     (rows of that table) no longer address the design's rows: execution must run the controller of
     the edge the policy chose."""
-    from firmtool.execute import Executor
+    from firmtool.online import Policy
 
     sc = ft.load_scenario("smoke")
     first = ft.build(sc, workers=1)
@@ -245,9 +246,9 @@ def test_a_failed_edge_does_not_shift_the_policy_onto_other_controllers(monkeypa
     assert (failed.source, failed.target) == bad and len(rm.edges) == len(first.edges) - 1
     sol = ft.solve(rm)
     used = np.flatnonzero(sol.policy >= 0)
-    designed = Executor(rm.problem, rm.design, sol.policy)  # the design's rows: shifted by one
+    designed = Policy.from_design(rm.problem, rm.design, sol.policy)  # the design's rows: shifted by one
     assert any(designed._controller(int(sol.policy[i])).target != rm.edges[sol.policy[i], 1] for i in used)
-    runner = Executor(rm.problem, rm.execution_design, sol.policy)
+    runner = Policy.from_design(rm.problem, rm.execution_design, sol.policy)
     assert all(runner._controller(int(sol.policy[i])).target == rm.edges[sol.policy[i], 1] for i in used)
     res = ft.simulate(sol, episodes=30, seed=0)
     assert res.calibration.ok and res.successes >= 25

@@ -54,7 +54,8 @@ def test_goal_nodes_put_the_tip_in_the_goal_disc(arm):
 @pytest.mark.slow
 def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     """The paper's Fig. 1 claim, end to end (about 1-2 minutes on 2 cores)."""
-    from firmtool.execute import execute
+    from firmtool.online import Policy
+    from firmtool.sim import run_episodes
     from firmtool.pipeline import build, design_of, policy_path, problem_of, solve_stage
     from firmtool.roadmap import Roadmap
 
@@ -69,7 +70,8 @@ def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     min_x = {k: problem.points(design.centers[p])[:, :, 0].min() for k, p in paths.items()}
     assert min_x["edge"] < -0.3  # FIRM: through the left passage, near the light
     assert min_x["shortest_path_edge"] > -0.3  # baseline: the shorter right passage
-    firm = execute(problem, design, pol["edge"], 100, 1, predicted=float(pol["success_probability"][0]))
-    base = execute(problem, design, pol["shortest_path_edge"], 100, 1)
+    firm = run_episodes(Policy.from_design(problem, design, pol["edge"]), 100, 1,
+                        predicted=float(pol["success_probability"][0]))
+    base = run_episodes(Policy.from_design(problem, design, pol["shortest_path_edge"]), 100, 1)
     assert firm.success_rate_ci95[0] > base.success_rate_ci95[1]
     assert firm.prediction_within_ci95

@@ -92,3 +92,56 @@ def test_collision_backends_give_identical_edge_estimates():
     assert np.array_equal(a.outcomes, b.outcomes) and np.array_equal(a.counts, b.counts)
     # fcl runs on the numpy engine, the numpy backend on the compiled one: sums differ in rounding only
     np.testing.assert_allclose(a.terms_mean, b.terms_mean, rtol=1e-12)
+
+
+@pytest.mark.parametrize("measurement", [None, PERFECT])
+def test_region_starts_spread_over_the_node_region(measurement):
+    """estimation.start = "region": estimates drawn from the stabiliser's stationary estimate
+    distribution N(v, Sigma) restricted to the node's region, true states N(xhat, P) around them."""
+    problem, d, regions = _setup(open_world(q=0.2, std=0.1, measurement=measurement))
+    j = int(d.edge_source[0])
+    M = 20000
+    x, xhat = initial_ensemble(problem, d, j, M, np.random.default_rng(4), "region")
+    v, s = d.centers[j], d.scale[j]
+    radius = problem.scenario.controller.node_radius
+    z = xhat - v
+    assert np.all(np.sqrt(np.mean((z / s) ** 2, axis=1)) < radius)
+    assert all(regions.contains(j, xh, d.P[j]) for xh in xhat[:200])
+    # an independent draw of the same law: N(0, Sigma) by eigen-decomposition, then rejection
+    w, U = np.linalg.eigh(d.Sigma[j])
+    ref = np.random.default_rng(5).standard_normal((3 * M, len(v))) @ (U * np.sqrt(np.maximum(w, 0))).T
+    ref = ref[np.sqrt(np.mean((ref / s) ** 2, axis=1)) < radius][:M]
+    np.testing.assert_allclose(z.mean(axis=0), 0.0, atol=4 * np.sqrt(np.diag(d.Sigma[j]) / M).max())
+    np.testing.assert_allclose(np.cov(z.T), np.cov(ref.T), rtol=0.06, atol=0.06 * np.abs(d.Sigma[j]).max())
+    if measurement == PERFECT:
+        assert np.array_equal(x, xhat)
+    else:
+        np.testing.assert_allclose(np.cov((x - xhat).T), d.P[j], rtol=0.06, atol=0.06 * np.abs(d.P[j]).max())
+    # the centre start is the node's belief itself
+    xc, xhc = initial_ensemble(problem, d, j, 10, np.random.default_rng(4))
+    assert np.all(xhc == v)
+
+
+def test_the_start_mode_is_part_of_the_edge_key():
+    from firmtool.edge_table import edge_keys
+    text = open_world(q=0.2, std=0.1)
+    problem, d, _ = _setup(text)
+    region = build_problem(parse_scenario(text.replace("particles = 200", 'particles = 200\nstart = "region"'),
+                                          "t.toml"))
+    centre = build_problem(parse_scenario(text.replace("particles = 200", 'particles = 200\nstart = "center"'),
+                                          "t.toml"))
+    a, b, c = edge_keys(problem, d, engine="numpy"), edge_keys(centre, d, engine="numpy"), \
+        edge_keys(region, d, engine="numpy")
+    assert np.array_equal(a, c)  # "region" is the default
+    assert not np.any(np.all(a == b, axis=1))  # centre starts: the keys of files written before the option
+
+
+def test_region_starts_are_alive_next_to_an_obstacle():
+    """A robot that arrives at a node is alive: region starts keep only valid true states (the centre
+    start, the paper's, draws its true states around the centre whatever lies there)."""
+    wall = "[ { center = [1.45, 1.0], half_size = [0.25, 0.6] } ]"  # its face 0.2 from the start node's centre
+    problem, d, _ = _setup(open_world(q=0.3, std=0.15, obstacles=wall))
+    x, xhat = initial_ensemble(problem, d, 0, 4000, np.random.default_rng(0), "region")
+    assert np.all(problem.is_valid(x))
+    xc, _ = initial_ensemble(problem, d, 0, 4000, np.random.default_rng(0), "center")
+    assert not np.all(problem.is_valid(xc))  # so the conditioning matters here

@@ -1,4 +1,5 @@
-"""Online execution: same math as the Monte Carlo, disturbances, replanning, episode records, calibration."""
+"""Online execution (the policy of firmtool.online against the system of firmtool.sim): same math as
+the Monte Carlo, disturbances, replanning, episode records, calibration."""
 
 import json
 import time
@@ -13,13 +14,18 @@ from firmtool.disturbances import Disturbance, parse_disturbance, parse_disturba
 from firmtool.edges import initial_ensemble, simulate
 from firmtool.episodes_io import load_episodes
 from firmtool.errors import InputError
-from firmtool.execute import (EV_DISTURBANCE, EV_REPLAN, Executor, ReplanSettings, edge_counts_of, execute,
-                              predicted_interval, wilson_interval)
+from firmtool.calibration import edge_counts_of, predicted_interval
+from firmtool.execute import wilson_interval
 from firmtool.nodes import GOAL, START_INDEX
+from firmtool.online import Policy, ReplanSettings
+from firmtool.online.innovation import reset_belief
+from firmtool.results import EventKind
+from firmtool.sim import SimulatedSystem, run_episodes
 from firmtool.pipeline import design_of, problem_of
 from firmtool.roadmap import Roadmap
 
 runner = CliRunner()
+EV_DISTURBANCE, EV_REPLAN = EventKind.DISTURBANCE, EventKind.REPLAN
 
 
 @pytest.fixture(scope="module")
@@ -34,10 +40,17 @@ def run(smoke, episodes=30, seed=1, **kw):
     _, rm, problem, design, pol = smoke
     counts, edges = edge_counts_of(rm), pol["edge"].astype(np.int64)
     ci = None if kw.get("start") is not None else \
-        predicted_interval(counts, design.centers.shape[0], np.flatnonzero(design.kinds == GOAL), edges, seed, 200)
-    return execute(problem, design, edges, episodes, seed,
-                   predicted=None if kw.get("start") is not None else float(pol["success_probability"][START_INDEX]),
-                   cost_to_go=pol["cost_to_go"], edge_counts=counts, predicted_ci95=ci, **kw)
+        predicted_interval(counts, design.centers.shape[0], np.flatnonzero(design.kinds == GOAL), edges, seed, 200,
+                           point=float(pol["success_probability"][START_INDEX]))
+    policy = Policy.from_design(problem, design, edges, cost_to_go=pol["cost_to_go"], replan=kw.pop("replan", None))
+    return run_episodes(policy, episodes, seed,
+                        predicted=None if kw.get("start") is not None else float(pol["success_probability"][START_INDEX]),
+                        edge_counts=counts, predicted_ci95=ci, **kw)
+
+
+def agent(smoke, **kw):
+    _, _, problem, design, pol = smoke
+    return Policy.from_design(problem, design, pol["edge"].astype(np.int64), **kw)
 
 
 # -- disturbance specifications -------------------------------------------------------------------
@@ -71,25 +84,37 @@ def test_bad_spec_on_the_cli_is_one_line_exit_2(smoke):
 
 # -- the same math as the Monte Carlo --------------------------------------------------------------
 
-def test_executor_step_is_the_monte_carlo_step(smoke):
-    """For the same draws, the single-particle step of execution gives the same states, bit for bit,
-    as edges.simulate (the Monte Carlo that estimated the edge probabilities)."""
+def test_executed_step_is_the_monte_carlo_step(smoke):
+    """For the same draws, the policy against the simulated system gives the same true states and
+    estimates, bit for bit, as edges.simulate (the Monte Carlo that estimated the edge probabilities),
+    and ends the edge where the Monte Carlo particle ended: in the same node at the same step, or in
+    a collision."""
     _, _, problem, design, pol = smoke
-    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    policy = agent(smoke, replan=ReplanSettings(enabled=False))
+    system = SimulatedSystem(problem)
     edge = int(pol["edge"][START_INDEX])
     i, j = int(design.edge_source[edge]), int(design.edge_target[edge])
     lc = local_controller(problem, design, i, j)
-    for seed in range(5):
+    outcomes = set()
+    for seed in range(12):
         rng = np.random.default_rng(seed)
         x_mc, xhat_mc = initial_ensemble(problem, design, i, 1, rng)
-        x0, xhat0 = x_mc.copy(), xhat_mc.copy()
-        out = simulate(problem, lc, ex.regions, x_mc, xhat_mc, rng, numpy_noise=True)  # updates x_mc, xhat_mc
-        rng = np.random.default_rng(seed)
-        initial_ensemble(problem, design, i, 1, rng)  # the same draws as above
-        x, xhat = x0, xhat0
-        for k in range(int(out.steps[0])):
-            x, xhat, _, _, _ = ex.step(lc, k, x, xhat, rng.standard_normal((1, ex._r + ex._nv)))
-        assert np.array_equal(x, x_mc) and np.array_equal(xhat, xhat_mc)
+        out = simulate(problem, lc, policy.regions, x_mc, xhat_mc, rng, numpy_noise=True)  # updates x_mc, xhat_mc
+        mean, covariance = policy.start_belief()
+        system.reset(mean, covariance, np.random.default_rng(seed))  # the same draws as above
+        policy.reset()
+        events, valid = [], True
+        for _ in range(int(out.steps[0])):
+            z, valid = system.step(policy.act())
+            events = policy.observe(z, decide=valid)
+        assert np.array_equal(system.state, x_mc[0]) and np.array_equal(policy.mean, xhat_mc[0])
+        if out.outcome[0] >= 0:
+            assert valid and events[0].kind == EventKind.NODE and events[0].node == out.outcome[0]
+            assert events[0].step == out.steps[0] == policy.steps
+        elif out.outcome[0] == -1:  # failure: the true state left the free space at that step
+            assert not valid
+        outcomes.add(int(out.outcome[0]))
+    assert len(outcomes) >= 1
 
 
 def test_executor_membership_is_the_node_regions_one(smoke):
@@ -97,7 +122,7 @@ def test_executor_membership_is_the_node_regions_one(smoke):
     NodeRegions.locate (k-d tree, then the exact test) takes, on estimates in and around the regions
     with random covariance candidates. (Also checked on the point and arm roadmaps: 40,000 cases.)"""
     _, _, problem, design, pol = smoke
-    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    ex = agent(smoke)
     rng = np.random.default_rng(0)
     N, n = design.centers.shape
     landed = 0
@@ -196,9 +221,8 @@ def test_calibration_passes_on_undisturbed_smoke(smoke):
     cal = rep.calibration
     assert cal.edges_checked >= 1 and cal.ok, cal.flagged_edges
     lo, hi = rep.predicted_success_probability_ci95
-    # the posterior keeps failure possible on every policy edge: with no failure in the counts the point
-    # estimate (1.0) may sit just above the interval; the executed rate's interval must overlap it
-    assert 0 < lo <= hi <= 1 and hi >= rep.predicted_success_probability - 0.02
+    # the interval holds its point estimate by construction, and the executed rate's interval overlaps it
+    assert 0 < lo <= rep.predicted_success_probability <= hi <= 1
     x_lo, x_hi = rep.success_rate_ci95
     assert x_lo <= hi and lo <= x_hi
     # few false alarms without disturbances (the smoke single integrator sits near the default threshold)
@@ -211,14 +235,14 @@ def test_reset_belief_is_the_update_redone_from_the_inflated_prior(smoke):
     """A large innovation (an unseen jump) moves the reset estimate onto the measurement, the
     covariance stays symmetric positive definite and grows along the jump."""
     _, _, problem, design, pol = smoke
-    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    ex = agent(smoke)
     run_ = ex._controller(int(pol["edge"][START_INDEX]))
     lc, k, model = run_.lc, 5, problem.model
     xprev, u = lc.x_ref[k], lc.u_ref[k]
     nu = np.array([0.8, -0.5])  # ~1 unit jump, far beyond the filter's spread
     window = np.zeros((10, 2))
     window[-1] = nu
-    xhat, P = ex.reset_belief(lc, k, xprev, u, nu, window)
+    xhat, P = reset_belief(model, lc, k, xprev, u, nu, window)
     pred = model.f(xprev[None], u[None])[0]
     d = nu / np.linalg.norm(nu)
     moved = (xhat - pred) @ d  # the prior no longer pins the estimate: most of the jump is taken in
@@ -227,13 +251,13 @@ def test_reset_belief_is_the_update_redone_from_the_inflated_prior(smoke):
     assert np.all(np.linalg.eigvalsh(P) > 0)
     assert d @ P @ d > d @ lc.P[k + 1] @ d
     # a zero innovation changes only the covariance's inflation by the window
-    xhat0, _ = ex.reset_belief(lc, k, xprev, u, np.zeros(2), np.zeros((10, 2)))
+    xhat0, _ = reset_belief(model, lc, k, xprev, u, np.zeros(2), np.zeros((10, 2)))
     np.testing.assert_allclose(xhat0, pred)
 
 
 def test_valid_estimate_leaves_the_obstacle(smoke):
     _, _, problem, design, pol = smoke
-    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    ex = agent(smoke).replanner
     rng = np.random.default_rng(0)
     inside = problem.state_of(np.array([2.0, 1.2]))  # the obstacle's centre
     out = ex.valid_estimate(inside, 0.3 * np.eye(2), rng)
@@ -248,13 +272,13 @@ def test_monte_carlo_score_charges_failures(smoke):
     """A run-time controller straight through the obstacle scores at least J_F; one in free space
     scores its cost plus the cost-to-go of where it lands."""
     _, _, problem, design, pol = smoke
-    ex = Executor(problem, design, pol["edge"].astype(np.int64), cost_to_go=pol["cost_to_go"])
+    ex = agent(smoke, cost_to_go=pol["cost_to_go"]).replanner
     x0, P = problem.state_of(np.array([1.2, 1.2])), design.P[7]
     rng = np.random.default_rng(1)
-    through = ex._runtime_controller(x0, P, 11)  # (2.78, 0.78): behind the obstacle
-    assert ex._risk_score(through, x0, P, 32, rng) >= ex.failure_cost
-    free = ex._runtime_controller(x0, P, 8)  # (0.49, 1.23): open space
-    assert ex._risk_score(free, x0, P, 32, rng) < 0.5 * ex.failure_cost
+    through = ex.runtime_controller(x0, P, 11)  # (2.78, 0.78): behind the obstacle
+    assert ex.risk_score(through, x0, P, 32, rng) >= ex.failure_cost
+    free = ex.runtime_controller(x0, P, 8)  # (0.49, 1.23): open space
+    assert ex.risk_score(free, x0, P, 32, rng) < 0.5 * ex.failure_cost
 
 
 def test_replans_are_scored_by_monte_carlo_unless_disabled(smoke):
@@ -307,7 +331,7 @@ def test_replan_after_an_alarm_starts_near_the_true_state(smoke):
 
 def test_start_belief_at_a_node_is_the_nodes_belief(smoke):
     _, _, problem, design, pol = smoke
-    ex = Executor(problem, design, pol["edge"].astype(np.int64))
+    ex = agent(smoke)
     xhat, P = ex.start_belief(design.centers[START_INDEX])
     np.testing.assert_allclose(P, design.P[START_INDEX], rtol=1e-8, atol=1e-12)
 
@@ -333,14 +357,14 @@ def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
     d = design_stage(problem, centers, np.array([START, GOAL], dtype=np.int8))
     policy = np.full(2, -1)
     policy[0] = int(np.flatnonzero((d.edge_source == 0) & (d.edge_target == 1))[0])
-    ex = Executor(problem, d, policy, cost_to_go=np.array([1.0, 0.0]))
+    ex = Policy.from_design(problem, d, policy, cost_to_go=np.array([1.0, 0.0]))
     _, P = ex.start_belief(centers[0])
     np.testing.assert_allclose(P, d.P[0], rtol=1e-6, atol=1e-12)  # a node's own belief
     start = np.array([0.5, 1.3, 0.7])  # a heading: not a node state
     _, P = ex.start_belief(start)
     np.testing.assert_allclose(P, problem.robot.periodic_node(problem, start).P)
     assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0)
-    rep = execute(problem, d, policy, 3, 0, cost_to_go=np.array([1.0, 0.0]), start=start)
+    rep = run_episodes(Policy.from_design(problem, d, policy, cost_to_go=np.array([1.0, 0.0])), 3, 0, start=start)
     assert all(ep.events[1].kind == "initial_controller" for ep in rep.episodes)
     assert rep.successes >= 2
 

@@ -14,8 +14,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MESSAGE = "compiling the Monte Carlo engine, once per install"
 
-# After the warm-up: estimate one edge of a problem of another robot (a small arm roadmap), and
-# list the engine's functions numba had to compile for it (none expected: all loaded from cache).
+# After the warm-up: design a small arm roadmap (another robot), estimate one of its edges alone and a
+# batch as a worker does, and list the engine's functions numba had to compile for it (none expected:
+# all loaded from cache, the design's nominals and the batched filter recursions included).
 ARM_EDGE = """
 import numpy as np
 from numba.core import event
@@ -44,6 +45,12 @@ problem = build_problem(parse_scenario(text, "arm.toml"))
 centers, kinds = roadmap_nodes(problem, np.random.default_rng(1))
 d = design(problem, centers, kinds)
 estimate_edge(problem, d, d.regions(problem), int(d.edge_source[0]), int(d.edge_target[0]), 16, 0, 16, "numba")
+# the estimation workers' path: a batch of edges whose controllers are designed together
+from firmtool.parallel import EstimationJob, remember_problem, run_batch
+job = EstimationJob(scenario_text=text, scenario_path="arm.toml", design=d, particles=16, chunk=16, seed=0,
+                    engine="numba")
+remember_problem(job, problem)
+run_batch(job, [0, 1, 2])
 print(sorted(set(compiled)))
 """
 

@@ -55,7 +55,8 @@ class Firmtool:
 
     def __init__(self, scenario: Path, workers: int) -> None:
         import firmtool as ft
-        from firmtool.execute import Executor
+        from firmtool.online.policy import Policy
+        from firmtool.sim.environment import SimulatedSystem
 
         self.tmp = tempfile.TemporaryDirectory(prefix="firmtool-peers-")
         t0, c0 = time.perf_counter(), time.process_time()
@@ -65,17 +66,16 @@ class Firmtool:
         self.build_cpu_main = time.process_time() - c0  # the main process; workers' CPU not included
         self.report = rm.report
         self.solution = sol
-        self.executor = Executor(rm.problem, rm.execution_design, sol.policy, sol.cost_to_go,
-                                 failure_cost=sol.failure_cost)
-        self.executor.run_episode(np.random.default_rng(0))  # warm (compiled membership test, caches)
+        self.policy = Policy(sol)  # the online policy (act/observe), as ft.simulate runs it
+        self.system = SimulatedSystem(rm.problem)
+        self.episode(0)  # warm (compiled membership test, caches)
 
     def episode(self, seed: int) -> dict:
-        from firmtool.execute import EPISODE_KEY
         from firmtool.results import Outcome
+        from firmtool.sim.episodes import episode_seeds, run_episode
 
-        rng = np.random.default_rng(np.random.SeedSequence([seed, EPISODE_KEY, 0]))
         c0 = time.thread_time()
-        ep = self.executor.run_episode(rng, record=True)
+        ep = run_episode(self.policy, self.system, episode_seeds(0, seed), record=True)
         cpu = time.thread_time() - c0
         return {"success": ep.outcome == Outcome.SUCCESS, "declared": ep.outcome in (Outcome.SUCCESS, Outcome.GOAL_MISS),
                 "steps": ep.steps, "step_wall": ep.step_times.tolist(), "episode_cpu": cpu,

@@ -42,13 +42,14 @@ API_GROUPS = {
     "workflow": ["load_scenario", "build", "open_roadmap", "solve", "simulate", "plot"],
     "objects": ["Scenario", "Roadmap", "Solution"],
     "results": ["Results", "Episode", "Event", "EventKind", "Outcome", "Calibration", "EdgeCheck"],
+    "online": ["Policy", "PolicyStatus", "SimulatedSystem", "episode_seeds", "UserDisturbance"],
     "settings": ["ReplanSettings", "Disturbance", "SolveStatus"],
     "reports": ["SampleReport", "DesignReport", "EstimateReport", "BuildReport", "DensifyReport", "SolveReport",
                 "FailedEdge", "RoadmapSummary"],
     "errors": ["FirmtoolError", "InputError", "ScenarioError", "RoadmapError", "NumericalError", "RunFailure"],
 }
 # Classes whose members are documented with them.
-API_MEMBERS = {"Roadmap", "Solution", "Results", "Scenario", "Episode"}
+API_MEMBERS = {"Roadmap", "Solution", "Results", "Scenario", "Episode", "Policy", "SimulatedSystem"}
 # Names of __all__ documented elsewhere than by the groups (a subpackage: docs/api/plugins.md; the version).
 API_ELSEWHERE = {"robots", "__version__"}
 

@@ -38,6 +38,7 @@ class ArmRobot(LinearRobot):
         Field("joint_range", "number", math.pi, bound="positive", unit="rad", doc="bound of the other (relative) joint angles"),
     )
     shape: ClassVar[str] = "chain"
+    replan_candidate_seconds: ClassVar[float] = 2e-3  # 1.7-1.8 ms of thread CPU time (bench_online.py)
     # firmtool init: a 3-link arm whose tip must reach a disc beside a block, light-dark sensing
     template = {
         "model": {"robot": "arm", "dynamics": "double_integrator", "dt": 0.05, "process_noise_std": 0.03,

@@ -105,6 +105,10 @@ class Robot:
     bounds_name: ClassVar[str] = "world.bounds"
     #: what a node state's coordinates past the configuration must be, in messages
     rest_state_text: ClassVar[str] = "expected zero velocity (nodes are states at rest)"
+    #: seconds of compute to score one replan candidate (design of a controller from a belief and
+    #: its 32-particle Monte Carlo), what the deterministic work clock of a replan decision charges
+    #: (:mod:`firmtool.online.replanning`); measure it with ``benchmarks/bench_online.py``
+    replan_candidate_seconds: ClassVar[float] = 2e-3
     #: the tables of a small scenario for this robot that builds as it is, in seconds (``firmtool init
     #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario_docs.template`);
     #: ``[scenario]`` is added; None: no template
@@ -315,6 +319,14 @@ class Robot:
         H = model.observation_jacobian(state)
         _, P0, _ = stationary_kalman(A, model.process_cov, H, model.R(state[None]))
         return P0
+
+    def jump_prior(self, problem: "Problem") -> np.ndarray:
+        """(n,) prior variance of a sudden jump of each state coordinate (a kidnap), for the online
+        policy's estimate of one (:class:`firmtool.online.innovation.JumpTests`). Default: a
+        configuration coordinate anywhere in its range, a velocity within the speed limit."""
+        span = np.asarray(problem.config_hi, dtype=float) - np.asarray(problem.config_lo, dtype=float)
+        rest = problem.model.n - problem.config_dim
+        return np.concatenate([span ** 2, np.full(rest, problem.scenario.controller.max_speed ** 2)])
 
     # -- nominal trajectories ------------------------------------------------------------------------
 

@@ -17,6 +17,7 @@ from firmtool.robots.linear import LinearRobot
 class PointRobot(LinearRobot):
     """A point robot (see the module docs)."""
 
+    replan_candidate_seconds = 1e-3  # 0.55-0.9 ms of thread CPU time on 2 cores (bench_online.py)
     # firmtool init: a double integrator in a 4 x 3 room with one box, light-dark sensing
     template = {
         "model": {"robot": "point", "dynamics": "double_integrator", "dt": 0.1, "process_noise_std": 0.05},

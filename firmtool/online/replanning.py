@@ -1,0 +1,382 @@
+"""Replanning decisions of the online policy: which local controller to run from a belief that left
+its plan (paper Sec. III-E "initial controller", Sec. IV-F "large disturbances").
+
+A decision scores candidates by eq. 12 for one controller: the running controller's remaining steps
+(the option of keeping it), and controllers designed at run time from the belief ``(xhat, P)`` to
+the :data:`REPLAN_CANDIDATES` nodes nearest the estimate that can reach the goal and have a
+collision-free straight configuration segment from it. Each is scored by a Monte Carlo of
+:data:`RISK_PARTICLES` particles from the belief on the edges' compiled step (mean cost +
+``E[J(landing node)]``, failures and timeouts charged ``J_F``). Nodes are taken in the order of the
+cheap score ``C_est + J(node)`` (``C_est = iota (alpha_time + alpha_covariance (tr P + tr P_s) / 2)``
+from the analytic nominal length ``iota``), and the search stops when that score reaches the best
+Monte Carlo one (the cheap score assumes no failure, so it bounds the Monte Carlo one from below).
+
+**Deadline (anytime decision).** A decision has a deadline, by default the control period ``dt``
+(:attr:`ReplanSettings.deadline`). Candidates are scored one after another; before the next one the
+decision checks whether it still fits, and if not returns the best candidate scored so far (at
+least one is always scored). How time is counted is :attr:`ReplanSettings.clock`:
+
+- ``"work"`` (default): a deterministic work budget. Each scored candidate costs
+  :attr:`ReplanSettings.candidate_seconds`, by default the robot's measured cost of scoring one
+  candidate (:attr:`firmtool.robots.Robot.replan_candidate_seconds`: design of the run-time
+  controller + its Monte Carlo, thread CPU time on the reference 2-core machine: point robot 1 ms,
+  arm 2 ms, unicycle 30 ms, ``benchmarks/bench_online.py``), so a decision scores
+  at most ``deadline / candidate_seconds`` candidates whatever the machine's load: simulations stay
+  reproducible, and the same seed gives the same episodes on any machine. With the defaults a
+  point-robot or arm decision is never cut (its 9 candidates fit in ``dt``); a unicycle decision,
+  whose run-time design alone takes ~26 ms, scores 3 within its 100 ms.
+- ``"wall"``: ``time.perf_counter``, with the mean time per candidate measured in this decision as
+  the forecast for the next one. For a real robot (or to study a loaded machine); decisions then
+  depend on the load.
+
+Either way every decision's wall time is measured, so a report can say how often the real
+computation overran the deadline.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from firmtool.controllers import LocalController, plan_local_controller
+from firmtool.design import Design, lqr_weights, node_controller
+from firmtool.edges import simulate
+from firmtool.errors import InputError, NumericalError
+from firmtool.nodes import GOAL, NodeRegions, segment_is_valid
+from firmtool.online.running import RunningController, running_controller
+from firmtool.problem import Problem
+
+DEFAULT_REPLAN_THRESHOLD = 3.0  # rms-scaled deviation (node regions use 1.5 by default)
+MAX_REPLANS_PER_EPISODE = 50  # then the current controller runs on without replanning
+REPLAN_CANDIDATES = 8  # nearest nodes scored for an initial controller or a replan
+PROJECTION_SAMPLES = 256  # draws from the belief to find the most likely valid state
+RISK_PARTICLES = 32  # Monte Carlo particles per replan candidate (0: rank by the cost-to-go alone)
+RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at run time
+INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
+INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
+JUMP_WINDOW = 20  # onsets the jump test (generalised likelihood ratio) keeps
+# Its per-step false-alarm probability: a jump a few measurement sigmas large in the dark takes ~5-8
+# steps to reach 1e-6's bound on the point robot (a push of 1.0 at sigma 0.45: 7 of 60 detected),
+# ~4-6 at 1e-4 (22 of 60). Nominally <= 0.2 false alarms in the unicycle's ~2000-step episodes (the
+# test is conservative: measured 0 of 20 such episodes at 1e-6, 6 alarms at 1e-3).
+JUMP_FALSE_ALARM = 1e-4
+CLOCKS = ("work", "wall")
+LATENCIES = ("0", "measured")
+
+
+@dataclass(frozen=True)
+class ReplanSettings:
+    """Replanning of the online policy (``enabled=False``: follow the stored controllers only).
+
+    Attributes
+    ----------
+    enabled : replan at all.
+    threshold : rms-scaled deviation of the estimate from the running nominal that triggers a replan.
+    max_per_episode : replans after which the running controller goes on without replanning.
+    candidates : nearest nodes considered per decision.
+    risk_particles : Monte Carlo particles per candidate (0: take the best cheap score, no Monte Carlo).
+    innovation_test : run the tests of the filter's innovations (below); off: the deviation test only.
+    window, false_alarm : the window (steps) of the chi-square test of normalised innovation squares,
+        and the per-step false-alarm probability of each test.
+    partial_window : the chi-square test runs on a window not yet full (after a start or a decision);
+        off: it waits for ``window`` steps (as before issue 17's sweep).
+    jump_test, jump_window, jump_false_alarm : the generalised likelihood ratio test for a jump of
+        the configuration (:class:`~firmtool.online.innovation.JumpTest`) over ``jump_window`` onsets,
+        at ``jump_false_alarm`` per step; on its alarm the belief is corrected by the estimated jump.
+    refilter : after a belief reset, the option of keeping the running controller keeps its reference
+        and feedback but re-plans its filter from the reset belief (its designed gains assume the old
+        covariance); off: its designed filter goes on.
+    deadline : seconds a decision may take (None: the control period ``dt``); see the module notes.
+    clock : ``"work"`` (deterministic budget, the default) or ``"wall"`` (real time).
+    candidate_seconds : the work clock's charge per scored candidate (None: the robot's,
+        :attr:`firmtool.robots.Robot.replan_candidate_seconds`).
+    latency : ``"0"`` (a new controller runs from the next step, the default) or ``"measured"``: the
+        controller that was running goes on for ``ceil(t / dt)`` steps, ``t`` the decision's time on
+        its clock (work: ``scored x candidate_seconds``, deterministic; wall: measured), before the
+        new one takes over.
+    """
+
+    enabled: bool = True
+    threshold: float = DEFAULT_REPLAN_THRESHOLD
+    max_per_episode: int = MAX_REPLANS_PER_EPISODE
+    candidates: int = REPLAN_CANDIDATES
+    risk_particles: int = RISK_PARTICLES
+    innovation_test: bool = True
+    window: int = INNOVATION_WINDOW
+    false_alarm: float = INNOVATION_FALSE_ALARM
+    partial_window: bool = True
+    jump_test: bool = True
+    jump_window: int = JUMP_WINDOW
+    jump_false_alarm: float = JUMP_FALSE_ALARM
+    refilter: bool = True
+    deadline: float | None = None
+    clock: str = "work"
+    candidate_seconds: float | None = None
+    latency: str = "0"
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.threshold) and self.threshold > 0):
+            raise InputError(f"replan threshold: expected a finite number > 0, found {self.threshold}")
+        if self.risk_particles < 0:
+            raise InputError(f"replan risk_particles: expected an integer >= 0, found {self.risk_particles}")
+        if self.deadline is not None and not (np.isfinite(self.deadline) and self.deadline > 0):
+            raise InputError(f"replan deadline: expected a number of seconds > 0, found {self.deadline}")
+        if self.clock not in CLOCKS:
+            raise InputError(f"replan clock: expected one of {', '.join(CLOCKS)}, found {self.clock!r}")
+        if self.candidate_seconds is not None and not (np.isfinite(self.candidate_seconds)
+                                                       and self.candidate_seconds > 0):
+            raise InputError(f"replan candidate_seconds: expected a number > 0, found {self.candidate_seconds}")
+        if str(self.latency) not in LATENCIES:
+            raise InputError(f"replan latency: expected one of {', '.join(LATENCIES)}, found {self.latency!r}")
+        for name in ("false_alarm", "jump_false_alarm"):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0:
+                raise InputError(f"replan {name}: expected a probability in (0, 1), found {value}")
+        if self.window < 1 or self.candidates < 1 or self.jump_window < 1:
+            raise InputError(f"replan window, jump_window and candidates: expected integers >= 1, found "
+                             f"{self.window}, {self.jump_window}, {self.candidates}")
+
+
+@dataclass
+class Decision:
+    """The outcome of one replanning decision.
+
+    Attributes
+    ----------
+    controller : the new controller, or None (keep the running one, or nothing could be designed).
+    score : the new controller's Monte Carlo score (inf without one, or without Monte Carlo).
+    keep_score : the running controller's Monte Carlo score (inf when not scored or not offered).
+    reason : a short text for the events.
+    scored : candidates scored by Monte Carlo (the running controller included).
+    deadline_hit : the deadline stopped the search with candidates left to score.
+    work_seconds : the decision's time on its clock (work: ``scored x candidate_seconds``).
+    """
+
+    controller: RunningController | None
+    score: float
+    keep_score: float
+    reason: str
+    scored: int
+    deadline_hit: bool
+    work_seconds: float
+
+
+class _Budget:
+    """The deadline of one decision on its clock; ``fits()`` before each candidate, ``spent()`` after."""
+
+    def __init__(self, settings: ReplanSettings, dt: float, candidate_seconds: float) -> None:
+        self.deadline = settings.deadline if settings.deadline is not None else dt
+        self.wall = settings.clock == "wall"
+        self.per = candidate_seconds
+        self.t0 = time.perf_counter()
+        self.scored = 0
+        self.hit = False
+
+    def fits(self) -> bool:
+        """Whether the next candidate may be scored (the first one always is)."""
+        if self.scored == 0:
+            return True
+        if self.wall:
+            used = time.perf_counter() - self.t0
+            ok = used + used / self.scored <= self.deadline
+        else:
+            ok = (self.scored + 1) * self.per <= self.deadline * (1 + 1e-12)
+        self.hit |= not ok
+        return ok
+
+    def spent(self) -> None:
+        self.scored += 1
+
+    @property
+    def seconds(self) -> float:
+        return time.perf_counter() - self.t0 if self.wall else self.scored * self.per
+
+
+class Replanner:
+    """Designs and scores local controllers from a belief (see the module notes).
+
+    Parameters
+    ----------
+    problem, design_ : the roadmap's problem and design (its edge rows those of ``policy``).
+    regions : the node regions of the design.
+    policy : (N,) the policy's edge per node (-1: none), to know which nodes can act.
+    cost_to_go : (N,) J of the policy (inf where the goal cannot be reached).
+    failure_cost : J_F charged to failing Monte Carlo particles.
+    settings : :class:`ReplanSettings`.
+    """
+
+    def __init__(self, problem: Problem, design_: Design, regions: NodeRegions, policy: np.ndarray,
+                 cost_to_go: np.ndarray, failure_cost: float, settings: ReplanSettings) -> None:
+        self.problem, self.design, self.regions, self.settings = problem, design_, regions, settings
+        self.failure_cost = failure_cost
+        is_goal = design_.kinds == GOAL
+        self.cost_to_go = np.where(is_goal, 0.0, cost_to_go)
+        self._J_or_fail = np.where(np.isfinite(self.cost_to_go), self.cost_to_go, failure_cost)
+        usable = is_goal | ((policy >= 0) & np.isfinite(self.cost_to_go))
+        self._usable = np.flatnonzero(usable)
+        d = problem.config_dim
+        self._tree = cKDTree(design_.centers[self._usable, :d]) if self._usable.size else None
+        self._trPs = np.trace(design_.P, axis1=1, axis2=2)
+        self.candidate_seconds = (settings.candidate_seconds if settings.candidate_seconds is not None else
+                                  float(problem.robot.replan_candidate_seconds))
+
+    # -- controllers designed at run time -----------------------------------------------------------
+
+    def nominal_steps(self, x0: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """The robot's analytic nominal length bound (design's), per target node."""
+        return self.problem.robot.nominal_steps_bound(self.problem, x0, self.design.centers[targets])
+
+    def runtime_controller(self, x0: np.ndarray, P0: np.ndarray, j: int) -> LocalController:
+        """TV-LQG from the belief ``(x0, P0)`` to node ``j``, then its stabiliser, designed in real time.
+
+        The same design as :func:`firmtool.design.local_controller` with ``start_state``, except for the
+        nominal: the robot's real-time one (:meth:`~firmtool.robots.Robot.runtime_nominal`; for a
+        linear model the analytic rest-to-rest bound plus the steps to brake the current speed, tried
+        at most :data:`RUNTIME_NOMINAL_TRIES` times, since growing it until the limits hold, as the
+        offline design does up to 60 times, can take seconds from a moving state).
+        """
+        problem = self.problem
+        x, u = problem.robot.runtime_nominal(problem, x0, self.design.centers[j], RUNTIME_NOMINAL_TRIES)
+        Wx, Wu = lqr_weights(problem)
+        return plan_local_controller(problem.model, x, u, P0, node_controller(problem, self.design, j), Wx, Wu,
+                                     problem.scenario.controller.max_steps, problem.perfect)
+
+    def refiltered(self, run: RunningController, s: int, xhat: np.ndarray, P: np.ndarray) -> RunningController:
+        """The running controller from its step ``s`` on with its filter re-planned from the belief
+        ``(xhat, P)``: the same nominal and target (during the edge, its remaining nominal; in the
+        stabiliser's phase, a run-time controller to its node), the LQR gains of that nominal, and
+        Kalman gains and covariances from ``P``."""
+        lc, problem = run.lc, self.problem
+        if s >= lc.edge_steps:
+            return self.wrap(self.runtime_controller(xhat, P, run.target), run.target)
+        x_nom = np.concatenate([lc.x_ref[s:lc.edge_steps], self.design.centers[run.target][None]])
+        Wx, Wu = lqr_weights(problem)
+        new = plan_local_controller(problem.model, x_nom, lc.u_ref[s:lc.edge_steps], P,
+                                    node_controller(problem, self.design, run.target), Wx, Wu,
+                                    lc.steps - lc.edge_steps, problem.perfect)
+        return running_controller(self.regions, new, run.target, -1, -1, run.scale, max(0, run.land_from - s),
+                                  problem.perfect)
+
+    def wrap(self, lc: LocalController, j: int) -> RunningController:
+        """A run-time controller to node ``j``, ready to run (landing tested from its first step)."""
+        return running_controller(self.regions, lc, j, -1, -1, self.design.scale[j], 0, self.problem.perfect)
+
+    def valid_estimate(self, xhat: np.ndarray, P: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
+        """The estimate if it is a valid state, else the most likely valid state under ``N(xhat, P)``.
+
+        The robot is alive, so its true state is valid; an estimate in collision (a noisy reset near
+        an obstacle) has no collision-free way to any node. :data:`PROJECTION_SAMPLES` configurations
+        are drawn from the configuration marginal; of the valid ones, the one of least Mahalanobis
+        distance is returned, its other coordinates (velocities) at their conditional mean. None if
+        no draw is valid.
+        """
+        problem = self.problem
+        if problem.is_valid(xhat[None])[0]:
+            return xhat
+        d = problem.config_dim
+        Pqq = P[:d, :d] + 1e-12 * np.eye(d)
+        chol = np.linalg.cholesky(Pqq)
+        z = rng.standard_normal((PROJECTION_SAMPLES, d))
+        q = xhat[:d] + z @ chol.T
+        states = np.repeat(xhat[None], PROJECTION_SAMPLES, axis=0)
+        states[:, :d] = q
+        if d < xhat.size:  # other coordinates (velocities) at their conditional mean given q
+            states[:, d:] += (q - xhat[:d]) @ np.linalg.solve(Pqq, P[:d, d:])
+        ok = problem.is_valid(states)
+        if not ok.any():
+            return None
+        i = np.flatnonzero(ok)[np.argmin(np.einsum("ij,ij->i", z[ok], z[ok]))]
+        return states[i]
+
+    # -- scores ---------------------------------------------------------------------------------------
+
+    def risk_score(self, lc: LocalController, xhat: np.ndarray, P: np.ndarray, M: int,
+                   rng: np.random.Generator) -> float:
+        """Eq. 12 for one controller, by a small Monte Carlo from the belief.
+
+        ``M`` particles start with the estimate ``xhat`` and true states drawn from ``N(xhat, P)`` (as
+        an edge's particles start at its source node) and run the same compiled step as the edge
+        estimates (:func:`firmtool.edges.simulate`). Score: mean cost + mean of ``J(landing node)``,
+        with ``J_F`` for a collision, a timeout or a node that cannot reach the goal.
+        """
+        problem = self.problem
+        xh = np.repeat(xhat[None], M, axis=0)
+        if problem.perfect:
+            x = xh.copy()
+        else:
+            chol = np.linalg.cholesky(P + 1e-12 * np.eye(P.shape[0]))
+            x = xh + rng.standard_normal(xh.shape) @ chol.T
+        out = simulate(problem, lc, self.regions, x, xh, rng)
+        land = out.outcome >= 0
+        J = np.full(M, self.failure_cost)
+        J[land] = self._J_or_fail[out.outcome[land]]
+        return float(out.cost(problem.scenario.cost).mean() + J.mean())
+
+    def decide(self, xhat: np.ndarray, P: np.ndarray, rng: np.random.Generator | None,
+               keep: LocalController | None = None) -> Decision:
+        """The best controller from the belief ``(xhat, P)``: keep ``keep`` (the running controller's
+        remaining steps, when offered) or a run-time controller to a nearby node (module notes).
+
+        Without ``rng`` or with ``risk_particles == 0`` there is no Monte Carlo: the first candidate
+        in the order of the cheap score whose segment is free is taken.
+        """
+        budget = _Budget(self.settings, self.problem.model.dt, self.candidate_seconds)
+        M = self.settings.risk_particles if rng is not None else 0
+        keep_score = np.inf
+        if keep is not None and M:
+            keep_score = self.risk_score(keep, xhat, P, M, rng)
+            budget.spent()
+        run, score, why = self._best_node(xhat, P, rng if M else None, keep_score, budget)
+        return Decision(controller=run, score=score, keep_score=keep_score, reason=why, scored=budget.scored,
+                        deadline_hit=budget.hit, work_seconds=budget.seconds)
+
+    def _best_node(self, xhat: np.ndarray, P: np.ndarray, rng: np.random.Generator | None, bound: float,
+                   budget: _Budget) -> tuple[RunningController | None, float, str]:
+        if self._tree is None:
+            return None, np.inf, "no node can reach the goal"
+        problem, cost = self.problem, self.problem.scenario.cost
+        d = problem.config_dim
+        k = min(self.settings.candidates, self._usable.size)
+        _, idx = self._tree.query(xhat[:d], k=k)
+        nodes = self._usable[np.atleast_1d(idx)]
+        iota = self.nominal_steps(xhat, nodes)
+        est = iota * (cost.alpha_time + cost.alpha_covariance * 0.5 * (np.trace(P) + self._trPs[nodes]))
+        score = est + self.cost_to_go[nodes]
+        M = self.settings.risk_particles if rng is not None else 0
+        best, best_score, best_j, scored = None, bound, -1, 0
+        late = ""
+        for j in np.argsort(score, kind="stable"):
+            if score[j] >= best_score:
+                break
+            j = int(nodes[j])
+            if not segment_is_valid(problem, xhat, self.design.centers[j]):
+                continue
+            if M and not budget.fits():
+                late = ", deadline"
+                break
+            try:
+                lc = self.runtime_controller(xhat, P, j)
+            except NumericalError:
+                continue
+            if M == 0:
+                return self.wrap(lc, j), np.inf, f"to node {j}"
+            mc = self.risk_score(lc, xhat, P, M, rng)
+            budget.spent()
+            scored += 1
+            if mc < best_score:
+                best, best_score, best_j = lc, mc, j
+        if best is not None:
+            return (self.wrap(best, best_j), best_score,
+                    f"to node {best_j} (score {best_score:.1f}, {scored} scored{late})")
+        if scored or late:
+            return None, np.inf, f"no candidate scores below {bound:.1f} ({scored} scored{late})"
+        return None, np.inf, f"none of the {k} nearest nodes has a collision-free straight way from the estimate"
+
+
+def latency_steps(seconds: float, dt: float) -> int:
+    """Control periods a decision of ``seconds`` occupies: ``ceil(seconds / dt)``."""
+    return int(math.ceil(seconds / dt - 1e-12)) if seconds > 0 else 0

@@ -1,0 +1,112 @@
+"""A local controller as the online policy runs it: the per-step arrays it needs, computed once.
+
+A :class:`RunningController` is what :class:`~firmtool.online.policy.Policy` executes between two
+nodes: a policy edge's controller (designed once per edge and kept) or a controller designed at run
+time from the current belief (initial controller, replan). It adds to the
+:class:`~firmtool.controllers.LocalController` the node-membership candidates of every step, the
+covariance trace of the cost, the scale of the deviation test and the inverse innovation covariances
+of the innovation test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmtool.controllers import LocalController
+from firmtool.nodes import NodeRegions
+
+CANDIDATE_BLOCK = 16  # steps whose node covariance candidates are computed at once
+
+
+class StepCandidates:
+    """Per-step covariance candidates of a controller (``NodeRegions.covariance_candidates``), computed
+    in blocks of :data:`CANDIDATE_BLOCK` steps when first needed: a controller designed at run time
+    usually lands long before its stabiliser's last step, and the full (T, N) test is most of a replan."""
+
+    def __init__(self, regions: NodeRegions, P_steps: np.ndarray) -> None:
+        self.regions, self.P_steps = regions, P_steps
+        self.blocks: dict[int, np.ndarray] = {}
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        b = k // CANDIDATE_BLOCK
+        block = self.blocks.get(b)
+        if block is None:
+            block = self.regions.covariance_candidates(self.P_steps[b * CANDIDATE_BLOCK:(b + 1) * CANDIDATE_BLOCK])
+            self.blocks[b] = block
+        return block[k - b * CANDIDATE_BLOCK]
+
+
+@dataclass
+class RunningController:
+    """A local controller being executed, with its per-step arrays precomputed once.
+
+    Attributes
+    ----------
+    lc : the controller (edge controller or run-time controller, then the target's stabiliser).
+    cand : ``cand[k]`` (N,) bool, the nodes whose covariance test ``P[k + 1]`` passes.
+    trP : (T,) ``tr P[k + 1]``, the covariance term of the cost (eq. 16).
+    inv_scale : (T, n) 1 / expected spread of the estimate around the nominal at each step.
+    target : the node it drives to.
+    edge : the policy edge it belongs to, or -1 for a controller designed at run time.
+    source : the edge's source node, or -1.
+    land_from : first step (1-based count) at which landing is tested.
+    scale : (n,) the node spread of the deviation norm.
+    S_inv : (T, nz, nz) inverse innovation covariances (None with perfect measurements).
+    """
+
+    lc: LocalController
+    cand: StepCandidates
+    trP: np.ndarray
+    inv_scale: np.ndarray
+    target: int
+    edge: int
+    source: int
+    land_from: int
+    scale: np.ndarray
+    S_inv: np.ndarray | None = None
+
+    @property
+    def steps(self) -> int:
+        return self.lc.steps
+
+    def describe(self) -> str:
+        """What it is, for events: a policy edge or a controller designed at run time."""
+        if self.edge >= 0:
+            return f"policy edge {self.source}->{self.target}"
+        return f"run-time controller to node {self.target}"
+
+
+def running_controller(regions: NodeRegions, lc: LocalController, target: int, edge: int, source: int,
+                       scale: np.ndarray, land_from: int, perfect: bool) -> RunningController:
+    """Wrap ``lc`` for execution.
+
+    Parameters
+    ----------
+    scale : (n,) node spread used in the deviation norm (the target's, or for a policy edge the
+        elementwise larger of its source's and target's).
+    land_from : first step (1-based) at which node membership is tested (``lc.edge_steps`` for a
+        policy edge: not before its stabiliser runs; 0 for a run-time controller).
+    """
+    S_inv = None
+    if not perfect:
+        # innovation covariance of every step as designed: H (A P_k A' + Qd) H' + R(landing state)
+        # (plan_local_controller keeps it, with the per-step linearisation of nonlinear models)
+        S_inv = np.linalg.inv(lc.innovation_cov)
+    # Deviation scale per step: the node spread combined with the spread an undisturbed estimate
+    # is expected to build up along this controller (an EKF learning a heading legitimately
+    # strays further from the nominal than any node is wide).
+    spread = np.zeros((lc.steps + 1, scale.size)) if lc.spread is None else lc.spread
+    inv_scale = 1.0 / np.sqrt(scale[None, :] ** 2 + spread[1:] ** 2)
+    return RunningController(lc=lc, cand=StepCandidates(regions, lc.P[1:]), trP=np.trace(lc.P[1:], axis1=1, axis2=2),
+                             inv_scale=inv_scale, target=target, edge=edge, source=source, land_from=land_from,
+                             scale=scale, S_inv=S_inv)
+
+
+def remainder(lc: LocalController, s: int) -> LocalController:
+    """The controller ``lc`` from its step ``s`` on (for scoring the option of keeping it)."""
+    return LocalController(x_ref=lc.x_ref[s:], u_ref=lc.u_ref[s:], K=lc.K[s:], L=lc.L[s:], P=lc.P[s:],
+                           edge_steps=max(1, lc.edge_steps - s),
+                           innovation_cov=None if lc.innovation_cov is None else lc.innovation_cov[s:],
+                           spread=None if lc.spread is None else lc.spread[s:])

@@ -1,0 +1,124 @@
+"""The simulated true system (the environment the online policy runs against).
+
+It holds the true state, moves it with the control and process noise, measures it with the noise of
+the TRUE state (paper eq. 14: R at the true state, not at the nominal), says whether the state
+violates a constraint, and takes disturbances (push, kidnap, a user's callable) that the filter is
+never told of. Each step is the Monte Carlo's (:func:`firmtool.edges.simulate`) on one particle:
+``x' = f(x, u) + F w``, the robot's points once for both the collision test and the sensing noise,
+``z = h(x') + sqrt(R(x')) v``, with ``(w, v)`` one row of standard normals drawn together, process
+noise first.
+
+The policy (:class:`firmtool.online.Policy`) sees only ``z``; a real robot replaces this class.
+Collisions are decided here, not by the policy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmtool import disturbances as dist_mod
+from firmtool.errors import InputError
+from firmtool.problem import Problem
+
+
+class SimulatedSystem:
+    """A simulated robot: true state, dynamics, sensor, constraints, disturbances.
+
+    Parameters
+    ----------
+    problem : the roadmap's problem (model, validity, bounds).
+
+    Examples
+    --------
+    >>> system = SimulatedSystem(rm.problem)                       # doctest: +SKIP
+    >>> system.reset(mean, covariance, np.random.default_rng(0))   # doctest: +SKIP
+    >>> z, valid = system.step(u)                                  # doctest: +SKIP
+    """
+
+    def __init__(self, problem: Problem) -> None:
+        self.problem = problem
+        model = problem.model
+        self._r = model.F.shape[1]
+        self._width = self._r + (0 if problem.perfect else model.nz)
+        self._x: np.ndarray | None = None
+        self._rng: np.random.Generator | None = None
+        self._steps = 0
+
+    @property
+    def state(self) -> np.ndarray:
+        """(n,) the true state (a copy)."""
+        if self._x is None:
+            raise InputError("SimulatedSystem: call reset() first")
+        return self._x[0].copy()
+
+    @property
+    def steps(self) -> int:
+        """Steps since :meth:`reset`."""
+        return self._steps
+
+    def reset(self, mean: np.ndarray, covariance: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Draw the true state from the belief ``N(mean, covariance)`` (the mean itself with perfect
+        measurements); ``rng`` then draws every step's noise.
+
+        Parameters
+        ----------
+        mean : (n,); covariance : (n, n); rng : the system's generator.
+
+        Returns
+        -------
+        (n,) the true start state.
+        """
+        mean = np.asarray(mean, dtype=float)
+        self._rng, self._steps = rng, 0
+        if self.problem.perfect:
+            self._x = mean[None].copy()
+        else:
+            n = mean.shape[0]
+            chol = np.linalg.cholesky(np.asarray(covariance, dtype=float) + 1e-15 * np.eye(n))
+            self._x = mean[None] + rng.standard_normal((1, n)) @ chol.T
+        return self.state
+
+    def step(self, u: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Apply the control ``u`` (m,) for one period and measure.
+
+        Returns
+        -------
+        z : (nz,) the measurement (the state (n,) with perfect measurements).
+        valid : False when the new true state violates a constraint (a collision, the bounds).
+        """
+        problem, model = self.problem, self.problem.model
+        u = np.asarray(u, dtype=float).reshape(1, -1)
+        noise = self._rng.standard_normal((1, self._width))
+        x = model.f(self._x, u) + noise[:, :self._r] @ model.F.T  # as firmtool.edges.control_and_move
+        pts = problem.points(x)  # the kinematics once, for the collision test and the sensing noise
+        if problem.perfect:
+            z = x[0].copy()
+        else:  # as firmtool.edges.filter_update: R at the TRUE state
+            variance = model.noise.variance(problem.sensing_from_points(pts))
+            z = (model.h(x) + np.sqrt(variance) * noise[:, self._r:])[0]
+        self._x = x
+        self._steps += 1
+        return z, bool(problem.states_valid(x, pts)[0])
+
+    def disturb(self, disturbance: dist_mod.Disturbance, rng: np.random.Generator) -> float:
+        """Apply a push or kidnap (:func:`firmtool.disturbances.apply`) to the true state.
+
+        Returns
+        -------
+        float
+            How far the configuration moved (Euclidean).
+        """
+        x, moved = dist_mod.apply(self.problem, disturbance, self.state, rng)
+        self._x = x[None]
+        return moved
+
+    def set_state(self, state: np.ndarray) -> float:
+        """Put the true state at ``state`` (n,) (a user's disturbance); returns how far the configuration moved."""
+        state = np.asarray(state, dtype=float)
+        n = self.problem.model.n
+        if state.shape != (n,) or not np.all(np.isfinite(state)):
+            raise InputError(f"disturbance: expected a state of {n} finite values, found shape {state.shape}")
+        d = self.problem.config_dim
+        moved = float(np.linalg.norm(state[:d] - self._x[0, :d]))
+        self._x = state[None].copy()
+        return moved

@@ -1,0 +1,262 @@
+"""Recovery at any moment: success rate against the time of a disturbance, with and without replanning.
+
+A sweep runs, for every disturbance time ``t`` of a grid (a push of each size, and a kidnap), the
+same episodes in up to three modes, next to undisturbed baselines: ``"replan"`` (the policy with
+replanning), ``"none"`` (without) and ``"oracle"`` (with replanning, and told the truth: right after
+the step the disturbance hit, the policy is re-localised at the true state with the covariance of a
+settled filter there, :meth:`~firmtool.online.Policy.relocalise`). The oracle is what replanning
+could do with a perfect and instant detector: where even it fails, no detector helps, and the
+failure is the robot's (the disturbance left no time or room to recover); where it succeeds and the
+policy does not, detection is what is missing. Episode ``i`` of every
+condition draws the same noise (:func:`firmtool.sim.episode_seeds`), so conditions are compared on
+common random numbers. Each point reports the success rate with its Wilson 95% interval, the replans,
+and what the failures were: collisions within ``immediate`` steps of the disturbance (before any
+controller could act on it), later collisions, timeouts.
+
+Episodes run in ``workers`` processes (fork) in chunks; every episode depends only on the seed and
+its index, so the results are the same for any number of workers.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from firmtool.errors import InputError
+from firmtool.online.policy import Policy
+from firmtool.online.replanning import ReplanSettings
+from firmtool.results import EventKind, Outcome
+from firmtool.sim.environment import SimulatedSystem
+from firmtool.sim.episodes import episode_seeds, run_episode
+
+CHUNK = 25  # episodes per task
+DECISIONS = (EventKind.REPLAN, EventKind.KEPT_CONTROLLER, EventKind.REPLAN_FAILED, EventKind.INNOVATION_ALARM)
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One disturbance setting: ``kind`` ``"none"``, ``"push"`` or ``"kidnap"``, at ``step``, of ``size``."""
+
+    kind: str
+    step: int | None = None
+    size: float | None = None
+
+    @property
+    def spec(self) -> str | None:
+        if self.kind == "push":
+            return f"push:{self.step}:{self.size:g}"
+        if self.kind == "kidnap":
+            return f"kidnap:{self.step}"
+        return None
+
+
+@dataclass
+class SweepPoint:
+    """The episodes of one condition with replanning on or off.
+
+    Attributes
+    ----------
+    kind, step, size : the disturbance (see :class:`Condition`).
+    mode : ``"replan"``, ``"none"`` or ``"oracle"`` (module notes).
+    episodes, successes, collisions, timeouts, stuck : counts.
+    rate, ci95 : success rate and its Wilson 95% interval.
+    replans_per_episode : replans per episode.
+    immediate_collisions : collisions within ``immediate`` steps after the disturbance.
+    decided : episodes with a decision (alarm, replan, kept controller) after the disturbance.
+    ended_before : episodes that ended before the disturbance's step (it never happened).
+    collided_undecided : collisions with no decision between the disturbance and the collision.
+    decision_delay_median : median steps from the disturbance to the first decision (None without).
+    collision_delay_median : median steps from the disturbance to a collision (None without).
+    """
+
+    kind: str
+    step: int | None
+    size: float | None
+    mode: str
+    episodes: int = 0
+    successes: int = 0
+    collisions: int = 0
+    timeouts: int = 0
+    stuck: int = 0
+    rate: float = 0.0
+    ci95: tuple[float, float] = (0.0, 1.0)
+    replans_per_episode: float = 0.0
+    immediate_collisions: int = 0
+    decided: int = 0
+    ended_before: int = 0
+    collided_undecided: int = 0
+    decision_delay_median: float | None = None
+    collision_delay_median: float | None = None
+    replans: int = field(default=0, repr=False)
+    _delays: list = field(default_factory=list, repr=False)
+    _collision_delays: list = field(default_factory=list, repr=False)
+
+
+@dataclass
+class Sweep:
+    """A sweep's settings and points (:func:`disturbance_sweep`); ``to_dict()`` for JSON."""
+
+    seed: int
+    episodes: int
+    typical_steps: float
+    times: list[int]
+    sizes: list[float]
+    immediate: int
+    points: list[SweepPoint]
+
+    def to_dict(self) -> dict:
+        return {**{k: v for k, v in asdict(self).items() if k != "points"},
+                "points": [{k: v for k, v in asdict(p).items() if not k.startswith("_")} for p in self.points]}
+
+    def get(self, kind: str, step: int | None = None, size: float | None = None, mode: str = "replan") -> SweepPoint:
+        for p in self.points:
+            if (p.kind, p.step, p.size, p.mode) == (kind, step, size, mode):
+                return p
+        raise KeyError((kind, step, size, mode))
+
+
+_JOB: dict = {}  # what forked workers inherit: the policies, the system, the conditions
+
+
+def oracle(policy: Policy, system: SimulatedSystem) -> list:
+    """Re-localise the policy at the true state, with a settled filter's covariance there."""
+    state = system.state
+    return policy.relocalise(state, policy.start_belief(state)[1])
+
+
+def _run_chunk(task: tuple[int, str, int, int]) -> list[tuple]:
+    cond_index, mode, i0, i1 = task
+    cond: Condition = _JOB["conditions"][cond_index]
+    policy: Policy = _JOB["policies"][mode]
+    system: SimulatedSystem = _JOB["system"]
+    seed, immediate = _JOB["seed"], _JOB["immediate"]
+    dists = (cond.spec,) if cond.spec else ()
+    from firmtool.disturbances import as_disturbances
+    dists = as_disturbances(dists)
+    out = []
+    for i in range(i0, i1):
+        ep = run_episode(policy, system, episode_seeds(seed, i), disturbances=dists,
+                         after_disturbance=oracle if mode == "oracle" else None)
+        hit = [e.step for e in ep.events if e.kind == EventKind.DISTURBANCE]
+        t = hit[0] if hit else None
+        immediate_hit = (ep.outcome == Outcome.COLLISION and t is not None and ep.steps - t <= immediate)
+        first = min((e.step for e in ep.events if e.kind in DECISIONS and t is not None and e.step > t), default=None)
+        collided_at = ep.steps - t if ep.outcome == Outcome.COLLISION and t is not None else None
+        out.append((i, str(ep.outcome), ep.replans, bool(immediate_hit), first is not None,
+                    cond.kind != "none" and t is None, None if first is None else first - t, collided_at))
+    return out
+
+
+def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list[float], *, kidnap: bool = True,
+                      episodes: int = 100, baseline_episodes: int | None = None, seed: int = 0,
+                      immediate: int = 5, workers: int = 1, typical_steps: float = float("nan")) -> Sweep:
+    """Success against the disturbance's time, with replanning on and off.
+
+    Parameters
+    ----------
+    policies : a policy per mode (``"replan"``, ``"none"``, ``"oracle"``; :func:`policies_of`).
+    times : disturbance steps.
+    sizes : push sizes (scenario units, Euclidean in configuration space).
+    kidnap : also a kidnap at every time.
+    episodes : per point; ``baseline_episodes`` for the undisturbed baselines (default ``2 episodes``).
+    seed : episode ``i`` of every condition draws from ``episode_seeds(seed, i)``.
+    immediate : a collision this many steps or fewer after the disturbance counts as immediate.
+    workers : processes (fork); the results do not depend on it.
+    typical_steps : recorded with the results (the episode length the times were chosen from).
+
+    Returns
+    -------
+    Sweep
+    """
+    if not policies:
+        raise InputError("disturbance_sweep: no policy")
+    conditions = [Condition("none")]
+    conditions += [Condition("push", int(t), float(s)) for s in sizes for t in times]
+    if kidnap:
+        conditions += [Condition("kidnap", int(t)) for t in times]
+    base_n = baseline_episodes or 2 * episodes
+    # interleaved: each condition with replanning on then off, chunk by chunk
+    tasks = []
+    for c, cond in enumerate(conditions):
+        n = base_n if cond.kind == "none" else episodes
+        for i0 in range(0, n, CHUNK):
+            for mode in policies:
+                tasks.append((c, mode, i0, min(n, i0 + CHUNK)))
+    any_policy = next(iter(policies.values()))
+    _JOB.update(conditions=conditions, policies=policies, system=SimulatedSystem(any_policy.problem), seed=seed,
+                immediate=immediate)
+    try:
+        if workers > 1:
+            ctx = multiprocessing.get_context("fork")
+            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_one_thread) as pool:
+                chunks = list(pool.map(_run_chunk, tasks, chunksize=1))
+        else:
+            chunks = [_run_chunk(t) for t in tasks]
+    finally:
+        _JOB.clear()
+    from firmtool.execute import wilson_interval
+
+    points: dict[tuple[int, str], SweepPoint] = {}
+    for (c, mode, _, _), rows in zip(tasks, chunks):
+        cond = conditions[c]
+        p = points.setdefault((c, mode), SweepPoint(cond.kind, cond.step, cond.size, mode))
+        for _, outcome, replans, immediate_hit, decided, before, delay, collided_at in rows:
+            p.episodes += 1
+            p.successes += outcome == Outcome.SUCCESS
+            p.collisions += outcome == Outcome.COLLISION
+            p.timeouts += outcome == Outcome.TIMEOUT
+            p.stuck += outcome == Outcome.STUCK
+            p.replans += replans
+            p.immediate_collisions += immediate_hit
+            p.decided += decided
+            p.ended_before += before
+            if delay is not None:
+                p._delays.append(delay)
+            if collided_at is not None:
+                p._collision_delays.append(collided_at)
+                p.collided_undecided += delay is None or delay >= collided_at
+    for p in points.values():
+        p.decision_delay_median = float(np.median(p._delays)) if p._delays else None
+        p.collision_delay_median = float(np.median(p._collision_delays)) if p._collision_delays else None
+        p.rate = p.successes / p.episodes
+        lo, hi = wilson_interval(p.successes, p.episodes)
+        p.ci95 = (float(lo), float(hi))
+        p.replans_per_episode = p.replans / p.episodes
+    order = {m: i for i, m in enumerate(policies)}
+    ordered = [points[k] for k in sorted(points, key=lambda k: (k[0], order[k[1]]))]
+    return Sweep(seed=seed, episodes=episodes, typical_steps=typical_steps, times=[int(t) for t in times],
+                 sizes=[float(s) for s in sizes], immediate=immediate, points=ordered)
+
+
+def _one_thread() -> None:
+    from threadpoolctl import threadpool_limits
+    threadpool_limits(1)
+    os.environ["OMP_NUM_THREADS"] = "1"
+
+
+def typical_steps(policy: Policy, episodes: int, seed: int) -> float:
+    """Median length of the successful undisturbed episodes (nan when none succeeds)."""
+    system = SimulatedSystem(policy.problem)
+    steps = [ep.steps for ep in (run_episode(policy, system, episode_seeds(seed, i)) for i in range(episodes))
+             if ep.outcome == Outcome.SUCCESS]
+    return float(np.median(steps)) if steps else math.nan
+
+
+MODES = ("replan", "none", "oracle")
+
+
+def policies_of(solution, replan: ReplanSettings | None = None, modes=MODES) -> dict[str, Policy]:
+    """One policy per mode (``replan`` the settings of the modes with replanning)."""
+    base = replan or ReplanSettings()
+    out = {}
+    for mode in modes:
+        if mode not in MODES:
+            raise InputError(f"sweep mode: expected one of {', '.join(MODES)}, found {mode!r}")
+        settings = ReplanSettings(**{**asdict(base), "enabled": False}) if mode == "none" else base
+        out[mode] = Policy(solution, replan=settings)
+    return out

@@ -1,0 +1,89 @@
+"""The policy in a user's own loop (examples/external_loop.py): a simulator written in plain numpy
+drives ft.Policy through the public API and gets the episodes ft.simulate gives for the same seed."""
+
+import importlib.util
+import io
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import firmtool as ft
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("external_loop", ROOT / "examples" / "external_loop.py")
+external_loop = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(external_loop)
+
+
+@pytest.fixture(scope="module")
+def smoke(smoke_roadmap):
+    return ft.open_roadmap(smoke_roadmap[0]).solution()
+
+
+def test_the_users_loop_gives_the_episodes_of_simulate(smoke):
+    out = io.StringIO()
+    runs = external_loop.run(smoke, 8, 3, every=1, out=out)
+    assert all(external_loop.same_as_simulate(smoke, runs, 3))
+    text = out.getvalue()
+    assert text.count("u = [") == sum(r["steps"] for r in runs)  # every control printed
+    assert "goal" in text and {r["outcome"] for r in runs} <= {"success", "collision", "timeout", "stuck"}
+
+
+def test_a_push_in_the_users_robot_is_a_callable_disturbance_of_simulate(smoke):
+    """The user's robot is pushed at step 8 (the policy is not told); ft.simulate with the same push as a
+    callable disturbance gives the same episodes: alarms, replans and outcomes included."""
+    push = np.array([0.0, 0.9])
+
+    def shove(step, state, rng):
+        return np.concatenate([state[:2] + push, state[2:]]) if step == 8 else None
+
+    res = ft.simulate(smoke, 10, 5, disturbances=[shove], record=False)
+    policy = ft.Policy(smoke)
+    replans = 0
+    for i, ep in enumerate(res.episodes):
+        seeds = ft.episode_seeds(5, i)
+        policy.reset(rng=np.random.default_rng(seeds.policy))
+        robot = external_loop.robot_of(smoke, np.random.default_rng(seeds.system))
+        robot.start(policy.mean, policy.covariance)
+        u, collided = policy.step(None), False  # step(z): observe the last measurement, then act
+        while u is not None:
+            if policy.steps - 1 == 8:
+                robot.x[0, :2] += push
+            z, collided = robot.apply(u)
+            if collided:
+                break
+            u = policy.step(z)
+        kinds = [(e.step, str(e.kind), e.node) for e in ep.events if e.kind != ft.EventKind.DISTURBANCE]
+        own = [(e.step, str(e.kind), e.node) for e in policy.events]
+        assert own == [k for k in kinds if k[1] != "collision"]
+        assert collided == (ep.outcome == ft.Outcome.COLLISION) and policy.steps == ep.steps
+        assert policy.cost == ep.cost
+        replans += policy.replans
+    assert res.disturbances_applied == 10 and replans >= 1
+    assert res.disturbances == ("user:shove",)
+
+
+def test_the_example_script_runs_and_says_so(tmp_path):
+    p = subprocess.run([sys.executable, str(ROOT / "examples" / "external_loop.py"), "--scenario", "smoke",
+                        "--episodes", "2"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert p.stdout.count("the same as ft.simulate") == 2 and "u = [" in p.stdout
+
+
+def test_the_policy_refuses_calls_out_of_order(smoke):
+    policy = ft.Policy(smoke)
+    with pytest.raises(ft.InputError, match="reset"):
+        policy.act()
+    policy.reset()
+    with pytest.raises(ft.InputError, match="act"):
+        policy.observe(np.zeros(2))
+    policy.act()
+    with pytest.raises(ft.InputError, match="observe"):
+        policy.act()
+    with pytest.raises(ft.InputError, match="expected 2 values"):
+        policy.observe(np.zeros(3))
+    with pytest.raises(ft.InputError, match="mean"):
+        policy.reset(np.zeros(5))

@@ -1,0 +1,112 @@
+"""The filter's innovation tests (firmtool.online.innovation) against their distributions, on a
+stationary Kalman filter of a double integrator simulated here: the windowed chi-square test, and the
+generalised likelihood ratio test for jumps (Willsky and Jones 1976) with its estimate of the jump."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from firmtool.controllers import stationary_kalman
+from firmtool.online.innovation import InnovationWindow, JumpTest, JumpTests
+
+DT = 0.1
+A = np.block([[np.eye(2), DT * np.eye(2)], [np.zeros((2, 2)), np.eye(2)]])
+H = np.hstack([np.eye(2), np.zeros((2, 2))])
+Q = 0.05**2 * np.block([[DT**3 / 3 * np.eye(2), DT**2 / 2 * np.eye(2)], [DT**2 / 2 * np.eye(2), DT * np.eye(2)]])
+R = 0.3**2 * np.eye(2)
+L, P, P_prior = stationary_kalman(A, Q, H, R)
+S = H @ P_prior @ H.T + R
+S_inv = np.linalg.inv(S)
+CONFIG = np.eye(4)[:, :2]
+
+
+def innovations(steps, rng, jump=None, at=None):
+    """The filter's estimation error and innovations: e' = (I - L H)(A e + w) - L v, gamma = H (A e + w) + v;
+    ``jump`` (4,) added to the true state (so to the error) before step ``at``."""
+    e = rng.multivariate_normal(np.zeros(4), P)
+    out, errors = [], []
+    Fq = np.linalg.cholesky(Q)
+    for k in range(steps):
+        if jump is not None and k == at:
+            e = e + jump
+        prior = A @ e + Fq @ rng.standard_normal(4)
+        gamma = H @ prior + 0.3 * rng.standard_normal(2)
+        e = prior - L @ gamma
+        out.append(gamma)
+        errors.append(e)
+    return np.array(out), np.array(errors)
+
+
+def test_the_jump_statistic_of_one_onset_is_chi_square_without_a_jump():
+    """With one onset (the current step) and no jump, d' C^-1 d is chi-square with p = 2 degrees of
+    freedom: a Kolmogorov-Smirnov test against scipy's chi2 does not reject."""
+    rng = np.random.default_rng(0)
+    gammas, _ = innovations(2000, rng)
+    test = JumpTest(CONFIG, window=1, false_alarm=1e-3)
+    values = []
+    for k, g in enumerate(gammas):
+        test.add(k, A, H, L, S_inv, g)
+        values.append(test.statistic)
+    assert stats.kstest(values, stats.chi2(2).cdf).pvalue > 1e-3
+
+
+def test_the_false_alarm_rate_over_a_window_stays_below_its_bound():
+    """Over 20 onsets the maximum is tested against chi2.isf(alpha / 20, p): per step at most alpha."""
+    rng = np.random.default_rng(1)
+    alpha = 0.02
+    gammas, _ = innovations(4000, rng)
+    test = JumpTest(CONFIG, window=20, false_alarm=alpha)
+    alarms = sum(test.add(k, A, H, L, S_inv, g) for k, g in enumerate(gammas))
+    rate = alarms / len(gammas)
+    assert rate <= alpha and rate > alpha / 50  # conservative (Bonferroni over correlated onsets), not void
+
+
+@pytest.mark.parametrize("jump", [np.array([1.0, -0.5, 0.0, 0.0]), np.array([0.0, 1.5, 0.0, 0.0])])
+def test_a_jump_is_found_estimated_and_corrected(jump):
+    """A jump of the configuration before step 50 is detected within a few steps; its onset and size are
+    estimated within the estimate's own spread, and the corrected error is back to the filter's size."""
+    hits = []
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        gammas, errors = innovations(80, rng, jump, at=50)
+        test = JumpTest(CONFIG, window=20, false_alarm=1e-6)
+        fired = next((k for k, g in enumerate(gammas) if test.add(k, A, H, L, S_inv, g)), None)
+        assert fired is not None and 50 <= fired <= 58, fired
+        shift, cov, onset = test.correction()
+        assert abs(onset - 50) <= 2
+        residual = errors[fired] - shift  # the error left after the correction
+        z = residual[:2] @ np.linalg.solve(P[:2, :2] + cov[:2, :2], residual[:2])
+        hits.append(z)
+    # the corrected error is consistent with its covariance: chi2(2) on average, not the jump's size
+    assert np.mean(hits) < 4.0 and np.median(hits) < 3.0
+
+
+def test_a_change_of_velocity_is_corrected_within_the_prior():
+    """A kidnap stops a moving robot: the whole state jumps. The state family's estimate with a prior
+    on the jump (speed limit 1) corrects the velocity too, and never by absurd amounts."""
+    jump = np.array([2.0, 0.5, -0.7, 0.4])
+    ok = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        gammas, errors = innovations(60, rng, jump, at=40)
+        tests = JumpTests({"configuration": CONFIG, "state": np.eye(4)}, 20, 1e-6, np.array([25.0, 25.0, 1.0, 1.0]))
+        fired = next(k for k, g in enumerate(gammas) if tests.add(k, A, H, L, S_inv, g))
+        shift, cov, _ = tests.correction()
+        assert np.all(np.abs(shift[2:]) < 3.0)  # within a few speed limits, never tens of m/s
+        before, after = np.abs(errors[fired][2:]), np.abs(errors[fired][2:] - shift[2:])
+        ok += np.linalg.norm(after) < np.linalg.norm(before)
+    assert ok >= 15  # the velocity error shrinks in most cases
+
+
+def test_a_partial_window_is_tested_against_its_own_bound():
+    nz, alpha = 2, 1e-6
+    full = InnovationWindow(10, nz, alpha, partial=False)
+    part = InnovationWindow(10, nz, alpha, partial=True)
+    S1 = np.eye(2)
+    assert not part.add(np.array([4.0, 0.0]), S1)  # NIS 16 < chi2.isf(1e-6, 2) = 27.6
+    assert not full.add(np.array([4.0, 0.0]), S1)
+    # then 36 more: 52 over two steps > chi2.isf(1e-6, 4) = 33.4; the full window waits for ten steps
+    assert part.add(np.array([6.0, 0.0]), S1) and not full.add(np.array([6.0, 0.0]), S1)
+    assert part.limits[0] == pytest.approx(stats.chi2.isf(alpha, nz))
+    part.clear()
+    assert part.filled == 0 and part.statistic == 0.0 and part.innovations.shape == (0, nz)

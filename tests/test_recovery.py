@@ -1,0 +1,96 @@
+"""Recovery at any moment (issue 17): disturbances in the first steps are seen, re-localisation, and a
+short sweep of disturbance times (firmtool.sim.sweep) where replanning clearly helps."""
+
+import numpy as np
+import pytest
+
+import firmtool as ft
+from firmtool.online import Policy, ReplanSettings
+from firmtool.sim.sweep import disturbance_sweep, policies_of
+
+BEFORE = ReplanSettings(partial_window=False, jump_test=False, refilter=False)  # the tests as they were
+
+
+@pytest.fixture(scope="module")
+def smoke(smoke_roadmap):
+    return ft.open_roadmap(smoke_roadmap[0]).solution()
+
+
+def _first_alarms(res):
+    return [min((e.step for e in ep.events if e.kind == ft.EventKind.INNOVATION_ALARM), default=None)
+            for ep in res.episodes]
+
+
+@pytest.mark.parametrize("spec", ["push:0:1.0", "kidnap:0"])
+def test_a_disturbance_in_the_first_steps_is_seen_before_the_window_fills(smoke, spec):
+    """The windowed test waited for ten innovations after a start (or a decision), by when the robot
+    had driven on from where it was pushed; the jump test and the partial window see it at once."""
+    now = ft.simulate(smoke, 20, 0, disturbances=[spec], record=False)
+    before = ft.simulate(smoke, 20, 0, disturbances=[spec], replan=BEFORE, record=False)
+    seen = [t for t in _first_alarms(now) if t is not None]
+    assert len(seen) >= 15 and np.median(seen) < 10
+    assert all(t is None or t >= 10 for t in _first_alarms(before))
+    assert now.successes > before.successes
+
+
+def test_relocalise_replaces_the_belief_and_decides(smoke):
+    policy = Policy(smoke)
+    problem = smoke.roadmap.problem
+    policy.reset()
+    system = ft.SimulatedSystem(problem)
+    system.reset(policy.mean, policy.covariance, np.random.default_rng(0))
+    for _ in range(5):
+        z, valid = system.step(policy.act())
+        policy.observe(z)
+    where = problem.state_of(np.array([3.0, 2.5]))  # far from where the policy thinks it is
+    cov = policy.start_belief(where)[1]
+    events = policy.relocalise(where, cov)
+    assert [e.kind for e in events][-1] in (ft.EventKind.REPLAN, ft.EventKind.KEPT_CONTROLLER)
+    np.testing.assert_allclose(policy.mean, where)
+    np.testing.assert_allclose(policy.covariance, cov)
+    policy.act()
+    with pytest.raises(ft.InputError, match="between observe"):
+        policy.relocalise(where, cov)
+
+
+def test_replanning_helps_after_an_early_kidnap_a_short_sweep(smoke):
+    """The CI sweep: a kidnap at step 0 on smoke, 20 episodes per mode on common random numbers.
+    Without replanning the policy drives its plan from wherever it was put; with it, the kidnap is
+    found and a controller designed from there: the intervals do not overlap."""
+    sw = disturbance_sweep(policies_of(smoke, modes=("replan", "none")), [0], [], episodes=20, seed=0)
+    on, off = sw.get("kidnap", 0, None, "replan"), sw.get("kidnap", 0, None, "none")
+    assert on.episodes == off.episodes == 20 and off.replans_per_episode == 0
+    assert on.ci95[0] > off.ci95[1], (on, off)
+    base = sw.get("none", mode="replan")
+    assert base.episodes == 40 and base.rate - on.rate <= 0.10
+
+
+def test_a_sweep_is_the_same_for_any_number_of_workers(smoke):
+    kw = dict(times=[0, 12], sizes=[0.8], episodes=6, baseline_episodes=6, seed=3)
+    one = disturbance_sweep(policies_of(smoke), workers=1, **kw).to_dict()
+    two = disturbance_sweep(policies_of(smoke), workers=2, **kw).to_dict()
+    assert one == two and len(one["points"]) == 3 * 5  # none, two pushes, two kidnaps; three modes
+
+
+def test_the_oracle_relocalises_right_after_the_disturbance(smoke):
+    """In the sweep's oracle mode the policy is re-localised at the true state right after the step the
+    push hit (a decision at that step), with the true state as its estimate."""
+    from firmtool.disturbances import as_disturbances
+    from firmtool.sim import SimulatedSystem, episode_seeds, run_episode
+    from firmtool.sim.sweep import oracle
+
+    policy, system = Policy(smoke), SimulatedSystem(smoke.roadmap.problem)
+    decided = 0
+    for i in range(8):
+        ep = run_episode(policy, system, episode_seeds(1, i), disturbances=as_disturbances(["push:8:0.8"]),
+                         after_disturbance=oracle, record=True)
+        hit = [e.step for e in ep.events if e.kind == ft.EventKind.DISTURBANCE]
+        if not hit or ep.steps <= hit[0] + 1:
+            continue
+        t = hit[0] + 1  # the step the push moved the robot in
+        kinds = [e.kind for e in ep.events if e.step == t]
+        assert kinds[-1] in (ft.EventKind.REPLAN, ft.EventKind.KEPT_CONTROLLER, ft.EventKind.REPLAN_FAILED)
+        if kinds[-1] != ft.EventKind.REPLAN_FAILED:
+            np.testing.assert_allclose(ep.estimates[t], ep.states[t])  # the truth, as its estimate
+        decided += 1
+    assert decided >= 6
