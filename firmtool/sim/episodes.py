@@ -163,8 +163,10 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
             node = policy.node
             if not policy.regions.true_arrival(np.array([node]), system.state)[0]:
                 ep.outcome = Outcome.GOAL_MISS
-                ep.events.append(Event(policy.steps, EventKind.GOAL_MISS, node,
-                                       detail="arrival declared; the true state is not in the goal"))
+                # the policy's goal event, as the environment judges it (the policy's own log keeps it)
+                i = max(j for j, ev in enumerate(ep.events) if ev.kind == EventKind.GOAL)
+                ep.events[i] = Event(ep.events[i].step, EventKind.GOAL_MISS, node,
+                                     detail="arrival declared; the true state is not in the goal")
                 if traversals and traversals[-1][1] == node:  # as the Monte Carlo counts it
                     e, _, first, last = traversals[-1]
                     traversals[-1] = (e, GOAL_MISS, first, last)
