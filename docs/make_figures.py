@@ -80,6 +80,11 @@ FIGURES: tuple[DocFigure, ...] = (
               _roadmap("unicycle_lightdark") + (
                   f"firmtool plot {ARTIFACTS}/unicycle_lightdark.h5 --policy firm --episodes 100 --seed 7 "
                   f"--dpi 80 --force -o {FIGURES_DIR}/unicycle_lightdark.png",)),
+    DocFigure("platt_lightdark.png",
+              "Platt et al.'s light-dark problem: FIRM localises in the light, then goes to the goal",
+              _roadmap("platt_lightdark") + (
+                  f"firmtool plot {ARTIFACTS}/platt_lightdark.h5 --episodes 100 --dpi 70 --force "
+                  f"-o {FIGURES_DIR}/platt_lightdark.png",)),
     DocFigure("custom_robot_3d.png",
               "a robot of your own (examples/custom_robot_3d.py): a 3-D flyer seen from above",
               (f"python examples/custom_robot_3d.py {FIGURES_DIR}/custom_robot_3d.png",)),
@@ -100,6 +105,7 @@ RUNS: dict[str, tuple[str, ...]] = {
     "unicycle_lightdark.firm": _execute("unicycle_lightdark", "firm", "-n 200 --seed 7"),
     "unicycle_lightdark.noreplan": _execute("unicycle_lightdark", "noreplan", "-n 200 --seed 7 --no-replan"),
     "unicycle_perfect.firm": _execute("unicycle_perfect", "firm", "-n 200 --seed 7"),
+    "platt_lightdark.firm": _execute("platt_lightdark", "firm", "-n 200 --seed 0"),
     "point_lightdark.push40": _execute("point_lightdark", "push40", "-n 200 --seed 0 -d push:40:2.0"),
     "point_lightdark.push40_off": _execute("point_lightdark", "push40_off", "-n 200 --seed 0 -d push:40:2.0 --no-replan"),
     "point_lightdark.kidnap40": _execute("point_lightdark", "kidnap40", "-n 200 --seed 0 -d kidnap:40"),
@@ -134,6 +140,8 @@ def summary() -> None:
         cal = r.get("calibration") or {}
         print(f"{name}: {r['successes']}/{r['episodes']} = {r['success_rate']:.3f} ({lo:.3f}-{hi:.3f}); predicted "
               + ("-" if pred is None else f"{pred:.3f}") + (f" ({pci[0]:.3f}-{pci[1]:.3f})" if pci else "")
+              + (f"; estimate criterion {r['estimate_success_rate']:.3f}, goal misses {r['goal_misses']}"
+                 if r.get("estimate_success_rate") is not None else "")
               + f"; replans/episode {r['replans_per_episode']:.2f}; collisions {r['collisions']}, timeouts "
               f"{r['timeouts']}; calibration {cal.get('edges_checked')} of {cal.get('edges_taken')} checked, "
               f"flagged {cal.get('flagged_edges')}")

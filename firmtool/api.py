@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.edges import FAILURE, TIMEOUT
+from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.errors import InputError
 from firmtool.graph import SolveStatus
 from firmtool.nodes import GOAL, START_INDEX
@@ -191,6 +191,12 @@ class Roadmap:
     def timeout_counts(self) -> np.ndarray:
         """(E,) int64: particles of each edge that reached no node within the step budget."""
         return self._code_counts(TIMEOUT)
+
+    @property
+    def goal_miss_counts(self) -> np.ndarray:
+        """(E,) int64: particles of each edge whose belief landed in the goal region of a goal ball
+        with the true task point outside the ball (failures of the true-state criterion)."""
+        return self._code_counts(GOAL_MISS)
 
     @property
     def cost_mean(self) -> np.ndarray:
@@ -490,7 +496,8 @@ class Solution:
     def report(self) -> SolveReport:
         """The summary ``firmtool solve --json`` prints."""
         rm = self.roadmap
-        return pipeline.solve_report(rm.path, self._group(), rm.edges[:, 1], rm.goals)
+        return pipeline.solve_report(rm.path, self._group(), rm.edges[:, 1], rm.goals,
+                                     pipeline.node_task_points(rm._data))
 
     def to_dict(self) -> dict[str, Any]:
         """:attr:`report` as plain JSON types."""

@@ -435,6 +435,9 @@ def _solve_human(r: dict) -> str:
              f"{num(r['start_cost_to_go'])} (shortest path: success probability "
              f"{prob(r['shortest_path_start_success_probability'])})",
              f"policy path: {' -> '.join(map(str, r['path']))}"]
+    if r.get("path_task_points"):
+        lines.append("  in the task space: " + " -> ".join("(" + ", ".join(f"{v:.2f}" for v in q) + ")"
+                                                          for q in r["path_task_points"]))
     if r["unreachable_nodes"]:
         lines.append(f"{len(r['unreachable_nodes'])} nodes cannot reach the goal: {items(r['unreachable_nodes'])}")
     return "\n".join(lines)
@@ -471,9 +474,12 @@ def _execute_human(r: dict) -> str:
     predicted = "" if pred is None else f"; predicted {prob(pred)}" + (
         f" (95% {interval(r['predicted_success_probability_ci95'])}, from the edge counts)"
         if r.get("predicted_success_probability_ci95") else "")
+    missed = (f", {r['goal_misses']} goal misses (arrival declared, the true state not in the goal)"
+              if r.get("goal_misses") else "")
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "
-            f"{r['timeouts']} timeouts{stuck}\n"
-            f"success rate {prob(r['success_rate'])} (95% {interval(r['success_rate_ci95'])}){predicted}\n"
+            f"{r['timeouts']} timeouts{stuck}{missed}\n"
+            f"success rate {prob(r['success_rate'])} (95% {interval(r['success_rate_ci95'])}), judged on the true "
+            f"state{predicted}\n"
             f"mean steps {num(r['mean_steps'], 3)}, mean cost {num(r['mean_cost'])}, replans {r['replans']}"
             + _execute_extra_human(r))
 

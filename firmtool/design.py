@@ -14,7 +14,7 @@ import numpy as np
 from firmtool.controllers import (LocalController, NodeController, plan_local_controller, plan_local_controllers,
                                   weights)
 from firmtool.errors import NumericalError
-from firmtool.nodes import GOAL, NodeRegions, trajectory_is_valid, valid_pairs
+from firmtool.nodes import GOAL, START, START_INDEX, NodeRegions, start_belief_targets, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
 from firmtool.progress import DESIGN_EDGES, DESIGN_NODES, Counter, ProgressCallback
 
@@ -40,8 +40,26 @@ class Design:
         return NodeController(self.centers[j], self.u_eq[j], self.K[j], self.S[j], self.L[j], self.P[j], self.Sigma[j])
 
     def regions(self, problem: Problem) -> NodeRegions:
+        """The node regions (the stopping region Psi of every local controller): the nodes' own, with a
+        goal ball's region instead of the goal nodes', and without a start node whose start belief the
+        task gives (it is left, never landed in)."""
         c = problem.scenario.controller
-        return NodeRegions(self.centers, self.P, self.scale, c.node_radius, c.covariance_tolerance, problem.perfect)
+        goals = self.kinds == GOAL
+        excluded = np.zeros(self.centers.shape[0], dtype=bool)
+        if problem.goal_region is not None:
+            excluded |= goals
+        if problem.start_covariance is not None:
+            excluded |= self.kinds == START
+        return NodeRegions(self.centers, self.P, self.scale, c.node_radius, c.covariance_tolerance, problem.perfect,
+                           goal=problem.goal_region, excluded=excluded if excluded.any() else None, goal_nodes=goals,
+                           true_scale=true_scale(self.Sigma, self.P))
+
+
+def true_scale(Sigma: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Per-node, per-coordinate stationary std of the TRUE state under the stabiliser (N, n): the
+    estimate's covariance plus the error's (uncorrelated in the stationary filter), floored like
+    :func:`region_scale`."""
+    return region_scale(Sigma + P)
 
 
 def lqr_weights(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
@@ -87,18 +105,34 @@ def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tupl
     return problem.robot.nominal_trajectory(problem, x0, xf)
 
 
+def directed_edges(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
+                   free_pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The candidate edges (sorted) from the collision-free neighbour pairs: both directions, none
+    from a goal node (goals are absorbing) and none into a start node whose start belief the task
+    gives (it is never landed in); from such a start, edges to
+    :func:`~firmtool.nodes.start_belief_targets` as well. The serial and the parallel design share it."""
+    belief_start = problem.start_covariance is not None
+    directed = {p for i, j in free_pairs for p in ((int(i), int(j)), (int(j), int(i)))
+                if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START)}
+    if belief_start:
+        directed |= {(START_INDEX, j) for j in start_belief_targets(problem, centers)}
+    return sorted(directed)
+
+
 def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
             progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
 
-    No edge leaves a goal node (goals are absorbing).
+    No edge leaves a goal node (goals are absorbing), and none enters a start node whose start belief
+    the task gives (that node is never landed in: :meth:`Design.regions`); from such a start, edges
+    go to more candidates than its neighbours (:func:`firmtool.nodes.start_belief_targets`).
 
     Returns
     -------
     source, target, steps : (E,) int64 arrays sorted by (source, target).
     """
     counter = Counter(progress, DESIGN_EDGES, 3).start()  # the pairs' validity, the nominals, their checks
-    directed = sorted(p for i, j in valid_pairs(problem, centers) for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
+    directed = directed_edges(problem, centers, kinds, valid_pairs(problem, centers))
     counter.advance()
     ij = np.array(directed, dtype=np.int64).reshape(-1, 2)
     # the nominals of all edges, those of one length together (bit for bit nominal_trajectory's)
@@ -125,15 +159,26 @@ def design(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
                   Sigma=Sigma, scale=region_scale(Sigma), edge_source=src, edge_target=dst, edge_steps=steps)
 
 
+def start_covariance(problem: Problem, design_: Design, source: int) -> np.ndarray:
+    """The covariance the particles of an edge from ``source`` start with: the task's start belief's
+    for the start node when the task gives one, else the node's stationary covariance."""
+    if problem.start_covariance is not None and design_.kinds[source] == START:
+        return problem.start_covariance
+    return design_.P[source]
+
+
 def local_controller(problem: Problem, design_: Design, source: int, target: int,
                      start_state: np.ndarray | None = None, start_P: np.ndarray | None = None) -> LocalController:
     """Edge controller from ``source`` (or from an arbitrary belief) to ``target``, then its stabiliser.
 
     With ``start_state``/``start_P`` given (execution: initial controller, replanning), the nominal
-    runs from that state instead of the source node's centre.
+    runs from that state instead of the source node's centre. From a start node whose start belief
+    the task gives (``task.start_covariance``) the filter starts from that belief's covariance.
     """
     x0 = design_.centers[source] if start_state is None else start_state
-    P0 = design_.P[source] if start_P is None else start_P
+    if start_P is None:
+        start_P = start_covariance(problem, design_, source)
+    P0 = start_P
     x, u = nominal_trajectory(problem, x0, design_.centers[target])
     Wx, Wu = lqr_weights(problem)
     return plan_local_controller(problem.model, x, u, P0, node_controller(problem, design_, target), Wx, Wu,
@@ -160,6 +205,6 @@ def local_controllers(problem: Problem, design_: Design, pairs: list[tuple[int, 
     targets: dict[int, NodeController] = {}
     for j in np.unique(dst).tolist():
         targets[j] = node_controller(problem, design_, j)
-    return plan_local_controllers(problem.model, nominals, [design_.P[s] for s in src.tolist()],
+    return plan_local_controllers(problem.model, nominals, [start_covariance(problem, design_, s) for s in src.tolist()],
                                   [targets[t] for t in dst.tolist()], Wx, Wu, problem.scenario.controller.max_steps,
                                   problem.perfect, filter_steps_past_edge)

@@ -24,13 +24,13 @@ import numpy as np
 import scipy.sparse
 
 from firmtool.design import Design
-from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate, cost_weights
+from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, cost_weights
 from firmtool.problem import Problem
 from firmtool.scenario import CostSpec
 
 # Bump when the Monte Carlo's results change meaning (not for rounding-level changes): stored
 # estimates with an older version are then estimated again instead of reused.
-ENGINE_VERSION = 2  # 2: the compiled engine draws its noise in the kernel
+ENGINE_VERSION = 3  # 2: the compiled engine draws its noise in the kernel; 3: goal balls' regions and goal misses
 KEY_BYTES = 32
 _NODE_ARRAYS = ("centers", "u_eq", "K", "S", "L", "P", "Sigma", "scale")
 
@@ -162,7 +162,9 @@ def edge_costs(arrays: Mapping[str, np.ndarray], spec: CostSpec) -> np.ndarray:
 def outcome_probabilities(arrays: Mapping[str, np.ndarray], n_nodes: int) -> tuple[scipy.sparse.csr_matrix, np.ndarray,
                                                                                   np.ndarray, np.ndarray]:
     """Outcome frequencies of an edge table: landing (E, N) sparse, failure and timeout (E,), and the
-    particles (E,).
+    particles (E,). Failure includes the goal misses (:data:`firmtool.edges.GOAL_MISS`: a belief that
+    declared arrival with the true state outside the goal), so that the DP and the success
+    probabilities are for success judged on the true state.
 
     Raises
     ------
@@ -173,11 +175,12 @@ def outcome_probabilities(arrays: Mapping[str, np.ndarray], n_nodes: int) -> tup
     n = np.asarray(arrays["particles"]).astype(float)
     edge, code = np.asarray(arrays["outcome_edge"]), np.asarray(arrays["outcome_code"])
     count = np.asarray(arrays["outcome_count"]).astype(float)
-    if np.any(code >= n_nodes) or np.any(code < TIMEOUT):
+    if np.any(code >= n_nodes) or np.any(code < GOAL_MISS):
         raise ValueError("holds outcome codes outside the node range")
     land = code >= 0
     landing = scipy.sparse.csr_matrix((count[land] / n[edge[land]], (edge[land], code[land])), shape=(E, n_nodes))
-    fail = np.bincount(edge[code == FAILURE], weights=count[code == FAILURE], minlength=E) / n
+    failed = (code == FAILURE) | (code == GOAL_MISS)
+    fail = np.bincount(edge[failed], weights=count[failed], minlength=E) / n
     timeout = np.bincount(edge[code == TIMEOUT], weights=count[code == TIMEOUT], minlength=E) / n
     return landing, fail, timeout, np.asarray(arrays["particles"])
 

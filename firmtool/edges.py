@@ -2,8 +2,14 @@
 
 Per step, for all live particles at once: control from the estimate -> true-state step with
 process noise -> constraint test of the true state -> observation with R at the TRUE state ->
-filter update with the precomputed gain -> node membership (from the stabiliser phase on).
-Each particle ends landed in a node, failed (constraint violation) or timed out.
+filter update with the precomputed gain -> the goal region of a goal ball (every step) -> node
+membership (from the stabiliser phase on).
+Each particle ends landed in a node, failed (constraint violation) or timed out. A particle whose
+belief lands in the goal (the goal region of a goal ball, :mod:`firmtool.goal`, or a goal node)
+ends there only if its TRUE state is where the goal is (:meth:`firmtool.nodes.NodeRegions.true_arrival`),
+else with :data:`GOAL_MISS` (the policy would declare an arrival the environment refutes): the DP
+and the success probabilities count it as a failure, so that they predict success judged on the
+true state.
 """
 
 from __future__ import annotations
@@ -13,14 +19,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmtool.controllers import LocalController
-from firmtool.design import Design, local_controller
+from firmtool.design import Design, local_controller, start_covariance
 from firmtool.errors import NumericalError
 from firmtool.models.base import Model
-from firmtool.nodes import NodeRegions
+from firmtool.nodes import GOAL, GOAL_INDEX, START, NodeRegions
 from firmtool.problem import Problem
 from firmtool.scenario import START_MODES, CostSpec
 
-FAILURE, TIMEOUT = -1, -2  # outcome codes besides node ids
+# Outcome codes besides node ids: a constraint violated, no node reached in time, and a belief that
+# landed in the goal region of a goal ball while the true task point was outside the ball.
+FAILURE, TIMEOUT, GOAL_MISS = -1, -2, -3
 
 
 def edge_seed_sequence(seed: int, source: int, target: int, chunk: int = 0) -> np.random.SeedSequence:
@@ -69,7 +77,7 @@ def belief_step(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: 
 class ParticleOutcomes:
     """Per-particle results of running a local controller on an ensemble."""
 
-    outcome: np.ndarray  # (M,) node id, FAILURE or TIMEOUT
+    outcome: np.ndarray  # (M,) node id, FAILURE, TIMEOUT or GOAL_MISS
     steps: np.ndarray  # (M,) stopping time
     terms: np.ndarray  # (M, 3) cost terms: sum of tr(P_k), steps, control effort sum |u_k|^2
 
@@ -92,9 +100,19 @@ def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np
     return np.column_stack([trP[steps], steps.astype(float), effort])
 
 
+def goal_code(design_: Design, target: int) -> int:
+    """The outcome code of a landing in the goal region on an edge to ``target``: the target if it is
+    a goal node, else the first goal node (every goal node is the same absorbing goal of the DP)."""
+    return int(target) if design_.kinds[target] == GOAL else GOAL_INDEX
+
+
 def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.ndarray, xhat: np.ndarray,
-             rng: np.random.Generator, engine: str | None = None, numpy_noise: bool = False) -> ParticleOutcomes:
+             rng: np.random.Generator, engine: str | None = None, numpy_noise: bool = False,
+             goal_node: int = GOAL_INDEX) -> ParticleOutcomes:
     """Run ``lc`` on an ensemble until every particle lands, fails or times out.
+
+    ``goal_node``: the outcome of a particle whose belief lands in the goal region of a goal ball
+    with its true task point in the ball (:func:`goal_code`).
 
     ``engine``: ``"numpy"`` (this function's body), ``"numba"`` (:func:`firmtool.kernels.simulate`,
     the same step compiled) or None: chosen by :func:`firmtool.kernels.engine_for` (the compiled one
@@ -105,13 +123,14 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
     from firmtool import kernels
 
     if (engine or kernels.engine_for(problem)) == "numba":
-        return kernels.simulate(problem, lc, regions, x, xhat, rng, numpy_noise)
+        return kernels.simulate(problem, lc, regions, x, xhat, rng, numpy_noise, goal_node)
     model, perfect = problem.model, problem.perfect
     M = x.shape[0]
     outcome = np.full(M, TIMEOUT, dtype=np.int64)
     steps = np.full(M, lc.steps, dtype=np.int64)
     effort = np.zeros(M)
     candidates = regions.covariance_candidates(lc.P[1:])  # (T, N), once per edge
+    goal = regions.goal
     alive = np.arange(M)
     r, nz = model.F.shape[1], model.nz
     for k in range(lc.steps):
@@ -132,9 +151,19 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
         failed = ~problem.states_valid(x_a, pts)
         done = failed.copy()
         outcome[alive[failed]] = FAILURE
+        if goal is not None:  # the goal region of a goal ball, along the whole edge
+            arrived = ~failed
+            arrived[arrived] = goal.contains(xhat_a[arrived], lc.P[k + 1])
+            if arrived.any():
+                outcome[alive[arrived]] = np.where(goal.true_inside(x_a[arrived]), goal_node, GOAL_MISS)
+                done |= arrived
         if k + 1 >= lc.edge_steps and candidates[k].any():
             node = regions.locate(xhat_a, candidates[k])
-            landed = (node >= 0) & ~failed
+            landed = (node >= 0) & ~done
+            at_goal = np.flatnonzero(landed)[regions.goal_nodes[node[landed]]] if regions.goal_nodes is not None \
+                else np.zeros(0, dtype=np.int64)
+            if at_goal.size:  # a goal state's node: judged on the true state too
+                node[at_goal] = np.where(regions.true_arrival(node[at_goal], x_a[at_goal]), node[at_goal], GOAL_MISS)
             outcome[alive[landed]] = node[landed]
             done |= landed
         steps[alive[done]] = k + 1
@@ -149,7 +178,7 @@ class EdgeEstimate:
     source: int
     target: int
     particles: int
-    outcomes: np.ndarray  # (K,) distinct outcomes (node ids, FAILURE, TIMEOUT)
+    outcomes: np.ndarray  # (K,) distinct outcomes (node ids, FAILURE, TIMEOUT, GOAL_MISS)
     counts: np.ndarray  # (K,) particle counts
     terms_mean: np.ndarray  # (3,) mean of the cost terms (ParticleOutcomes.terms)
     terms_cov: np.ndarray  # (3, 3) their sample covariance (ddof 1; zeros for one particle)
@@ -181,9 +210,17 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
     only where the true state is valid (a robot arriving at a node is alive; without this a node
     near an obstacle would count starts inside it as failures). In execution, arrivals' rms offsets
     follow this law closely (quantiles 0.52/0.91/1.38 vs 0.53/0.90/1.30 on point_perfect).
+
+    From a start node whose start belief the task gives (``task.start_covariance``): the estimate at
+    the start's mean and the true state drawn from that belief, in either mode.
     """
     v = design_.centers[source]
     n = len(v)
+    if problem.start_covariance is not None and design_.kinds[source] == START and not problem.perfect:
+        # the task's start belief (whatever the start mode: the start node is never landed in)
+        xhat = np.repeat(v[None], M, axis=0)
+        chol = np.linalg.cholesky(start_covariance(problem, design_, source) + 1e-15 * np.eye(n))
+        return xhat + rng.standard_normal((M, n)) @ chol.T, xhat
     if start == "center":
         xhat = np.repeat(v[None], M, axis=0)
         if problem.perfect:
@@ -271,7 +308,8 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
             M = min(chunk, block_size - first)
             rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
             x, xhat = initial_ensemble(problem, design_, source, M, rng, start)
-            results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise))
+            results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise,
+                                    goal_code(design_, target)))
         outcome = np.concatenate([r.outcome for r in results])
         steps = np.concatenate([r.steps for r in results])
         terms = np.concatenate([r.terms for r in results])

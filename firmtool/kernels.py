@@ -7,7 +7,8 @@ what the numpy path does:
 
     control from the estimate -> true-state step with process noise -> kinematics (once) ->
     observation noise with R at the TRUE state -> filter update with the precomputed gain ->
-    control effort -> collision test -> node membership (from the stabiliser phase on)
+    control effort -> collision test -> goal region of a goal ball (every step) -> node membership
+    (from the stabiliser phase on)
 
 Compiled functions
     Each stage is a named compiled function, called by the kernel :func:`run`: :func:`control`,
@@ -50,6 +51,16 @@ Node membership
     cannot pass; the nearest passing node in the outer metric is kept only if fewer than ``k = 8``
     nodes (all nodes, as in the tree query) are nearer in that metric.
 
+Goal region
+    A task's goal ball (:mod:`firmtool.goal`) is tested per particle and step by :func:`goal_test`:
+    the estimate's task point (a point robot's position, a chain's tip) in the ball, then the
+    chance constraint on the task covariance ``J P J'`` by the same exact bounds and the same
+    direction rule as :func:`firmtool.goal.meets_confidence` (:func:`ball_decision`); a landing whose
+    TRUE task point lies outside the ball ends with ``GOAL_MISS``. For a chain a cheap necessary
+    condition comes first: the estimate's tip is within ``sum_l l_l |e_l|`` of the true tip (``e_l``
+    the error of link l's absolute angle), so particles whose true tip is farther than that from the
+    ball skip the estimate's kinematics.
+
 Selection: :func:`firmtool.edges.simulate` dispatches here when :func:`engine_for` says so: the
 environment variable ``FIRMTOOL_ENGINE=numpy`` forces the numpy path; unset, ``auto`` or ``numba``
 use this kernel whenever numba is importable and the kernel computes exactly the problem's Monte
@@ -60,6 +71,7 @@ one-line notice saying why (:func:`engine_choice`).
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -69,7 +81,7 @@ try:  # numba is a dependency, but keep the numpy path usable without it
 except ImportError:  # pragma: no cover
     numba = None
 
-FAILURE, TIMEOUT = -1, -2  # same codes as firmtool.edges
+FAILURE, TIMEOUT, GOAL_MISS = -1, -2, -3  # same codes as firmtool.edges
 ROBOT_POINT, ROBOT_ARM = 0, 1
 KINEMATICS = {"planar_point": ROBOT_POINT, "planar_chain": ROBOT_ARM}  # robots' compiled hooks
 NOISE_FORMS = {"lightdark_std": 0, "lightdark_variance": 1, "constant": 2}
@@ -94,8 +106,9 @@ def supports(problem) -> str | None:
 
     The robot says whether its kinematics are one of the kernel's kinds (its compiled hook,
     :meth:`firmtool.robots.Robot.compiled_kinematics`); the kernel also needs a linear model, a
-    noise form with a compiled twin, and the problem's validity to be exactly the scenario's planar
-    geometry (numpy/numba backend, boxes, the robot's own test, no user's checker)."""
+    noise form with a compiled twin, the problem's validity to be exactly the scenario's planar
+    geometry (numpy/numba backend, boxes, the robot's own test, no user's checker), and a goal ball's
+    task point to be the kinematics' last key point."""
     from firmtool.models.linear import LinearGaussianModel
 
     if numba is None:
@@ -117,6 +130,14 @@ def supports(problem) -> str | None:
         return f"collision backend {w.collision_backend!r} is not compiled (numpy/numba geometry only)"
     if len(w.lo) != 2 or any(o.kind != "box" for o in w.obstacles):
         return "the compiled engine's geometry is planar boxes only"
+    if problem.goal_region is not None:
+        from firmtool.robots.arm import ArmRobot
+        from firmtool.robots.base import Robot
+        from firmtool.robots.point import PointRobot
+
+        if type(robot).task_point is not Robot.task_point or \
+                type(robot).task_jacobian not in (Robot.task_jacobian, PointRobot.task_jacobian, ArmRobot.task_jacobian):
+            return "the robot's task point is its own, which the compiled goal test does not compute"
     noise = problem.model.noise
     if getattr(noise, "compiled", None) not in NOISE_FORMS:
         return f"measurement noise {getattr(noise, 'form', type(noise).__name__)!r} is not compiled"
@@ -239,6 +260,41 @@ def locate_one(regions, xhat: np.ndarray, candidates: np.ndarray) -> int:
                       data))
 
 
+_NO_GOAL_CENTER = np.zeros(2)
+_NO_GOAL_P = np.zeros((1, 1, 1))
+
+
+_node_goal_cache: dict[int, tuple[object, tuple]] = {}
+
+
+def _node_goal_data(regions) -> tuple:
+    """``(is_goal (N,) bool, true_scale (N, n))`` of ``regions`` (once per regions object)."""
+    hit = _node_goal_cache.get(id(regions))
+    if hit is not None and hit[0] is regions:
+        return hit[1]
+    N = regions.count
+    is_goal = np.zeros(N, dtype=np.bool_) if regions.goal_nodes is None else np.asarray(regions.goal_nodes, dtype=np.bool_)
+    scale = regions.true_scale if regions.true_scale is not None else regions.scale
+    data = (np.ascontiguousarray(is_goal), np.ascontiguousarray(scale, dtype=float))
+    if len(_node_goal_cache) > 8:
+        _node_goal_cache.clear()
+    _node_goal_cache[id(regions)] = (regions, data)
+    return data
+
+
+def _goal_group(regions, P_steps: np.ndarray, k_end: int, d_cfg: int, perfect: bool, goal_node: int) -> tuple:
+    """The kernel's goal group for steps up to ``k_end`` (module notes): the ball inactive without one."""
+    is_goal, true_scale = _node_goal_data(regions)
+    goal_region = regions.goal
+    if goal_region is None:
+        return (False, _NO_GOAL_CENTER, 1.0, 0.5, 1.0, _NO_GOAL_P, -1, is_goal, true_scale)
+    Pcfg = (np.zeros((k_end + 1, d_cfg, d_cfg)) if perfect
+            else np.ascontiguousarray(P_steps[:k_end + 1, :d_cfg, :d_cfg], dtype=float))
+    conf = float(goal_region.confidence)
+    return (True, np.ascontiguousarray(goal_region.center, dtype=float), float(goal_region.radius), conf,
+            -2.0 * math.log1p(-conf), Pcfg, int(goal_node), is_goal, true_scale)  # chi2_2.ppf(conf)
+
+
 def _robot_group(pd: _ProblemData) -> tuple:
     """The kernel's robot group ``(kind, lengths, sensing, self_collision)``: measurement j of a chain
     senses at the end of link j (key point j + 1), every measurement of a point robot at its point."""
@@ -310,10 +366,16 @@ PLANAR_POINT, PLANAR_CHAIN = ROBOT_POINT, ROBOT_ARM  # the kernel's two kinemati
 #              the key point whose x sets measurement j's noise
 #   world      (lo, hi, C, Hs, cs, sn, blo, bhi, radius): bounds, boxes (centre, half size, rotation,
 #              bounding box) and the robot's capsule radius
+#   goal       (active, center, radius, confidence, q_conf, Pcfg, goal_node, is_goal, true_scale): the goal
+#              ball (active False: none), chi2_2.ppf(confidence), the configuration block of the filter
+#              covariance per step (Pcfg[k + 1] after step k's update; zeros with perfect measurements),
+#              the landing's code; the goal nodes (N,) and the true state's spread at each node (N, n)
+#              (a goal state's landing is judged on the true state: NodeRegions.true_arrival)
 if numba is not None:
     from firmtool._jit import cached_njit
     from firmtool.controllers import mat_rows
     from firmtool.geometry._numba import seg_box_d2, seg_seg_d2
+    from firmtool.goal import BASE_DIRECTIONS, MAX_LEVEL, MIN_STD_FRACTION
 
     njit = cached_njit(nogil=True, fastmath=False, error_model="numpy")
     # The step's helpers are inlined into the kernel at numba's IR level: compiled separately (and
@@ -673,6 +735,166 @@ if numba is not None:
                     return -1
         return best
 
+    # -- the goal region of a goal ball --------------------------------------------------------------
+
+    @njit
+    def _ndtr(x):
+        return 0.5 * math.erfc(-x * 0.7071067811865476)
+
+    @njit
+    def _ray_sum(mx, my, l11, l21, l22, r, first, step, count):
+        """Sum over the angles ``2 pi (first + step i) / (count step)`` of the direction rule's integrand
+        (:func:`firmtool.goal._ray_rule` in 2-D: ``F_2(rho_2^2) - F_2(rho_1^2)``)."""
+        total = 0.0
+        c = mx * mx + my * my - r * r
+        n = count * step
+        for i in range(count):
+            phi = 2.0 * np.pi * (first + step * i) / n
+            ux, uy = np.cos(phi), np.sin(phi)
+            lx = l11 * ux
+            ly = l21 * ux + l22 * uy
+            a = lx * lx + ly * ly
+            b = lx * mx + ly * my
+            disc = b * b - a * c
+            if disc <= 0.0:
+                continue
+            root = np.sqrt(disc)
+            far = (-b + root) / a
+            if far <= 0.0:
+                continue
+            near = max((-b - root) / a, 0.0)
+            total += math.exp(-0.5 * near * near) - math.exp(-0.5 * far * far)
+        return total
+
+    @njit
+    def ball_decision(mx, my, s11, s12, s22, r, conf, q_conf):
+        """Whether N((mx, my), [[s11, s12], [s12, s22]]) puts at least ``conf`` on the disc of radius r
+        about the origin: the exact bounds, then the direction rule refined until the gap to ``conf``
+        exceeds four times the change between levels. Twin of :func:`firmtool.goal.meets_confidence`
+        (2-D); pinned by tests/test_goal.py::test_compiled_decision_is_the_numpy_one."""
+        floor = (MIN_STD_FRACTION * r) ** 2
+        a_, b_, c_ = s11 + floor, s12, s22 + floor
+        half_tr, det = 0.5 * (a_ + c_), a_ * c_ - b_ * b_
+        gap = np.sqrt(max(half_tr * half_tr - det, 0.0))
+        lam_max, lam_min = half_tr + gap, max(half_tr - gap, floor)
+        d = np.sqrt(mx * mx + my * my)
+        if d < r and (r - d) * (r - d) >= q_conf * lam_max:
+            return True
+        # the top eigenvector
+        if abs(b_) > 0.0:
+            vx, vy = lam_max - c_, b_
+        elif a_ >= c_:
+            vx, vy = 1.0, 0.0
+        else:
+            vx, vy = 0.0, 1.0
+        vn = np.sqrt(vx * vx + vy * vy)
+        vx, vy = vx / vn, vy / vn
+        if d > 0.0:
+            ux, uy = mx / d, my / d
+        else:
+            ux, uy = vx, vy
+        su = np.sqrt(max(ux * ux * a_ + 2.0 * ux * uy * b_ + uy * uy * c_, lam_min))
+        slab = _ndtr((r - d) / su) - _ndtr((-r - d) / su)
+        mt = vx * mx + vy * my
+        st = np.sqrt(lam_max)
+        slab = min(slab, _ndtr((r - mt) / st) - _ndtr((-r - mt) / st))
+        if slab < conf:
+            return False
+        l11 = np.sqrt(a_)
+        l21 = b_ / l11
+        l22 = np.sqrt(max(c_ - l21 * l21, floor))
+        N = BASE_DIRECTIONS
+        p = _ray_sum(mx, my, l11, l21, l22, r, 0, 1, N) / N
+        for level in range(1, MAX_LEVEL + 1):
+            new = 0.5 * (p + _ray_sum(mx, my, l11, l21, l22, r, 1, 2, N) / N)
+            change = abs(new - p)
+            p = new
+            N *= 2
+            if abs(p - conf) > 4.0 * change:
+                break
+        return p >= conf
+
+    @step
+    def goal_gate(X, XH, PX, PY, tip, kind, lengths, goal, E, bound, GG, na):
+        """``GG[a] = 1`` where :func:`goal_test` could pass for particle a (all particles at once, so
+        that it vectorises): a point robot's estimate in the ball; a chain's true tip within the ball
+        grown by ``sum_l l_l |e_l|`` (``e_l`` the estimate's error of link l's absolute angle). Elsewhere
+        ``goal_test`` returns False (``E``, ``bound``: work arrays)."""
+        center, r = goal[1], goal[2]
+        cx, cy = center[0], center[1]
+        if kind == PLANAR_CHAIN:
+            for a in range(na):
+                E[a] = 0.0
+                bound[a] = 0.0
+            for l in range(lengths.shape[0]):
+                ll = lengths[l]
+                for a in range(na):
+                    E[a] += XH[l, a] - X[l, a]
+                    bound[a] += ll * abs(E[a])
+            for a in range(na):
+                ex, ey = PX[tip, a] - cx, PY[tip, a] - cy
+                reach = r + bound[a]
+                GG[a] = ex * ex + ey * ey < reach * reach
+        else:
+            r2 = r * r
+            for a in range(na):
+                ex, ey = XH[0, a] - cx, XH[1, a] - cy
+                GG[a] = ex * ex + ey * ey < r2
+
+    @njit
+    def goal_test(xh, k, kind, lengths, goal, cs):
+        """Whether the belief ``(xh (n,), Pcfg[k + 1])`` of a particle lies in the goal region of the goal
+        ball (mean's task point in the ball, chance constraint met); ``cs`` (2, L) a work array (a
+        chain's cos and sin of the absolute link angles, shared by the tip and its Jacobian). Called
+        where :func:`goal_gate` passed. Twin of :meth:`firmtool.goal.GoalRegion.contains`; pinned by
+        tests/test_goal.py::test_kernel_goal_landing_is_the_numpy_one."""
+        active, center, r, conf, q_conf, Pcfg, goal_node, is_goal, true_scale = goal
+        cx, cy = center[0], center[1]
+        if kind == PLANAR_CHAIN:
+            L = lengths.shape[0]
+            tx, ty, phi = 0.0, 0.0, 0.0
+            for l in range(L):
+                phi += xh[l]
+                sp, cp = sincos(phi)
+                cs[0, l], cs[1, l] = cp, sp
+                tx += lengths[l] * cp
+                ty += lengths[l] * sp
+        else:
+            L = 2
+            tx, ty = xh[0], xh[1]
+        mx, my = tx - cx, ty - cy
+        if mx * mx + my * my >= r * r:
+            return False
+        P = Pcfg[k + 1]
+        perfect = True
+        for i in range(P.shape[0]):
+            for j in range(P.shape[1]):
+                if P[i, j] != 0.0:
+                    perfect = False
+        if perfect:
+            return True
+        if kind == PLANAR_CHAIN:
+            # J[:, j] = sum_{l >= j} l_l (-sin phi_l, cos phi_l); S = J P J'
+            jx, jy = np.empty(L), np.empty(L)
+            for l in range(L):
+                jx[l] = -lengths[l] * cs[1, l]
+                jy[l] = lengths[l] * cs[0, l]
+            for l in range(L - 2, -1, -1):
+                jx[l] += jx[l + 1]
+                jy[l] += jy[l + 1]
+            s11, s12, s22 = 0.0, 0.0, 0.0
+            for i in range(L):
+                ax, ay = 0.0, 0.0
+                for j in range(L):
+                    ax += P[i, j] * jx[j]
+                    ay += P[i, j] * jy[j]
+                s11 += jx[i] * ax
+                s12 += jx[i] * ay
+                s22 += jy[i] * ay
+        else:
+            s11, s12, s22 = P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1]
+        return ball_decision(mx, my, s11, s12, s22, r, conf, q_conf)
+
     # -- random numbers inside the kernel: xoshiro256++ and a 256-layer ziggurat -----------------
 
     @njit
@@ -734,7 +956,7 @@ if numba is not None:
 
     @njit
     def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, regions, sensor, robot,
-            world, perfect):
+            world, perfect, goal):
         """Advance the live particles ``alive[:n_alive]`` from step ``k`` to ``k_end`` (or until all stop).
 
         The arguments after ``pos`` are the groups listed above this module's compiled functions. The
@@ -771,6 +993,11 @@ if numba is not None:
         n_pts = n_seg + seg_offset
         PX, PY, PHI = np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty(N)
         px, py, xh1 = np.empty(n_pts), np.empty(n_pts), np.empty(n)
+        CS = np.empty((2, max(lengths.shape[0], 1)))
+        goal_on = goal[0]
+        goal_node = goal[6]
+        tip = n_pts - 1  # the task point: a chain's last key point, a point robot's only one
+        GG, EE, BB = np.zeros(N, dtype=np.uint8), np.empty(N), np.empty(N)
         na = N
         while k < k_end and na > 0:
             if stream:
@@ -791,6 +1018,8 @@ if numba is not None:
                 filter_update(A, B, H, L[k], X, XH, U, W, PX, sensor, sensing, PRED, HZ, INN, TMP, na)
             control_effort(U, E, na)
             collision_gate(PX, PY, na, n_seg, seg_offset, world, self_collision, half, G)
+            if goal_on:
+                goal_gate(X, XH, PX, PY, tip, kind, lengths, goal, EE, BB, GG, na)
             # per particle: constraints on the true state, node membership, compaction (order kept)
             test_nodes = cand_ptr[k + 1] > cand_ptr[k]
             kept = 0
@@ -804,11 +1033,26 @@ if numba is not None:
                         py[p] = PY[p, a]
                     failed = collides(px, py, n_seg, seg_offset, world, self_collision, half)
                 node = -1
-                if test_nodes and not failed:
+                gated = goal_on and GG[a] and not failed
+                if (test_nodes or gated) and not failed:
                     for j in range(n):
                         xh1[j] = XH[j, a]
+                if gated:
+                    if goal_test(xh1, k, kind, lengths, goal, CS):
+                        cx, cy = goal[1][0], goal[1][1]
+                        ex, ey = PX[tip, a] - cx, PY[tip, a] - cy
+                        node = goal_node if ex * ex + ey * ey < goal[2] * goal[2] else GOAL_MISS
+                if node == -1 and test_nodes and not failed:
                     node = locate(xh1, cand_ptr[k], cand_ptr[k + 1], cand_idx, cand_key, regions)
-                if failed or node >= 0:
+                    if node >= 0 and goal[7][node]:  # a goal state's node: judged on the true state too
+                        centers, tscale = regions[0], goal[8]
+                        s_ = 0.0
+                        for j in range(n):
+                            z_ = (X[j, a] - centers[node, j]) / tscale[node, j]
+                            s_ += z_ * z_
+                        if s_ / n >= regions[3]:
+                            node = GOAL_MISS
+                if failed or node != -1:
                     outcome[i] = FAILURE if failed else node
                     steps[i] = k + 1
                     for j in range(n):
@@ -844,7 +1088,7 @@ def kernel():
 
 
 def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.random.Generator,
-             numpy_noise: bool = False):
+             numpy_noise: bool = False, goal_node: int = 1):
     """Compiled twin of :func:`firmtool.edges.simulate` (same arguments, same result type).
 
     ``x`` and ``xhat`` (M, n) are updated in place for the particles' last live step, like the
@@ -888,6 +1132,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     ensemble = (alive, X, Xh, outcome, steps, effort)
     model, membership, robot = pd.mats, _locate_data(regions), _robot_group(pd)
     first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
+    d_cfg = 2 if pd.robot == PLANAR_POINT else pd.lengths.size
     cand_ptr = np.zeros(T + 1, dtype=np.int64)
     cand_idx, cand_key = np.zeros(0, dtype=np.int64), np.zeros(0)
     k_end, segment = 0, 0
@@ -907,8 +1152,9 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
             cand_ptr[:] = 0
             cand_ptr[lo_t:k_end + 1] = ptr
             cand_ptr[k_end + 1:] = ptr[-1]
+        goal = _goal_group(regions, P_, k_end, d_cfg, perfect, goal_node)
         groups = (model, (x_ref, u_ref, K_, Ld), (cand_ptr, cand_idx, cand_key), membership, pd.noise, robot, pd.world,
-                  bool(perfect))
+                  bool(perfect), goal)
         if not numpy_noise:
             k, n_alive, _ = run(k, k_end, n_alive, 0, ensemble, (noise, rng_state), *groups)
             continue

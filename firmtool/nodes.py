@@ -8,6 +8,19 @@ where ``s_j`` (n,) is the per-coordinate stationary spread of the estimate under
 stabiliser (so that a node is hit in a few steps even in 16 dimensions, and a node in the light is
 smaller than one in the dark) and ``rms`` is the root mean square over coordinates. With perfect
 measurements ``P = 0`` and the covariance test always passes.
+
+A task with a goal ball (``[task] goal_radius``) replaces the goal nodes' regions by the goal region
+(:class:`firmtool.goal.GoalRegion`): the beliefs whose mean's task point is in the ball and which
+put at least the task's confidence on the true task point being in it, tested at every step of an
+edge (:meth:`NodeRegions.goal_landing`). A start belief the task gives (``start_covariance``) is not
+its node's stationary belief: that node is only left, never landed in.
+
+Success is judged on the TRUE state (:meth:`NodeRegions.true_arrival`): in a goal ball, the true
+task point must lie in the ball; at a goal node of a goal state, the true state must lie in the
+node's region's mean test scaled by the true state's stationary spread under the stabiliser,
+``rms((x - v_j) / t_j) < radius`` with ``t_j = sqrt(diag(Sigma_j + P_s^j))`` (the estimate's
+covariance ``Sigma_j`` plus the error's ``P_s^j``: the two are uncorrelated in the stationary filter),
+the test an estimate passes, on the state the estimate stands for.
 """
 
 from __future__ import annotations
@@ -18,6 +31,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from firmtool.errors import RunFailure, ScenarioError
+from firmtool.goal import GoalRegion
 from firmtool.problem import Problem
 from firmtool.progress import SAMPLE, ProgressCallback, report
 
@@ -252,6 +266,24 @@ def valid_pairs(problem: Problem, centers: np.ndarray, cache: dict | None = None
     return [p for p, key in zip(pairs, keys) if cache[key]]
 
 
+START_CANDIDATES_PER_NEIGHBOR = 4  # a start belief's candidate targets: this many times roadmap.neighbors
+
+
+def start_belief_targets(problem: Problem, centers: np.ndarray) -> list[int]:
+    """The nodes an edge from a start belief the task gives (``task.start_covariance``) may go to: the
+    ``4 * roadmap.neighbors`` nearest within ``roadmap.max_edge_length`` whose segment from the start is
+    collision-free. The DP chooses among them by eq. 12 with each edge's Monte Carlo from the start
+    belief (the initial controller of the paper's III-E): a wide start belief may do best far from
+    its mean (in the light), so the candidates are more than a node's neighbours."""
+    spec = problem.scenario.roadmap
+    d, N = problem.config_dim, centers.shape[0]
+    k = min(START_CANDIDATES_PER_NEIGHBOR * spec.neighbors + 1, N)
+    dist, idx = cKDTree(centers[:, :d]).query(centers[START_INDEX, :d], k=k)
+    dist, idx = np.atleast_1d(dist), np.atleast_1d(idx)
+    keep = (idx != START_INDEX) & (idx < N) & (dist <= spec.max_edge_length)
+    return [int(j) for j in idx[keep] if segment_is_valid(problem, centers[START_INDEX], centers[j])]
+
+
 def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixed: np.ndarray,
                     max_attempts: int | None = None) -> np.ndarray:
     """Nodes grown outwards from the goal nodes by Gaussian steps in configuration space.
@@ -283,7 +315,7 @@ def grow_from_goals(problem: Problem, count: int, rng: np.random.Generator, fixe
 
 def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, existing: np.ndarray,
                        batches: int = 200) -> np.ndarray:
-    """More goal nodes: valid configurations at rest whose last key point (the tip) lies in the goal disc.
+    """More goal nodes: valid configurations at rest whose task point (the tip) lies in the goal ball.
 
     A goal region reached through different passages needs one goal node per way in: the arm's
     tip can reach the disc with its body through either passage.
@@ -293,12 +325,13 @@ def _goal_region_nodes(problem: Problem, count: int, rng: np.random.Generator, e
     min_sep = problem.scenario.roadmap.min_separation
     placed = _Points(d, [existing[:, :d]])
     found: list[np.ndarray] = []
+    task_point = problem.robot.task_point
     for _ in range(batches):
         if len(found) >= count:
             break
         q = rng.uniform(problem.config_lo, problem.config_hi, size=(4096, d))
         X = problem.state_of(q)
-        inside = np.linalg.norm(problem.points(X)[:, -1] - center, axis=1) < radius
+        inside = np.linalg.norm(task_point(X) - center, axis=1) < radius
         X = X[inside]
         X = X[problem.is_valid(X)]
         # greedy separation in order, from the existing nodes and those found before
@@ -319,6 +352,10 @@ class NodeRegions:
     radius: float
     cov_tol: float
     perfect: bool
+    goal: GoalRegion | None = None  # the goal region of a goal ball (it replaces the goal nodes' regions)
+    excluded: np.ndarray | None = None  # (N,) bool: nodes never landed in by the ordinary test
+    goal_nodes: np.ndarray | None = None  # (N,) bool: the goal nodes
+    true_scale: np.ndarray | None = None  # (N, n): the true state's spread under each node's stabiliser
 
     def __post_init__(self) -> None:
         # Prefilter in one metric that no node region exceeds: the largest spread per coordinate.
@@ -354,7 +391,17 @@ class NodeRegions:
         T = P_steps.shape[0]
         N = self.count
         if self.perfect:
-            return np.ones((T, N), dtype=bool)
+            out = np.ones((T, N), dtype=bool)
+        else:
+            out = self._covariance_test(P_steps)
+        if self.excluded is not None:
+            out &= ~self.excluded[None, :]
+        return out
+
+    def _covariance_test(self, P_steps: np.ndarray) -> np.ndarray:
+        """The covariance tests of :meth:`covariance_candidates` (imperfect measurements, before the
+        excluded nodes are removed)."""
+        T, N = P_steps.shape[0], self.count
         (i0, i1), weight = self._upper
         U = P_steps[:, i0, i1] * weight
         own = np.einsum("ij,ij->i", U, U)
@@ -373,6 +420,26 @@ class NodeRegions:
         dist2 = own[:, None] + norm2[None, :] - 2.0 * U @ self._P_upper[cols].T
         out[:, cols] = dist2 <= (tol**2) * norm2[None, :]
         return out
+
+    def true_arrival(self, node: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Whether the TRUE states ``x`` (M, n) of beliefs that landed in the goal nodes ``node`` (M,)
+        are where the goal is (module notes): in a goal ball, the true task point in the ball; at a
+        goal state, the true state in the node's mean test scaled by ``true_scale``. Without
+        ``true_scale`` (perfect measurements need none) the estimate's scale is used."""
+        x = np.atleast_2d(x)
+        node = np.asarray(node, dtype=np.int64)
+        if self.goal is not None:
+            return self.goal.true_inside(x)
+        scale = self.true_scale if self.true_scale is not None else self.scale
+        z = (x - self.centers[node]) / scale[node]
+        return np.mean(z * z, axis=1) < self.radius**2
+
+    def goal_landing(self, xhat: np.ndarray, P: np.ndarray | None) -> np.ndarray:
+        """Whether each belief ``(xhat_i, P)`` lies in the goal region (M, n) -> bool (M,) (all False
+        without a goal ball: then the goal nodes' own regions are the goal)."""
+        if self.goal is None:
+            return np.zeros(np.atleast_2d(xhat).shape[0], dtype=bool)
+        return self.goal.contains(xhat, P)
 
     def locate(self, xhat: np.ndarray, candidates: np.ndarray, k: int = 8) -> np.ndarray:
         """Node whose region holds each estimate, or -1.
@@ -404,10 +471,16 @@ class NodeRegions:
         return np.where(hit, idx[np.arange(len(xhat)), first], -1)
 
     def contains(self, node: int, xhat: np.ndarray, P: np.ndarray | None) -> bool:
-        """Whether one belief lies in the region of ``node``."""
+        """Whether one belief lies in the region of ``node`` (of a goal node under a goal ball: in the
+        goal region; of an excluded node: never)."""
+        if self.excluded is not None and self.excluded[node]:
+            return self.goal is not None and bool(self.goal.contains(xhat[None], P)[0]) and self._is_goal(node)
         d = np.sqrt(np.mean(((xhat - self.centers[node]) / self.scale[node]) ** 2))
         if d >= self.radius:
             return False
         if self.perfect or P is None:
             return True
         return bool(np.linalg.norm(P - self.P[node]) <= self.cov_tol * np.linalg.norm(self.P[node]))
+
+    def _is_goal(self, node: int) -> bool:
+        return self.goal_nodes is not None and bool(self.goal_nodes[node])

@@ -61,7 +61,7 @@ from firmtool.design import Design, design_nodes, local_controllers, region_scal
 from firmtool.edges import estimate_blocks, estimate_edge
 from firmtool.errors import InputError
 from firmtool.kernels import engine_for
-from firmtool.nodes import GOAL, neighbour_pairs, segments_valid, trajectory_is_valid
+from firmtool.nodes import neighbour_pairs, segments_valid, trajectory_is_valid
 from firmtool.problem import Problem, build_problem
 from firmtool.scenario import parse_scenario
 
@@ -715,7 +715,7 @@ def parallel_design(problem: Problem, centers: np.ndarray, kinds: np.ndarray, se
     """:func:`firmtool.design.design` on ``session``'s workers: the node stabilisers, the collision
     checks of the neighbour pairs and the nominal lengths of the edges, in tasks. The same design
     (every array bit for bit: each item is computed by the function the serial design uses)."""
-    from firmtool.design import design
+    from firmtool.design import design, directed_edges
 
     if not session.parallel:
         return design(problem, centers, kinds)
@@ -726,14 +726,13 @@ def parallel_design(problem: Problem, centers: np.ndarray, kinds: np.ndarray, se
     for r in session.run(job, node_stabilisers, batches(range(N), size, **session.task_sizes(32)), progress=progress):
         for j, nc in zip(r.edges, r.estimates):
             nodes[j] = nc
-    # neighbour pairs whose segment is free, then the edges (both directions, none from a goal)
+    # neighbour pairs whose segment is free, then the edges (design.directed_edges)
     pairs = np.array(neighbour_pairs(problem, centers), dtype=np.int64).reshape(-1, 2)
     job = problem_job(problem, centers=centers, pairs=pairs)
     free = np.zeros(pairs.shape[0], dtype=bool)
     for r in session.run(job, pairs_valid, batches(range(pairs.shape[0]), size, **session.task_sizes(64))):
         free[r.edges] = r.estimates
-    directed = sorted(p for i, j in pairs[free].tolist() for p in ((i, j), (j, i)) if kinds[p[0]] != GOAL)
-    edges = np.array(directed, dtype=np.int64).reshape(-1, 2)
+    edges = np.array(directed_edges(problem, centers, kinds, pairs[free].tolist()), dtype=np.int64).reshape(-1, 2)
     job = problem_job(problem, centers=centers, pairs=edges)
     steps = np.zeros(edges.shape[0], dtype=np.int64)
     for r in session.run(job, nominal_lengths, batches(range(edges.shape[0]), size, **session.task_sizes(128))):

@@ -20,10 +20,10 @@ from firmtool.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
 from firmtool.atomic import check_target
 from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.connectivity import connect_goals, connectivity_report
-from firmtool.design import Design, design
+from firmtool.design import Design, design, start_covariance
 from firmtool.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, edge_costs, edge_keys, from_arrays,
                                  outcome_probabilities, to_arrays)
-from firmtool.edges import FAILURE, TIMEOUT, EdgeEstimate, merge_estimates
+from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, solve_dp, success_probability
 from firmtool.kernels import engine_choice
@@ -193,8 +193,13 @@ def _check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: 
     d = design(problem, centers[keep], kinds[keep])
     regions = d.regions(problem)
     start = int(np.flatnonzero(keep == START_INDEX)[0])
+    P0 = start_covariance(problem, d, start)
     inside = [int(keep[g]) for g in np.flatnonzero(d.kinds == GOAL)
-              if regions.contains(int(g), d.centers[start], d.P[start])]
+              if regions.contains(int(g), d.centers[start], P0)]
+    if inside and problem.goal_region is not None:
+        raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
+                         "belief already meets it (its mean's task point lies in the goal ball, with probability "
+                         f">= task.goal_confidence {problem.scenario.task.goal_confidence:g} that the true one does)")
     if inside:
         raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
                          f"lies inside the region of goal node {inside[0]} (controller.node_radius "
@@ -455,7 +460,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
         if spare else None
     write_stage(path, "edges", arrays,
                 {"inputs_sha256": table_hash if not failed else "incomplete",
-                 "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT,
+                 "seed": sc.seed, "failure_code": FAILURE, "timeout_code": TIMEOUT, "goal_miss_code": GOAL_MISS,
                  "engine_version": ENGINE_VERSION, "failed_edges": len(failed),
                  "particles_first_pass": sc.estimation.particles,
                  "particles_added": adaptive.particles_added if adaptive else 0}, cache=spare_table)
@@ -480,7 +485,11 @@ def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, fa
 
 
 def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
-    """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``."""
+    """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``.
+
+    Failure includes the goal misses (:data:`firmtool.edges.GOAL_MISS`: the belief declared arrival in
+    a goal ball that the true task point was outside of), so that the DP and the success
+    probabilities are for success judged on the true state."""
     e = roadmap.require("edges", "source", "particles", "outcome_edge", "outcome_code", "outcome_count")
     N = roadmap.require("nodes", "centers")["centers"].shape[0]
     try:
@@ -574,9 +583,11 @@ def write_policy(path: str | Path, group: PolicyGroup) -> None:
 
 
 def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_target: np.ndarray,
-                 goals: np.ndarray) -> SolveReport:
-    """The summary of a solved policy (what ``firmtool solve --json`` prints)."""
+                 goals: np.ndarray, task_points: np.ndarray | None = None) -> SolveReport:
+    """The summary of a solved policy (what ``firmtool solve --json`` prints); ``task_points`` (N, D):
+    the nodes' task points, for the path's."""
     a, at = group.arrays, group.attrs
+    path = tuple(policy_path(a["edge"], edge_target, START_INDEX, goals))
     return SolveReport(roadmap=None if roadmap_path is None else str(roadmap_path),
                        status=SolveStatus[str(at["status"])], iterations=int(at["iterations"]),
                        residual=float(at["residual"]), failure_cost=float(at["failure_cost"]),
@@ -584,8 +595,9 @@ def solve_report(roadmap_path: str | Path | None, group: PolicyGroup, edge_targe
                        start_success_probability=float(a["success_probability"][START_INDEX]),
                        shortest_path_start_success_probability=float(
                            a["shortest_path_success_probability"][START_INDEX]),
-                       unreachable_nodes=tuple(int(i) for i in a["unreachable"]),
-                       path=tuple(policy_path(a["edge"], edge_target, START_INDEX, goals)), seconds=group.seconds,
+                       unreachable_nodes=tuple(int(i) for i in a["unreachable"]), path=path, seconds=group.seconds,
+                       path_task_points=() if task_points is None else
+                       tuple(tuple(float(v) for v in task_points[j]) for j in path),
                        start_success_probability_ci95=_interval_or_none(at.get("success_probability_ci95")),
                        shortest_path_start_success_probability_ci95=_interval_or_none(
                            at.get("shortest_path_success_probability_ci95")))
@@ -618,7 +630,21 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     if not np.isfinite(J[START_INDEX]):
         raise unreachable_failure(path, len(group.arrays["unreachable"]), J.size)
     goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
-    return solve_report(path, group, roadmap.require("edges", "target")["target"], goals)
+    return solve_report(path, group, roadmap.require("edges", "target")["target"], goals, node_task_points(roadmap))
+
+
+def node_task_points(roadmap: Roadmap) -> np.ndarray | None:
+    """The nodes' task points (N, D) (:meth:`firmtool.robots.Robot.task_point`; the robot alone is
+    built, not the problem), or None when the robot cannot be built here (a robot class the
+    roadmap's process had and this one has not)."""
+    from firmtool import robots
+
+    try:
+        scenario = parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml")
+        robot = robots.get(scenario.model.robot)(scenario)
+    except FirmtoolError:
+        return None
+    return robot.task_point(roadmap.require("nodes", "centers")["centers"])
 
 
 def _finite_or_none(x: float) -> float | None:

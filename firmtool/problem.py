@@ -18,6 +18,7 @@ from firmtool.models.base import Model
 from firmtool.scenario import Scenario
 
 if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.goal import GoalRegion
     from firmtool.robots.base import Robot
 
 
@@ -90,7 +91,14 @@ class Problem:
         last one is the point a user follows (the point robot itself, the arm's tip).
     workspace_gain : bound on how far any robot point moves per unit of configuration change
         (1 for a point robot, the arm's total length), to space collision checks along paths.
-    goal_disc : (center (D,), radius) when the goal is a ball for the robot's last key point.
+    goal_disc : (center (D,), radius) when the goal is a ball in the robot's task space (its last key point).
+    goal_region : the goal ball's region of beliefs (:class:`firmtool.goal.GoalRegion`: mean in the ball
+        and the task's confidence that the true task point is in it), or None (a goal state: the goal
+        node's region is the goal).
+    start_covariance : (n, n) the start belief's covariance when the task gives one, else None (the
+        start node's stationary belief is the start belief).
+    true_start : (n,) the true start of simulations when the task gives one, else None (drawn from
+        the start belief).
     points_valid : the scenario's geometry on key points (M, P, D) -> bool (M,), so that a caller
         that already has the points (the Monte Carlo: kinematics once per step) does not recompute
         them. Without the user's checker: see :meth:`states_valid`.
@@ -115,6 +123,9 @@ class Problem:
     sensing_from_points: Callable[[np.ndarray], np.ndarray] | None = None
     robot: "Robot | None" = None
     validity: ValidityChecker | None = None
+    goal_region: "GoalRegion | None" = None
+    start_covariance: np.ndarray | None = None
+    true_start: np.ndarray | None = None
 
     @property
     def velocity_dim(self) -> int:
@@ -176,14 +187,31 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
         def is_valid(X: np.ndarray) -> np.ndarray:
             return robot.is_valid(X) & checker(X)
     start, goal, goal_disc = _task_states(robot, scenario, is_valid, checker)
+    task = scenario.task
+    goal_region = None
+    if goal_disc is not None:
+        from firmtool.goal import GoalRegion
+
+        goal_region = GoalRegion(center=goal_disc[0], radius=goal_disc[1], confidence=task.goal_confidence,
+                                 perfect=scenario.perfect, task_point=robot.task_point,
+                                 task_jacobian=robot.task_jacobian)
+    for name, value in (("task.start_covariance", task.start_covariance), ("task.true_start", task.true_start)):
+        if value is not None and scenario.perfect:
+            raise ScenarioError(scenario.path, name, "only read with imperfect measurements (with perfect ones "
+                                                     "the state is measured: the start is task.start)")
+    true_start = None if task.true_start is None else robot._task_state("task.true_start", task.true_start)
     problem = Problem(scenario=scenario, model=robot.model, perfect=scenario.perfect, config_dim=robot.config_dim,
                       config_lo=np.asarray(robot.config_lo), config_hi=np.asarray(robot.config_hi),
                       is_valid=is_valid, start=start, goal=goal, points=robot.points,
                       workspace_gain=float(robot.workspace_gain), goal_disc=goal_disc,
                       points_valid=robot.points_valid, sensing_from_points=robot.sensing_from_points,
-                      robot=robot, validity=checker)
+                      robot=robot, validity=checker, goal_region=goal_region, true_start=true_start)
     _check_task(problem)
     robot.check(problem)
+    if task.start_covariance is not None:
+        import dataclasses
+
+        problem = dataclasses.replace(problem, start_covariance=robot.start_belief_covariance(problem))
     return problem
 
 
@@ -213,20 +241,27 @@ def _task_states(robot: "Robot", scenario: Scenario, is_valid: Callable[[np.ndar
 
 
 def _check_task(problem: Problem) -> None:
-    """Input errors every robot shares: start and goal inside the bounds, valid and at rest; a
-    measurement to take; room for a second node."""
+    """Input errors every robot shares: start and goal inside the bounds, valid and at rest; a true
+    start inside the bounds and valid; a measurement to take; room for a second node."""
     sc, robot = problem.scenario, problem.robot
-    for name, state in (("task.start", problem.start), ("task.goal", problem.goal)):
+    states = [("task.start", problem.start), ("task.goal", problem.goal)]
+    if problem.true_start is not None:
+        states.append(("task.true_start", problem.true_start))
+    for name, state in states:
         config = state[:problem.config_dim]
         if np.any(config < problem.config_lo) or np.any(config > problem.config_hi):
             raise ScenarioError(sc.path, name, f"expected a state inside {robot.bounds_name}, "
                                                f"found {np.array2string(config, precision=4)}")
-        if not problem.is_valid(state[None])[0]:
+        # the true start is tested as the Monte Carlo tests true states (a robot's node validity may
+        # keep a margin, as the unicycle's does)
+        ok = (problem.states_valid(state[None], problem.points(state[None])) if name == "task.true_start"
+              else problem.is_valid(state[None]))[0]
+        if not ok:
             _check_free_space(problem)
             raise ScenarioError(sc.path, name, "expected a collision-free state inside world.bounds (it is in collision "
                                                "with an obstacle or the world's edge, at world.robot_radius"
                                                + (", or the validity checker refuses it)" if problem.validity else ")"))
-        if np.any(state[problem.config_dim:] != 0):
+        if name != "task.true_start" and np.any(state[problem.config_dim:] != 0):
             raise ScenarioError(sc.path, name, robot.rest_state_text)
     if not sc.perfect and problem.model.nz == 0:
         raise ScenarioError(sc.path, "measurement.H", "expected at least one measurement row")

@@ -351,6 +351,8 @@ class SolveReport(Report):
     start_success_probability_ci95, shortest_path_start_success_probability_ci95 : 95% intervals of
         the two start success probabilities from the edge-count uncertainty, computed at solve time
         (:func:`firmtool.calibration.predicted_interval`); None for a policy solved before they were.
+    path_task_points : the task point (a point robot's position, the arm's tip) of each node of
+        ``path``, where the caller knows the robot (empty otherwise).
     """
 
     roadmap: str | None
@@ -367,6 +369,7 @@ class SolveReport(Report):
     seconds: float
     start_success_probability_ci95: tuple[float, float] | None = None
     shortest_path_start_success_probability_ci95: tuple[float, float] | None = None
+    path_task_points: tuple[tuple[float, ...], ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,7 +19,8 @@ from firmtool.reports import Report
 class Outcome(enum.StrEnum):
     """How an episode ended."""
 
-    SUCCESS = "success"  # reached a goal node
+    SUCCESS = "success"  # the policy declared the goal, and the true state is there
+    GOAL_MISS = "goal_miss"  # the policy declared the goal, but the true state is not there
     COLLISION = "collision"  # the true state violated a constraint
     TIMEOUT = "timeout"  # a controller ran out of steps, or the episode hit its step limit
     STUCK = "stuck"  # no controller could be designed from the start belief
@@ -38,7 +39,8 @@ class EventKind(enum.StrEnum):
     INNOVATION_ALARM = "innovation_alarm"  # the measurements contradicted the belief (value: the test statistic)
     COLLISION = "collision"
     TIMEOUT = "timeout"
-    GOAL = "goal"
+    GOAL = "goal"  # the policy declared arrival and the true state is in the goal
+    GOAL_MISS = "goal_miss"  # the policy declared arrival but the true state is not in the goal
     STUCK = "stuck"
 
 
@@ -186,8 +188,11 @@ class Results(Report):
     ----------
     episodes : the :class:`Episode` list (its arrays when recorded). In ``to_dict()`` (the JSON of
         ``firmtool execute``) only their number appears, as ``episodes``.
-    successes, collisions, timeouts, stuck : outcome counts.
-    success_rate : successes / episodes.
+    successes, collisions, timeouts, stuck, goal_misses : outcome counts.
+    success_rate : successes / episodes: episodes whose policy declared arrival with the TRUE state in
+        the goal (in a goal ball: the true task point in the ball; at a goal state: the true state in
+        the goal node's region, :meth:`firmtool.nodes.NodeRegions.true_arrival`), as the environment
+        judges it.
     success_rate_ci95 : Wilson 95% interval of the success rate (also :attr:`ci95`).
     predicted_success_probability : the plan's success probability from the start (None for a
         start state given by the caller).
@@ -214,6 +219,8 @@ class Results(Report):
     replan_over_deadline : decisions whose wall time exceeded the deadline (measured, whatever the clock).
     replan_latency : ``"0"`` or ``"measured"`` (a new controller applied after the decision's time).
     calibration : executed vs estimated edge frequencies (None without the edge counts).
+    estimate_success_rate, estimate_success_rate_ci95 : the episodes whose policy declared arrival,
+        whatever the true state (the criterion before issue 15: the estimate reached the goal).
     policy : the policy's name (``"firm"`` or ``"shortest-path"``), None when run on a bare edge array.
     """
 
@@ -257,6 +264,9 @@ class Results(Report):
     replan_deadline_hits: int = 0
     replan_over_deadline: int = 0
     replan_latency: str = "0"
+    goal_misses: int = 0
+    estimate_success_rate: float | None = None
+    estimate_success_rate_ci95: tuple[float, float] | None = None
 
     _json_names: ClassVar[dict[str, str]] = {"event_counts": "events"}
 

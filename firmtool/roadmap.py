@@ -9,7 +9,7 @@ Layout (schema version 1)::
                       edge_source, edge_target, edge_steps (per edge)      attrs: inputs_sha256
     /edges            source, target, particles, cost_mean, cost_std, steps_mean, particle_steps (E,),
                       outcome_edge, outcome_code, outcome_count (sparse counts; code = node id,
-                      -1 failure, -2 timeout), key (E, 32) uint8 sha256 of each edge's inputs,
+                      -1 failure, -2 timeout, -3 goal miss), key (E, 32) uint8 sha256 of each edge's inputs,
                       cost_terms_mean (E, 3), cost_terms_cov (E, 3, 3) (sum tr P, steps,
                       effort; weighted at solve time)                      attrs: inputs_sha256, seed
     /policy           cost_to_go, edge, success_probability (N,)          attrs: status, iterations, ...
@@ -668,7 +668,7 @@ def _check_edges(rm: Roadmap | Path, arrays: Mapping[str, np.ndarray], dims: dic
             _fail(at("cost_terms_cov"), "holds negative variances")
     edge, code, count = arrays["outcome_edge"], arrays["outcome_code"], arrays["outcome_count"]
     _index(at("outcome_edge"), edge, 0, F, "F")
-    _index(at("outcome_code"), code, -2, None if N is None else N, "N")  # -1 failure, -2 timeout
+    _index(at("outcome_code"), code, -3, None if N is None else N, "N")  # -1 failure, -2 timeout, -3 goal miss
     _index(at("outcome_count"), count, 0, None)
     per_edge = np.bincount(edge, weights=count.astype(float), minlength=F) if edge.size else np.zeros(F)
     bad = np.flatnonzero(per_edge != particles)

@@ -119,13 +119,29 @@ class WorldSpec:
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """Start and goal. The goal is a state/configuration, or (robots with goal regions, e.g. the
-    arm) a ball the last key point must reach."""
+    """``[task]``: the start belief, the goal, and (simulation only) the true start.
+
+    ``start`` is the start belief's mean (a configuration or a state), ``start_covariance`` its
+    covariance (None: the stationary belief of a node at the start, as the robot designs it). The goal
+    is a configuration or state (``goal_radius`` None: reaching the goal node's region is arrival), or
+    with ``goal_radius`` the centre of a ball in the robot's task space (its last key point:
+    :meth:`firmtool.robots.Robot.task_point`), which the policy may declare reached when the belief's
+    mean lies in it and the belief puts at least ``goal_confidence`` on the true task point lying in
+    it (:mod:`firmtool.goal`). ``true_start`` (simulation only) is the true start state; None: drawn
+    from the start belief.
+    """
 
     start: np.ndarray
     goal: np.ndarray | None
-    goal_center: np.ndarray | None = None
-    goal_radius: float = 0.0
+    goal_radius: float | None = None
+    goal_confidence: float = 0.95
+    start_covariance: np.ndarray | None = None
+    true_start: np.ndarray | None = None
+
+    @property
+    def goal_ball(self) -> bool:
+        """Whether the goal is a ball in the task space (``goal_radius`` given)."""
+        return self.goal_radius is not None
 
 
 @dataclass(frozen=True)
@@ -270,14 +286,36 @@ WORLD_FIELDS = (
           doc="collision backend (firmtool.geometry.registry): numpy, numba (2-D) or fcl (2-D and 3-D)"),
     Field("obstacles", "tables", [], doc="the obstacles, each a table with a kind (firmtool.geometry.shapes)"),
 )
+def _open_probability(x: float) -> str | None:
+    return None if 0 < x < 1 else f"expected a probability in (0, 1), found {x}"
+
+
+def _covariance_problem(M: np.ndarray) -> str | None:
+    from firmtool.robots.linear import psd_problem
+
+    if M.shape[0] != M.shape[1] or M.shape[0] == 0:
+        return f"expected a square matrix but found shape {M.shape}"
+    return psd_problem(M, strict=True)
+
+
 TASK_FIELDS = (
-    Field("start", "array", shape=(None,), doc="start configuration or state"),
-    Field("goal", "array", shape=("start",), doc="goal configuration or state"),
+    Field("start", "array", shape=(None,), doc="the start belief's mean: a configuration or a state"),
+    Field("start_covariance", "array", None, shape=(None, None), check=_covariance_problem,
+          doc="the start belief's covariance, symmetric positive definite: of the configuration (d, d) or "
+              "the state (n, n) (default: the stationary belief of a node at the start)"),
+    Field("true_start", "array", None, shape=(None,),
+          doc="simulation only: the true start configuration or state (default: drawn from the start belief)"),
+    Field("goal", "array", shape=(None,),
+          doc="the goal configuration or state; with goal_radius the centre of the goal ball in the task "
+              "space (D,): the robot's last key point (the point robot's position, the arm's tip)"),
+    Field("goal_radius", "number", None, bound="positive", unit="workspace",
+          doc="radius of the goal ball in the task space (default: none, the goal node's region is the goal)"),
+    Field("goal_confidence", "number", 0.95, check=_open_probability,
+          doc="with goal_radius: the probability under the belief that the true task point lies in the "
+              "goal ball, required to declare arrival"),
 )
-GOAL_REGION_FIELDS = (  # robots with goal regions, when task.goal is not given
-    Field("goal_center", "array", shape=("D",), unit="workspace", doc="centre of the ball the last key point must reach"),
-    Field("goal_radius", "number", bound="positive", unit="workspace", doc="its radius"),
-)
+# Old spellings still read: [task] goal_center is goal (with goal_radius), as the arm took it.
+TASK_ALIASES = {"goal_center": "goal"}
 ROADMAP_FIELDS = (
     Field("nodes", "integer", bound="positive", doc="regular nodes sampled uniformly"),
     Field("neighbors", "integer", 6, bound="positive", doc="each node is connected to this many nearest nodes"),
@@ -333,7 +371,7 @@ def sections() -> dict[str, tuple[Field, ...]]:
     """The keys of every section that do not depend on a plugin (the scenario reference's base);
     robots, noise forms and obstacle kinds list theirs (``model_fields``, ``fields``)."""
     return {"scenario": SCENARIO_FIELDS, "model": MODEL_FIELDS, "measurement": MEASUREMENT_FIELDS,
-            "world": WORLD_FIELDS, "task": TASK_FIELDS + GOAL_REGION_FIELDS, "roadmap": ROADMAP_FIELDS,
+            "world": WORLD_FIELDS, "task": TASK_FIELDS, "roadmap": ROADMAP_FIELDS,
             "controller": CONTROLLER_FIELDS, "estimation": ESTIMATION_FIELDS, "cost": COST_FIELDS,
             "execution": EXECUTION_FIELDS}
 
@@ -655,7 +693,11 @@ def _read_mesh(errors: Errors, prefix: str, values: dict, path: str) -> bool:
 
 
 def _read_task(errors: Errors, data: dict, robot_cls: type | None, world: WorldSpec | None) -> TaskSpec | None:
-    """``[task]``: the start, and a goal state or (robots with goal regions) a goal ball."""
+    """``[task]``: the start belief, the goal (a state, or a ball in the task space) and the true start.
+
+    The sizes that depend on the robot's state (a configuration or a state; ``start_covariance`` of
+    either) are checked when the problem is built (:meth:`firmtool.robots.Robot.task_states`); the
+    goal ball's centre has the world's dimension, a goal state the start's size."""
     if "task" not in data:
         errors.add("task", "missing required field")
         return None
@@ -663,19 +705,31 @@ def _read_task(errors: Errors, data: dict, robot_cls: type | None, world: WorldS
     if not isinstance(raw, dict):
         errors.add("task", "expected a table")
         return None
-    start = read_value(errors, "task", raw, TASK_FIELDS[0])
-    dims = {"D": world.dim} if world is not None else {}
-    if valid(start):
-        dims["start"] = start.shape[0]
-    if robot_cls is not None and robot_cls.goal_region and "goal" not in raw:
-        values = read_table(errors, "task", raw, GOAL_REGION_FIELDS, dims, known_extra=("start",))
-        if not valid(start, *values.values()):
-            return None
-        return TaskSpec(start=start, goal=None, goal_center=values["goal_center"], goal_radius=values["goal_radius"])
-    values = read_table(errors, "task", raw, TASK_FIELDS[1:], dims, known_extra=("start",))
-    if not valid(start, *values.values()):
+    raw = dict(raw)
+    for old, key in TASK_ALIASES.items():
+        if old in raw:
+            if key in raw:
+                errors.add(f"task.{old}", f"expected either {key} or {old} (its old name), not both")
+                return None
+            raw[key] = raw.pop(old)
+    before = len(errors.items)
+    values = read_table(errors, "task", raw, TASK_FIELDS)
+    if values is None:
         return None
-    return TaskSpec(start=start, goal=values["goal"])
+    start, goal, radius = values["start"], values["goal"], values["goal_radius"]
+    name = lambda key: "task.goal_center" if key == "goal" and "goal_center" in data["task"] else f"task.{key}"  # noqa: E731
+    if valid(radius) and radius is None and "goal_confidence" in raw:
+        errors.add("task.goal_confidence", "only read with task.goal_radius (a goal ball)")
+    if valid(start, goal, radius):
+        if radius is not None and world is not None and goal.shape[0] != world.dim:
+            errors.add(name("goal"), f"expected shape ({world.dim},) (a point of the {world.dim}-D task space, "
+                                     f"with goal_radius) but found {goal.shape}")
+        elif radius is None and goal.shape != start.shape:
+            errors.add(name("goal"), f"expected shape {start.shape} (as task.start) but found {goal.shape}")
+    if not valid(*values.values()) or len(errors.items) > before:
+        return None
+    return TaskSpec(start=start, goal=goal, goal_radius=radius, goal_confidence=values["goal_confidence"],
+                    start_covariance=values["start_covariance"], true_start=values["true_start"])
 
 
 # -- Scenarios from Python values, and back to TOML (the work is done in firmtool.scenario_io) ------

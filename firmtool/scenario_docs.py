@@ -273,21 +273,14 @@ def reference(robots: Iterable[str] | None = None) -> list[SectionDoc]:
     from firmtool import robots as robot_registry
     from firmtool.geometry.shapes import KIND_FIELD, KINDS
     from firmtool.models import noise
-    from firmtool.scenario import GOAL_REGION_FIELDS, OPTIONAL_SECTIONS, sections
+    from firmtool.scenario import OPTIONAL_SECTIONS, sections
 
     robots = builtin_robots() if robots is None else tuple(robots)
     shipped = _shipped_values()
     out: list[SectionDoc] = []
     for name, fields in sections().items():
-        region = [f for f in fields if name == "task" and f in GOAL_REGION_FIELDS]
-        keys = tuple(key_doc(name, f, (name,), shipped) for f in fields if f not in region)
+        keys = tuple(key_doc(name, f, (name,), shipped) for f in fields)
         out.append(SectionDoc(name, "", SECTION_DOCS.get(name, ""), name not in OPTIONAL_SECTIONS, keys))
-        if region:  # robots whose goal may be a region of their last key point give it instead of goal
-            with_region = [r for r in robots if robot_registry.get(r).goal_region]
-            out.append(SectionDoc("task", "a goal region, instead of goal", "for a robot with goal regions ("
-                                  + ", ".join(f"robot = {json.dumps(r)}" for r in with_region) + "), a ball its last "
-                                  "key point (the arm's tip) must reach, instead of a goal state", False,
-                                  tuple(key_doc(name, f, (name,), shipped) for f in region)))
         if name == "model":
             for robot in robots:
                 cls = robot_registry.get(robot)
@@ -472,13 +465,10 @@ def template(name: str, robot: str = DEFAULT_ROBOT) -> str:
             obstacles = given.get("obstacles", [])
             lines.append("obstacles = [" + ("" if not obstacles else "\n" + "".join(
                 f"  {toml_value(o)},\n" for o in obstacles)) + "]")
-        elif section == "task" and robot_cls.goal_region and "goal_center" in given:
-            lines.append("# the goal: a state (goal), or a disc the last key point (the tip) must reach "
-                         "(goal_center and goal_radius)")
-            lines += _key_lines(fields, given, skip=("goal",))
         elif section == "task":
-            region = {"goal_center", "goal_radius"}
-            lines += _key_lines(fields, given, skip=() if robot_cls.goal_region else region)
+            lines.append("# the start: a state, or a belief (start_covariance); the goal: a state, or with "
+                         "goal_radius a ball in the task space (the position; the arm's tip)")
+            lines += _key_lines(fields, given)
         else:
             lines += _key_lines(fields, given)
         lines.append("")

@@ -44,7 +44,7 @@ _NOT_SETTINGS = ("path", "text", "sha256")  # where a scenario came from, not wh
 # (section, field) -> TOML key, where they differ; both rows of world.bounds come from lo and hi.
 _KEYS = {("world", "lo"): "bounds", ("world", "hi"): "bounds"}
 # Keys that spell the same setting another way: removed when the canonical key is written.
-_ALIASES = {("model", "link_lengths"): ("links", "link_length")}
+_ALIASES = {("model", "link_lengths"): ("links", "link_length"), ("task", "goal"): ("goal_center",)}
 
 
 def toml_value(obj: Any) -> Any:
@@ -256,6 +256,8 @@ def replace_scenario(scenario: Scenario, **changes: Any) -> Scenario:
                                 f"found {type(value).__name__}")
             table = tables.setdefault(key, {})
             for k, v in value.items():
+                for alias in _ALIASES.get((key, k), ()):  # the canonical key replaces an old spelling
+                    table.pop(alias, None)
                 if v is None:
                     table.pop(k, None)
                 else:

@@ -45,7 +45,8 @@ def test_solve_execute_inspect(built):
     for key in ("episodes", "successes", "collisions", "timeouts", "success_rate", "success_rate_ci95",
                 "predicted_success_probability", "mean_steps", "mean_cost", "replans"):
         assert key in ex
-    assert ex["episodes"] == 40 and ex["successes"] + ex["collisions"] + ex["timeouts"] + ex["stuck"] == 40
+    assert ex["episodes"] == 40 and ex["successes"] + ex["collisions"] + ex["timeouts"] + ex["stuck"] + ex["goal_misses"] == 40
+    assert ex["estimate_success_rate"] == (ex["successes"] + ex["goal_misses"]) / 40
     lo, hi = ex["success_rate_ci95"]
     assert lo <= ex["success_rate"] <= hi
     assert ex["predicted_success_probability"] == pytest.approx(solve["start_success_probability"])

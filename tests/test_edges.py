@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from firmtool.design import design
-from firmtool.edges import FAILURE, estimate_edge, simulate, initial_ensemble
+from firmtool.edges import FAILURE, GOAL_MISS, estimate_edge, simulate, initial_ensemble
 from firmtool.design import local_controller
-from firmtool.nodes import roadmap_nodes
+from firmtool.nodes import GOAL, roadmap_nodes
 from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario
 from conftest import PERFECT, open_world
@@ -25,8 +25,15 @@ def test_noise_free_obstacle_free_edges_land_in_their_target(dynamics, measureme
     problem, d, regions = _setup(open_world(dynamics=dynamics, q=1e-6, std=1e-4, measurement=measurement))
     assert d.edge_source.size >= 6
     for e in range(d.edge_source.size):
-        r = estimate_edge(problem, d, regions, int(d.edge_source[e]), int(d.edge_target[e]), 50, 1, 1000)
-        assert r.outcomes.tolist() == [int(d.edge_target[e])], (e, r.outcomes, r.counts)
+        t = int(d.edge_target[e])
+        r = estimate_edge(problem, d, regions, int(d.edge_source[e]), t, 50, 1, 1000)
+        if d.kinds[t] == GOAL and measurement is None:
+            # at the goal the true state is judged too (NodeRegions.true_arrival): under the
+            # stabiliser it leaves the region test's rms 1.5 with chi2_n's tail, ~0.1 in 2-D
+            assert set(r.outcomes.tolist()) <= {t, GOAL_MISS} and r.counts.sum() == 50, (e, r.outcomes)
+            assert dict(zip(r.outcomes.tolist(), r.counts.tolist())).get(GOAL_MISS, 0) <= 20
+            continue
+        assert r.outcomes.tolist() == [t], (e, r.outcomes, r.counts)
         assert r.counts.tolist() == [50]
 
 

@@ -156,7 +156,7 @@ def test_kidnap_ends_with_a_clear_event(smoke):
     for ep in rep.episodes:
         kinds = [ev.kind for ev in ep.events]
         if "disturbance" in kinds:
-            assert kinds[-1] in ("goal", "collision", "timeout", "stuck")
+            assert kinds[-1] in ("goal", "goal_miss", "collision", "timeout", "stuck")
         last = ep.events[-1]
         if last.kind in ("collision", "timeout"):  # says what was running: a policy edge or a replan
             assert "policy edge" in last.detail or "run-time controller" in last.detail

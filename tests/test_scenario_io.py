@@ -99,3 +99,28 @@ def test_link_lengths_replace_the_links_shorthand():
     out = scenario_to_dict(changed)["model"]
     assert out["link_lengths"] == [0.2] * 8 and "links" not in out and "link_length" not in out
     assert synced(changed).model.link_lengths.tolist() == [0.2] * 8
+
+
+def test_the_task_belief_and_goal_ball_round_trip_and_replace():
+    """[task]'s start belief, true start and goal ball through the Python API (issue 15)."""
+    sc = load_scenario(ROOT / "scenarios" / "smoke.toml")
+    wide = sc.replace(task={"start_covariance": np.diag([0.2, 0.1]), "true_start": [0.7, 0.4],
+                            "goal_radius": 0.3, "goal_confidence": 0.9})
+    t = wide.task
+    np.testing.assert_array_equal(t.start_covariance, np.diag([0.2, 0.1]))
+    assert t.true_start.tolist() == [0.7, 0.4] and t.goal_radius == 0.3 and t.goal_confidence == 0.9
+    assert t.goal_ball and not sc.task.goal_ball
+    assert parse_scenario(wide.to_toml()) == wide and Scenario.from_dict(wide.to_dict()) == wide
+    # dataclasses.replace of the typed fields gets a text that says them
+    back = synced(dataclasses.replace(wide, task=dataclasses.replace(t, goal_confidence=0.99, true_start=None)))
+    assert back.task.goal_confidence == 0.99 and back.task.true_start is None and "true_start" not in back.text
+    with pytest.raises(ScenarioError, match=r"task.goal_confidence: expected a probability in \(0, 1\)"):
+        wide.replace(task={"goal_confidence": 1.5})
+    with pytest.raises(ScenarioError, match="task.start_covariance: expected a symmetric matrix"):
+        sc.replace(task={"start_covariance": [[0.1, 0.05], [0.0, 0.1]]})
+    # the arm's old goal_center is replaced by goal (not kept beside it)
+    arm_text = (ROOT / "scenarios" / "arm8_lightdark.toml").read_text().replace("goal = [0.0, 1.2]",
+                                                                              "goal_center = [0.0, 1.2]")
+    arm = parse_scenario(arm_text, "old_arm.toml")
+    moved = arm.replace(task={"goal": [0.05, 1.2]})
+    assert moved.task.goal.tolist() == [0.05, 1.2] and "goal_center" not in moved.text

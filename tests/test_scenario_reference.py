@@ -96,18 +96,13 @@ def test_every_key_of_each_obstacle_kind(kind):
     assert known_fields(data, "world.obstacles[0]") == documented("world.obstacles", f'kind = "{kind}"')
 
 
-def test_task_keys_of_a_goal_state_and_a_goal_region():
-    goal_state = [r for r in builtin_robots() if not robots.get(r).goal_region]
-    goal_region = [r for r in builtin_robots() if robots.get(r).goal_region]
-    assert goal_state and goal_region
-    seen = set()
-    for robot in goal_state + goal_region:
+def test_task_keys_are_the_same_for_every_robot():
+    """Every robot takes a start belief and a goal state or goal ball (issue 15): one task section."""
+    for robot in builtin_robots():
         data = base(robot)
         data["task"][PROBE] = 1
-        keys = known_fields(data, "task")
-        assert keys <= documented("task", None), robot
-        seen |= keys
-    assert seen == documented("task", None)
+        assert known_fields(data, "task") == documented("task"), robot
+    assert {"start_covariance", "true_start", "goal_radius", "goal_confidence"} <= documented("task")
 
 
 def test_every_example_passes_its_keys_own_check():

@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 from firmtool.cli import app
 from firmtool.controllers import kalman_update, plan_local_controller
 from firmtool.design import design, local_controller, node_controller
-from firmtool.edges import belief_step, estimate_edge, initial_ensemble
+from firmtool.edges import GOAL_MISS, belief_step, estimate_edge, initial_ensemble
 from firmtool.models.linear import LightDarkNoise, LinearGaussianModel
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
 from firmtool.nodes import GOAL, REGULAR, START
@@ -200,13 +200,23 @@ def test_local_controller_hands_over_to_the_orbit_in_phase():
 
 
 def test_noise_free_edge_lands_in_its_target():
+    """Every particle's belief lands in the edge's target. Into the goal node the true state is
+    judged too (issue 15): a belief that lands there with its true state outside the node's true-state
+    test is a goal miss (-3), never a collision or a timeout; the noise is small in the world, not
+    relative to the node, whose size scales with it, so some misses are expected."""
     problem = build_problem(tiny(q=1e-3, measurement='kind = "imperfect"\nnoise = "constant"\nstd = 2e-3'))
     centers = problem.state_of(np.array([[0.4, 1.4], [2.4, 1.2], [0.5, 0.4]]))
-    d = design(problem, centers, np.array([START, GOAL, REGULAR], dtype=np.int8))
+    kinds = np.array([START, GOAL, REGULAR], dtype=np.int8)
+    d = design(problem, centers, kinds)
     regions = d.regions(problem)
     for s, t in zip(d.edge_source, d.edge_target):
         est = estimate_edge(problem, d, regions, int(s), int(t), 50, seed=1, chunk=50)
-        assert est.outcomes.tolist() == [t] and est.counts.tolist() == [50]
+        landed = dict(zip(est.outcomes.tolist(), est.counts.tolist()))
+        if kinds[t] == GOAL:
+            assert set(landed) <= {int(t), GOAL_MISS} and sum(landed.values()) == 50, landed
+            assert landed.get(int(t), 0) > landed.get(GOAL_MISS, 0), landed
+        else:
+            assert landed == {int(t): 50}, landed
 
 
 def test_points_and_validity():

@@ -70,7 +70,7 @@ from firmtool import kernels
 from firmtool.design import Design, local_controller
 from firmtool.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
-from firmtool.nodes import GOAL, START_INDEX
+from firmtool.nodes import GOAL, GOAL_INDEX, START_INDEX
 from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
 from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps
 from firmtool.online.running import RunningController, remainder, running_controller
@@ -317,8 +317,9 @@ class Policy:
         mean : (n,); covariance : (n, n) (zeros with perfect measurements).
         """
         d, problem = self.design, self.problem
-        if state is None:
-            P0 = np.zeros_like(d.P[START_INDEX]) if problem.perfect else d.P[START_INDEX]
+        if state is None:  # the start node's: the task's start belief when it gives one
+            P0 = (np.zeros_like(d.P[START_INDEX]) if problem.perfect else problem.start_covariance
+                  if problem.start_covariance is not None else d.P[START_INDEX])
             return d.centers[START_INDEX].copy(), P0
         start = np.asarray(state, dtype=float)
         if problem.perfect:
@@ -508,7 +509,10 @@ class Policy:
             A, H = self._jacobians(lc, k)
             jump = self._jump.add(total, A, H, lc.L[k], run.S_inv[k], nu)
         landed = -1
-        if k + 1 >= run.land_from and run.cand[k].any():
+        goal = self.regions.goal  # a goal ball's region of beliefs: tested at every step
+        if goal is not None and goal.contains(xhat, lc.P[k + 1])[0]:
+            landed = run.target if self.design.kinds[run.target] == GOAL else GOAL_INDEX
+        elif k + 1 >= run.land_from and run.cand[k].any():
             landed = self._locate(xhat, run.cand[k])
         deviate = alarm = False
         dev = 0.0

@@ -7,8 +7,8 @@ depends on the configuration; the base never moves).
 ``first_joint_range`` (the first, absolute, joint) and ``joint_range`` (the others, +-).
 Key points: the base, the joints and the tip (:mod:`firmtool.models.planar_arm`); the links are
 capsules of ``world.robot_radius`` that must not meet obstacles, the world's edge, or each other
-(non-adjacent links). The task's goal may be a disc the tip must reach (``goal_center``,
-``goal_radius``): goal states are found by inverse kinematics.
+(non-adjacent links). The task space is the tip: a goal ball (``[task] goal`` with ``goal_radius``)
+is a disc the tip must reach; its goal states are found by inverse kinematics.
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ class ArmRobot(LinearRobot):
               doc="[low, high] of the first (absolute) joint angle"),
         Field("joint_range", "number", math.pi, bound="positive", unit="rad", doc="bound of the other (relative) joint angles"),
     )
-    goal_region: ClassVar[bool] = True
     shape: ClassVar[str] = "chain"
     replan_candidate_seconds: ClassVar[float] = 2e-3  # 1.7-1.8 ms of thread CPU time (bench_online.py)
     # firmtool init: a 3-link arm whose tip must reach a disc beside a block, light-dark sensing
@@ -48,7 +47,7 @@ class ArmRobot(LinearRobot):
                         "sigma_b": 0.001},
         "world": {"bounds": [[-1.4, -1.4], [1.4, 1.4]], "robot_radius": 0.03,
                   "obstacles": [{"center": [0.0, 0.8], "half_size": [0.15, 0.1]}]},
-        "task": {"start": [-0.5, 0.5, 0.5], "goal_center": [0.5, 0.7], "goal_radius": 0.1},
+        "task": {"start": [-0.5, 0.5, 0.5], "goal": [0.5, 0.7], "goal_radius": 0.1, "goal_confidence": 0.5},
         "roadmap": {"nodes": 25, "neighbors": 6, "min_separation": 0.3, "max_edge_length": 2.0},
         "controller": {"velocity_weight": 0.2, "control_weight": 0.2, "max_accel": 2.0, "node_radius": 1.5,
                        "covariance_tolerance": 0.3, "max_steps": 200},
@@ -117,15 +116,20 @@ class ArmRobot(LinearRobot):
         """Joint i's angle is sensed at the x of the end of link i: (M, L + 1, 2) -> (M, L)."""
         return P[:, 1:, 0]
 
-    def task_states(self, is_valid: Callable[[np.ndarray], np.ndarray]):
-        task = self.scenario.task
-        if task.goal is not None:
-            return super().task_states(is_valid)
-        start = self._task_state("task.start", task.start)
-        goal = self._goal_state(start[:self.lengths.size], is_valid)
-        return start, goal, (np.asarray(task.goal_center, dtype=float), float(task.goal_radius))
+    def task_jacobian(self, X: np.ndarray) -> np.ndarray:
+        """d tip / d state (M, 2, n): the tip's Jacobian in the joint angles, zero in the velocities."""
+        if type(self).points is not ArmRobot.points or type(self).task_point is not ArmRobot.task_point:
+            return super().task_jacobian(X)
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        L = self.lengths.size
+        J = np.zeros((X.shape[0], 2, X.shape[1]))
+        J[:, :, :L] = planar_arm.tip_jacobian(X[:, :L], self.lengths)
+        return J
 
-    def _goal_state(self, theta_start: np.ndarray, is_valid: Callable) -> np.ndarray:
+    def goal_state(self, center, start, is_valid):
+        return self._goal_state(center, start[:self.lengths.size], is_valid)
+
+    def _goal_state(self, target: np.ndarray, theta_start: np.ndarray, is_valid: Callable) -> np.ndarray:
         """A valid configuration at rest whose tip is at the goal disc's centre (inverse kinematics)."""
         sc, lengths, n = self.scenario, self.lengths, self.model.n
         lo, hi = self.config_lo, self.config_hi
@@ -140,7 +144,6 @@ class ArmRobot(LinearRobot):
         # Seeds for the inverse kinematics: valid configurations in the joint box whose tips are nearest
         # to the goal (random restarts over all angles almost never give a collision-free arm).
         rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x60A1]))
-        target = np.asarray(sc.task.goal_center, dtype=float)
         seeds = [theta_start[None]]
         for _ in range(20):
             cand = rng.uniform(lo, hi, size=(4096, L))
@@ -154,7 +157,7 @@ class ArmRobot(LinearRobot):
             if theta is not None:
                 break
         if theta is None:
-            raise ScenarioError(sc.path, "task.goal_center",
+            raise ScenarioError(sc.path, "task.goal",
                                 "expected a tip position the arm can reach without collision (inverse kinematics found none)")
         return pad(theta[None])[0]
 

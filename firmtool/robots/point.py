@@ -42,6 +42,16 @@ class PointRobot(LinearRobot):
         """The point itself: states (M, n) -> (M, 1, D)."""
         return np.asarray(X)[:, None, :self.world_dim]
 
+    def task_jacobian(self, X: np.ndarray) -> np.ndarray:
+        """d position / d state (M, D, n): the identity on the position coordinates (a subclass that
+        moves its points or its task point gets the finite differences of the base class)."""
+        if type(self).points is not PointRobot.points or type(self).task_point is not PointRobot.task_point:
+            return super().task_jacobian(X)
+        X = np.atleast_2d(X)
+        J = np.zeros((X.shape[0], self.world_dim, X.shape[1]))
+        J[:, np.arange(self.world_dim), np.arange(self.world_dim)] = 1.0
+        return J
+
     def compiled_kinematics(self) -> CompiledKinematics | None:
         # a subclass may move its points or sensing elsewhere: it opts in by overriding this
         if type(self) is not PointRobot or self.world_dim != 2:

@@ -79,6 +79,15 @@ class UnicycleRobot(Robot):
         """The robot's position: states (M, 3) -> (M, 1, 2)."""
         return np.asarray(X)[:, None, :2]
 
+    def task_jacobian(self, X: np.ndarray) -> np.ndarray:
+        """d position / d state (M, 2, 3): the identity on (x, y), zero in the heading."""
+        if type(self).points is not UnicycleRobot.points or type(self).task_point is not UnicycleRobot.task_point:
+            return super().task_jacobian(X)
+        X = np.atleast_2d(X)
+        J = np.zeros((X.shape[0], 2, X.shape[1]))
+        J[:, 0, 0] = J[:, 1, 1] = 1.0
+        return J
+
     def heading(self, X: np.ndarray) -> np.ndarray:
         """The heading, the state's third coordinate: states (M, 3) -> (M,)."""
         return np.asarray(X, dtype=float)[:, 2]

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from firmtool import disturbances as dist_mod
-from firmtool.edges import FAILURE
+from firmtool.edges import FAILURE, GOAL_MISS
 from firmtool.errors import InputError
 from firmtool.online.policy import Policy, PolicyStatus
 from firmtool.results import Episode, Event, EventKind, Outcome, Results
@@ -114,7 +114,11 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     schedule = (dist_mod.schedule(scheduled, policy.max_steps, np.random.default_rng(np.random.SeedSequence([*key])))
                 if scheduled else [])
     mean, covariance = policy.start_belief(start)
-    x0 = system.reset(mean, covariance, rng)
+    x0 = system.reset(mean, covariance, rng)  # drawn from the start belief (drawn either way: the same streams)
+    true_start = policy.problem.true_start
+    if start is None and true_start is not None:  # the task's true start (simulation only)
+        system.set_state(true_start)
+        x0 = system.state
     ep = Episode(outcome=Outcome.TIMEOUT, steps=0, cost=0.0)
     if start is None:
         ep.events.extend(policy.reset(rng=np.random.default_rng(seeds.policy), record=record))
@@ -152,9 +156,20 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
         ep.events.extend(policy.observe(z))
         if after_disturbance is not None and disturbed and disturbed[-1] == now and not policy.done:
             ep.events.extend(after_disturbance(policy, system))
+    traversals = [(t[0], t[1], t[2], t[3]) for t in policy.traversals]
     if not collided:
         ep.outcome = _OUTCOME[policy.status]
-    traversals = [(t[0], t[1], t[2], t[3]) for t in policy.traversals]
+        if policy.status == PolicyStatus.GOAL:  # the policy declared arrival; the true state decides
+            node = policy.node
+            if not policy.regions.true_arrival(np.array([node]), system.state)[0]:
+                ep.outcome = Outcome.GOAL_MISS
+                # the policy's goal event, as the environment judges it (the policy's own log keeps it)
+                i = max(j for j, ev in enumerate(ep.events) if ev.kind == EventKind.GOAL)
+                ep.events[i] = Event(ep.events[i].step, EventKind.GOAL_MISS, node,
+                                     detail="arrival declared; the true state is not in the goal")
+                if traversals and traversals[-1][1] == node:  # as the Monte Carlo counts it
+                    e, _, first, last = traversals[-1]
+                    traversals[-1] = (e, GOAL_MISS, first, last)
     if collided and running is not None:
         traversals.append((running[0], FAILURE, running[1], policy.steps))
     # a traversal counts for the calibration check only if no disturbance hit it
@@ -228,7 +243,7 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
 
     episodes = len(eps)
     count = lambda o: sum(e.outcome == o for e in eps)  # noqa: E731
-    successes = count(Outcome.SUCCESS)
+    successes, misses = count(Outcome.SUCCESS), count(Outcome.GOAL_MISS)
     lo, hi = wilson_interval(successes, episodes)
     steps = np.array([e.steps for e in eps], dtype=float)
     cat = lambda name: np.concatenate([getattr(e, name) for e in eps]) if eps else np.zeros(0)  # noqa: E731
@@ -266,4 +281,6 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
         replan_decisions=int(replan_times.size), replan_deadline_s=float(deadline), replan_clock=settings.clock,
         replan_deadline_hits=int(sum(e.deadline_hits for e in eps)),
         replan_over_deadline=int(np.sum(replan_times > deadline)),
-        replan_latency=settings.latency)
+        replan_latency=settings.latency, goal_misses=misses,
+        estimate_success_rate=(successes + misses) / episodes if episodes else 0.0,
+        estimate_success_rate_ci95=wilson_interval(successes + misses, episodes))

@@ -2,7 +2,10 @@
 
 ``tests/data/reference_episodes.json`` was written by this module on main at 77e6db3, before the
 executor was split into the agent (:mod:`firmtool.online`) and the simulated system
-(:mod:`firmtool.sim`); ``tests/test_episodes_unchanged.py`` runs the same cases on the current code
+(:mod:`firmtool.sim`), and written again with the executor of branch i15 at 3378044 (issue 15: success
+judged on the true state, goal misses; before the split was merged there:
+``git archive 3378044 firmtool scenarios | tar -x -C OLD`` then ``PYTHONPATH=OLD python -c "import
+reference_episodes as r; r.main()"`` from tests/data); ``tests/test_episodes_unchanged.py`` runs the same cases on the current code
 and compares every episode: outcome, steps, cost, nodes, edges, events (step, kind, node, value,
 detail), calibration traversals, and rows of the recorded states, estimates, covariances and controls.
 
