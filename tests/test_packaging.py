@@ -105,8 +105,8 @@ def test_test_and_example_imports_are_declared_for_the_test_extra(folder):
     # an optional extra's module (benchmarks/peers: pomdp-py) only behind an ImportError handler naming it
     problems = [f"{path.relative_to(ROOT)}:{node.lineno} imports {module} ({', '.join(sorted(_distributions(module))) or 'not installed'})"
                 for module, path, node, parents in _imports(ROOT / folder) if not _distributions(module) & allowed
-                and not any(_distributions(module) & EXTRAS[e] and _guard_names_extra(path, parents, e)
-                            for e in EXTRAS if e != "test")]
+                and not any((_distributions(module) or {_normalise(module)}) & EXTRAS[e]  # not installed: its name
+                            and _guard_names_extra(path, parents, e) for e in EXTRAS if e != "test")]
     assert not problems, "\n".join(problems)
 
 
