@@ -26,6 +26,7 @@ import firmtool.atomic
 from firmtool.cli import app
 from firmtool.locking import lock_path, writer_lock
 from firmtool.roadmap import Roadmap
+from _processes import as_a_shell_starts_it
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "scenarios" / "smoke.toml"
@@ -53,7 +54,8 @@ def _scenario(tmp_path: Path, particles: int) -> Path:
 def _cli(*args: str, **kw) -> subprocess.Popen:
     """The installed console entry point's code (firmtool.__main__), as a real process."""
     return subprocess.Popen([sys.executable, "-m", "firmtool", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "CI": "1"}, **kw)
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "CI": "1"},
+                            preexec_fn=as_a_shell_starts_it, **kw)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -326,7 +328,8 @@ def test_sigint_at_random_moments_gives_one_line_and_130(tmp_path):
             time.sleep(0.05)
         assert not [w for w in workers if _alive(w)], "worker processes outlived the interrupted build"
     after_lock_outcomes = [o for (_, after_lock), o in zip(delays, outcomes) if after_lock]
-    assert after_lock_outcomes == ["130"] * len(after_lock_outcomes), list(zip(delays, outcomes))
+    assert after_lock_outcomes == ["130"] * len(after_lock_outcomes), (
+        list(zip(delays, outcomes)), signal.getsignal(signal.SIGINT), signal.pthread_sigmask(signal.SIG_BLOCK, []))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -31,6 +31,8 @@ from firmtool.edges import estimate_edge as real_estimate_edge
 from firmtool.pipeline import build, design_stage, estimate_stage, sample_stage, solve_stage
 from firmtool.roadmap import Roadmap
 
+from _processes import as_a_shell_starts_it
+
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = (ROOT / "scenarios" / "smoke.toml").read_text()
 
@@ -147,7 +149,7 @@ def _run_until_cached(cmd: list[str], path: Path, at_least: int, sig: int) -> tu
     """Start ``cmd``, wait until the roadmap's edge cache holds ``at_least`` edges, send ``sig``."""
     env = {**os.environ, "CI": "1"}
     p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env=env)
+                         env=env, preexec_fn=as_a_shell_starts_it)
     # a hang guard, not a verdict: the build ends by itself, or is signalled once the edges are seen
     seen, deadline = 0, time.monotonic() + 900
     while p.poll() is None and time.monotonic() < deadline:
