@@ -1,5 +1,5 @@
 """Recovery at any moment: success against the time of a push (two sizes) or a kidnap, with and
-without replanning (and with an oracle detector), on the point robot, the arm and the unicycle (issue 17).
+without replanning (and with an oracle detector, and one told when a push hit), on the point robot, the arm and the unicycle (issue 17).
 
     python benchmarks/sweep_disturbances.py --robots point arm unicycle --episodes 150 --workers 2 \
         --roadmaps DIR --out sweep.json --plot docs/sweep_disturbances.png
@@ -7,7 +7,7 @@ without replanning (and with an oracle detector), on the point robot, the arm an
 For each robot: the typical episode length L (median steps of successful undisturbed episodes), then
 a disturbance at every ``--every``-th step from 0 to L (default 10; the unicycle's episodes are
 ~2000 steps, so it takes every 100th), each with ``--episodes`` episodes in each mode (``--modes``:
-replan, none, oracle; see firmtool/sim/sweep.py), on common random numbers (episode i draws the same
+replan, none, oracle, informed; see firmtool/sim/sweep.py), on common random numbers (episode i draws the same
 noise in every condition), next to undisturbed baselines of twice as many episodes. ``--roadmaps DIR`` reads DIR/<scenario>.h5 (built
 and solved) instead of building in memory. Results (JSON) give per point the success rate with its
 Wilson 95% interval, replans, and the collisions within 5 steps of the disturbance.
@@ -58,8 +58,9 @@ def sweep_robot(robot: str, args) -> dict:
     return out
 
 
-COLORS = {"replan": "tab:blue", "none": "tab:red", "oracle": "tab:green"}
-LABELS = {"replan": "replanning", "none": "no replanning", "oracle": "replanning, oracle detector"}
+COLORS = {"replan": "tab:blue", "none": "tab:red", "oracle": "tab:green", "informed": "tab:purple"}
+LABELS = {"replan": "replanning", "none": "no replanning", "oracle": "replanning, oracle (told the true state)",
+          "informed": "replanning, told when and how large (pushes)"}
 
 
 def summary(result: dict, margin: float = 0.10) -> list[str]:
@@ -79,10 +80,11 @@ def summary(result: dict, margin: float = 0.10) -> list[str]:
         ranges = ", ".join(f"{m} {min(p['rate'] for p in v.values()):.2f}-{max(p['rate'] for p in v.values()):.2f}"
                            for m, v in by_mode.items() if v)
         below = [p for p in by_mode.get("replan", {}).values() if ref["rate"] - p["rate"] > margin]
-        oracle = by_mode.get("oracle", {})
+        oracle, told = by_mode.get("oracle", {}), by_mode.get("informed", {})
         lines.append(f"  {name}: {ranges}; replanning more than {margin} below undisturbed at "
                      + (", ".join(f"t={p['step']} ({p['rate']:.2f}"
                                   + (f", oracle {oracle[p['step']]['rate']:.2f}" if p["step"] in oracle else "")
+                                  + (f", informed {told[p['step']]['rate']:.2f}" if p["step"] in told else "")
                                   + f", immediate collisions {p['immediate_collisions']})" for p in below)
                         or "no time"))
     return lines
@@ -101,7 +103,7 @@ def plot(results: list[dict], path: Path) -> None:
             ax = axes[row][col]
             for mode, b in base.items():
                 color = COLORS[mode]
-                if mode != "oracle":  # the oracle's undisturbed episodes are the replanning ones
+                if mode in ("replan", "none"):  # the oracles' undisturbed episodes are the replanning ones
                     ax.axhspan(*b["ci95"], color=color, alpha=0.12, lw=0)
                     ax.axhline(b["rate"], color=color, lw=0.8, ls=":")
                 sel = sorted((p for p in pts if p["kind"] == kind and p["size"] == size and p["mode"] == mode),
@@ -112,7 +114,7 @@ def plot(results: list[dict], path: Path) -> None:
                 y = [p["rate"] for p in sel]
                 err = [[p["rate"] - p["ci95"][0] for p in sel], [p["ci95"][1] - p["rate"] for p in sel]]
                 ax.errorbar(t, y, yerr=err, color=color, marker="o", ms=2.5, lw=1, capsize=1.5, label=LABELS[mode],
-                            alpha=0.6 if mode == "oracle" else 1.0)
+                            alpha=0.6 if mode in ("oracle", "informed") else 1.0)
             ref = base.get("replan")
             if ref is not None and ref["rate"] > 0.1:
                 ax.axhline(ref["rate"] - 0.10, color=COLORS["replan"], lw=0.6, ls="--")
@@ -144,7 +146,8 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--last", type=int, default=None, help="last disturbance step (default: the typical length)")
     ap.add_argument("--sizes", type=float, nargs="+", default=None, help="push sizes (default per robot)")
     ap.add_argument("--no-kidnap", action="store_true")
-    ap.add_argument("--modes", nargs="+", default=["replan", "none", "oracle"], choices=["replan", "none", "oracle"])
+    ap.add_argument("--modes", nargs="+", default=["replan", "none", "oracle", "informed"],
+                    choices=["replan", "none", "oracle", "informed"])
     ap.add_argument("--roadmaps", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=None, help="JSON file")
     ap.add_argument("--plot", type=Path, default=None, help="PNG file")

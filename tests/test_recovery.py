@@ -69,7 +69,8 @@ def test_a_sweep_is_the_same_for_any_number_of_workers(smoke):
     kw = dict(times=[0, 12], sizes=[0.8], episodes=6, baseline_episodes=6, seed=3)
     one = disturbance_sweep(policies_of(smoke), workers=1, **kw).to_dict()
     two = disturbance_sweep(policies_of(smoke), workers=2, **kw).to_dict()
-    assert one == two and len(one["points"]) == 3 * 5  # none, two pushes, two kidnaps; three modes
+    # none, two pushes, two kidnaps in three modes; none and the pushes in the informed mode
+    assert one == two and len(one["points"]) == 3 * 5 + 3
 
 
 def test_the_oracle_relocalises_right_after_the_disturbance(smoke):
@@ -94,3 +95,49 @@ def test_the_oracle_relocalises_right_after_the_disturbance(smoke):
             np.testing.assert_allclose(ep.estimates[t], ep.states[t])  # the truth, as its estimate
         decided += 1
     assert decided >= 6
+
+
+def test_the_informed_mode_widens_the_belief_by_the_push_law_and_decides(smoke):
+    """The sweep's informed mode is told that a push of size s hit, not where: the belief's mean stays,
+    its configuration covariance grows by s^2/d per coordinate (the covariance of a displacement of
+    norm s in a uniformly random direction), nothing else changes, and the policy decides from it."""
+    from firmtool.sim import SimulatedSystem, episode_seeds
+    from firmtool.sim.sweep import informed
+
+    # the law it assumes: a displacement of norm s in a uniformly random direction has covariance s^2/d I
+    rng = np.random.default_rng(3)
+    for d in (2, 3):
+        v = rng.standard_normal((200_000, d))
+        v *= 0.8 / np.linalg.norm(v, axis=1, keepdims=True)
+        np.testing.assert_allclose(np.cov(v.T), 0.8 ** 2 / d * np.eye(d), atol=4e-3)
+
+    problem = smoke.roadmap.problem
+    policy, system = Policy(smoke), SimulatedSystem(problem)
+    seeds = episode_seeds(0, 0)
+    mean, cov = policy.start_belief()
+    system.reset(mean, cov, np.random.default_rng(seeds.system))
+    policy.reset(rng=np.random.default_rng(seeds.policy))
+    for _ in range(5):
+        z, _ = system.step(policy.act())
+        policy.observe(z)
+    before_mean, before_cov = policy.mean, policy.covariance
+    events = informed(0.8)(policy, system)
+    d = problem.config_dim
+    expected = before_cov.copy()
+    expected[:d, :d] += 0.8 ** 2 / d * np.eye(d)
+    np.testing.assert_allclose(policy.covariance, expected)
+    np.testing.assert_allclose(policy.mean, before_mean)
+    assert events and events[-1].kind in (ft.EventKind.REPLAN, ft.EventKind.KEPT_CONTROLLER,
+                                          ft.EventKind.REPLAN_FAILED)
+
+
+def test_the_informed_mode_runs_pushes_only(smoke):
+    """A sweep with the informed mode has its push points and no kidnap points (no Gaussian "told
+    when" belief for a kidnap anywhere in the map)."""
+    sw = disturbance_sweep(policies_of(smoke, modes=("replan", "informed")), [3], [0.5], episodes=4, seed=0)
+    informed_points = [p for p in sw.points if p.mode == "informed"]
+    assert {p.kind for p in informed_points} == {"none", "push"}
+    assert {p.kind for p in sw.points if p.mode == "replan"} == {"none", "push", "kidnap"}
+    assert all(p.episodes > 0 for p in informed_points)
+    for p in sw.points:  # every episode ends one way
+        assert p.successes + p.collisions + p.timeouts + p.stuck + p.goal_misses == p.episodes
