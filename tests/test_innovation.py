@@ -110,3 +110,39 @@ def test_a_partial_window_is_tested_against_its_own_bound():
     assert part.limits[0] == pytest.approx(stats.chi2.isf(alpha, nz))
     part.clear()
     assert part.filled == 0 and part.statistic == 0.0 and part.innovations.shape == (0, nz)
+
+
+def test_the_velocity_mixture_is_the_moments_of_kept_or_stopped():
+    """After a configuration jump the belief is the 50/50 mixture of the velocities kept (a push) and
+    stopped (a kidnap): its mean and covariance are that mixture's, checked against 400000 draws of it;
+    the configuration block and the cross terms stay, and a robot at rest is left as it was."""
+    from firmtool.online.innovation import mixed_velocity
+
+    rng = np.random.default_rng(11)
+    n, d = 4, 2
+    G = rng.standard_normal((n, n))
+    P = G @ G.T / n + 0.1 * np.eye(n)
+    mean = np.array([1.0, -2.0, 0.7, -0.4])
+    got_mean, got_cov = mixed_velocity(mean, P, d)
+    N = 400_000
+    draws = mean + rng.standard_normal((N, n)) @ np.linalg.cholesky(P).T
+    stopped = rng.random(N) < 0.5
+    draws[stopped, d:] -= mean[d:]  # the stopped component: velocity mean 0, the same covariance
+    np.testing.assert_allclose(got_mean, draws.mean(axis=0), atol=6e-3)
+    np.testing.assert_allclose(got_cov, np.cov(draws.T), atol=1.5e-2)
+    np.testing.assert_allclose(got_cov[:d, :], P[:d, :])  # positions and cross terms unchanged
+    np.testing.assert_allclose(got_mean[d:], mean[d:] / 2)
+    np.testing.assert_allclose(got_cov[d:, d:] - P[d:, d:], np.outer(mean[d:], mean[d:]) / 4)
+    at_rest = np.array([1.0, -2.0, 0.0, 0.0])
+    m, c = mixed_velocity(at_rest, P, d)
+    np.testing.assert_array_equal(m, at_rest)
+    np.testing.assert_array_equal(c, P)
+    assert mean[2] == 0.7  # the inputs are not modified
+
+
+def test_jump_velocity_is_validated():
+    from firmtool.errors import InputError
+    from firmtool.online import ReplanSettings
+
+    with pytest.raises(InputError, match="jump_velocity"):
+        ReplanSettings(jump_velocity="stopped")

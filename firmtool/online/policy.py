@@ -34,7 +34,10 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   squares over a moving window (also while the window fills, after a start or a decision). On an
   alarm the belief is corrected before the decision: by the estimated jump (mean and covariance),
   or, when only the window test fired, by the step's update redone from a prior the innovations
-  inflated, so that the decision starts from an estimate that has taken the measurements in.
+  inflated, so that the decision starts from an estimate that has taken the measurements in. After
+  a jump of the configuration the velocities are either kept (a push) or stopped (a kidnap), which
+  a step later nothing tells apart: the belief covers both (:attr:`ReplanSettings.jump_velocity`,
+  :func:`~firmtool.online.innovation.mixed_velocity`).
 - **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
   and feedback but re-plans its Kalman gains from the corrected belief (its designed gains assume
   the covariance it was designed with, and learnt the push far too slowly in the dark).
@@ -71,7 +74,7 @@ from firmtool.design import Design, local_controller
 from firmtool.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, GOAL_INDEX, START_INDEX
-from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
+from firmtool.online.innovation import InnovationWindow, JumpTests, mixed_velocity, reset_belief
 from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps
 from firmtool.online.running import RunningController, remainder, running_controller
 from firmtool.problem import Problem
@@ -619,6 +622,9 @@ class Policy:
                                       f"jump test: a jump of the {self._jump.fired} before step {onset} "
                                       f"(estimate moved {np.linalg.norm(shift[:problem.config_dim]):.2f})"))
                 xh, P_now = self._xhat[0] + shift, lc.P[k + 1] + cov
+                if self._jump.fired != "state" and problem.velocity_dim and self.settings.jump_velocity == "mixture":
+                    # a push keeps the velocities, a kidnap stops them: a step after, nobody can tell
+                    xh, P_now = mixed_velocity(xh, P_now, problem.config_dim)
             else:  # by the update redone from a prior the innovations inflated
                 dev = window.statistic
                 self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev))

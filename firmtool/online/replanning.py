@@ -65,6 +65,7 @@ JUMP_WINDOW = 20  # onsets the jump test (generalised likelihood ratio) keeps
 # test is conservative: measured 0 of 20 such episodes at 1e-6, 6 alarms at 1e-3).
 JUMP_FALSE_ALARM = 1e-4
 CLOCKS = ("work", "wall")
+JUMP_VELOCITIES = ("mixture", "kept")
 LATENCIES = ("0", "measured")
 
 
@@ -87,6 +88,9 @@ class ReplanSettings:
     jump_test, jump_window, jump_false_alarm : the generalised likelihood ratio test for a jump of
         the configuration (:class:`~firmtool.online.innovation.JumpTest`) over ``jump_window`` onsets,
         at ``jump_false_alarm`` per step; on its alarm the belief is corrected by the estimated jump.
+    jump_velocity : after a jump of the configuration, ``"mixture"`` (default): the velocities kept
+        or stopped, equally likely, matched to one Gaussian
+        (:func:`~firmtool.online.innovation.mixed_velocity`); ``"kept"``: as estimated (a push only).
     refilter : after a belief reset, the option of keeping the running controller keeps its reference
         and feedback but re-plans its filter from the reset belief (its designed gains assume the old
         covariance); off: its designed filter goes on.
@@ -112,6 +116,7 @@ class ReplanSettings:
     jump_test: bool = True
     jump_window: int = JUMP_WINDOW
     jump_false_alarm: float = JUMP_FALSE_ALARM
+    jump_velocity: str = "mixture"
     refilter: bool = True
     deadline: float | None = None
     clock: str = "work"
@@ -130,6 +135,9 @@ class ReplanSettings:
         if self.candidate_seconds is not None and not (np.isfinite(self.candidate_seconds)
                                                        and self.candidate_seconds > 0):
             raise InputError(f"replan candidate_seconds: expected a number > 0, found {self.candidate_seconds}")
+        if self.jump_velocity not in JUMP_VELOCITIES:
+            raise InputError(f"replan jump_velocity: expected one of {', '.join(JUMP_VELOCITIES)}, "
+                             f"found {self.jump_velocity!r}")
         if str(self.latency) not in LATENCIES:
             raise InputError(f"replan latency: expected one of {', '.join(LATENCIES)}, found {self.latency!r}")
         for name in ("false_alarm", "jump_false_alarm"):
