@@ -2,6 +2,8 @@
 stationary Kalman filter of a double integrator simulated here: the windowed chi-square test, and the
 generalised likelihood ratio test for jumps (Willsky and Jones 1976) with its estimate of the jump."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -146,3 +148,64 @@ def test_jump_velocity_is_validated():
 
     with pytest.raises(InputError, match="jump_velocity"):
         ReplanSettings(jump_velocity="stopped")
+
+
+def test_the_shrunk_jump_is_the_moments_of_its_two_readings():
+    """shrunk_jump: with weight w = 1 - (bound/statistic)^p the estimate N(s, Sigma), otherwise
+    N(0, Sigma + s s'): its mean and covariance are that mixture's (400000 draws); at the bound it is
+    all widening (mean 0), far past it nearly the estimate itself."""
+    from firmtool.online.innovation import SHRINK_POWER, shrunk_jump
+
+    rng = np.random.default_rng(5)
+    s = np.array([0.6, -0.3, 0.2, 0.1])
+    G = rng.standard_normal((4, 4))
+    Sigma = G @ G.T / 8 + 0.05 * np.eye(4)
+    bound, statistic = 20.0, 22.0
+    w = 1 - (bound / statistic) ** SHRINK_POWER
+    mean, cov = shrunk_jump(s, Sigma, statistic, bound)
+    N = 400_000
+    first = rng.random(N) < w
+    draws = rng.standard_normal((N, 4)) @ np.linalg.cholesky(Sigma).T
+    wide = rng.standard_normal((N, 4)) @ np.linalg.cholesky(Sigma + np.outer(s, s)).T
+    draws = np.where(first[:, None], s + draws, wide)
+    np.testing.assert_allclose(mean, draws.mean(axis=0), atol=5e-3)
+    np.testing.assert_allclose(cov, np.cov(draws.T), atol=1e-2)
+    at_bound = shrunk_jump(s, Sigma, bound, bound)
+    np.testing.assert_allclose(at_bound[0], 0.0)
+    np.testing.assert_allclose(at_bound[1], Sigma + np.outer(s, s))
+    far = shrunk_jump(s, Sigma, 10 * bound, bound)
+    np.testing.assert_allclose(far[0], s, rtol=1e-7)
+    np.testing.assert_allclose(far[1], Sigma, atol=1e-7)
+
+
+def test_the_mission_false_alarm_is_a_budget_over_the_policy_path():
+    """mission_false_alarm: JUMP_FALSE_ALARMS over the nominal steps of the policy's path from the
+    start (up to a node it returns to), clipped; the fixed rate without a path."""
+    from types import SimpleNamespace
+
+    from firmtool.nodes import GOAL, REGULAR, START
+    from firmtool.online import replanning as rp
+
+    kinds = np.array([START, GOAL, REGULAR, REGULAR])
+    # edges: 0: 0->2 (40 steps), 1: 2->3 (60), 2: 3->1 (25), 3: 3->2 (10)
+    d = SimpleNamespace(kinds=kinds, edge_target=np.array([2, 3, 1, 2]), edge_steps=np.array([40, 60, 25, 10]))
+    got = rp.mission_false_alarm(d, np.array([0, -1, 1, 2]), 0)
+    assert got == pytest.approx(rp.JUMP_FALSE_ALARMS / 125)
+    looped = rp.mission_false_alarm(d, np.array([0, -1, 1, 3]), 0)  # 0 -> 2 -> 3 -> 2: stops at the loop
+    assert looped == pytest.approx(rp.JUMP_FALSE_ALARMS / 110)
+    assert rp.mission_false_alarm(d, np.array([-1, -1, 1, 2]), 0) == rp.JUMP_FALSE_ALARM
+    short = SimpleNamespace(kinds=kinds, edge_target=np.array([1, 3, 1, 2]), edge_steps=np.array([2, 60, 25, 10]))
+    assert rp.mission_false_alarm(short, np.array([0, -1, 1, 2]), 0) == rp.JUMP_FALSE_ALARM_MAX
+
+
+def test_a_unicycle_keeps_its_heading_mean_and_widens_it_after_a_jump():
+    """A unicycle's third coordinate is its heading: after a jump its mean stays (no 'stopped' value)
+    and its variance grows by half the heading's jump prior (kept, or anywhere)."""
+    from firmtool.robots.unicycle import UnicycleRobot
+
+    robot = UnicycleRobot.__new__(UnicycleRobot)
+    problem = SimpleNamespace(config_hi=np.array([3.0, 2.0]), config_lo=np.array([0.0, 0.0]), config_dim=2)
+    mean, cov = np.array([1.0, 1.0, 2.5]), 0.01 * np.eye(3)
+    m, c = robot.after_jump(problem, mean, cov)
+    np.testing.assert_array_equal(m, mean)
+    np.testing.assert_allclose(np.diag(c), [0.01, 0.01, 0.01 + np.pi ** 2 / 2])

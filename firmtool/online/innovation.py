@@ -234,16 +234,56 @@ class JumpTests:
     def statistic(self) -> float:
         return self.tests[self.fired].statistic if self.fired else 0.0
 
-    def correction(self) -> tuple[np.ndarray, np.ndarray, int]:
-        """The estimated jump's effect on the estimate now (n,), its covariance (n, n), and its onset."""
+    def correction(self, shrink: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
+        """The estimated jump's effect on the estimate now (n,), its covariance (n, n), and its onset.
+
+        ``shrink`` (default): the estimate shrunk by its evidence, :func:`shrunk_jump`; off: as
+        estimated (the configuration family's without a prior, the state family's with one)."""
         t = self.tests[self.fired]
         if self.fired != "state":
-            return t.correction()
-        b = t.best
-        post = np.linalg.inv(t.C[b] + np.diag(1.0 / (self.prior @ t.basis ** 2)))
-        Phi = t.Phi[b]
-        cov = Phi @ post @ Phi.T
-        return Phi @ (post @ t.d[b]), 0.5 * (cov + cov.T), int(t.onset[b])
+            shift, cov, onset = t.correction()
+        else:
+            b = t.best
+            post = np.linalg.inv(t.C[b] + np.diag(1.0 / (self.prior @ t.basis ** 2)))
+            Phi = t.Phi[b]
+            cov = Phi @ post @ Phi.T
+            shift, cov, onset = Phi @ (post @ t.d[b]), 0.5 * (cov + cov.T), int(t.onset[b])
+        if shrink:
+            shift, cov = shrunk_jump(shift, cov, t.statistic, t.limit)
+        return shift, cov, onset
+
+
+SHRINK_POWER = 8  # w = 1 - (bound / statistic)^p: half the shift at 1.09x the bound, 96% at 1.5x
+
+
+def shrunk_jump(shift: np.ndarray, covariance: np.ndarray, statistic: float, bound: float) -> tuple[np.ndarray, np.ndarray]:
+    """A jump estimate shrunk by its evidence: its margin over the test's bound.
+
+    The generalised likelihood ratio test fires on the largest statistic over its onsets and
+    families, so a jump found just past the bound is partly the noise that happened to line up with
+    it, and the belief corrected by it in full (its mean and ``C^-1``) is confidently wrong. Shrunk,
+    the belief is the mixture of two readings, matched to one Gaussian: with weight
+    ``w = max(0, 1 - (bound / statistic)^p)`` (``p`` :data:`SHRINK_POWER`) the estimate
+    ``N(s, Sigma)``, otherwise "a jump of about that size, direction unknown", ``N(0, Sigma + s s')``;
+    its mean ``w s``, its covariance ``Sigma + (1 - w^2) s s'``. Measured (100 episodes per point; 60
+    on smoke): point robot, pushes of 1.0 at steps 0-70: 0.55-0.69 in full, 0.57-0.70 with p = 8;
+    p = 1 (positive-part James-Stein with the bound) did as well there (0.52-0.71) but cost the
+    smoke scenario's kidnaps, which are found nearer the bound (median 1.5x; point pushes 1.1x,
+    point kidnaps 3x): 0.58-0.68 against 0.85-0.90 in full; p = 4: 0.70-0.80; p = 8: 0.80-0.87.
+    Kidnaps of the point robot: 0.73-0.87 in full, 0.73-0.91 with p = 8.
+
+    Parameters
+    ----------
+    shift : (n,) the estimated jump's effect on the estimate, ``s``; covariance : (n, n) its
+        covariance ``Sigma``; statistic : the test's statistic; bound : its rejection bound.
+
+    Returns
+    -------
+    shift : (n,) ``w s``; covariance : (n, n)
+    """
+    w = min(1.0, max(0.0, 1.0 - (bound / statistic) ** SHRINK_POWER)) if statistic > 0 else 0.0
+    out = covariance + (1.0 - w * w) * np.outer(shift, shift)
+    return w * shift, 0.5 * (out + out.T)
 
 
 def mixed_velocity(mean: np.ndarray, covariance: np.ndarray, config_dim: int) -> tuple[np.ndarray, np.ndarray]:

@@ -37,7 +37,7 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   inflated, so that the decision starts from an estimate that has taken the measurements in. After
   a jump of the configuration the velocities are either kept (a push) or stopped (a kidnap), which
   a step later nothing tells apart: the belief covers both (:attr:`ReplanSettings.jump_velocity`,
-  :func:`~firmtool.online.innovation.mixed_velocity`).
+  :meth:`firmtool.robots.Robot.after_jump`).
 - **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
   and feedback but re-plans its Kalman gains from the corrected belief (its designed gains assume
   the covariance it was designed with, and learnt the push far too slowly in the dark).
@@ -74,8 +74,8 @@ from firmtool.design import Design, local_controller
 from firmtool.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, GOAL_INDEX, START_INDEX
-from firmtool.online.innovation import InnovationWindow, JumpTests, mixed_velocity, reset_belief
-from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps
+from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
+from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps, mission_false_alarm
 from firmtool.online.running import RunningController, remainder, running_controller
 from firmtool.problem import Problem
 from firmtool.results import Event, EventKind
@@ -175,6 +175,9 @@ class Policy:
         self.replanner = Replanner(problem, design_, self.regions, self.edge_per_node, J, self.failure_cost,
                                    self.settings)
         self.max_steps = problem.scenario.execution.max_steps if max_steps is None else int(max_steps)
+        #: the jump test's per-step false-alarm probability (the settings', or the mission's budget)
+        self.jump_false_alarm = (s.jump_false_alarm if (s := self.settings).jump_false_alarm is not None
+                                 else mission_false_alarm(design_, self.edge_per_node, START_INDEX))
         self._cache: dict[int, RunningController] = {}
         s = self.settings
         self._innovation = s.enabled and s.innovation_test and not problem.perfect
@@ -394,7 +397,7 @@ class Policy:
         bases = {"configuration": np.eye(n)[:, :problem.config_dim], "state": np.eye(n)}
         if problem.config_dim == n:
             bases.pop("state")
-        self._jump = (JumpTests(bases, s.jump_window, s.jump_false_alarm, problem.robot.jump_prior(problem))
+        self._jump = (JumpTests(bases, s.jump_window, self.jump_false_alarm, problem.robot.jump_prior(problem))
                       if self._innovation and s.jump_test else None)
         self._cooldown = 0  # no decision before this step (after keeping the running controller)
         self._run: RunningController | None = None
@@ -616,7 +619,7 @@ class Policy:
             # belief first, so that the decision starts from an estimate that has taken the
             # measurements in, not the one they refute.
             if jump:  # by the estimated jump (Willsky-Jones): mean and covariance
-                shift, cov, onset = self._jump.correction()
+                shift, cov, onset = self._jump.correction(shrink=self.settings.jump_shrink)
                 dev = self._jump.statistic
                 self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev,
                                       f"jump test: a jump of the {self._jump.fired} before step {onset} "
@@ -624,7 +627,8 @@ class Policy:
                 xh, P_now = self._xhat[0] + shift, lc.P[k + 1] + cov
                 if self._jump.fired != "state" and problem.velocity_dim and self.settings.jump_velocity == "mixture":
                     # a push keeps the velocities, a kidnap stops them: a step after, nobody can tell
-                    xh, P_now = mixed_velocity(xh, P_now, problem.config_dim)
+                    # (the robot says what a jump may do to its other coordinates)
+                    xh, P_now = problem.robot.after_jump(problem, xh, P_now)
             else:  # by the update redone from a prior the innovations inflated
                 dev = window.statistic
                 self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev))

@@ -320,6 +320,16 @@ class Robot:
         _, P0, _ = stationary_kalman(A, model.process_cov, H, model.R(state[None]))
         return P0
 
+    def after_jump(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The belief ``(mean (n,), covariance (n, n))`` after a jump of the configuration that the
+        online policy's jump test found a step or two after it, widened for what the jump may have
+        done to the other coordinates, which so few measurements cannot tell. Default (the other
+        coordinates are velocities): kept (a push) or stopped (a kidnap, a collision), equally
+        likely, moment-matched (:func:`firmtool.online.innovation.mixed_velocity`)."""
+        from firmtool.online.innovation import mixed_velocity
+
+        return mixed_velocity(mean, covariance, problem.config_dim)
+
     def jump_prior(self, problem: "Problem") -> np.ndarray:
         """(n,) prior variance of a sudden jump of each state coordinate (a kidnap), for the online
         policy's estimate of one (:class:`firmtool.online.innovation.JumpTests`). Default: a

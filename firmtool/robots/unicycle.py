@@ -120,6 +120,14 @@ class UnicycleRobot(Robot):
         """The whole orbit, recomputed from the centre (the roadmap stores its phase-0 values)."""
         return self.periodic_node(problem, center)
 
+    def after_jump(self, problem, mean, covariance):
+        """A unicycle's third coordinate is its heading, not a velocity: after a jump of its position
+        the heading is kept (a push) or anywhere (a kidnap), equally likely; the mean stays and the
+        heading's variance grows by half the jump prior's (pi^2 / 2)."""
+        covariance = np.array(covariance, dtype=float)
+        covariance[2, 2] += 0.5 * self.jump_prior(problem)[2]
+        return np.array(mean, dtype=float), covariance
+
     def jump_prior(self, problem):
         """Position anywhere in the world, heading anywhere."""
         span = np.asarray(problem.config_hi, dtype=float) - np.asarray(problem.config_lo, dtype=float)
