@@ -198,14 +198,19 @@ def test_the_mission_false_alarm_is_a_budget_over_the_policy_path():
     assert rp.mission_false_alarm(short, np.array([0, -1, 1, 2]), 0) == rp.JUMP_FALSE_ALARM_MAX
 
 
-def test_a_unicycle_keeps_its_heading_mean_and_widens_it_after_a_jump():
-    """A unicycle's third coordinate is its heading: after a jump its mean stays (no 'stopped' value)
-    and its variance grows by half the heading's jump prior (kept, or anywhere)."""
+def test_a_unicycle_keeps_its_belief_after_a_jump_and_a_double_integrator_mixes_its_velocities():
+    """Robot.after_jump: a unicycle's third coordinate is its heading (nothing stops it), so its
+    belief stays as corrected; a double integrator's velocities become kept-or-stopped."""
+    from firmtool.online.innovation import mixed_velocity
+    from firmtool.robots.base import Robot
     from firmtool.robots.unicycle import UnicycleRobot
 
-    robot = UnicycleRobot.__new__(UnicycleRobot)
-    problem = SimpleNamespace(config_hi=np.array([3.0, 2.0]), config_lo=np.array([0.0, 0.0]), config_dim=2)
     mean, cov = np.array([1.0, 1.0, 2.5]), 0.01 * np.eye(3)
-    m, c = robot.after_jump(problem, mean, cov)
+    m, c = UnicycleRobot.__new__(UnicycleRobot).after_jump(SimpleNamespace(config_dim=2), mean, cov)
     np.testing.assert_array_equal(m, mean)
-    np.testing.assert_allclose(np.diag(c), [0.01, 0.01, 0.01 + np.pi ** 2 / 2])
+    np.testing.assert_array_equal(c, cov)
+    mean4, cov4 = np.array([1.0, 1.0, 0.4, -0.2]), 0.01 * np.eye(4)
+    m, c = Robot.after_jump(None, SimpleNamespace(config_dim=2), mean4, cov4)
+    want = mixed_velocity(mean4, cov4, 2)
+    np.testing.assert_array_equal(m, want[0])
+    np.testing.assert_array_equal(c, want[1])

