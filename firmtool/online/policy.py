@@ -175,11 +175,11 @@ class Policy:
         self.replanner = Replanner(problem, design_, self.regions, self.edge_per_node, J, self.failure_cost,
                                    self.settings)
         self.max_steps = problem.scenario.execution.max_steps if max_steps is None else int(max_steps)
-        #: the jump test's per-step false-alarm probability (the settings', or the mission's budget)
-        self.jump_false_alarm = (s.jump_false_alarm if (s := self.settings).jump_false_alarm is not None
-                                 else mission_false_alarm(design_, self.edge_per_node, START_INDEX))
         self._cache: dict[int, RunningController] = {}
         s = self.settings
+        #: the jump test's per-step false-alarm probability (the settings', or the mission's budget)
+        self.jump_false_alarm = (s.jump_false_alarm if s.jump_false_alarm is not None
+                                 else mission_false_alarm(design_, self.edge_per_node, START_INDEX))
         self._innovation = s.enabled and s.innovation_test and not problem.perfect
         self._rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
         c = problem.scenario.cost
@@ -625,7 +625,8 @@ class Policy:
                                       f"jump test: a jump of the {self._jump.fired} before step {onset} "
                                       f"(estimate moved {np.linalg.norm(shift[:problem.config_dim]):.2f})"))
                 xh, P_now = self._xhat[0] + shift, lc.P[k + 1] + cov
-                if self._jump.fired != "state" and problem.velocity_dim and self.settings.jump_velocity == "mixture":
+                if (self._jump.fired != "state" and problem.velocity_dim
+                        and self.settings.jump_velocity == "mixture"):
                     # a push keeps the velocities, a kidnap stops them: a step after, nobody can tell
                     # (the robot says what a jump may do to its other coordinates)
                     xh, P_now = problem.robot.after_jump(problem, xh, P_now)

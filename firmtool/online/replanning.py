@@ -60,15 +60,15 @@ INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
 INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
 JUMP_WINDOW = 20  # onsets the jump test (generalised likelihood ratio) keeps
 # Its per-step false-alarm probability, by default from a budget per mission: JUMP_FALSE_ALARMS
-# nominal false alarms over the policy's nominal path from the start (its edges' nominal steps), within
-# [JUMP_FALSE_ALARM_MIN, JUMP_FALSE_ALARM_MAX]. A fixed per-step rate does not fit every robot: the
-# point robot's pushes of 1.0 in the dark (sigma 0.45) reach 1e-4's bound in only 35-53 of 100
-# episodes, and recover 0.57-0.70 at 2.5e-3 (its budget's rate; shrunk correction), against
-# 0.48-0.65 at 1e-4 (pushes at steps 0-70, 100 episodes each; undisturbed 0.78-0.79 at 1e-4 to
-# 3e-2, 400 episodes); the unicycle's ~2000-step missions (nominal
-# path 461 steps) take 0.03 false decisions per episode at 1e-4, 0.17 at 5.4e-4 (its budget's rate),
-# 0.70 at 2.2e-3, 2 at 1e-2 (undisturbed 0.82, 0.80, 0.75, 0.60 in 40 or 20 episodes). The test is
-# conservative (the onsets' statistics are correlated): false alarms are ~10x fewer than nominal.
+# nominal false alarms over the policy's nominal path from the start (its edges' nominal steps),
+# within [JUMP_FALSE_ALARM_MIN, JUMP_FALSE_ALARM_MAX]. A fixed per-step rate does not fit every
+# robot: the point robot's pushes of 1.0 in the dark (sigma 0.45) reach 1e-4's bound in only 35-53
+# of 100 episodes, and recover 0.57-0.70 at 2.5e-3 (its budget's rate; shrunk correction) against
+# 0.48-0.65 at 1e-4 (pushes at steps 0-70, 100 episodes each; undisturbed 0.78-0.79 from 1e-4 to
+# 3e-2, 400 episodes); the unicycle's ~2000-step missions (nominal path 461 steps) take 0.03 false
+# decisions per episode at 1e-4, 0.17 at 5.4e-4 (its budget's rate), 0.6-0.7 at 2.2e-3 and 2 at
+# 1e-2 (undisturbed 0.82, 0.80, 0.75-0.78, 0.60 in 20-40 episodes). The test is conservative (the
+# onsets' statistics are correlated): false alarms are ~10x fewer than nominal.
 JUMP_FALSE_ALARMS = 0.25
 JUMP_FALSE_ALARM_MIN, JUMP_FALSE_ALARM_MAX = 1e-6, 1e-2
 JUMP_FALSE_ALARM = 1e-4  # without a path from the start (a policy that cannot act there)
@@ -403,8 +403,8 @@ class Replanner:
 def mission_false_alarm(design_: Design, policy: np.ndarray, start: int) -> float:
     """The jump test's per-step false-alarm probability for a mission: :data:`JUMP_FALSE_ALARMS`
     over the nominal steps of the policy's path from node ``start`` to a goal node (the sum of its
-    edges' nominal lengths, up to a node it returns to), within [:data:`JUMP_FALSE_ALARM_MIN`, :data:`JUMP_FALSE_ALARM_MAX`];
-    :data:`JUMP_FALSE_ALARM` when the policy has no path from there.
+    edges' nominal lengths, up to a node it returns to), within [:data:`JUMP_FALSE_ALARM_MIN`,
+    :data:`JUMP_FALSE_ALARM_MAX`]; :data:`JUMP_FALSE_ALARM` when the policy has no path from there.
 
     Parameters
     ----------
