@@ -27,7 +27,7 @@ import numpy as np
 from firmtool import pipeline
 from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.errors import InputError
-from firmtool.graph import SolveStatus
+from firmtool.graph import SolveStatus, policy_path
 from firmtool.nodes import GOAL, START_INDEX
 from firmtool.reports import BuildReport, SolveReport
 from firmtool.results import Outcome, Results
@@ -490,7 +490,7 @@ class Solution:
         """The policy's nominal node sequence from the start: each chosen edge's target in turn,
         until a goal (or a node without an edge, or a repeated node)."""
         edges, _ = self._policy(policy)
-        return pipeline.policy_path(edges, self.roadmap.edges[:, 1], START_INDEX, self.roadmap.goals)
+        return policy_path(edges, self.roadmap.edges[:, 1], START_INDEX, self.roadmap.goals)
 
     @property
     def report(self) -> SolveReport:

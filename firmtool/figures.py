@@ -141,7 +141,7 @@ def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = 
     Axes are labelled in ``unit`` (the scenario's length unit); the sensing field gets a colour bar
     as tall as the axes (``colorbar``); the legend (``legend``) is placed under the axes, outside the
     data (a figure of several panels draws one legend for all: :func:`legend_below`)."""
-    from firmtool.pipeline import policy_path
+    from firmtool.graph import policy_path
 
     image = _background(ax, problem, unit)
     tips = problem.points(design.centers)[:, -1, :2]

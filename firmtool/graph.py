@@ -465,6 +465,27 @@ def expected_visits(n_nodes: int, goal: int | np.ndarray, policy: np.ndarray, la
     return visits
 
 
+def policy_path(policy: np.ndarray, target: np.ndarray, start: int, goals: int | np.ndarray) -> list[int]:
+    """The nominal node sequence: follow each chosen edge's target from ``start`` until a goal, a node
+    without an edge, or a node already on the path (nominal targets in a loop: their edges land in a
+    goal only by chance); the repeated node is not appended.
+
+    Parameters
+    ----------
+    policy : (N,) edge per node (-1: none); target : (E,) each edge's target node.
+    """
+    goal_set = set(np.atleast_1d(goals).tolist())
+    path, seen = [start], {start}
+    node = start
+    while node not in goal_set and policy[node] >= 0:
+        node = int(target[policy[node]])
+        if node in seen:
+            break
+        path.append(node)
+        seen.add(node)
+    return path
+
+
 def shortest_path_policy(n_nodes: int, goal: int | np.ndarray, edge_source: np.ndarray, edge_target: np.ndarray,
                          edge_length: np.ndarray) -> np.ndarray:
     """The baseline that ignores uncertainty: at each node, the edge on a shortest path to the goal.

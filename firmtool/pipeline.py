@@ -25,7 +25,8 @@ from firmtool.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, 
                                  outcome_probabilities, to_arrays)
 from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
-from firmtool.graph import SolveStatus, reachable_from, shortest_path_policy, solve_dp, success_probability
+from firmtool.graph import (SolveStatus, policy_path, reachable_from, shortest_path_policy, solve_dp,
+                            success_probability)
 from firmtool.kernels import engine_choice
 from firmtool.locking import writer_lock
 from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
@@ -649,19 +650,6 @@ def node_task_points(roadmap: Roadmap) -> np.ndarray | None:
 
 def _finite_or_none(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
-
-
-def policy_path(policy: np.ndarray, target: np.ndarray, start: int, goals: np.ndarray) -> list[int]:
-    """The nominal node sequence: follow each chosen edge's target from ``start`` to a goal."""
-    path, seen = [start], {start}
-    node = start
-    while node not in set(np.atleast_1d(goals).tolist()) and policy[node] >= 0:
-        node = int(target[policy[node]])
-        if node in seen:
-            break
-        path.append(node)
-        seen.add(node)
-    return path
 
 
 def _resumable(out: Path, scenario: Scenario, validity: str = "") -> Roadmap | None:

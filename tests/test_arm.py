@@ -56,7 +56,8 @@ def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     """The paper's Fig. 1 claim, end to end (about 1-2 minutes on 2 cores)."""
     from firmtool.online import Policy
     from firmtool.sim import run_episodes
-    from firmtool.pipeline import build, design_of, policy_path, problem_of, solve_stage
+    from firmtool.graph import policy_path
+    from firmtool.pipeline import build, design_of, problem_of, solve_stage
     from firmtool.roadmap import Roadmap
 
     out = tmp_path / "arm.h5"

@@ -625,8 +625,7 @@ class Policy:
                                       f"jump test: a jump of the {self._jump.fired} before step {onset} "
                                       f"(estimate moved {np.linalg.norm(shift[:problem.config_dim]):.2f})"))
                 xh, P_now = self._xhat[0] + shift, lc.P[k + 1] + cov
-                if (self._jump.fired != "state" and problem.velocity_dim
-                        and self.settings.jump_velocity == "mixture"):
+                if self._jump.fired != "state" and self.settings.jump_velocity == "mixture":
                     # a push keeps the velocities, a kidnap stops them: a step after, nobody can tell
                     # (the robot says what a jump may do to its other coordinates)
                     xh, P_now = problem.robot.after_jump(problem, xh, P_now)

@@ -46,6 +46,7 @@ from firmtool.controllers import LocalController, plan_local_controller
 from firmtool.design import Design, lqr_weights, node_controller
 from firmtool.edges import simulate
 from firmtool.errors import InputError, NumericalError
+from firmtool.graph import policy_path
 from firmtool.nodes import GOAL, NodeRegions, segment_is_valid
 from firmtool.online.running import RunningController, running_controller
 from firmtool.problem import Problem
@@ -410,16 +411,12 @@ def mission_false_alarm(design_: Design, policy: np.ndarray, start: int) -> floa
     ----------
     design_ : the design (``edge_steps`` per edge, node kinds); policy : (N,) edge per node (-1: none).
     """
-    steps, node, seen = 0, int(start), set()
-    while design_.kinds[node] != GOAL:
-        edge = int(policy[node])
-        if edge < 0:
-            return JUMP_FALSE_ALARM
-        if node in seen:  # nominal targets in a loop: its edges land in the goal's region by chance
-            break
-        seen.add(node)
-        steps += int(design_.edge_steps[edge])
-        node = int(design_.edge_target[edge])
+    path = policy_path(policy, design_.edge_target, int(start), np.flatnonzero(design_.kinds == GOAL))
+    last = path[-1]
+    if design_.kinds[last] != GOAL and policy[last] < 0:  # stuck before a goal: no mission to budget
+        return JUMP_FALSE_ALARM
+    edges = policy[[n for n in path if policy[n] >= 0 and design_.kinds[n] != GOAL]]
+    steps = int(np.sum(design_.edge_steps[edges]))
     if steps <= 0:
         return JUMP_FALSE_ALARM
     return float(min(JUMP_FALSE_ALARM_MAX, max(JUMP_FALSE_ALARM_MIN, JUMP_FALSE_ALARMS / steps)))

@@ -174,10 +174,10 @@ def _run_chunk(task: tuple[int, str, int, int]) -> list[tuple]:
     dists = (cond.spec,) if cond.spec else ()
     from firmtool.disturbances import as_disturbances
     dists = as_disturbances(dists)
+    after = _after(mode, cond)
     out = []
     for i in range(i0, i1):
-        ep = run_episode(policy, system, episode_seeds(seed, i), disturbances=dists,
-                         after_disturbance=_after(mode, cond))
+        ep = run_episode(policy, system, episode_seeds(seed, i), disturbances=dists, after_disturbance=after)
         hit = [e.step for e in ep.events if e.kind == EventKind.DISTURBANCE]
         t = hit[0] if hit else None
         immediate_hit = (ep.outcome == Outcome.COLLISION and t is not None and ep.steps - t <= immediate)

@@ -29,6 +29,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 FIXTURE = HERE / "reference_episodes.json"
 
+# A copy of tests/test_unicycle.py's tiny scenario, on purpose: this module also runs on an old
+# checkout (firmtool and scenarios only, see above), and the reference must not move when those tests do.
 UNICYCLE_TINY = """
 [scenario]
 name = "unicycle_tiny"
