@@ -16,7 +16,9 @@ STEP counts control steps from the start of the episode (0 = before the first st
 drawn among the directions whose straight segment from the current configuration stays free of
 collision (up to 64 draws; a robot boxed in on all sides is pushed anyway): the push is the
 disturbance, not a teleport through a wall. Velocities are left unchanged by a push and set to zero
-by a kidnap.
+by a kidnap; an angle the robot keeps continuous along a run (a unicycle's heading,
+:attr:`firmtool.robots.Robot.angle_coordinates`) is set to its rest value on the turn nearest the
+old one (the same pose: no 2 pi jump of the number).
 
 In Python a disturbance may also be a user's callable (:class:`UserDisturbance`):
 ``fn(step, state, rng) -> new state or None``, asked before every control step with the true
@@ -197,5 +199,9 @@ def apply(problem: Problem, dist: Disturbance, x: np.ndarray, rng: np.random.Gen
             ok = problem.is_valid(problem.state_of(q))
             if ok.any():
                 new = problem.state_of(q[int(np.argmax(ok))])
+                # an angle kept continuous along the run (a unicycle's heading) stays so: the same
+                # pose, on the turn nearest the old value
+                for c in problem.robot.angle_coordinates:
+                    new[c] += 2.0 * np.pi * np.round((x[c] - new[c]) / (2.0 * np.pi))
                 break
     return new, float(np.linalg.norm(new[:d] - x[:d]))

@@ -421,17 +421,25 @@ class NodeRegions:
         out[:, cols] = dist2 <= (tol**2) * norm2[None, :]
         return out
 
-    def true_arrival(self, node: np.ndarray, x: np.ndarray) -> np.ndarray:
+    def true_arrival(self, node: np.ndarray, x: np.ndarray, angles: tuple[int, ...] = ()) -> np.ndarray:
         """Whether the TRUE states ``x`` (M, n) of beliefs that landed in the goal nodes ``node`` (M,)
         are where the goal is (module notes): in a goal ball, the true task point in the ball; at a
         goal state, the true state in the node's mean test scaled by ``true_scale``. Without
-        ``true_scale`` (perfect measurements need none) the estimate's scale is used."""
+        ``true_scale`` (perfect measurements need none) the estimate's scale is used.
+
+        ``angles``: coordinates compared modulo a turn (a robot's
+        :attr:`~firmtool.robots.Robot.angle_coordinates`). The Monte Carlo passes none: there the
+        true state and the estimate never part by a turn. Execution passes them: after a kidnap the
+        estimate may find the right heading on another turn than the true state's number, the same pose."""
         x = np.atleast_2d(x)
         node = np.asarray(node, dtype=np.int64)
         if self.goal is not None:
             return self.goal.true_inside(x)
         scale = self.true_scale if self.true_scale is not None else self.scale
-        z = (x - self.centers[node]) / scale[node]
+        diff = x - self.centers[node]
+        for c in angles:
+            diff[:, c] = (diff[:, c] + np.pi) % (2.0 * np.pi) - np.pi
+        z = diff / scale[node]
         return np.mean(z * z, axis=1) < self.radius**2
 
     def goal_landing(self, xhat: np.ndarray, P: np.ndarray | None) -> np.ndarray:

@@ -38,6 +38,12 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   a jump of the configuration the velocities are either kept (a push) or stopped (a kidnap), which
   a step later nothing tells apart: the belief covers both (:attr:`ReplanSettings.jump_velocity`,
   :meth:`firmtool.robots.Robot.after_jump`).
+- **Re-localising an unseen coordinate.** A robot whose sensor cannot see a coordinate at rest (a
+  unicycle's heading: a kidnap sets it down facing anywhere) holds hypotheses of it after a jump
+  and runs a probe motion until one mode leads, then decides from that mode
+  (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`,
+  :attr:`ReplanSettings.relocalise`). Events: ``innovation_alarm`` "re-localising ..." and
+  "re-localised ...".
 - **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
   and feedback but re-plans its Kalman gains from the corrected belief (its designed gains assume
   the covariance it was designed with, and learnt the push far too slowly in the dark).
@@ -75,6 +81,7 @@ from firmtool.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, GOAL_INDEX, START_INDEX
 from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
+from firmtool.online.relocalise import GaussianSum, Relocalisation
 from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps, mission_false_alarm
 from firmtool.online.running import RunningController, remainder, running_controller
 from firmtool.problem import Problem
@@ -100,6 +107,16 @@ class Traversal(tuple):
     ``FAILURE``, and drops the traversals a disturbance hit: :mod:`firmtool.sim.episodes`)."""
 
     __slots__ = ()
+
+
+class _Probe:
+    """A re-localisation in progress: the hypotheses, the robot's plan, the probe's next step, and the
+    step of the suspended controller a keep would resume from."""
+
+    __slots__ = ("bank", "plan", "step", "s_next")
+
+    def __init__(self, bank: GaussianSum, plan: Relocalisation, step: int, s_next: int) -> None:
+        self.bank, self.plan, self.step, self.s_next = bank, plan, step, s_next
 
 
 class Policy:
@@ -403,6 +420,7 @@ class Policy:
         self._run: RunningController | None = None
         self._clean, self._run_start = False, 0
         self._pending: tuple[RunningController, int] | None = None  # a decided controller waiting out its latency
+        self._probe: _Probe | None = None  # a re-localisation running (hypotheses, probe, step)
         self._awaiting = False
         self._record = bool(record)
         self._hist_x, self._hist_P, self._hist_u = [mean.copy()], [covariance], []
@@ -447,11 +465,17 @@ class Policy:
         run, k = self._run, self._k
         lc = run.lc
         xhat = self._xhat
-        u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T  # as firmtool.edges.control_and_move
+        probe = self._probe
+        if probe is None:
+            u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T  # as firmtool.edges.control_and_move
+            trP = run.trP[k]
+        else:  # re-localising: the probe's next control, open loop
+            u = probe.plan.controls[probe.step][None].copy()
+            trP = float(np.trace(self._P))
         self._u, self._xhat_prev = u, xhat
         self._total += 1
         a_cov, a_time, a_u = self._weights
-        self._cost += a_cov * run.trP[k] + a_time
+        self._cost += a_cov * trP + a_time
         if a_u:
             self._cost += a_u * float(u[0] @ u[0])
         if self._record:
@@ -489,6 +513,8 @@ class Policy:
         if z.shape != (want,):
             raise InputError(f"Policy.observe: z: expected {want} values, found {z.shape[0]}")
         t0 = time.perf_counter()
+        if self._probe is not None:
+            return self._observe_probe(z, decide, t0)
         run, k = self._run, self._k
         lc = run.lc
         u, xhat_prev = self._u, self._xhat_prev
@@ -629,6 +655,9 @@ class Policy:
                     # a push keeps the velocities, a kidnap stops them: a step after, nobody can tell
                     # (the robot says what a jump may do to its other coordinates)
                     xh, P_now = problem.robot.after_jump(problem, xh, P_now)
+                plan = problem.robot.relocalisation(problem, xh, P_now) if self.settings.relocalise else None
+                if plan is not None:  # what the sensor cannot see at rest: hypotheses and a probe first
+                    return self._start_probe(plan, k + 1, out)
             else:  # by the update redone from a prior the innovations inflated
                 dev = window.statistic
                 self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev))
@@ -640,6 +669,62 @@ class Policy:
         else:
             P_now = lc.P[k + 1]
         return self._decide(k + 1, P_now, dev, alarm, out, t0, c0)
+
+    def _start_probe(self, plan: Relocalisation, s_next: int, out: list[Event]) -> bool:
+        """Hold the belief as the robot's hypotheses and run its probe before deciding (True: the
+        running controller is suspended)."""
+        try:
+            bank = GaussianSum(self.problem.model, plan.means, plan.covariances, plan.weights, plan.angle)
+        except ValueError as exc:
+            raise NumericalError(f"{type(self.problem.robot).__name__}.relocalisation: {exc}") from None
+        self._probe = _Probe(bank, plan, 0, s_next)
+        self._clean = False  # the filter was reset: no longer the edge the Monte Carlo ran
+        for test in (self._window, self._jump):
+            if test is not None:
+                test.clear()
+        xh, P = bank.belief()
+        self._xhat, self._P = xh[None], P
+        if self._record:
+            self._hist_x[-1], self._hist_P[-1] = xh, P
+        self._emit(out, Event(self._total, EventKind.INNOVATION_ALARM, self._run.target, 0.0,
+                              f"re-localising: {plan.means.shape[0]} hypotheses, a probe of "
+                              f"{plan.controls.shape[0]} steps"))
+        return True
+
+    def _observe_probe(self, z: np.ndarray, decide: bool, t0: float) -> list[Event]:
+        """A control period of the probe: every hypothesis updated; at its end (or once one leads)
+        the belief is the leading hypothesis and a decision is taken from it."""
+        probe = self._probe
+        self._awaiting = False
+        out: list[Event] = []
+        failed = ""
+        try:
+            probe.bank.update(self._u[0], z)
+        except NumericalError as exc:
+            failed = f" ({exc})"
+        lead, xh, P = probe.bank.mode()
+        self._xhat, self._P = xh[None], P
+        probe.step += 1
+        if self._record:
+            self._hist_x.append(xh)
+            self._hist_P.append(P)
+        self._observe_s.append(time.perf_counter() - t0)
+        if not decide:
+            return out
+        total = self._total
+        if failed or probe.step >= probe.plan.controls.shape[0] or lead >= probe.plan.confident:
+            self._probe = None
+            self._emit(out, Event(total, EventKind.INNOVATION_ALARM, self._run.target, lead,
+                                  f"re-localised after {probe.step} probe steps: the leading mode "
+                                  f"holds {lead:.2f}{failed}"))
+            t1, c1 = time.perf_counter(), time.thread_time()
+            self._k = min(probe.s_next, self._run.lc.steps - 1)  # where a kept controller resumes
+            self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
+            return out
+        if total >= self.max_steps:
+            self._status = PolicyStatus.TIMEOUT
+            self._emit(out, Event(total, EventKind.TIMEOUT, self._run.target, detail="episode step limit"))
+        return out
 
     def relocalise(self, mean: np.ndarray, covariance: np.ndarray) -> list[Event]:
         """Replace the belief mid-run by one from outside (a re-localisation: a marker, a satellite fix,
@@ -667,6 +752,7 @@ class Policy:
         t0, c0 = time.perf_counter(), time.thread_time()
         self._xhat, self._P = mean[None].copy(), covariance
         self._clean = False
+        self._probe = None  # a belief from outside ends a re-localisation of its own
         if self._record:
             self._hist_x[-1], self._hist_P[-1] = mean.copy(), covariance
         out: list[Event] = []

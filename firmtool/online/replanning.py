@@ -104,6 +104,10 @@ class ReplanSettings:
     jump_velocity : after a jump of the configuration, ``"mixture"`` (default): the other coordinates
         as the robot says a jump may leave them (:meth:`firmtool.robots.Robot.after_jump`; velocities:
         kept or stopped, equally likely, matched to one Gaussian); ``"kept"``: as estimated (a push only).
+    relocalise : after a jump, a robot whose sensor cannot see a coordinate at rest (a unicycle's
+        heading) holds hypotheses of it and probes until one leads
+        (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`); off:
+        the policy decides from the corrected belief at once.
     refilter : after a belief reset, the option of keeping the running controller keeps its reference
         and feedback but re-plans its filter from the reset belief (its designed gains assume the old
         covariance); off: its designed filter goes on.
@@ -131,6 +135,7 @@ class ReplanSettings:
     jump_false_alarm: float | None = None
     jump_shrink: bool = True
     jump_velocity: str = "mixture"
+    relocalise: bool = True
     refilter: bool = True
     deadline: float | None = None
     clock: str = "work"

@@ -36,6 +36,7 @@ class UnicycleRobot(Robot):
     # 23-26 ms of thread CPU time (bench_online.py): the run-time design alone (periodic stabiliser,
     # TV-LQG over ~300 steps with the linearisation of every step) takes ~26 ms
     replan_candidate_seconds: ClassVar[float] = 30e-3
+    angle_coordinates: ClassVar[tuple[int, ...]] = (2,)  # the heading
     model_fields: ClassVar[tuple[Field, ...]] = (
         Field("dynamics", "string", choices=("unicycle",), doc="the unicycle's kinematics, exactly discretised"),
         Field("process_noise_std", "number", bound="nonnegative", unit="m / sqrt(s)", doc="position process noise"),
@@ -129,6 +130,30 @@ class UnicycleRobot(Robot):
         it moves."""
         return np.array(mean, dtype=float), np.array(covariance, dtype=float)
 
+    def relocalisation(self, problem, mean, covariance):
+        """The heading anywhere (:data:`HEADING_HYPOTHESES` hypotheses, the kept one with weight
+        :data:`HEADING_KEPT_WEIGHT`: a push leaves it, a kidnap does not) and a probe that shows it:
+        straight out at the orbit speed and back, :data:`PROBE_ROUND_TRIPS` times, as far as a disc
+        around the estimate is free (whatever the heading, the robot stays in it), from
+        :data:`PROBE_REACH` down. None when not even the shortest reach is free: then the policy
+        decides from the corrected belief at once."""
+        from firmtool.online.relocalise import Relocalisation, spread_coordinate
+
+        mean = np.asarray(mean, dtype=float)
+        position_std = float(np.sqrt(np.linalg.eigvalsh(np.asarray(covariance)[:2, :2])[-1]))
+        reach = _free_reach(problem, mean[:2], position_std)
+        if reach is None:
+            return None
+        spec = problem.scenario.model
+        step = spec.orbit_speed * spec.dt
+        legs = max(1, int(round(reach / step)))
+        out_and_back = np.concatenate([np.tile([spec.orbit_speed, 0.0], (legs, 1)),
+                                       np.tile([-spec.orbit_speed, 0.0], (legs, 1))])
+        means, covs, weights = spread_coordinate(mean, covariance, self.angle_coordinates[0], HEADING_HYPOTHESES,
+                                                 HEADING_KEPT_WEIGHT)
+        return Relocalisation(means, covs, weights, np.tile(out_and_back, (PROBE_ROUND_TRIPS, 1)),
+                              angle=self.angle_coordinates[0])
+
     def jump_prior(self, problem):
         """Position anywhere in the world, heading anywhere."""
         span = np.asarray(problem.config_hi, dtype=float) - np.asarray(problem.config_lo, dtype=float)
@@ -150,6 +175,29 @@ class UnicycleRobot(Robot):
     def runtime_nominal(self, problem, x0, xf, tries):
         """The same turn-drive-turn nominal (no speed to brake: the state has none)."""
         return self.nominal_trajectory(problem, x0, xf)
+
+
+HEADING_HYPOTHESES = 12  # 30 degrees apart
+HEADING_KEPT_WEIGHT = 0.5  # prior weight of "the jump left the heading alone" (a push)
+PROBE_REACH = (0.6, 0.4, 0.25, 0.15)  # m, the probe's reach, the longest whose disc is free
+PROBE_ROUND_TRIPS = 2
+
+
+def _free_reach(problem, position: np.ndarray, position_std: float) -> float | None:
+    """The longest of :data:`PROBE_REACH` such that the robot is valid (its disc and the user's
+    checker) everywhere within that reach (plus one standard deviation of the position) of
+    ``position``, or None."""
+    radius = problem.scenario.world.robot_radius
+    angles = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
+    ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    for reach in PROBE_REACH:
+        outer = reach + position_std
+        radii = np.linspace(0.0, outer, max(2, int(np.ceil(outer / radius)) + 1))
+        pts = position[None, None] + radii[:, None, None] * ring[None]  # (radii, angles, 2)
+        X = problem.state_of(pts.reshape(-1, 2))  # the user's checker too, at every heading's position
+        if np.all(problem.states_valid(X, problem.robot.points(X))):
+            return reach
+    return None
 
 
 register("unicycle", UnicycleRobot)

@@ -161,7 +161,8 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
         ep.outcome = _OUTCOME[policy.status]
         if policy.status == PolicyStatus.GOAL:  # the policy declared arrival; the true state decides
             node = policy.node
-            if not policy.regions.true_arrival(np.array([node]), system.state)[0]:
+            if not policy.regions.true_arrival(np.array([node]), system.state,
+                                               angles=policy.problem.robot.angle_coordinates)[0]:
                 ep.outcome = Outcome.GOAL_MISS
                 # the policy's goal event, as the environment judges it (the policy's own log keeps it)
                 i = max(j for j, ev in enumerate(ep.events) if ev.kind == EventKind.GOAL)

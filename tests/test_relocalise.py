@@ -1,0 +1,284 @@
+"""Re-localising an unseen coordinate after a jump: the Gaussian-sum bank and the unicycle's probe."""
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from firmtool.models.linear import LightDarkNoise
+from firmtool.models.unicycle import UnicycleModel
+from firmtool.online.relocalise import GaussianSum, spread_coordinate
+from firmtool.problem import build_problem
+from firmtool.scenario import parse_scenario
+from test_unicycle import LIGHTDARK, TINY  # the unicycle tests' tiny scenario
+
+
+class _Linear:
+    """A constant-velocity model in one dimension, position measured (the bank's interface)."""
+
+    n, m, nz = 2, 1, 1
+    A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    B = np.array([[0.005], [0.1]])
+    H = np.array([[1.0, 0.0]])
+    process_cov = np.diag([1e-4, 4e-4])
+    r = 0.09
+
+    def f(self, X, U):
+        return np.atleast_2d(X) @ self.A.T + np.atleast_2d(U) @ self.B.T
+
+    def h(self, X):
+        return np.atleast_2d(X) @ self.H.T
+
+    def dynamics_jacobians(self, x, u):
+        return self.A, self.B
+
+    def observation_jacobian(self, x):
+        return self.H
+
+    def measurement_variance(self, X):
+        return np.full((np.atleast_2d(X).shape[0], 1), self.r)
+
+
+def _batch(model, mean, cov, controls):
+    """The exact joint law of the measurements z_1..z_T and of the last state x_T under
+    x_0 ~ N(mean, cov), by stacking the linear system (no recursion): mean (T + n,), covariance."""
+    n, T = model.n, controls.shape[0]
+    # x_k = A^k x_0 + sum_j A^(k-1-j) (B u_j + w_j): coefficients of x_0 and of each w_j
+    coef_x0 = [np.linalg.matrix_power(model.A, k) for k in range(1, T + 1)]
+    drift = np.zeros((T, n))
+    x = np.zeros(n)
+    for k in range(T):
+        x = model.A @ x + model.B @ controls[k]
+        drift[k] = x
+    coef_w = np.zeros((T, n, T * n))
+    for k in range(T):
+        for j in range(k + 1):
+            coef_w[k][:, j * n:(j + 1) * n] = np.linalg.matrix_power(model.A, k - j)
+    W = np.kron(np.eye(T), model.process_cov)
+    means_x = np.array([c @ mean for c in coef_x0]) + drift  # (T, n)
+    cov_x = np.array([[coef_x0[a] @ cov @ coef_x0[b].T + coef_w[a] @ W @ coef_w[b].T for b in range(T)]
+                      for a in range(T)])  # (T, T, n, n)
+    H = model.H
+    mz = means_x @ H.T  # (T, 1)
+    Czz = np.block([[H @ cov_x[a, b] @ H.T + (model.r if a == b else 0.0) for b in range(T)] for a in range(T)])
+    Cxz = np.hstack([cov_x[T - 1, b] @ H.T for b in range(T)])  # (n, T)
+    return mz[:, 0], Czz, means_x[-1], cov_x[T - 1, T - 1], Cxz
+
+
+def test_bank_of_linear_filters_is_the_exact_posterior():
+    """For a linear model each hypothesis' filter is exact, so the bank's weights are the prior times
+    the marginal likelihood of the whole measurement sequence, and each mean is the conditional mean
+    of the last state: both computed here in one batch from the stacked system (scipy's Gaussian)."""
+    model, rng = _Linear(), np.random.default_rng(3)
+    means = np.array([[0.0, 0.5], [0.3, -0.5], [-0.4, 0.0]])
+    covs = np.array([np.diag([0.04, 0.01]), np.diag([0.02, 0.05]), np.diag([0.1, 0.1])])
+    prior = np.array([0.5, 0.3, 0.2])
+    T = 12
+    controls = rng.normal(size=(T, 1))
+    x = means[1] + rng.multivariate_normal(np.zeros(2), covs[1])
+    zs = []
+    bank = GaussianSum(model, means, covs, prior, angle=0)
+    for u in controls:
+        x = model.A @ x + model.B @ u + rng.multivariate_normal(np.zeros(2), model.process_cov)
+        zs.append(x[0] + np.sqrt(model.r) * rng.normal())
+        bank.update(u, np.array([zs[-1]]))
+    Z = np.array(zs)
+    log_post = []
+    for i in range(3):
+        mz, Czz, mx, Cxx, Cxz = _batch(model, means[i], covs[i], controls)
+        log_post.append(np.log(prior[i]) + multivariate_normal(mz, Czz).logpdf(Z))
+        cond_mean = mx + Cxz @ np.linalg.solve(Czz, Z - mz)
+        cond_cov = Cxx - Cxz @ np.linalg.solve(Czz, Cxz.T)
+        np.testing.assert_allclose(bank.means[i], cond_mean, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(bank.covariances[i], cond_cov, rtol=1e-9, atol=1e-12)
+    log_post = np.array(log_post)
+    post = np.exp(log_post - log_post.max())
+    np.testing.assert_allclose(bank.weights, post / post.sum(), rtol=1e-9)
+
+
+def test_spread_hypotheses_cover_the_circle_and_keep_the_estimate():
+    mean, cov = np.array([1.0, 2.0, 0.3]), np.array([[0.04, 0.0, 0.01], [0.0, 0.04, 0.0], [0.01, 0.0, 0.02]])
+    means, covs, w = spread_coordinate(mean, cov, 2, 12, 0.5)
+    assert w.sum() == pytest.approx(1.0) and w[0] == pytest.approx(0.5 + 0.5 / 12)
+    offsets = means[:, 2] - mean[2]
+    assert np.all(offsets >= -np.pi) and np.all(offsets < np.pi)  # on the kept value's turn
+    np.testing.assert_allclose(np.sort(offsets), -np.pi + 2 * np.pi / 12 * np.arange(12), atol=1e-12)
+    assert offsets[0] == 0.0
+    np.testing.assert_allclose(means[:, :2], np.repeat(mean[None, :2], 12, axis=0))
+    np.testing.assert_allclose(covs[:, :2, :2], np.repeat(cov[None, :2, :2], 12, axis=0))
+    assert covs[0, 0, 2] == cov[0, 2] and np.all(covs[1:, 0, 2] == 0.0)  # the kept one keeps its correlation
+    assert all(np.all(np.linalg.eigvalsh(c) > 0) for c in covs)
+
+
+def _unicycle_problem():
+    return build_problem(parse_scenario(TINY.format(q=0.02, measurement=LIGHTDARK), "tiny.toml"))
+
+
+def _probe_run(problem, plan, true, rng):
+    model = problem.model
+    bank = GaussianSum(model, plan.means, plan.covariances, plan.weights, plan.angle)
+    x = true[None].copy()
+    for u in plan.controls:
+        x = model.f(x, u[None]) + rng.standard_normal((1, 3)) @ model.F.T
+        z = model.h(x)[0] + np.sqrt(model.measurement_variance(x)[0]) * rng.standard_normal(2)
+        bank.update(u, z)
+    return bank, x[0]
+
+
+def test_unicycle_probe_finds_a_heading_the_belief_has_wrong():
+    """A kidnapped unicycle faces anywhere; its belief keeps the heading from before. The probe's
+    hypotheses find the true heading wherever the kept one is (every error up to half a turn): the
+    merged mode's mean is within three of its standard deviations of the truth in at least 90% of
+    trials, and within 0.5 rad. A single filter from the kept heading (what the policy did before)
+    does not: off by more than a quarter turn, it ends more than 1 rad off in most trials."""
+    problem = _unicycle_problem()
+    robot, model = problem.robot, problem.model
+    rng = np.random.default_rng(11)
+    hits, close, single_far, trials = 0, 0, 0, 40
+    for t in range(trials):
+        true = np.array([rng.uniform(0.5, 1.0), rng.uniform(1.3, 1.5), rng.uniform(-np.pi, np.pi)])
+        kept = true[2] + rng.uniform(np.pi / 2, np.pi) * rng.choice([-1.0, 1.0])  # a quarter to half a turn off
+        cov = np.diag([0.0025, 0.0025, 0.02])
+        mean = np.array([true[0], true[1], kept]) + np.r_[rng.normal(0, 0.05, 2), 0.0]
+        plan = robot.relocalisation(problem, mean, cov)
+        assert plan is not None, "the free disc around the estimate was not found"
+        bank, end = _probe_run(problem, plan, true, rng)
+        weight, m, P = bank.mode()
+        err = abs((m[2] - end[2] + np.pi) % (2 * np.pi) - np.pi)
+        hits += err <= 3 * np.sqrt(P[2, 2])
+        close += err <= 0.5
+        single = GaussianSum(model, mean[None], cov[None], np.ones(1), angle=2)
+        _, end_single = _probe_run_single(problem, plan, true, single, np.random.default_rng(t))
+        e1 = abs((single.means[0, 2] - end_single[2] + np.pi) % (2 * np.pi) - np.pi)
+        single_far += e1 > 1.0
+    assert hits >= 0.9 * trials and close >= 0.9 * trials, (hits, close)
+    assert single_far >= 0.5 * trials, single_far
+
+
+def _probe_run_single(problem, plan, true, bank, rng):
+    model = problem.model
+    x = true[None].copy()
+    for u in plan.controls:
+        x = model.f(x, u[None]) + rng.standard_normal((1, 3)) @ model.F.T
+        z = model.h(x)[0] + np.sqrt(model.measurement_variance(x)[0]) * rng.standard_normal(2)
+        bank.update(u, z)
+    return bank, x[0]
+
+
+def test_unicycle_probe_stays_in_free_space_or_is_not_offered():
+    """The probe's reach plus a standard deviation of the position is free whatever the heading (the
+    whole disc is checked); next to an obstacle the reach shrinks, inside one there is no probe."""
+    problem = _unicycle_problem()
+    robot = problem.robot
+    cov = np.diag([0.0004, 0.0004, 0.01])
+    open_plan = robot.relocalisation(problem, np.array([0.6, 1.5, 0.0]), cov)
+    near_plan = robot.relocalisation(problem, np.array([1.1, 0.5, 0.0]), cov)  # 0.25 from the wall
+    assert open_plan is not None and near_plan is not None
+    assert near_plan.controls.shape[0] < open_plan.controls.shape[0]
+    assert robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov) is None  # inside the wall
+    # every state the probe can reach, at every heading, is valid (plus the disc's margin)
+    for plan, start in ((open_plan, [0.6, 1.5]), (near_plan, [1.1, 0.5])):
+        v = np.abs(plan.controls[:, 0]).max()
+        half = int(np.argmax(plan.controls[:, 0] < 0))  # the first leg's steps
+        reach = v * problem.scenario.model.dt * half
+        ang = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+        pts = np.asarray(start)[None] + reach * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        X = problem.state_of(pts)
+        assert problem.states_valid(X, robot.points(X)).all()
+
+
+def test_bank_rejects_bad_shapes():
+    model = UnicycleModel(F=0.01 * np.eye(3), noise=LightDarkNoise("lightdark_variance", light_x=3.0, a=0.002,
+                                                                     c=4e-4), dt=0.1)
+    with pytest.raises(ValueError):
+        GaussianSum(model, np.zeros((2, 3)), np.zeros((2, 3, 3)), np.array([1.0, 0.0]), angle=2)
+    with pytest.raises(ValueError):
+        GaussianSum(model, np.zeros((2, 3)), np.zeros((3, 3, 3)), np.ones(2), angle=2)
+
+
+def test_kidnap_puts_the_heading_at_rest_on_the_turn_of_the_old_one():
+    """A kidnap sets a unicycle down facing +x (its rest heading 0), as the same number modulo a turn
+    as before: the heading is kept continuous along a run, so a filter re-localising it can report it
+    on the turn of its old estimate."""
+    from firmtool.disturbances import apply, parse_disturbance
+
+    problem = _unicycle_problem()
+    kidnap = parse_disturbance("kidnap:5")
+    for old in (0.4, -2.0, 3.0 * 2 * np.pi + 0.4, -2 * np.pi - 3.0, 3.3):
+        x = np.array([0.6, 1.4, old])
+        new, moved = apply(problem, kidnap, x, np.random.default_rng(2))
+        assert moved > 0 and problem.is_valid(new[None])[0]
+        assert abs(new[2] - old) <= np.pi + 1e-12  # the nearest turn
+        assert np.sin(new[2]) == pytest.approx(0.0, abs=1e-12) and np.cos(new[2]) == pytest.approx(1.0)
+
+
+def test_reported_heading_stays_on_the_turn_of_the_kept_one():
+    """Hypotheses converge on the truth from both sides of the circle; the belief reports it on the
+    kept value's turn (offset within half a turn), whichever hypothesis leads: the truth's own turn
+    unless it is about half a turn off, where the two are the same pose."""
+    problem = _unicycle_problem()
+    rng = np.random.default_rng(5)
+    for kept in (0.2, 2 * np.pi * 2 + 3.0, -2 * np.pi - 3.1):
+        for off in (0.75 * np.pi, -0.75 * np.pi, 0.97 * np.pi):  # hypotheses on either side may win
+            true = np.array([0.7, 1.4, kept + off])
+            mean, cov = np.array([0.7, 1.4, kept]), np.diag([0.0025, 0.0025, 0.02])
+            plan = problem.robot.relocalisation(problem, mean, cov)
+            bank, end = _probe_run(problem, plan, true, rng)
+            _, m, _ = bank.mode()
+            assert abs(m[2] - kept) <= np.pi
+            assert abs((m[2] - end[2] + np.pi) % (2 * np.pi) - np.pi) < 0.5
+            if abs(off) < 0.8 * np.pi:  # clear of the half turn, where the truth's turn is ambiguous
+                assert abs(m[2] - end[2]) < 0.5
+
+
+@pytest.fixture(scope="module")
+def tiny_solution():
+    import firmtool as ft
+
+    return ft.solve(ft.build(parse_scenario(TINY.format(q=0.02, measurement=LIGHTDARK), "tiny.toml"), workers=1))
+
+
+def _turned_and_moved(step, state, rng):
+    """A kidnap that turns the robot by 0.6-0.9 of half a turn and sets it down in the open."""
+    if step != 25:
+        return None
+    new = state.copy()
+    new[:2] = [0.7, 1.45]
+    new[2] = state[2] + rng.uniform(0.6, 0.9) * np.pi * rng.choice([-1.0, 1.0])
+    return new
+
+
+def _heading_errors(res, after):
+    """Per episode, the wrapped heading error of the estimate ``after`` steps past the disturbance (at
+    its last step if it ended before)."""
+    out = []
+    for ep in res.episodes:
+        k = min(25 + after, len(ep.states) - 1, len(ep.estimates) - 1)
+        out.append(abs((ep.estimates[k, 2] - ep.states[k, 2] + np.pi) % (2 * np.pi) - np.pi))
+    return np.array(out)
+
+
+def test_policy_relocalises_the_heading_after_a_kidnap(tiny_solution):
+    """In the policy: the jump test finds the kidnap, the robot probes (straight out and back, no
+    turning), and 60 steps after the kidnap (or at the episode's end, if sooner) the estimate's
+    heading is within 0.5 rad of the truth in most episodes; with the re-localisation off (the belief
+    keeps its heading) it is not, and fewer episodes succeed."""
+    import firmtool as ft
+
+    runs = {}
+    for on in (True, False):
+        runs[on] = ft.simulate(tiny_solution, 12, 3, disturbances=[_turned_and_moved],
+                               replan=ft.ReplanSettings(relocalise=on), record=True)
+    probed = 0
+    for ep in runs[True].episodes:
+        starts = [e.step for e in ep.events if (e.detail or "").startswith("re-localising")]
+        ends = [e.step for e in ep.events if (e.detail or "").startswith("re-localised")]
+        if starts and ends:
+            probed += 1
+            u = ep.controls[starts[0]:ends[0]]
+            assert np.all(u[:, 1] == 0.0) and np.all(np.abs(u[:, 0]) > 0)  # straight, no turning
+    assert probed >= 10
+    assert not any("re-localis" in (e.detail or "") for ep in runs[False].episodes for e in ep.events)
+    on, off = _heading_errors(runs[True], 60), _heading_errors(runs[False], 60)
+    assert np.mean(on < 0.5) >= 0.75 and np.mean(off < 0.5) <= 0.5
+    wins = {k: sum(str(ep.outcome) == "success" for ep in r.episodes) for k, r in runs.items()}
+    assert wins[True] > wins[False]
