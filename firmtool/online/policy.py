@@ -712,7 +712,7 @@ class Policy:
         if not decide:
             return out
         total = self._total
-        if failed or probe.step >= probe.plan.controls.shape[0] or lead >= probe.plan.confident:
+        if failed or probe.step >= probe.plan.controls.shape[0] or probe.plan.settled(lead, P):
             self._probe = None
             self._emit(out, Event(total, EventKind.INNOVATION_ALARM, self._run.target, lead,
                                   f"re-localised after {probe.step} probe steps: the leading mode "

@@ -16,8 +16,9 @@ turn (the corrected value among them, with the prior weight of "the jump left it
 updated by its own extended Kalman filter and weighted by the likelihood of the measurements. While
 it runs the robot executes a *probe*, an open-loop motion the robot chooses so that every hypothesis
 stays clear of obstacles (the unicycle: straight out and back along its unknown heading, inside a
-free disc). The probe ends when one hypothesis holds the given share of the weight or its steps run
-out; the belief is then the leading hypothesis, and the policy decides from it as after any jump.
+free disc). The probe ends when one mode holds the given share of the weight with the angle
+resolved to the given spread, or when its steps run out; the belief is then the leading mode, and
+the policy decides from it as after any jump.
 
 Nothing here is specific to the unicycle: a robot opts in through
 :meth:`firmtool.robots.Robot.relocalisation`, which says which coordinate and which probe. The bank
@@ -45,7 +46,8 @@ class Relocalisation:
     weights : (K,) their prior weights (summing to 1).
     controls : (T, m) the probe, applied open loop, one row per control period.
     angle : the coordinate the hypotheses spread (an angle: modes are compared modulo a turn).
-    confident : the weight at which one mode ends the probe early.
+    resolved : the angle's standard deviation in the leading mode at which the probe may end.
+    confident : the weight the leading mode must hold for the probe to end early (with ``resolved``).
     """
 
     means: np.ndarray
@@ -53,7 +55,12 @@ class Relocalisation:
     weights: np.ndarray
     controls: np.ndarray
     angle: int
+    resolved: float = np.inf
     confident: float = 0.95
+
+    def settled(self, weight: float, covariance: np.ndarray) -> bool:
+        """Whether the leading mode (its weight, its covariance (n, n)) ends the probe."""
+        return weight >= self.confident and covariance[self.angle, self.angle] <= self.resolved ** 2
 
 
 class GaussianSum:
