@@ -37,6 +37,8 @@ class EventKind(enum.StrEnum):
     REPLAN_FAILED = "replan_failed"  # a replan was due but no controller could be designed
     KEPT_CONTROLLER = "kept_controller"  # a replan was due but the running controller scored best
     INNOVATION_ALARM = "innovation_alarm"  # the measurements contradicted the belief (value: the test statistic)
+    RELOCALISING = "relocalising"  # after a jump, hypotheses and a probe motion began (value: the probe's steps)
+    RELOCALISED = "relocalised"  # the probe ended; the belief is its leading mode (value: the mode's weight)
     COLLISION = "collision"
     TIMEOUT = "timeout"
     GOAL = "goal"  # the policy declared arrival and the true state is in the goal

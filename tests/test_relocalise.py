@@ -276,15 +276,31 @@ def test_policy_relocalises_the_heading_after_a_kidnap(tiny_solution):
                                replan=ft.ReplanSettings(relocalise=on), record=True)
     probed = 0
     for ep in runs[True].episodes:
-        starts = [e.step for e in ep.events if (e.detail or "").startswith("re-localising")]
-        ends = [e.step for e in ep.events if (e.detail or "").startswith("re-localised")]
+        starts = [e.step for e in ep.events if e.kind == ft.EventKind.RELOCALISING]
+        ends = [e.step for e in ep.events if e.kind == ft.EventKind.RELOCALISED]
         if starts and ends:
             probed += 1
             u = ep.controls[starts[0]:ends[0]]
             assert np.all(u[:, 1] == 0.0) and np.all(np.abs(u[:, 0]) > 0)  # straight, no turning
     assert probed >= 10
-    assert not any("re-localis" in (e.detail or "") for ep in runs[False].episodes for e in ep.events)
+    assert not any(e.kind in (ft.EventKind.RELOCALISING, ft.EventKind.RELOCALISED)
+                   for ep in runs[False].episodes for e in ep.events)
     on, off = _heading_errors(runs[True], 60), _heading_errors(runs[False], 60)
     assert np.mean(on < 0.5) >= 0.75 and np.mean(off < 0.5) <= 0.5
     wins = {k: sum(str(ep.outcome) == "success" for ep in r.episodes) for k, r in runs.items()}
     assert wins[True] > wins[False]
+
+
+def test_a_failed_update_is_reported_and_leaves_the_bank_as_it_was():
+    from firmtool.errors import NumericalError
+
+    model = _Linear()
+    bank = GaussianSum(model, np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([np.eye(2) * 0.1] * 2),
+                       np.array([0.5, 0.5]), angle=0)
+    bank.update(np.array([0.2]), np.array([0.3]))
+    before = (bank.means.copy(), bank.covariances.copy(), bank.weights.copy())
+    model.r = np.nan  # a sensor model that returns no number
+    with pytest.raises(NumericalError):
+        bank.update(np.array([0.2]), np.array([0.3]))
+    for now, then in zip((bank.means, bank.covariances, bank.weights), before):
+        np.testing.assert_array_equal(now, then)

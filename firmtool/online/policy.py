@@ -42,8 +42,7 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   unicycle's heading: a kidnap sets it down facing anywhere) holds hypotheses of it after a jump
   and runs a probe motion until one mode leads, then decides from that mode
   (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`,
-  :attr:`ReplanSettings.relocalise`). Events: ``innovation_alarm`` "re-localising ..." and
-  "re-localised ...".
+  :attr:`ReplanSettings.relocalise`). Events: ``relocalising``, then ``relocalised``.
 - **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
   and feedback but re-plans its Kalman gains from the corrected belief (its designed gains assume
   the covariance it was designed with, and learnt the push far too slowly in the dark).
@@ -686,14 +685,14 @@ class Policy:
         self._xhat, self._P = xh[None], P
         if self._record:
             self._hist_x[-1], self._hist_P[-1] = xh, P
-        self._emit(out, Event(self._total, EventKind.INNOVATION_ALARM, self._run.target, 0.0,
-                              f"re-localising: {plan.means.shape[0]} hypotheses, a probe of "
-                              f"{plan.controls.shape[0]} steps"))
+        self._emit(out, Event(self._total, EventKind.RELOCALISING, self._run.target, float(plan.controls.shape[0]),
+                              f"{plan.means.shape[0]} hypotheses, a probe of up to {plan.controls.shape[0]} steps"))
         return True
 
     def _observe_probe(self, z: np.ndarray, decide: bool, t0: float) -> list[Event]:
-        """A control period of the probe: every hypothesis updated; at its end (or once one leads)
-        the belief is the leading hypothesis and a decision is taken from it."""
+        """A control period of the probe: every hypothesis updated; at its end (or once one mode
+        leads, :meth:`Relocalisation.settled`) the belief is the leading mode and a decision is taken
+        from it."""
         probe = self._probe
         self._awaiting = False
         out: list[Event] = []
@@ -714,9 +713,8 @@ class Policy:
         total = self._total
         if failed or probe.step >= probe.plan.controls.shape[0] or probe.plan.settled(lead, P):
             self._probe = None
-            self._emit(out, Event(total, EventKind.INNOVATION_ALARM, self._run.target, lead,
-                                  f"re-localised after {probe.step} probe steps: the leading mode "
-                                  f"holds {lead:.2f}{failed}"))
+            self._emit(out, Event(total, EventKind.RELOCALISED, self._run.target, lead,
+                                  f"after {probe.step} probe steps the leading mode holds {lead:.2f}{failed}"))
             t1, c1 = time.perf_counter(), time.thread_time()
             self._k = min(probe.s_next, self._run.lc.steps - 1)  # where a kept controller resumes
             self._decide(probe.s_next, P, 0.0, True, out, t1, c1)

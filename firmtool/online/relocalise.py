@@ -116,6 +116,8 @@ class GaussianSum:
         R = model.measurement_variance(pred)  # (K, nz) diagonal measurement variance at each prediction
         nu = np.asarray(z, dtype=float)[None] - model.h(pred)  # (K, nz)
         Q = model.process_cov
+        # into new arrays, kept only if every hypothesis updates (a failure leaves the bank as it was)
+        means, covs, log_weights = np.empty_like(self.means), np.empty_like(self.covariances), self.log_weights.copy()
         for i in range(K):
             A, _ = model.dynamics_jacobians(self.means[i], u)
             H = model.observation_jacobian(pred[i])
@@ -128,16 +130,17 @@ class GaussianSum:
                                      "definite") from exc
             white = np.linalg.solve(chol, nu[i])
             # log N(nu; 0, S) up to the constant all hypotheses share
-            self.log_weights[i] += -0.5 * float(white @ white) - float(np.log(np.diag(chol)).sum())
+            log_weights[i] += -0.5 * float(white @ white) - float(np.log(np.diag(chol)).sum())
             gain = np.linalg.solve(S, H @ P).T  # (n, nz)
             IL = np.eye(n) - gain @ H
             P = IL @ P @ IL.T + gain @ np.diag(R[i]) @ gain.T  # Joseph form
-            self.means[i] = pred[i] + gain @ nu[i]
-            self.covariances[i] = 0.5 * (P + P.T)
-        top = float(np.max(self.log_weights))
-        if not np.isfinite(top):
-            raise NumericalError("re-localisation: every hypothesis' likelihood underflowed")
-        self.log_weights -= top + np.log(np.exp(self.log_weights - top).sum())
+            means[i] = pred[i] + gain @ nu[i]
+            covs[i] = 0.5 * (P + P.T)
+        top = float(np.max(log_weights))
+        if not (np.isfinite(top) and np.all(np.isfinite(means)) and np.all(np.isfinite(covs))):
+            raise NumericalError("re-localisation: a hypothesis' update is not finite")
+        self.means, self.covariances = means, covs
+        self.log_weights = log_weights - (top + np.log(np.exp(log_weights - top).sum()))
 
     def mode(self) -> tuple[float, np.ndarray, np.ndarray]:
         """The leading mode: its weight, mean (n,) and covariance (n, n).
