@@ -202,6 +202,7 @@ def apply(problem: Problem, dist: Disturbance, x: np.ndarray, rng: np.random.Gen
                 # an angle kept continuous along the run (a unicycle's heading) stays so: the same
                 # pose, on the turn nearest the old value
                 for c in problem.robot.angle_coordinates:
-                    new[c] += 2.0 * np.pi * np.round((x[c] - new[c]) / (2.0 * np.pi))
+                    if c >= d:  # a configuration coordinate was drawn within its bounds: it stays
+                        new[c] += 2.0 * np.pi * np.round((x[c] - new[c]) / (2.0 * np.pi))
                 break
     return new, float(np.linalg.norm(new[:d] - x[:d]))

@@ -39,7 +39,7 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   a step later nothing tells apart: the belief covers both (:attr:`ReplanSettings.jump_velocity`,
   :meth:`firmtool.robots.Robot.after_jump`).
 - **Re-localising an unseen coordinate.** A robot whose sensor cannot see a coordinate at rest (a
-  unicycle's heading: a kidnap sets it down facing anywhere) holds hypotheses of it after a jump
+  unicycle's heading: a kidnapped robot may face anywhere) holds hypotheses of it after a jump
   and runs a probe motion until one mode leads, then decides from that mode
   (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`,
   :attr:`ReplanSettings.relocalise`). Events: ``relocalising``, then ``relocalised``.
@@ -59,7 +59,8 @@ controller from the start belief, a node without an edge), or on a timeout (its 
 of steps, or the mission's step budget :attr:`max_steps` is spent). A collision is not its to
 decide: the robot (or the simulated system) stops the loop.
 
-Each step is the same math as the Monte Carlo that estimated the edges (:func:`firmtool.edges.simulate`):
+Each step (but a re-localisation's probe, which is open loop) is the same math as the Monte Carlo
+that estimated the edges (:func:`firmtool.edges.simulate`):
 ``u = u_ref[k] - K[k] (xhat - x_ref[k])`` and the filter update
 ``xhat = f(xhat, u) + L[k] (z - h(f(xhat, u)))`` with the edge's precomputed gains, so executed
 frequencies are comparable with the estimated probabilities (``tests/test_online.py`` checks
@@ -445,7 +446,8 @@ class Policy:
     # -- the control period ------------------------------------------------------------------------------
 
     def act(self) -> np.ndarray:
-        """The control to apply now: ``u = u_ref[k] - K[k] (xhat - x_ref[k])`` of the running controller.
+        """The control to apply now: ``u = u_ref[k] - K[k] (xhat - x_ref[k])`` of the running controller
+        (while a re-localisation runs, its probe's next control).
 
         Returns
         -------
@@ -502,7 +504,8 @@ class Policy:
         -------
         list of Event
             This step's events: ``node`` (and then ``goal`` or ``stuck`` at a goal or a node without an
-            edge), ``innovation_alarm``, ``replan`` / ``kept_controller`` / ``replan_failed``, ``timeout``.
+            edge), ``innovation_alarm``, ``relocalising`` / ``relocalised``, ``replan`` /
+            ``kept_controller`` / ``replan_failed``, ``timeout``.
         """
         if not self._awaiting:
             raise InputError("Policy.observe: call act() first (one measurement per control)")
@@ -578,10 +581,11 @@ class Policy:
             self._pending = (new, wait - 1)
         elif alarm or deviate:
             if self._replan(k, dev, alarm, jump, nu, out):
+                if total >= self.max_steps:  # the mission's budget holds whatever controller runs next
+                    self._timeout(out)
                 return out
         if total >= self.max_steps:
-            self._status = PolicyStatus.TIMEOUT
-            self._emit(out, Event(total, EventKind.TIMEOUT, run.target, detail="episode step limit"))
+            self._timeout(out)
             return out
         self._k = k + 1
         if self._k >= lc.steps:  # the controller ran out of steps without reaching a node
@@ -708,21 +712,39 @@ class Policy:
             self._hist_x.append(xh)
             self._hist_P.append(P)
         self._observe_s.append(time.perf_counter() - t0)
-        if not decide:
+        plan, total = probe.plan, self._total
+        why = ("its steps ran out" if probe.step >= plan.controls.shape[0] else
+               "the belief left the probe's free region" if not plan.may_go_on(xh, P) else
+               "settled" if plan.settled(lead, P) else "")
+        if failed:
+            why = "an update failed" + failed
+        if not decide:  # no test, no decision: a probe that is over hands back to the running controller
+            if why:
+                self._end_probe(out, lead, why)
             return out
-        total = self._total
-        if failed or probe.step >= probe.plan.controls.shape[0] or probe.plan.settled(lead, P):
-            self._probe = None
-            self._emit(out, Event(total, EventKind.RELOCALISED, self._run.target, lead,
-                                  f"after {probe.step} probe steps the leading mode holds {lead:.2f}{failed}"))
-            t1, c1 = time.perf_counter(), time.thread_time()
-            self._k = min(probe.s_next, self._run.lc.steps - 1)  # where a kept controller resumes
-            self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
-            return out
+        if why:
+            self._end_probe(out, lead, why)
+            if total < self.max_steps:
+                t1, c1 = time.perf_counter(), time.thread_time()
+                self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
+                return out
         if total >= self.max_steps:
-            self._status = PolicyStatus.TIMEOUT
-            self._emit(out, Event(total, EventKind.TIMEOUT, self._run.target, detail="episode step limit"))
+            self._timeout(out)
         return out
+
+    def _timeout(self, out: list[Event]) -> None:
+        """The mission's step budget is spent."""
+        self._status = PolicyStatus.TIMEOUT
+        self._emit(out, Event(self._total, EventKind.TIMEOUT, self._run.target, detail="episode step limit"))
+
+    def _end_probe(self, out: list[Event], lead: float, why: str) -> None:
+        """End a re-localisation: the belief stays its leading mode; the suspended controller would
+        resume where it was left (a decision may replace it)."""
+        probe = self._probe
+        self._probe = None
+        self._k = min(probe.s_next, self._run.lc.steps - 1)
+        self._emit(out, Event(self._total, EventKind.RELOCALISED, self._run.target, lead,
+                              f"after {probe.step} probe steps ({why}) the leading mode holds {lead:.2f}"))
 
     def relocalise(self, mean: np.ndarray, covariance: np.ndarray) -> list[Event]:
         """Replace the belief mid-run by one from outside (a re-localisation: a marker, a satellite fix,
@@ -748,12 +770,13 @@ class Policy:
                                                                     and np.all(np.isfinite(covariance))):
             raise InputError(f"Policy.relocalise: expected a finite mean ({n},) and covariance ({n}, {n})")
         t0, c0 = time.perf_counter(), time.thread_time()
+        out: list[Event] = []
+        if self._probe is not None:  # a belief from outside ends a re-localisation of its own
+            self._end_probe(out, float(self._probe.bank.mode()[0]), "a belief from outside")
         self._xhat, self._P = mean[None].copy(), covariance
         self._clean = False
-        self._probe = None  # a belief from outside ends a re-localisation of its own
         if self._record:
             self._hist_x[-1], self._hist_P[-1] = mean.copy(), covariance
-        out: list[Event] = []
         self._decide(self._k, covariance, 0.0, True, out, t0, c0)
         return out
 

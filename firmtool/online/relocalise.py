@@ -1,7 +1,8 @@
 """Re-localising a coordinate the sensor cannot see at rest, after a jump: a Gaussian sum and a probe.
 
 A unicycle's position sensor does not see its heading; only motion shows it. After a kidnap (the
-robot set down somewhere, facing anywhere) the jump test corrects the position within a step, but the
+robot set down somewhere, facing anywhere; the simulator's kidnap sets it down facing +x, which the
+policy is not told) the jump test corrects the position within a step, but the
 heading the belief keeps is the one from before, and a single Gaussian cannot hold "anywhere on the
 circle": an extended Kalman filter started 90-180 degrees off does not converge (its linearisation
 explains the motion by the wrong direction), and the controllers drive off in the believed
@@ -29,6 +30,7 @@ on one belief, not in the Monte Carlo's hot loop.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -45,9 +47,13 @@ class Relocalisation:
     covariances : (K, n, n) their covariances.
     weights : (K,) their prior weights (summing to 1).
     controls : (T, m) the probe, applied open loop, one row per control period.
-    angle : the coordinate the hypotheses spread (an angle: modes are compared modulo a turn).
+    angle : the coordinate the hypotheses spread (an angle: modes are compared modulo a turn). The
+        first hypothesis holds the value the jump's correction kept: the belief's angle is reported
+        on its turn (:class:`GaussianSum`'s ``turn_of``).
     resolved : the angle's standard deviation in the leading mode at which the probe may end.
     confident : the weight the leading mode must hold for the probe to end early (with ``resolved``).
+    allowed : ``allowed(mean (n,), covariance (n, n)) -> bool``, whether the probe may go on from the
+        leading mode's belief (the unicycle: while it stays in the disc it checked free); None: always.
     """
 
     means: np.ndarray
@@ -57,10 +63,15 @@ class Relocalisation:
     angle: int
     resolved: float = np.inf
     confident: float = 0.95
+    allowed: Callable[[np.ndarray, np.ndarray], bool] | None = None
 
     def settled(self, weight: float, covariance: np.ndarray) -> bool:
         """Whether the leading mode (its weight, its covariance (n, n)) ends the probe."""
         return weight >= self.confident and covariance[self.angle, self.angle] <= self.resolved ** 2
+
+    def may_go_on(self, mean: np.ndarray, covariance: np.ndarray) -> bool:
+        """Whether the probe may go on from the leading mode's belief (:attr:`allowed`)."""
+        return True if self.allowed is None else bool(self.allowed(mean, covariance))
 
 
 class GaussianSum:
@@ -96,10 +107,18 @@ class GaussianSum:
         """(K,) the normalised weights."""
         return np.exp(self.log_weights)
 
+    def _members(self) -> np.ndarray:
+        """(K, K) bool: hypothesis j lies in hypothesis i's mode (:meth:`mode`)."""
+        c = self.angle
+        diff = self.means[None, :, c] - self.means[:, None, c]
+        wrapped = (diff + np.pi) % (2.0 * np.pi) - np.pi
+        var = self.covariances[:, c, c]
+        return np.abs(wrapped) <= 3.0 * np.sqrt(var[None, :] + var[:, None])
+
     @property
     def leading(self) -> int:
-        """Index of the hypothesis with the largest weight."""
-        return int(np.argmax(self.log_weights))
+        """Index of the hypothesis whose mode (it and the hypotheses near it) holds the most weight."""
+        return int(np.argmax(self._members() @ self.weights))
 
     def update(self, u: np.ndarray, z: np.ndarray) -> None:
         """One control period: every hypothesis predicted with the control ``u`` (m,) and updated with
@@ -146,16 +165,15 @@ class GaussianSum:
         """The leading mode: its weight, mean (n,) and covariance (n, n).
 
         Hypotheses started a spacing apart converge on the same value once the probe shows it, and
-        then share its weight: the mode is every hypothesis whose angle lies within three standard
-        deviations (of the difference) of the leading one's, modulo a turn, matched to one Gaussian
+        then share its weight: a hypothesis' mode is every hypothesis whose angle lies within three
+        standard deviations (of the difference) of its own, modulo a turn; the leading mode is the
+        one that holds the most weight (not the heaviest single hypothesis'), matched to one Gaussian
         (angles taken on the leading one's branch), the angle then put on the turn of
         :attr:`turn_of`. Modes further apart are not merged: their moment match would be a belief
         none of them is."""
         i, c = self.leading, self.angle
-        diff = self.means[:, c] - self.means[i, c]
-        wrapped = (diff + np.pi) % (2.0 * np.pi) - np.pi
-        spread = np.sqrt(self.covariances[:, c, c] + self.covariances[i, c, c])
-        member = np.abs(wrapped) <= 3.0 * spread
+        wrapped = (self.means[:, c] - self.means[i, c] + np.pi) % (2.0 * np.pi) - np.pi
+        member = self._members()[i]
         w = self.weights[member]
         means = self.means[member].copy()
         means[:, c] = self.means[i, c] + wrapped[member]
@@ -174,7 +192,8 @@ class GaussianSum:
 
 def spread_coordinate(mean: np.ndarray, covariance: np.ndarray, coordinate: int, count: int,
                       kept_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Hypotheses of a belief whose coordinate ``coordinate`` (an angle) may be anywhere on the circle.
+    """Hypotheses of a belief ``(mean (n,), covariance (n, n))`` whose coordinate ``coordinate`` (an
+    angle) may be anywhere on the circle.
 
     ``count`` values ``mean[c] + 2 pi j / count``, offsets wrapped to ``[-pi, pi)`` (the value stays
     on the turn of the kept one, as the robot's true angle does: :attr:`Robot.angle_coordinates`);

@@ -109,8 +109,9 @@ class Robot:
     #: its 32-particle Monte Carlo), what the deterministic work clock of a replan decision charges
     #: (:mod:`firmtool.online.replanning`); measure it with ``benchmarks/bench_online.py``
     replan_candidate_seconds: ClassVar[float] = 2e-3
-    #: state coordinates that are angles kept continuous along a run (not wrapped): a jump of the
-    #: state to another pose puts them on the turn nearest their old value (:mod:`firmtool.disturbances`)
+    #: state coordinates past the configuration that are angles kept continuous along a run (not
+    #: wrapped): a kidnap puts them on the turn nearest their old value (:mod:`firmtool.disturbances`),
+    #: and execution judges arrival at a goal node modulo a turn in them
     angle_coordinates: ClassVar[tuple[int, ...]] = ()
     #: the tables of a small scenario for this robot that builds as it is, in seconds (``firmtool init
     #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario_docs.template`);
@@ -335,9 +336,18 @@ class Robot:
 
     def relocalisation(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray):
         """After a jump the online policy found, the hypotheses of a coordinate its sensor cannot see
-        at rest (a heading), and a probe motion that tells them apart
-        (:class:`firmtool.online.relocalise.Relocalisation`), or None (default): the belief after
-        :meth:`after_jump` is one Gaussian and the policy decides from it at once."""
+        at rest (a heading), and a probe motion that tells them apart.
+
+        Parameters
+        ----------
+        mean : (n,) the belief's mean after the jump's correction (and :meth:`after_jump`);
+        covariance : (n, n).
+
+        Returns
+        -------
+        :class:`firmtool.online.relocalise.Relocalisation` or None
+            None (default): the belief is one Gaussian and the policy decides from it at once.
+        """
         return None
 
     def jump_prior(self, problem: "Problem") -> np.ndarray:
