@@ -303,10 +303,10 @@ def test_policy_relocalises_the_heading_after_a_kidnap(tiny_solution):
                    for ep in runs[False].episodes for e in ep.events)
     on, off = _heading_errors(runs[True], 60), _heading_errors(runs[False], 60)
     # seeds 3-7 of 12 episodes: 0.75-0.92 within 0.5 rad with, 0.08-0.58 without; successes 6-11
-    # with, 0-5 without
+    # with, 0-5 without (always more with)
     assert np.mean(on < 0.5) >= 0.7 and np.mean(on < 0.5) >= np.mean(off < 0.5) + 0.15
     wins = {k: sum(str(ep.outcome) == "success" for ep in r.episodes) for k, r in runs.items()}
-    assert wins[True] >= wins[False]
+    assert wins[True] > wins[False]
 
 
 def test_a_failed_update_is_reported_and_leaves_the_bank_as_it_was():
@@ -377,6 +377,7 @@ def test_probe_state_machine_timeout_outside_belief_and_no_decision(tiny_solutio
             z, _ = system.step(budget.act())
             budget.observe(z)
         assert budget.status == ft.PolicyStatus.TIMEOUT and budget.steps == started + 3
+        assert [e.kind for e in budget.events][-2:] == [ft.EventKind.RELOCALISED, ft.EventKind.TIMEOUT]
         # no decision: the hypotheses are updated, the probe goes on
         quiet = ft.Policy(sol, rng=seed)
         assert _until_probing(quiet, system, seed) is not None
@@ -403,3 +404,16 @@ def test_goal_node_arrival_is_judged_modulo_a_turn_in_the_heading(tiny_solution)
         assert not regions.true_arrival(np.array([goal]), x)[0]
     far = center + np.array([0.0, 0.0, np.pi])  # half a turn: another pose
     assert not regions.true_arrival(np.array([goal]), far, angles=(2,))[0]
+
+
+def test_a_wide_light_hypothesis_does_not_bridge_two_modes():
+    """Two tight modes half a radian either side of 0 and a wide, light hypothesis between them: the
+    leading mode is one of the tight ones (with the light one), not a merge of all three."""
+    model = _Linear()
+    means = np.array([[-0.5, 0.0], [0.5, 0.0], [0.0, 0.0]])
+    covs = np.array([np.diag([1e-3, 0.1]), np.diag([1e-3, 0.1]), np.diag([0.04, 0.1])])
+    bank = GaussianSum(model, means, covs, np.array([0.48, 0.47, 0.05]), angle=0)
+    weight, mean, cov = bank.mode()
+    assert bank.leading == 0
+    assert weight == pytest.approx(0.53)
+    assert mean[0] < -0.4 and np.sqrt(cov[0, 0]) < 0.2

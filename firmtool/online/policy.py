@@ -498,7 +498,9 @@ class Policy:
             The measurement; with perfect measurements the state itself, (n,).
         decide : bool
             False: the filter update only (for the last measurement of a run the robot ended, e.g. on
-            a collision, so that the recorded belief holds that step); no test, no decision.
+            a collision, so that the recorded belief holds that step); no test, no decision (a
+            re-localisation's probe whose steps are over ends, with its ``relocalised`` event, and
+            hands back to the running controller).
 
         Returns
         -------
@@ -571,12 +573,16 @@ class Policy:
             self._emit(out, Event(total, EventKind.NODE, landed,
                                   detail="" if run.edge >= 0 else "recovered: " + run.describe()))
             self._at_node(landed, out)
+            if total >= self.max_steps and self._status is PolicyStatus.RUNNING:
+                self._timeout(out)
             return out
         if self._pending is not None:  # the decided controller takes over once its decision is done
             new, wait = self._pending
             if wait <= 1 or k + 1 >= lc.steps:
                 self._pending = None
                 self._begin(new)
+                if total >= self.max_steps:
+                    self._timeout(out)
                 return out
             self._pending = (new, wait - 1)
         elif alarm or deviate:
@@ -729,6 +735,8 @@ class Policy:
                 self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
                 return out
         if total >= self.max_steps:
+            if self._probe is not None:
+                self._end_probe(out, lead, "the mission's step budget is spent")
             self._timeout(out)
         return out
 
@@ -760,7 +768,8 @@ class Policy:
         Returns
         -------
         list of Event
-            The decision's: ``replan``, ``kept_controller`` or ``replan_failed``.
+            ``relocalised`` if it ended a re-localisation's probe, then the decision's: ``replan``,
+            ``kept_controller`` or ``replan_failed``.
         """
         if self._status is not PolicyStatus.RUNNING or self._awaiting:
             raise InputError("Policy.relocalise: only while running, between observe() and act()")

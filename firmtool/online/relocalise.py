@@ -117,8 +117,12 @@ class GaussianSum:
 
     @property
     def leading(self) -> int:
-        """Index of the hypothesis whose mode (it and the hypotheses near it) holds the most weight."""
-        return int(np.argmax(self._members() @ self.weights))
+        """Index of the hypothesis the leading mode is centred on: the heaviest hypothesis of the
+        heaviest cluster (a hypothesis and those near it). Centred on a heavy hypothesis, not on the
+        cluster's own centre: a wide, light hypothesis between two tight modes would bridge them."""
+        members = self._members()
+        cluster = members[int(np.argmax(members @ self.weights))]
+        return int(np.flatnonzero(cluster)[np.argmax(self.weights[cluster])])
 
     def update(self, u: np.ndarray, z: np.ndarray) -> None:
         """One control period: every hypothesis predicted with the control ``u`` (m,) and updated with

@@ -140,8 +140,8 @@ class UnicycleRobot(Robot):
         from :data:`PROBE_REACH` down; the margin is one standard deviation of the position, then
         none (a probe in a tight spot risks a collision, no probe near-certainly fails). The probe
         ends once one mode holds 0.95 of the weight with a heading standard deviation under
-        :data:`HEADING_RESOLVED`, or once the estimated position leaves the disc it checked (the
-        open-loop probe's drift).
+        :data:`HEADING_RESOLVED`, or once the estimated position leaves the disc it checked by more
+        than two of its standard deviations (the open-loop probe's drift).
 
         Parameters
         ----------
@@ -168,7 +168,8 @@ class UnicycleRobot(Robot):
                 break
         else:
             return None
-        legs = max(1, int(np.floor(reach / (spec.orbit_speed * spec.dt))))  # never past the reach
+        # never past the reach (but one step, if the reach is shorter than a step)
+        legs = max(1, int(np.floor(reach / (spec.orbit_speed * spec.dt) + 1e-9)))
         out_and_back = np.concatenate([np.tile([spec.orbit_speed, 0.0], (legs, 1)),
                                        np.tile([-spec.orbit_speed, 0.0], (legs, 1))])
         trips = max(1, PROBE_STEPS // out_and_back.shape[0])
@@ -217,20 +218,22 @@ PROBE_REACH = (0.6, 0.4, 0.25, 0.15, 0.1)  # m, the probe's reach, the longest w
 # of 0.15 m in the dark, sigma 0.3 m: ~150 steps); 2 round trips left modes of 0.37-0.8 there and
 # ended in collisions (unicycle kidnaps at step 1600).
 PROBE_STEPS = 300
+DISC_SAMPLES = 256  # directions (and radii) at most in the probe's disc check: 12 x 256 x 256 states
 
 
 def _free_reach(problem, position: np.ndarray, margin: float, headings: np.ndarray) -> float | None:
     """The longest of :data:`PROBE_REACH` such that the robot is valid (its disc and the user's
     checker, at each of ``headings`` (K,)) everywhere within that reach plus ``margin`` of
-    ``position`` (2,), or None. Points are sampled at most half the robot's radius apart."""
+    ``position`` (2,), or None. Points are sampled half the robot's radius apart, at most
+    :data:`DISC_SAMPLES` directions and radii (then further apart: a tiny robot in a wide disc)."""
     radius = problem.scenario.world.robot_radius
     for reach in PROBE_REACH:
         outer = reach + margin
         spacing = 0.5 * radius
-        count = int(np.clip(np.ceil(2.0 * np.pi * outer / spacing), 32, 1024))
+        count = int(np.clip(np.ceil(2.0 * np.pi * outer / spacing), 32, DISC_SAMPLES))
         angles = np.linspace(0.0, 2.0 * np.pi, count, endpoint=False)
         ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        radii = np.linspace(0.0, outer, max(2, int(np.ceil(outer / spacing)) + 1))
+        radii = np.linspace(0.0, outer, int(np.clip(np.ceil(outer / spacing) + 1, 2, DISC_SAMPLES)))
         pts = (position[None, None] + radii[:, None, None] * ring[None]).reshape(-1, 2)
         X = np.repeat(problem.state_of(pts), headings.size, axis=0)
         X[:, 2] = np.tile(headings, pts.shape[0])
