@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmtool.angles import on_turn_of
 from firmtool.errors import InputError
 from firmtool.nodes import segment_is_valid
 from firmtool.problem import Problem
@@ -203,6 +204,6 @@ def apply(problem: Problem, dist: Disturbance, x: np.ndarray, rng: np.random.Gen
                 # pose, on the turn nearest the old value
                 for c in problem.robot.angle_coordinates:
                     if c >= d:  # a configuration coordinate was drawn within its bounds: it stays
-                        new[c] += 2.0 * np.pi * np.round((x[c] - new[c]) / (2.0 * np.pi))
+                        new[c] = on_turn_of(new[c], x[c])
                 break
     return new, float(np.linalg.norm(new[:d] - x[:d]))

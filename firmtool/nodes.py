@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from firmtool.angles import wrap
 from firmtool.errors import RunFailure, ScenarioError
 from firmtool.goal import GoalRegion
 from firmtool.problem import Problem
@@ -438,7 +439,7 @@ class NodeRegions:
         scale = self.true_scale if self.true_scale is not None else self.scale
         diff = x - self.centers[node]
         for c in angles:
-            diff[:, c] = (diff[:, c] + np.pi) % (2.0 * np.pi) - np.pi
+            diff[:, c] = wrap(diff[:, c])
         z = diff / scale[node]
         return np.mean(z * z, axis=1) < self.radius**2
 

@@ -417,3 +417,22 @@ def test_a_wide_light_hypothesis_does_not_bridge_two_modes():
     assert bank.leading == 0
     assert weight == pytest.approx(0.53)
     assert mean[0] < -0.4 and np.sqrt(cov[0, 0]) < 0.2
+
+
+def test_unicycle_probe_stops_when_its_estimate_leaves_the_checked_disc():
+    """The probe's guard (``Relocalisation.may_go_on``): the estimate may wander within the disc it
+    checked (reach plus margin, the margin the position's standard deviation) and its own noise
+    beyond (two standard deviations), not further."""
+    problem = _unicycle_problem()
+    cov = np.diag([0.0004, 0.0004, 0.01])  # position sigma 0.02: the margin
+    start = np.array([0.6, 1.5, 0.0])
+    plan = problem.robot.relocalisation(problem, start, cov)
+    step = problem.scenario.model.orbit_speed * problem.scenario.model.dt
+    leg = step * int(np.argmax(plan.controls[:, 0] < 0))  # the first leg: within a step of the reach
+    beyond = leg + step + 0.02  # past the reach plus the margin, for either
+    for sigma in (0.05, 1e-3):
+        P = np.diag([sigma ** 2, sigma ** 2, 0.01])
+        assert plan.may_go_on(start, P)
+        assert plan.may_go_on(start + np.array([leg, 0.0, 0.0]), P)  # the far end of a leg
+        assert plan.may_go_on(start + np.array([0.0, -(beyond + 1.9 * sigma) + step, 0.0]), P)
+        assert not plan.may_go_on(start + np.array([0.0, beyond + 2 * sigma + 0.01, 0.0]), P)

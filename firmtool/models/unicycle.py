@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmtool.angles import on_turn_of
 from firmtool.errors import NumericalError
 from firmtool.models.noise import NoiseModel
 
@@ -152,7 +153,7 @@ def turn_drive_turn(model: UnicycleModel, x0: np.ndarray, xf: np.ndarray, max_sp
         for sign, base in ((1.0, bearing), (-1.0, bearing + np.pi)):
             # representatives of the driving heading near the start and the final heading
             for ref in (x0[2], xf[2]):
-                beta = base + 2 * np.pi * np.round((ref - base) / (2 * np.pi))
+                beta = on_turn_of(base, ref)
                 turning = abs(beta - x0[2]) + abs(xf[2] - beta)
                 cost = (np.ceil(abs(beta - x0[2]) / (max_turn_rate * dt) - 1e-9)
                         + np.ceil(abs(xf[2] - beta) / (max_turn_rate * dt) - 1e-9))

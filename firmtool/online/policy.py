@@ -517,8 +517,14 @@ class Policy:
         if z.shape != (want,):
             raise InputError(f"Policy.observe: z: expected {want} values, found {z.shape[0]}")
         t0 = time.perf_counter()
-        if self._probe is not None:
-            return self._observe_probe(z, decide, t0)
+        out = self._observe_probe(z, decide, t0) if self._probe is not None else self._observe_filter(z, decide, t0)
+        if decide and self._status is PolicyStatus.RUNNING and self._total >= self.max_steps:
+            self._timeout(out)  # the mission's step budget, whatever ran this step or runs next
+        return out
+
+    def _observe_filter(self, z: np.ndarray, decide: bool, t0: float) -> list[Event]:
+        """:meth:`observe` while a controller runs (no probe)."""
+        problem, model = self.problem, self.problem.model
         run, k = self._run, self._k
         lc = run.lc
         u, xhat_prev = self._u, self._xhat_prev
@@ -573,24 +579,18 @@ class Policy:
             self._emit(out, Event(total, EventKind.NODE, landed,
                                   detail="" if run.edge >= 0 else "recovered: " + run.describe()))
             self._at_node(landed, out)
-            if total >= self.max_steps and self._status is PolicyStatus.RUNNING:
-                self._timeout(out)
             return out
         if self._pending is not None:  # the decided controller takes over once its decision is done
             new, wait = self._pending
             if wait <= 1 or k + 1 >= lc.steps:
                 self._pending = None
                 self._begin(new)
-                if total >= self.max_steps:
-                    self._timeout(out)
                 return out
             self._pending = (new, wait - 1)
         elif alarm or deviate:
             if self._replan(k, dev, alarm, jump, nu, out):
-                if total >= self.max_steps:  # the mission's budget holds whatever controller runs next
-                    self._timeout(out)
                 return out
-        if total >= self.max_steps:
+        if total >= self.max_steps:  # before the controller's own end: the mission's budget is the reason
             self._timeout(out)
             return out
         self._k = k + 1
@@ -691,7 +691,7 @@ class Policy:
         for test in (self._window, self._jump):
             if test is not None:
                 test.clear()
-        xh, P = bank.belief()
+        _, xh, P = bank.mode()
         self._xhat, self._P = xh[None], P
         if self._record:
             self._hist_x[-1], self._hist_P[-1] = xh, P
@@ -718,30 +718,22 @@ class Policy:
             self._hist_x.append(xh)
             self._hist_P.append(P)
         self._observe_s.append(time.perf_counter() - t0)
-        plan, total = probe.plan, self._total
-        why = ("its steps ran out" if probe.step >= plan.controls.shape[0] else
+        plan = probe.plan
+        why = ("an update failed" + failed if failed else
+               "its steps ran out" if probe.step >= plan.controls.shape[0] else
                "the belief left the probe's free region" if not plan.may_go_on(xh, P) else
                "settled" if plan.settled(lead, P) else "")
-        if failed:
-            why = "an update failed" + failed
-        if not decide:  # no test, no decision: a probe that is over hands back to the running controller
-            if why:
-                self._end_probe(out, lead, why)
-            return out
-        if why:
+        if why:  # over: without a decision (decide=False) the running controller resumes
             self._end_probe(out, lead, why)
-            if total < self.max_steps:
+            if decide and self._total < self.max_steps:
                 t1, c1 = time.perf_counter(), time.thread_time()
                 self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
-                return out
-        if total >= self.max_steps:
-            if self._probe is not None:
-                self._end_probe(out, lead, "the mission's step budget is spent")
-            self._timeout(out)
         return out
 
     def _timeout(self, out: list[Event]) -> None:
-        """The mission's step budget is spent."""
+        """The mission's step budget is spent (a probe running ends with it)."""
+        if self._probe is not None:
+            self._end_probe(out, float(self._probe.bank.mode()[0]), "the mission's step budget is spent")
         self._status = PolicyStatus.TIMEOUT
         self._emit(out, Event(self._total, EventKind.TIMEOUT, self._run.target, detail="episode step limit"))
 

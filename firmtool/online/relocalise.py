@@ -34,6 +34,8 @@ from typing import Callable
 
 import numpy as np
 
+from firmtool.angles import on_turn_of, wrap
+from firmtool.controllers import kalman_update
 from firmtool.errors import NumericalError
 
 
@@ -83,14 +85,13 @@ class GaussianSum:
         ``process_cov``), vectorised over states as the Monte Carlo's.
     means : (K, n); covariances : (K, n, n); weights : (K,) positive.
     angle : the coordinate that is an angle (compared modulo a turn when hypotheses are merged).
-    turn_of : the angle's value whose turn the belief's angle is reported on (default: the first
-        hypothesis'). A robot keeps its angles continuous along a run, and a jump puts them on the turn
-        nearest their old value (:attr:`firmtool.robots.Robot.angle_coordinates`); a hypothesis' filter
-        may converge on the right heading from the other side of the circle, a turn away.
+        The belief reports it on the turn of the first hypothesis' value (:attr:`turn_of`): a robot
+        keeps its angles continuous along a run, and a jump puts them on the turn nearest their old
+        value (:attr:`firmtool.robots.Robot.angle_coordinates`), while a hypothesis' filter may
+        converge on the right heading from the other side of the circle, a turn away.
     """
 
-    def __init__(self, model, means: np.ndarray, covariances: np.ndarray, weights: np.ndarray, angle: int,
-                 turn_of: float | None = None) -> None:
+    def __init__(self, model, means: np.ndarray, covariances: np.ndarray, weights: np.ndarray, angle: int) -> None:
         self.model = model
         self.angle = int(angle)
         self.means = np.array(means, dtype=float)
@@ -100,29 +101,31 @@ class GaussianSum:
                 or w.shape != self.means.shape[:1] or np.any(w <= 0):
             raise ValueError("GaussianSum: means (K, n), covariances (K, n, n), positive weights (K,)")
         self.log_weights = np.log(w / w.sum())
-        self.turn_of = float(self.means[0, self.angle] if turn_of is None else turn_of)
+        self.turn_of = float(self.means[0, self.angle])
 
     @property
     def weights(self) -> np.ndarray:
         """(K,) the normalised weights."""
         return np.exp(self.log_weights)
 
-    def _members(self) -> np.ndarray:
-        """(K, K) bool: hypothesis j lies in hypothesis i's mode (:meth:`mode`)."""
+    def _leading_mode(self) -> tuple[int, np.ndarray, np.ndarray]:
+        """The hypothesis the leading mode is centred on, its members (K,) bool, and every
+        hypothesis' angle relative to it modulo a turn (K,) (:meth:`mode`)."""
         c = self.angle
-        diff = self.means[None, :, c] - self.means[:, None, c]
-        wrapped = (diff + np.pi) % (2.0 * np.pi) - np.pi
+        diff = wrap(self.means[None, :, c] - self.means[:, None, c])  # (K, K): j's angle from i's
         var = self.covariances[:, c, c]
-        return np.abs(wrapped) <= 3.0 * np.sqrt(var[None, :] + var[:, None])
+        members = np.abs(diff) <= 3.0 * np.sqrt(var[None, :] + var[:, None])
+        weights = self.weights
+        cluster = members[int(np.argmax(members @ weights))]
+        i = int(np.flatnonzero(cluster)[np.argmax(weights[cluster])])
+        return i, members[i], diff[i]
 
     @property
     def leading(self) -> int:
         """Index of the hypothesis the leading mode is centred on: the heaviest hypothesis of the
         heaviest cluster (a hypothesis and those near it). Centred on a heavy hypothesis, not on the
         cluster's own centre: a wide, light hypothesis between two tight modes would bridge them."""
-        members = self._members()
-        cluster = members[int(np.argmax(members @ self.weights))]
-        return int(np.flatnonzero(cluster)[np.argmax(self.weights[cluster])])
+        return self._leading_mode()[0]
 
     def update(self, u: np.ndarray, z: np.ndarray) -> None:
         """One control period: every hypothesis predicted with the control ``u`` (m,) and updated with
@@ -134,7 +137,7 @@ class GaussianSum:
             If an innovation covariance is not positive definite or every likelihood underflows.
         """
         model = self.model
-        K, n = self.means.shape
+        K = self.means.shape[0]
         pred = model.f(self.means, np.repeat(np.asarray(u, dtype=float)[None], K, axis=0))  # (K, n)
         R = model.measurement_variance(pred)  # (K, nz) diagonal measurement variance at each prediction
         nu = np.asarray(z, dtype=float)[None] - model.h(pred)  # (K, nz)
@@ -154,11 +157,8 @@ class GaussianSum:
             white = np.linalg.solve(chol, nu[i])
             # log N(nu; 0, S) up to the constant all hypotheses share
             log_weights[i] += -0.5 * float(white @ white) - float(np.log(np.diag(chol)).sum())
-            gain = np.linalg.solve(S, H @ P).T  # (n, nz)
-            IL = np.eye(n) - gain @ H
-            P = IL @ P @ IL.T + gain @ np.diag(R[i]) @ gain.T  # Joseph form
+            gain, covs[i] = kalman_update(P, H, np.diag(R[i]))  # (n, nz), Joseph form
             means[i] = pred[i] + gain @ nu[i]
-            covs[i] = 0.5 * (P + P.T)
         top = float(np.max(log_weights))
         if not (np.isfinite(top) and np.all(np.isfinite(means)) and np.all(np.isfinite(covs))):
             raise NumericalError("re-localisation: a hypothesis' update is not finite")
@@ -175,9 +175,8 @@ class GaussianSum:
         (angles taken on the leading one's branch), the angle then put on the turn of
         :attr:`turn_of`. Modes further apart are not merged: their moment match would be a belief
         none of them is."""
-        i, c = self.leading, self.angle
-        wrapped = (self.means[:, c] - self.means[i, c] + np.pi) % (2.0 * np.pi) - np.pi
-        member = self._members()[i]
+        i, member, wrapped = self._leading_mode()
+        c = self.angle
         w = self.weights[member]
         means = self.means[member].copy()
         means[:, c] = self.means[i, c] + wrapped[member]
@@ -185,13 +184,8 @@ class GaussianSum:
         mean = (w[:, None] * means).sum(axis=0) / weight
         dev = means - mean
         cov = (np.einsum("k,kij->ij", w, self.covariances[member]) + np.einsum("k,ki,kj->ij", w, dev, dev)) / weight
-        mean[c] = self.turn_of + (mean[c] - self.turn_of + np.pi) % (2.0 * np.pi) - np.pi
+        mean[c] = on_turn_of(mean[c], self.turn_of)
         return weight, mean, 0.5 * (cov + cov.T)
-
-    def belief(self) -> tuple[np.ndarray, np.ndarray]:
-        """The leading mode's mean (n,) and covariance (n, n) (:meth:`mode`)."""
-        _, mean, cov = self.mode()
-        return mean, cov
 
 
 def spread_coordinate(mean: np.ndarray, covariance: np.ndarray, coordinate: int, count: int,
@@ -216,7 +210,7 @@ def spread_coordinate(mean: np.ndarray, covariance: np.ndarray, coordinate: int,
     c = coordinate
     step = 2.0 * np.pi / count
     means = np.repeat(mean[None], count, axis=0)
-    means[:, c] += (step * np.arange(count) + np.pi) % (2.0 * np.pi) - np.pi
+    means[:, c] += wrap(step * np.arange(count))
     covs = np.repeat(covariance[None], count, axis=0)
     covs[1:, c, :] = 0.0
     covs[1:, :, c] = 0.0
