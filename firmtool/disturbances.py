@@ -9,16 +9,16 @@ Specification strings (``firmtool execute --disturbance SPEC``, repeatable)::
                               random direction of the position (configuration) coordinates
     push:random:SIZE:RATE     the same push at random steps: each step with probability RATE
     kidnap:STEP               at step STEP, the true state jumps to a uniformly drawn valid
-                              configuration at rest
+                              configuration at rest (facing anywhere)
     kidnap:random:RATE        the same jump at random steps, probability RATE per step
 
 STEP counts control steps from the start of the episode (0 = before the first step). A push is
 drawn among the directions whose straight segment from the current configuration stays free of
 collision (up to 64 draws; a robot boxed in on all sides is pushed anyway): the push is the
 disturbance, not a teleport through a wall. Velocities are left unchanged by a push and set to zero
-by a kidnap; an angle the robot keeps continuous along a run (a unicycle's heading,
-:attr:`firmtool.robots.Robot.angle_coordinates`) is set to its rest value on the turn nearest the
-old one (the same pose: no 2 pi jump of the number).
+by a kidnap; an angle the robot keeps continuous along a run that is no configuration coordinate (a
+unicycle's heading, :attr:`firmtool.robots.Robot.angle_coordinates`) is drawn uniformly (the robot
+is set down facing anywhere) and put on the turn nearest the old value (no 2 pi jump of the number).
 
 In Python a disturbance may also be a user's callable (:class:`UserDisturbance`):
 ``fn(step, state, rng) -> new state or None``, asked before every control step with the true
@@ -195,15 +195,20 @@ def apply(problem: Problem, dist: Disturbance, x: np.ndarray, rng: np.random.Gen
             if segment_is_valid(problem, x, new):
                 break
     else:
+        turned = [c for c in problem.robot.angle_coordinates if c >= d]  # configuration angles are drawn as such
         for _ in range(max(1, KIDNAP_DRAWS // 256)):
             q = rng.uniform(problem.config_lo, problem.config_hi, size=(256, d))
-            ok = problem.is_valid(problem.state_of(q))
+            states = problem.state_of(q)
+            # an angle that is no configuration coordinate (a unicycle's heading) faces anywhere too:
+            # drawn uniformly, before the validity test (a footprint may depend on it)
+            for c in turned:
+                states[:, c] = rng.uniform(-np.pi, np.pi, size=256)
+            ok = problem.is_valid(states)
             if ok.any():
-                new = problem.state_of(q[int(np.argmax(ok))])
-                # an angle kept continuous along the run (a unicycle's heading) stays so: the same
-                # pose, on the turn nearest the old value
-                for c in problem.robot.angle_coordinates:
-                    if c >= d:  # a configuration coordinate was drawn within its bounds: it stays
-                        new[c] = on_turn_of(new[c], x[c])
+                new = states[int(np.argmax(ok))].copy()
+                # an angle kept continuous along the run stays so: the drawn pose, on the turn
+                # nearest the old value
+                for c in turned:
+                    new[c] = on_turn_of(new[c], x[c])
                 break
     return new, float(np.linalg.norm(new[:d] - x[:d]))

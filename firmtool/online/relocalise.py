@@ -1,8 +1,7 @@
 """Re-localising a coordinate the sensor cannot see at rest, after a jump: a Gaussian sum and a probe.
 
 A unicycle's position sensor does not see its heading; only motion shows it. After a kidnap (the
-robot set down somewhere, facing anywhere; the simulator's kidnap sets it down facing +x, which the
-policy is not told) the jump test corrects the position within a step, but the
+robot set down somewhere, facing anywhere, which the policy is not told) the jump test corrects the position within a step, but the
 heading the belief keeps is the one from before, and a single Gaussian cannot hold "anywhere on the
 circle": an extended Kalman filter started 90-180 degrees off does not converge (its linearisation
 explains the motion by the wrong direction), and the controllers drive off in the believed

@@ -5,7 +5,8 @@ executor was split into the agent (:mod:`firmtool.online`) and the simulated sys
 (:mod:`firmtool.sim`), and written again with the executor of branch i15 at 3378044 (issue 15: success
 judged on the true state, goal misses; before the split was merged there:
 ``git archive 3378044 firmtool scenarios | tar -x -C OLD`` then ``PYTHONPATH=OLD python -c "import
-reference_episodes as r; r.main()"`` from tests/data); ``tests/test_episodes_unchanged.py`` runs the same cases on the current code
+reference_episodes as r; r.main()"`` from tests/data); the unicycle's kidnap case was written again when a kidnap began to set the unicycle down facing
+anywhere (issue 17; every other case unchanged); ``tests/test_episodes_unchanged.py`` runs the same cases on the current code
 and compares every episode: outcome, steps, cost, nodes, edges, events (step, kind, node, value,
 detail), calibration traversals, and rows of the recorded states, estimates, covariances and controls.
 
