@@ -1,0 +1,146 @@
+"""How much a push shows in the measurements, and what the jump test makes of it (issue 17).
+
+    python benchmarks/push_evidence.py --scenario point_lightdark --roadmaps DIR --times 0 20 70 80 90 \
+        --size 1.0 --episodes 100
+
+The sweep's pushed episodes again (replanning policy; episode ``i`` draws from ``episode_seeds(seed,
+i)``, so they are the sweep's), each with a record of what its jump test saw. For a push of ``delta``
+(the true displacement) at step ``t``, the evidence the filter's innovations carry of it from step
+``t`` to the episode's first decision (or its end) is ``rho^2 = delta' C delta``, with
+``C = sum_k G_k' S_k^-1 G_k`` the information of the push's signature ``G_k`` in the innovations, as the
+test itself computes it (:class:`firmtool.online.innovation.JumpTest`) along the steps the episode
+ran. Three detectors at the policy's per-step false alarm ``alpha``, for that ``rho^2``:
+
+- the policy's test (unknown onset and direction; noncentral chi-square beyond its bound
+  ``chi2.isf(alpha / (families x window), p)``);
+- a test told the onset, not the direction (beyond ``chi2.isf(alpha, p)``);
+- a test told onset and direction (the Neyman-Pearson test of that push against none: normal,
+  ``Phi(rho - z_{1-alpha})``): no detector that sees only the measurements does better.
+
+Printed per push time: episodes pushed, successes, episodes with a decision after the push, failures
+without one, the median ``rho^2`` of the episodes without a decision (the whole evidence their
+measurements gave, to the episode's end), the three detection probabilities at it, and, for the
+failures without a decision, the test's statistic at the true onset over the same steps (the policy's
+test keeps an onset for ``window`` steps only).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2, ncx2, norm
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import ROOT, one_blas_thread  # noqa: E402
+
+
+@contextlib.contextmanager
+def recording():
+    """Record every jump-test step ``(step, A, H, L, S_inv, gamma)`` and every disturbance's
+    displacement of the true state, for the episode running."""
+    from firmtool.online import innovation
+    from firmtool.sim.environment import SimulatedSystem
+
+    steps: list = []
+    moves: list = []
+    add, disturb = innovation.JumpTests.add, SimulatedSystem.disturb
+
+    def recorded_add(self, step, A, H, L, S_inv, gamma):
+        steps.append((step, A.copy(), H.copy(), L.copy(), S_inv.copy(), np.array(gamma, dtype=float)))
+        return add(self, step, A, H, L, S_inv, gamma)
+
+    def recorded_disturb(self, dist, rng):
+        before = self.state.copy()
+        out = disturb(self, dist, rng)
+        moves.append(self.state - before)
+        return out
+
+    innovation.JumpTests.add, SimulatedSystem.disturb = recorded_add, recorded_disturb
+    try:
+        yield steps, moves
+    finally:
+        innovation.JumpTests.add, SimulatedSystem.disturb = add, disturb
+
+
+def evidence(steps: list, t: int, delta: np.ndarray, until: int | None, n: int) -> tuple[float, float]:
+    """``rho^2 = delta' C delta`` of a push of the configuration by ``delta`` (d,) before step ``t + 1``
+    (the policy's step count when it observes the pushed step), over the recorded steps up to
+    ``until`` (a decision; None: all), and the test's statistic ``d' C^-1 d`` at that onset."""
+    d = delta.size
+    Phi, C, dv = np.eye(n)[:, :d], np.zeros((d, d)), np.zeros(d)
+    for step, A, H, L, S_inv, gamma in steps:
+        if step < t + 1:
+            continue
+        if until is not None and step > until:
+            break
+        G = H @ A @ Phi
+        C += G.T @ S_inv @ G
+        dv += G.T @ S_inv @ gamma
+        Phi = A @ Phi - L @ G
+    stat = float(dv @ np.linalg.lstsq(C, dv, rcond=None)[0]) if C.any() else 0.0
+    return float(delta @ C @ delta), stat
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--scenario", default="point_lightdark")
+    p.add_argument("--roadmaps", type=Path, help="DIR/<scenario>.h5, built and solved (else built here)")
+    p.add_argument("--times", type=int, nargs="+", default=[0, 20, 70, 80, 90])
+    p.add_argument("--size", type=float, default=1.0)
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args()
+    one_blas_thread()
+    import firmtool as ft
+    from firmtool.disturbances import as_disturbances
+    from firmtool.online.replanning import JUMP_WINDOW
+    from firmtool.results import EventKind, Outcome
+    from firmtool.sim.environment import SimulatedSystem
+    from firmtool.sim.episodes import episode_seeds, run_episode
+    from firmtool.sim.sweep import policies_of
+
+    path = args.roadmaps / f"{args.scenario}.h5" if args.roadmaps else None
+    sol = (ft.open_roadmap(path).solution() if path is not None and path.exists()
+           else ft.solve(ft.build(ft.load_scenario(ROOT / "scenarios" / f"{args.scenario}.toml"), workers=2)))
+    policy = policies_of(sol, modes=("replan",))["replan"]
+    system = SimulatedSystem(policy.problem)
+    n, d = policy.problem.model.n, policy.problem.config_dim
+    families = 2 if d < n else 1
+    alpha = policy.jump_false_alarm
+    bound = chi2.isf(alpha / (families * JUMP_WINDOW), d)
+    told_onset = chi2.isf(alpha, d)
+    decisions = {EventKind.INNOVATION_ALARM, EventKind.REPLAN, EventKind.KEPT_CONTROLLER, EventKind.REPLAN_FAILED}
+    print(f"{args.scenario}: jump test at {alpha:.3g} per step, bound {bound:.1f} "
+          f"({families} families x {JUMP_WINDOW} onsets, p = {d}); told the onset: {told_onset:.1f}")
+    print("push step | pushed | successes | decided | failed undecided | median rho^2 undecided | "
+          "P(detect): policy's test / told onset / told onset+direction | statistic at the onset, failed undecided")
+    for t in args.times:
+        rows = []
+        for i in range(args.episodes):
+            with recording() as (steps, moves):
+                ep = run_episode(policy, system, episode_seeds(args.seed, i),
+                                 disturbances=as_disturbances((f"push:{t}:{args.size:g}",)))
+            if not moves:  # the episode ended before the push
+                continue
+            first = min((e.step for e in ep.events if e.kind in decisions and e.step > t), default=None)
+            rho2, stat = evidence(steps, t, moves[0][:d], first, n)
+            rows.append((ep.outcome == Outcome.SUCCESS, first is not None, rho2, stat))
+        if not rows:
+            print(f"{t} | 0 pushed")
+            continue
+        undecided = [r[2] for r in rows if not r[1]]  # their evidence to the episode's end
+        rho2 = float(np.median(undecided)) if undecided else float(np.median([r[2] for r in rows]))
+        missed = [r[3] for r in rows if not r[0] and not r[1]]
+        powers = (ncx2.sf(bound, d, rho2), ncx2.sf(told_onset, d, rho2), norm.sf(norm.isf(alpha) - np.sqrt(rho2)))
+        print(f"{t} | {len(rows)} | {sum(r[0] for r in rows)} | {sum(r[1] for r in rows)} | {len(missed)} | "
+              f"{rho2:.1f} | {powers[0]:.2f} / {powers[1]:.2f} / {powers[2]:.2f} | "
+              + (f"{min(missed):.1f}-{max(missed):.1f} (median {np.median(missed):.1f})" if missed else "-"),
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()
