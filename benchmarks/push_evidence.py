@@ -9,19 +9,21 @@ i)``, so they are the sweep's), each with a record of what its jump test saw. Fo
 ``t`` to the episode's first decision (or its end) is ``rho^2 = delta' C delta``, with
 ``C = sum_k G_k' S_k^-1 G_k`` the information of the push's signature ``G_k`` in the innovations, as the
 test itself computes it (:class:`firmtool.online.innovation.JumpTest`) along the steps the episode
-ran. Three detectors at the policy's per-step false alarm ``alpha``, for that ``rho^2``:
+ran. Three detectors at the policy's per-step false alarm ``alpha``:
 
-- the policy's test (unknown onset and direction; noncentral chi-square beyond its bound
-  ``chi2.isf(alpha / (families x window), p)``);
-- a test told the onset, not the direction (beyond ``chi2.isf(alpha, p)``);
+- the policy's test (unknown onset and direction, the false alarm split over its families and
+  onsets: noncentral chi-square beyond ``chi2.isf(alpha / (families x window), p)``), on the evidence
+  of the ``window`` steps it keeps an onset for;
+- a test told the onset, not the direction (beyond ``chi2.isf(alpha, p)``), on the evidence to the
+  first decision or the end;
 - a test told onset and direction (the Neyman-Pearson test of that push against none: normal,
-  ``Phi(rho - z_{1-alpha})``): no detector that sees only the measurements does better.
+  ``Phi(rho - z_{1-alpha})``), on the same: no detector that sees only those measurements does better.
 
 Printed per push time: episodes pushed, successes, episodes with a decision after the push, failures
-without one, the median ``rho^2`` of the episodes without a decision (the whole evidence their
-measurements gave, to the episode's end), the three detection probabilities at it, and, for the
-failures without a decision, the test's statistic at the true onset over the same steps (the policy's
-test keeps an onset for ``window`` steps only).
+without one; over the episodes without a decision that ran at least one step after the push, the
+median ``rho^2`` in the policy's window and to the end, and each detector's detection probability
+averaged over those episodes (what it would have found of what the policy missed); and, for the
+failures without a decision, the test's statistic at the true onset within its window.
 """
 
 from __future__ import annotations
@@ -66,23 +68,25 @@ def recording():
         innovation.JumpTests.add, SimulatedSystem.disturb = add, disturb
 
 
-def evidence(steps: list, t: int, delta: np.ndarray, until: int | None, n: int) -> tuple[float, float]:
+def evidence(steps: list, t: int, delta: np.ndarray, until: int, n: int) -> tuple[float, float, int]:
     """``rho^2 = delta' C delta`` of a push of the configuration by ``delta`` (d,) before step ``t + 1``
-    (the policy's step count when it observes the pushed step), over the recorded steps up to
-    ``until`` (a decision; None: all), and the test's statistic ``d' C^-1 d`` at that onset."""
+    (the policy's step count when it observes the pushed step), over the recorded steps from
+    ``t + 1`` to ``until``, the test's statistic ``d' C^+ d`` at that onset over them, and their number."""
     d = delta.size
     Phi, C, dv = np.eye(n)[:, :d], np.zeros((d, d)), np.zeros(d)
+    seen = 0
     for step, A, H, L, S_inv, gamma in steps:
         if step < t + 1:
             continue
-        if until is not None and step > until:
+        if step > until:
             break
+        seen += 1
         G = H @ A @ Phi
         C += G.T @ S_inv @ G
         dv += G.T @ S_inv @ gamma
         Phi = A @ Phi - L @ G
     stat = float(dv @ np.linalg.lstsq(C, dv, rcond=None)[0]) if C.any() else 0.0
-    return float(delta @ C @ delta), stat
+    return float(delta @ C @ delta), stat, seen
 
 
 def main() -> None:
@@ -97,7 +101,6 @@ def main() -> None:
     one_blas_thread()
     import firmtool as ft
     from firmtool.disturbances import as_disturbances
-    from firmtool.online.replanning import JUMP_WINDOW
     from firmtool.results import EventKind, Outcome
     from firmtool.sim.environment import SimulatedSystem
     from firmtool.sim.episodes import episode_seeds, run_episode
@@ -109,15 +112,17 @@ def main() -> None:
     policy = policies_of(sol, modes=("replan",))["replan"]
     system = SimulatedSystem(policy.problem)
     n, d = policy.problem.model.n, policy.problem.config_dim
-    families = 2 if d < n else 1
+    families = 2 if d < n else 1  # a push (the configuration) and, when there is more, a kidnap (the state)
+    window = policy.settings.jump_window
     alpha = policy.jump_false_alarm
-    bound = chi2.isf(alpha / (families * JUMP_WINDOW), d)
+    bound = chi2.isf(alpha / (families * window), d)
     told_onset = chi2.isf(alpha, d)
     decisions = {EventKind.INNOVATION_ALARM, EventKind.REPLAN, EventKind.KEPT_CONTROLLER, EventKind.REPLAN_FAILED}
     print(f"{args.scenario}: jump test at {alpha:.3g} per step, bound {bound:.1f} "
-          f"({families} families x {JUMP_WINDOW} onsets, p = {d}); told the onset: {told_onset:.1f}")
-    print("push step | pushed | successes | decided | failed undecided | median rho^2 undecided | "
-          "P(detect): policy's test / told onset / told onset+direction | statistic at the onset, failed undecided")
+          f"({families} families x {window} onsets, p = {d}); told the onset: {told_onset:.1f}")
+    print("push step | pushed | successes | decided | failed undecided | median rho^2 undecided (window / to the end) | "
+          "P(detect), mean over undecided: policy's test / told onset / told onset+direction | "
+          "statistic at the onset in the window, failed undecided")
     for t in args.times:
         rows = []
         for i in range(args.episodes):
@@ -127,19 +132,26 @@ def main() -> None:
             if not moves:  # the episode ended before the push
                 continue
             first = min((e.step for e in ep.events if e.kind in decisions and e.step > t), default=None)
-            rho2, stat = evidence(steps, t, moves[0][:d], first, n)
-            rows.append((ep.outcome == Outcome.SUCCESS, first is not None, rho2, stat))
+            end = first if first is not None else ep.steps
+            in_window, stat, seen = evidence(steps, t, moves[0][:d], min(end, t + window), n)
+            to_end = evidence(steps, t, moves[0][:d], end, n)[0]
+            rows.append((ep.outcome == Outcome.SUCCESS, first is not None, in_window, to_end, stat, seen))
         if not rows:
             print(f"{t} | 0 pushed")
             continue
-        undecided = [r[2] for r in rows if not r[1]]  # their evidence to the episode's end
-        rho2 = float(np.median(undecided)) if undecided else float(np.median([r[2] for r in rows]))
-        missed = [r[3] for r in rows if not r[0] and not r[1]]
-        powers = (ncx2.sf(bound, d, rho2), ncx2.sf(told_onset, d, rho2), norm.sf(norm.isf(alpha) - np.sqrt(rho2)))
-        print(f"{t} | {len(rows)} | {sum(r[0] for r in rows)} | {sum(r[1] for r in rows)} | {len(missed)} | "
-              f"{rho2:.1f} | {powers[0]:.2f} / {powers[1]:.2f} / {powers[2]:.2f} | "
-              + (f"{min(missed):.1f}-{max(missed):.1f} (median {np.median(missed):.1f})" if missed else "-"),
-              flush=True)
+        undecided = [r for r in rows if not r[1] and r[5] > 0]  # no decision, at least a step seen
+        missed = [r[4] for r in undecided if not r[0]]
+        line = (f"{t} | {len(rows)} | {sum(r[0] for r in rows)} | {sum(r[1] for r in rows)} | "
+                f"{sum(1 for r in rows if not r[0] and not r[1])} | ")
+        if undecided:
+            w, e = np.array([r[2] for r in undecided]), np.array([r[3] for r in undecided])
+            powers = (ncx2.sf(bound, d, w).mean(), ncx2.sf(told_onset, d, e).mean(),
+                      norm.sf(norm.isf(alpha) - np.sqrt(e)).mean())
+            line += (f"{np.median(w):.1f} / {np.median(e):.1f} | {powers[0]:.2f} / {powers[1]:.2f} / {powers[2]:.2f} | "
+                     + (f"{min(missed):.1f}-{max(missed):.1f} (median {np.median(missed):.1f})" if missed else "-"))
+        else:
+            line += "- | - | -"
+        print(line, flush=True)
 
 
 if __name__ == "__main__":
