@@ -1,6 +1,6 @@
 """How much a push shows in the measurements, and what the jump test makes of it (issue 17).
 
-    python benchmarks/push_evidence.py --scenario point_lightdark --roadmaps DIR --times 0 20 70 80 90 \
+    python benchmarks/push_evidence.py --robot point --roadmaps DIR --times 0 20 70 80 90 \
         --size 1.0 --episodes 100
 
 The sweep's pushed episodes again (replanning policy; episode ``i`` draws from ``episode_seeds(seed,
@@ -37,7 +37,8 @@ import numpy as np
 from scipy.stats import chi2, ncx2, norm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, one_blas_thread  # noqa: E402
+from _common import one_blas_thread  # noqa: E402
+from sweep_disturbances import ROBOTS, solution  # noqa: E402
 
 
 @contextlib.contextmanager
@@ -91,7 +92,7 @@ def evidence(steps: list, t: int, delta: np.ndarray, until: int, n: int) -> tupl
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--scenario", default="point_lightdark")
+    p.add_argument("--robot", default="point", choices=sorted(ROBOTS), help="as benchmarks/sweep_disturbances.py")
     p.add_argument("--roadmaps", type=Path, help="DIR/<scenario>.h5, built and solved (else built here)")
     p.add_argument("--times", type=int, nargs="+", default=[0, 20, 70, 80, 90])
     p.add_argument("--size", type=float, default=1.0)
@@ -99,16 +100,14 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
     one_blas_thread()
-    import firmtool as ft
     from firmtool.disturbances import as_disturbances
     from firmtool.results import EventKind, Outcome
     from firmtool.sim.environment import SimulatedSystem
     from firmtool.sim.episodes import episode_seeds, run_episode
     from firmtool.sim.sweep import policies_of
 
-    path = args.roadmaps / f"{args.scenario}.h5" if args.roadmaps else None
-    sol = (ft.open_roadmap(path).solution() if path is not None and path.exists()
-           else ft.solve(ft.build(ft.load_scenario(ROOT / "scenarios" / f"{args.scenario}.toml"), workers=2)))
+    scenario = ROBOTS[args.robot][0]
+    sol = solution(scenario, args.roadmaps)
     policy = policies_of(sol, modes=("replan",))["replan"]
     system = SimulatedSystem(policy.problem)
     n, d = policy.problem.model.n, policy.problem.config_dim
@@ -118,7 +117,7 @@ def main() -> None:
     bound = chi2.isf(alpha / (families * window), d)
     told_onset = chi2.isf(alpha, d)
     decisions = {EventKind.INNOVATION_ALARM, EventKind.REPLAN, EventKind.KEPT_CONTROLLER, EventKind.REPLAN_FAILED}
-    print(f"{args.scenario}: jump test at {alpha:.3g} per step, bound {bound:.1f} "
+    print(f"{scenario}: jump test at {alpha:.3g} per step, bound {bound:.1f} "
           f"({families} families x {window} onsets, p = {d}); told the onset: {told_onset:.1f}")
     print("push step | pushed | successes | decided | failed undecided | median rho^2 undecided (window / to the end) | "
           "P(detect), mean over undecided: policy's test / told onset / told onset+direction | "

@@ -1,5 +1,6 @@
 """Recovery at any moment: success against the time of a push (two sizes) or a kidnap, with and
-without replanning (and with an oracle detector, and one told when a push hit), on the point robot, the arm and the unicycle (issue 17).
+without replanning (and with an oracle detector, and one told when a push hit), on the point robot, the arm and the unicycle (issue 17),
+and on a user's robot nobody tuned for (``--robots flyer``: the 3-D flyer of examples/custom_robot_3d.py, built here).
 
     python benchmarks/sweep_disturbances.py --robots point arm unicycle --episodes 150 --workers 2 \
         --roadmaps DIR --out sweep.json --plot docs/sweep_disturbances.png
@@ -30,11 +31,17 @@ ROBOTS = {  # scenario, push sizes, disturbance every N steps
     "point": ("point_lightdark", (1.0, 2.0), 10),
     "arm": ("arm8_lightdark", (1.0, 2.0), 10),
     "unicycle": ("unicycle_lightdark", (0.5, 1.0), 100),
+    "flyer": ("custom_robot_3d", (1.0,), 10),  # a user's robot: examples/custom_robot_3d.py
 }
+EXAMPLES = {"custom_robot_3d"}  # scenarios defined (with their robot) by a script in examples/
 
 
 def solution(name: str, roadmaps: Path | None):
     import firmtool as ft
+    if name in EXAMPLES:  # run the example as a module: it registers its robot and defines SCENARIO
+        import runpy
+        example = runpy.run_path(str(ROOT / "examples" / f"{name}.py"), run_name=f"example_{name}")
+        return ft.solve(ft.build(ft.Scenario.from_toml(example["SCENARIO"], f"{name}.toml"), workers=2))
     if roadmaps is not None and (roadmaps / f"{name}.h5").exists():
         return ft.open_roadmap(roadmaps / f"{name}.h5").solution()
     return ft.solve(ft.build(ft.load_scenario(ROOT / "scenarios" / f"{name}.toml"), workers=2))
