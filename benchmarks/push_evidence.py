@@ -72,22 +72,21 @@ def recording():
 def evidence(steps: list, t: int, delta: np.ndarray, until: int, n: int) -> tuple[float, float, int]:
     """``rho^2 = delta' C delta`` of a push of the configuration by ``delta`` (d,) before step ``t + 1``
     (the policy's step count when it observes the pushed step), over the recorded steps from
-    ``t + 1`` to ``until``, the test's statistic ``d' C^+ d`` at that onset over them, and their number."""
-    d = delta.size
-    Phi, C, dv = np.eye(n)[:, :d], np.zeros((d, d)), np.zeros(d)
-    seen = 0
-    for step, A, H, L, S_inv, gamma in steps:
-        if step < t + 1:
-            continue
-        if step > until:
-            break
-        seen += 1
-        G = H @ A @ Phi
-        C += G.T @ S_inv @ G
-        dv += G.T @ S_inv @ gamma
-        Phi = A @ Phi - L @ G
-    stat = float(dv @ np.linalg.lstsq(C, dv, rcond=None)[0]) if C.any() else 0.0
-    return float(delta @ C @ delta), stat, seen
+    ``t + 1`` to ``until``, the test's statistic ``d' C^+ d`` at that onset over them, and their number.
+
+    The policy's own :class:`~firmtool.online.innovation.JumpTest` run on those steps: its first
+    onset is the push's, kept to the end (a window as long as the steps)."""
+    from firmtool.online.innovation import JumpTest
+
+    run = [s for s in steps if t + 1 <= s[0] <= until]
+    if not run:
+        return 0.0, 0.0, 0
+    test = JumpTest(np.eye(n)[:, :delta.size], window=len(run), false_alarm=0.5)
+    for step, A, H, L, S_inv, gamma in run:
+        test.add(step, A, H, L, S_inv, gamma)
+    C, dv = test.C[0], test.d[0]
+    stat = float(dv @ np.linalg.lstsq(C, dv, rcond=None)[0])
+    return float(delta @ C @ delta), stat, len(run)
 
 
 def main() -> None:

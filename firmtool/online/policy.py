@@ -724,7 +724,7 @@ class Policy:
                "the belief left the probe's free region" if not plan.may_go_on(xh, P) else
                "settled" if plan.settled(lead, P) else "")
         if why:  # over: without a decision (decide=False) the running controller resumes
-            self._end_probe(out, lead, why)
+            self._end_probe(out, why, lead)
             if decide and self._total < self.max_steps:
                 t1, c1 = time.perf_counter(), time.thread_time()
                 self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
@@ -733,14 +733,17 @@ class Policy:
     def _timeout(self, out: list[Event]) -> None:
         """The mission's step budget is spent (a probe running ends with it)."""
         if self._probe is not None:
-            self._end_probe(out, float(self._probe.bank.mode()[0]), "the mission's step budget is spent")
+            self._end_probe(out, "the mission's step budget is spent")
         self._status = PolicyStatus.TIMEOUT
         self._emit(out, Event(self._total, EventKind.TIMEOUT, self._run.target, detail="episode step limit"))
 
-    def _end_probe(self, out: list[Event], lead: float, why: str) -> None:
-        """End a re-localisation: the belief stays its leading mode; the suspended controller would
-        resume where it was left (a decision may replace it)."""
+    def _end_probe(self, out: list[Event], why: str, lead: float | None = None) -> None:
+        """End a re-localisation: the belief stays its leading mode (``lead`` its weight, when this
+        step already computed it); the suspended controller would resume where it was left (a
+        decision may replace it)."""
         probe = self._probe
+        if lead is None:
+            lead = float(probe.bank.mode()[0])
         self._probe = None
         self._k = min(probe.s_next, self._run.lc.steps - 1)
         self._emit(out, Event(self._total, EventKind.RELOCALISED, self._run.target, lead,
@@ -773,7 +776,7 @@ class Policy:
         t0, c0 = time.perf_counter(), time.thread_time()
         out: list[Event] = []
         if self._probe is not None:  # a belief from outside ends a re-localisation of its own
-            self._end_probe(out, float(self._probe.bank.mode()[0]), "a belief from outside")
+            self._end_probe(out, "a belief from outside")
         self._xhat, self._P = mean[None].copy(), covariance
         self._clean = False
         if self._record:

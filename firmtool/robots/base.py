@@ -109,9 +109,10 @@ class Robot:
     #: its 32-particle Monte Carlo), what the deterministic work clock of a replan decision charges
     #: (:mod:`firmtool.online.replanning`); measure it with ``benchmarks/bench_online.py``
     replan_candidate_seconds: ClassVar[float] = 2e-3
-    #: state coordinates past the configuration that are angles kept continuous along a run (not
-    #: wrapped): a kidnap puts them on the turn nearest their old value (:mod:`firmtool.disturbances`),
-    #: and execution judges arrival at a goal node modulo a turn in them
+    #: state coordinates that are angles kept continuous along a run (not wrapped): a kidnap draws
+    #: those past the configuration uniformly and puts them on the turn nearest their old value
+    #: (:mod:`firmtool.disturbances`; configuration coordinates are drawn within their bounds), and
+    #: execution judges arrival at a goal node modulo a turn in them
     angle_coordinates: ClassVar[tuple[int, ...]] = ()
     #: the tables of a small scenario for this robot that builds as it is, in seconds (``firmtool init
     #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario_docs.template`);

@@ -163,7 +163,7 @@ class UnicycleRobot(Robot):
         # a probe in a tight spot risks a collision, no probe near-certainly fails (the heading stays
         # wrong): the margin shrinks before the probe is given up
         for margin in (position_std, 0.0):
-            reach = _free_reach(problem, mean[:2], margin, means[:, c])
+            reach = _free_reach(problem, mean[:2], margin, means[:, c], c)
             if reach is not None:
                 break
         else:
@@ -221,22 +221,21 @@ PROBE_STEPS = 300
 DISC_SAMPLES = 256  # directions (and radii) at most in the probe's disc check: 12 x 256 x 256 states
 
 
-def _free_reach(problem, position: np.ndarray, margin: float, headings: np.ndarray) -> float | None:
+def _free_reach(problem, position: np.ndarray, margin: float, headings: np.ndarray, heading: int) -> float | None:
     """The longest of :data:`PROBE_REACH` such that the robot is valid (its disc and the user's
-    checker, at each of ``headings`` (K,)) everywhere within that reach plus ``margin`` of
-    ``position`` (2,), or None. Points are sampled half the robot's radius apart, at most
+    checker, at each of ``headings`` (K,) of state coordinate ``heading``) everywhere within that
+    reach plus ``margin`` of ``position`` (2,), or None. Points are sampled half the robot's radius apart, at most
     :data:`DISC_SAMPLES` directions and radii (then further apart: a tiny robot in a wide disc)."""
-    radius = problem.scenario.world.robot_radius
+    spacing = 0.5 * problem.scenario.world.robot_radius
     for reach in PROBE_REACH:
         outer = reach + margin
-        spacing = 0.5 * radius
         count = int(np.clip(np.ceil(2.0 * np.pi * outer / spacing), 32, DISC_SAMPLES))
         angles = np.linspace(0.0, 2.0 * np.pi, count, endpoint=False)
         ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
         radii = np.linspace(0.0, outer, int(np.clip(np.ceil(outer / spacing) + 1, 2, DISC_SAMPLES)))
         pts = (position[None, None] + radii[:, None, None] * ring[None]).reshape(-1, 2)
         X = np.repeat(problem.state_of(pts), headings.size, axis=0)
-        X[:, 2] = np.tile(headings, pts.shape[0])
+        X[:, heading] = np.tile(headings, pts.shape[0])
         if np.all(problem.states_valid(X, problem.robot.points(X))):
             return reach
     return None
