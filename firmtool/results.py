@@ -41,6 +41,7 @@ class EventKind(enum.StrEnum):
     RELOCALISED = "relocalised"  # the probe ended; the belief is its leading mode (value: the mode's weight)
     COLLISION = "collision"
     TIMEOUT = "timeout"
+    GOAL_QUESTIONED = "goal_questioned"  # the belief reached the goal, the jump test questions it: the declaration waits
     GOAL = "goal"  # the policy declared arrival and the true state is in the goal
     GOAL_MISS = "goal_miss"  # the policy declared arrival but the true state is not in the goal
     STUCK = "stuck"

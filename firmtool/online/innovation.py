@@ -234,6 +234,17 @@ class JumpTests:
     def statistic(self) -> float:
         return self.tests[self.fired].statistic if self.fired else 0.0
 
+    def questions(self, level: float) -> float:
+        """The check of an irreversible decision (:attr:`ReplanSettings.goal_check`): the statistic
+        of the family that questions the belief at the tail probability ``level`` per onset (its
+        statistic above ``chi2.isf(level, p)``, the smallest p-value if both do), or 0.0 when none
+        does. A bound this lax would alarm often as the running test; it only makes a declaration wait."""
+        over = {name: t.statistic for name, t in self.tests.items()
+                if t.statistic > chi2.isf(level, t.basis.shape[1])}
+        if not over:
+            return 0.0
+        return over[min(over, key=lambda name: chi2.logsf(over[name], self.tests[name].basis.shape[1]))]
+
     def correction(self, shrink: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
         """The estimated jump's effect on the estimate now (n,), its covariance (n, n), and its onset.
 

@@ -417,6 +417,7 @@ class Policy:
         self._jump = (JumpTests(bases, s.jump_window, self.jump_false_alarm, problem.robot.jump_prior(problem))
                       if self._innovation and s.jump_test else None)
         self._cooldown = 0  # no decision before this step (after keeping the running controller)
+        self._goal_waited, self._goal_wait_last = 0, -2  # steps a goal declaration waited; the last one
         self._run: RunningController | None = None
         self._clean, self._run_start = False, 0
         self._pending: tuple[RunningController, int] | None = None  # a decided controller waiting out its latency
@@ -556,6 +557,8 @@ class Policy:
             landed = run.target if self.design.kinds[run.target] == GOAL else GOAL_INDEX
         elif k + 1 >= run.land_from and run.cand[k].any():
             landed = self._locate(xhat, run.cand[k])
+        if landed >= 0 and self._goal_waits(landed, k, lc, out):
+            landed = -1  # the declaration waits; the running controller and its tests go on
         deviate = alarm = False
         dev = 0.0
         if (landed < 0 and s.enabled and self._pending is None and self._replans < s.max_per_episode
@@ -635,6 +638,28 @@ class Policy:
             return
         self._edges.append(edge)
         self._begin(self._controller(edge))
+
+    def _goal_waits(self, landed: int, k: int, lc, out: list[Event]) -> bool:
+        """Whether the belief's arrival at ``landed`` waits before the goal is declared
+        (:attr:`ReplanSettings.goal_check`): the jump test questions it, and neither the waiting
+        steps since the last decision (``jump_window``) nor the running controller's are spent."""
+        s, total = self.settings, self._total
+        if (s.goal_check <= 0 or self._jump is None or self._goal_waited >= s.jump_window or k + 1 >= lc.steps
+                or not (landed == GOAL_INDEX or self.design.kinds[landed] == GOAL)):
+            return False
+        statistic = self._jump.questions(s.goal_check)
+        if statistic <= 0:
+            return False
+        if self._goal_wait_last != total - 1:
+            self._emit(out, Event(total, EventKind.GOAL_QUESTIONED, landed, statistic,
+                                  f"the jump test questions the arrival (at {s.goal_check:g} per onset): "
+                                  f"waiting up to {s.jump_window - self._goal_waited} steps"))
+        if self._clean:  # the edge's traversal ends here as its Monte Carlo counts it; what follows is not it
+            self._traversals.append(Traversal((self._run.edge, landed, self._run_start, total)))
+            self._clean = False
+        self._goal_waited += 1
+        self._goal_wait_last = total
+        return True
 
     def _decided(self, seconds: float, cpu: float, decision) -> None:
         self._decision_s.append(seconds)
@@ -795,6 +820,7 @@ class Policy:
             self._window.clear()
         if self._jump is not None:
             self._jump.clear()
+        self._goal_waited = 0  # a new belief: a goal arrival from it may wait again
         # the robot is alive, so its state is valid: never plan from an estimate in collision
         x0 = self._xhat[0]
         xv = x0 if problem.perfect else self.replanner.valid_estimate(x0, P_now, self._rng)

@@ -128,6 +128,7 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     disturbed: list[int] = []  # steps at which a disturbance hit
     applied = 0
     collided, running = False, None
+    judged: dict[int, bool] = {}  # traversal -> its goal arrival held the true state (arrivals questioned)
     while not policy.done:
         u = policy.act()
         now = policy.steps - 1  # steps completed before this one
@@ -153,7 +154,15 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
             ep.outcome, collided = Outcome.COLLISION, True
             ep.events.append(Event(policy.steps, EventKind.COLLISION, policy.target, detail=policy.controller))
             break
-        ep.events.extend(policy.observe(z))
+        events = policy.observe(z)
+        ep.events.extend(events)
+        questioned = [ev.step for ev in events if ev.kind == EventKind.GOAL_QUESTIONED]
+        ended = len(policy.traversals) - 1
+        if questioned and ended >= 0 and ended not in judged and policy.traversals[ended][3] == questioned[0]:
+            # the policy ended the edge's traversal at an arrival it then questioned: judged as the
+            # Monte Carlo judges it, on the true state now
+            judged[ended] = bool(policy.regions.true_arrival(np.array([policy.traversals[ended][1]]), system.state,
+                                                            angles=policy.problem.robot.angle_coordinates)[0])
         if after_disturbance is not None and disturbed and disturbed[-1] == now and not policy.done:
             ep.events.extend(after_disturbance(policy, system))
     traversals = [(t[0], t[1], t[2], t[3]) for t in policy.traversals]
@@ -168,9 +177,14 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
                 i = max(j for j, ev in enumerate(ep.events) if ev.kind == EventKind.GOAL)
                 ep.events[i] = Event(ep.events[i].step, EventKind.GOAL_MISS, node,
                                      detail="arrival declared; the true state is not in the goal")
-                if traversals and traversals[-1][1] == node:  # as the Monte Carlo counts it
+                if traversals and traversals[-1][1] == node and len(traversals) - 1 not in judged:
+                    # as the Monte Carlo counts it (a questioned arrival was judged when it came)
                     e, _, first, last = traversals[-1]
                     traversals[-1] = (e, GOAL_MISS, first, last)
+    for i, inside in judged.items():
+        if not inside:
+            e, _, first, last = traversals[i]
+            traversals[i] = (e, GOAL_MISS, first, last)
     if collided and running is not None:
         traversals.append((running[0], FAILURE, running[1], policy.steps))
     # a traversal counts for the calibration check only if no disturbance hit it
