@@ -225,10 +225,12 @@ class JumpTests:
         # the family that explains the data best: the smallest p-value, whichever crossed its bound
         # (a kidnap's position jump crosses the configuration's first, its velocity change shows in
         # the state's p-value)
-        self.fired = (min(self.tests, key=lambda name: chi2.logsf(self.tests[name].statistic,
-                                                                  self.tests[name].basis.shape[1]))
-                      if any(rejects) else None)
+        self.fired = self._likeliest(self.tests) if any(rejects) else None
         return self.fired is not None
+
+    def _likeliest(self, names) -> str:
+        """Of the families ``names``, the one whose statistic is least likely under no jump."""
+        return min(names, key=lambda name: chi2.logsf(self.tests[name].statistic, self.tests[name].basis.shape[1]))
 
     @property
     def statistic(self) -> float:
@@ -239,11 +241,8 @@ class JumpTests:
         of the family that questions the belief at the tail probability ``level`` per onset (its
         statistic above ``chi2.isf(level, p)``, the smallest p-value if both do), or 0.0 when none
         does. A bound this lax would alarm often as the running test; it only makes a declaration wait."""
-        over = {name: t.statistic for name, t in self.tests.items()
-                if t.statistic > chi2.isf(level, t.basis.shape[1])}
-        if not over:
-            return 0.0
-        return over[min(over, key=lambda name: chi2.logsf(over[name], self.tests[name].basis.shape[1]))]
+        over = [name for name, t in self.tests.items() if t.statistic > chi2.isf(level, t.basis.shape[1])]
+        return self.tests[self._likeliest(over)].statistic if over else 0.0
 
     def correction(self, shrink: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
         """The estimated jump's effect on the estimate now (n,), its covariance (n, n), and its onset.

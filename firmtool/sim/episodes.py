@@ -157,12 +157,14 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
         events = policy.observe(z)
         ep.events.extend(events)
         questioned = [ev.step for ev in events if ev.kind == EventKind.GOAL_QUESTIONED]
-        ended = len(policy.traversals) - 1
-        if questioned and ended >= 0 and ended not in judged and policy.traversals[ended][3] == questioned[0]:
-            # the policy ended the edge's traversal at an arrival it then questioned: judged as the
-            # Monte Carlo judges it, on the true state now
-            judged[ended] = bool(policy.regions.true_arrival(np.array([policy.traversals[ended][1]]), system.state,
-                                                            angles=policy.problem.robot.angle_coordinates)[0])
+        if questioned:
+            done = policy.traversals
+            ended = len(done) - 1
+            if ended >= 0 and ended not in judged and done[ended][3] == questioned[0]:
+                # the policy ended the edge's traversal at an arrival it then questioned: judged as
+                # the Monte Carlo judges it, on the true state now
+                judged[ended] = bool(policy.regions.true_arrival(np.array([done[ended][1]]), system.state,
+                                                                angles=policy.problem.robot.angle_coordinates)[0])
         if after_disturbance is not None and disturbed and disturbed[-1] == now and not policy.done:
             ep.events.extend(after_disturbance(policy, system))
     traversals = [(t[0], t[1], t[2], t[3]) for t in policy.traversals]
