@@ -29,7 +29,23 @@ def test_the_users_loop_gives_the_episodes_of_simulate(smoke):
     assert all(external_loop.same_as_simulate(smoke, runs, 3))
     text = out.getvalue()
     assert text.count("u = [") == sum(r["steps"] for r in runs)  # every control printed
-    assert "goal" in text and {r["outcome"] for r in runs} <= {"success", "collision", "timeout", "stuck"}
+    assert "goal" in text and {r["outcome"] for r in runs} <= {"success", "goal_miss", "collision", "timeout", "stuck"}
+
+
+def test_a_declared_goal_the_users_robot_is_not_in_is_a_goal_miss_as_in_simulate(smoke):
+    """The policy declares arrival on its belief; the user's loop judges it on its robot's true state
+    and so reports the goal misses ft.simulate reports (it once called every declared goal a success)."""
+    for seed in range(12):
+        misses = [i for i, ep in enumerate(ft.simulate(smoke, 8, seed, record=False).episodes)
+                  if ep.outcome == ft.Outcome.GOAL_MISS]
+        if misses:
+            break
+    assert misses, "no goal miss on smoke in 12 seeds of 8 episodes: the test needs one"
+    out = io.StringIO()
+    runs = external_loop.run(smoke, misses[-1] + 1, seed, every=1000, out=out)
+    assert [i for i, r in enumerate(runs) if r["outcome"] == "goal_miss"] == misses
+    assert all(external_loop.same_as_simulate(smoke, runs, seed))
+    assert "not in the goal" in out.getvalue()
 
 
 def test_a_push_in_the_users_robot_is_a_callable_disturbance_of_simulate(smoke):
