@@ -553,6 +553,16 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                 "0", "--replan-latency",
                 help="'0' (default): a replanned controller runs from the next step. 'measured': the "
                      "running controller goes on for ceil(t / dt) steps, t the decision's time on its clock."),
+            goal_check: Optional[float] = typer.Option(
+                None, "--goal-check",
+                help="Tail probability per onset at which the jump test questions a goal arrival: the "
+                     "declaration waits while it does (0: declare at once; default: ReplanSettings' "
+                     "goal_check). See docs/online.md."),
+            jump_false_alarm: Optional[float] = typer.Option(
+                None, "--jump-false-alarm",
+                help="The jump test's false-alarm probability per step (default: 0.25 nominal false alarms "
+                     "over the policy's nominal path). Laxer finds more pushes and costs undisturbed "
+                     "success; see docs/online.md."),
             start: Optional[str] = typer.Option(
                 None, "--start",
                 help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "
@@ -594,6 +604,10 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         raise InputError(f"--replan-clock: expected one of {', '.join(CLOCKS)}, found {replan_clock!r}")
     if replan_latency not in LATENCIES:
         raise InputError(f"--replan-latency: expected one of {', '.join(LATENCIES)}, found {replan_latency!r}")
+    if goal_check is not None and not (np.isfinite(goal_check) and 0.0 <= goal_check < 1.0):
+        raise InputError(f"--goal-check: expected a probability in [0, 1), found {goal_check}")
+    if jump_false_alarm is not None and not (np.isfinite(jump_false_alarm) and 0.0 < jump_false_alarm < 1.0):
+        raise InputError(f"--jump-false-alarm: expected a probability in (0, 1), found {jump_false_alarm}")
     start_state = _parse_start(start)
     _check_policy(policy_name)
     if save_episodes is not None:
@@ -602,8 +616,10 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     rm = ft.open_roadmap(roadmap)
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
+    chosen = {"goal_check": goal_check} if goal_check is not None else {}
     settings = ReplanSettings(enabled=not no_replan, threshold=replan_threshold, deadline=replan_deadline,
-                              clock=replan_clock, latency=replan_latency)
+                              clock=replan_clock, latency=replan_latency, jump_false_alarm=jump_false_alarm,
+                              **chosen)
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
                       replan=settings, record=save_episodes is not None, progress=console.progress())
     report = res.to_dict()

@@ -216,6 +216,37 @@ def test_saved_episodes_are_readable_with_the_right_shapes(smoke, tmp_path):
     assert not list(tmp_path.glob("*.tmp"))
 
 
+@pytest.mark.parametrize("option, setting", [(["--goal-check", "0.1"], {"goal_check": 0.1}),
+                                             (["--goal-check", "0"], {"goal_check": 0.0}),
+                                             (["--jump-false-alarm", "0.02"], {"jump_false_alarm": 0.02})])
+def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path, option, setting):
+    """--goal-check and --jump-false-alarm reach the policy: the saved episodes' events are those of
+    ft.simulate with the same ReplanSettings, and differ from the default's where the setting acts."""
+    import firmtool as ft
+    path = smoke[0]
+    out = tmp_path / "eps.h5"
+    r = runner.invoke(app, ["execute", str(path), "-n", "12", "-d", "push:60:0.8", *option, "--save-episodes", str(out)])
+    assert r.exit_code == 0, r.output
+    _, eps = load_episodes(out)
+    sol = ft.open_roadmap(path).solution()
+    dist = parse_disturbances(["push:60:0.8"])
+    mine = ft.simulate(sol, 12, 0, disturbances=dist, replan=ReplanSettings(**setting), record=False)
+    kinds = [[e["kind"] for e in ep["events"]] for ep in eps]
+    assert kinds == [[str(e.kind) for e in ep.events] for ep in mine.episodes]
+    questioned = sum(k.count("goal_questioned") for k in kinds)
+    assert (questioned > 0) == (setting.get("goal_check", ReplanSettings().goal_check) > 0), questioned
+    if "jump_false_alarm" in setting:  # a laxer test decides more often than the default's
+        default = ft.simulate(sol, 12, 0, disturbances=dist, record=False)
+        assert sum(k.count("innovation_alarm") for k in kinds) > sum(
+            str(e.kind) == "innovation_alarm" for ep in default.episodes for e in ep.events)
+
+
+@pytest.mark.parametrize("option", [["--goal-check", "1.5"], ["--goal-check", "nan"], ["--jump-false-alarm", "0"]])
+def test_the_cli_refuses_a_level_outside_its_range_in_one_line(smoke, option):
+    r = runner.invoke(app, ["execute", str(smoke[0]), "-n", "1", *option])
+    assert r.exit_code == 2 and option[0] in r.output and r.output.strip().count("\n") == 0, r.output
+
+
 def test_calibration_passes_on_undisturbed_smoke(smoke):
     rep = run(smoke, episodes=150, seed=3)
     cal = rep.calibration
