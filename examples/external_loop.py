@@ -40,7 +40,8 @@ class PointRobot:
     def __init__(self, A, B, F, light_x, a, c, radius, lo, hi, boxes, rng):
         self.A, self.B, self.F = A, B, F
         self.light_x, self.a, self.c = light_x, a, c
-        self.radius, self.lo, self.hi, self.boxes = radius, np.asarray(lo), np.asarray(hi), np.asarray(boxes)
+        self.radius, self.lo, self.hi = radius, np.asarray(lo), np.asarray(hi)
+        self.boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)  # (K, 4), K = 0 in an open world
         self.rng = rng
 
     def start(self, mean, covariance):
@@ -85,6 +86,9 @@ def run(solution, episodes: int, seed: int, every: int = 10, out=sys.stdout) -> 
         events = policy.reset(rng=np.random.default_rng(seeds.policy))
         robot = robot_of(solution, np.random.default_rng(seeds.system))
         robot.start(policy.mean, policy.covariance)
+        true_start = solution.roadmap.problem.true_start
+        if true_start is not None:  # the task says where the robot truly is (after the same draw as ft.simulate)
+            robot.x = np.asarray(true_start, dtype=float)[None].copy()
         print(f"episode {i}", file=out)
         for ev in events:
             show(ev, out)
@@ -107,10 +111,13 @@ def run(solution, episodes: int, seed: int, every: int = 10, out=sys.stdout) -> 
             # the policy declares arrival on its belief; whether the robot is there is the world's to say
             # (here the scenario's goal region, tested at the robot's true state, as ft.simulate does)
             node = policy.node
-            inside = policy.regions.true_arrival(np.array([node]), robot.x)[0]
+            inside = policy.regions.true_arrival(np.array([node]), robot.x,
+                                                 angles=policy.problem.robot.angle_coordinates)[0]
             outcome = "success" if inside else "goal_miss"
             if not inside:
-                events[-1] = ft.Event(events[-1].step, ft.EventKind.GOAL_MISS, node)
+                j = max(j for j, ev in enumerate(events) if ev.kind == ft.EventKind.GOAL)
+                events[j] = ft.Event(events[j].step, ft.EventKind.GOAL_MISS, node,
+                                     detail="arrival declared; the true state is not in the goal")
                 print(f"  step {policy.steps:4d}  the robot is not in the goal", file=out)
         outcome = outcome or policy.status.value
         runs.append({"outcome": outcome, "steps": policy.steps, "cost": policy.cost,

@@ -556,13 +556,13 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
             goal_check: Optional[float] = typer.Option(
                 None, "--goal-check",
                 help="Tail probability per onset at which the jump test questions a goal arrival: the "
-                     "declaration waits while it does (0: declare at once; default: ReplanSettings' "
-                     "goal_check). See docs/online.md."),
+                     "declaration waits while it does (default 0.1; 0: declare at once). Needs replanning "
+                     "(the jump test). See docs/online.md."),
             jump_false_alarm: Optional[float] = typer.Option(
                 None, "--jump-false-alarm",
                 help="The jump test's false-alarm probability per step (default: 0.25 nominal false alarms "
                      "over the policy's nominal path). Laxer finds more pushes and costs undisturbed "
-                     "success; see docs/online.md."),
+                     "success. Needs replanning; see docs/online.md."),
             start: Optional[str] = typer.Option(
                 None, "--start",
                 help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "
@@ -608,6 +608,9 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         raise InputError(f"--goal-check: expected a probability in [0, 1), found {goal_check}")
     if jump_false_alarm is not None and not (np.isfinite(jump_false_alarm) and 0.0 < jump_false_alarm < 1.0):
         raise InputError(f"--jump-false-alarm: expected a probability in (0, 1), found {jump_false_alarm}")
+    if no_replan and (goal_check is not None or jump_false_alarm is not None):
+        flag = "--goal-check" if goal_check is not None else "--jump-false-alarm"
+        raise InputError(f"{flag}: a level of the jump test, which --no-replan turns off; drop one of them")
     start_state = _parse_start(start)
     _check_policy(policy_name)
     if save_episodes is not None:

@@ -241,7 +241,8 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
             str(e.kind) == "innovation_alarm" for ep in default.episodes for e in ep.events)
 
 
-@pytest.mark.parametrize("option", [["--goal-check", "1.5"], ["--goal-check", "nan"], ["--jump-false-alarm", "0"]])
+@pytest.mark.parametrize("option", [["--goal-check", "1.5"], ["--goal-check", "nan"], ["--jump-false-alarm", "0"],
+                                    ["--goal-check", "0.1", "--no-replan"], ["--jump-false-alarm", "0.01", "--no-replan"]])
 def test_the_cli_refuses_a_level_outside_its_range_in_one_line(smoke, option):
     r = runner.invoke(app, ["execute", str(smoke[0]), "-n", "1", *option])
     assert r.exit_code == 2 and option[0] in r.output and r.output.strip().count("\n") == 0, r.output

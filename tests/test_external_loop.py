@@ -105,3 +105,12 @@ def test_the_policy_refuses_calls_out_of_order(smoke):
         policy.observe(np.zeros(3))
     with pytest.raises(ft.InputError, match="mean"):
         policy.reset(np.zeros(5))
+
+
+def test_the_users_loop_starts_where_the_task_says_and_in_an_open_world(capsys):
+    """platt_lightdark: a task with a true start (ft.simulate starts there, not at a draw from the start
+    belief) and a world without obstacles; the example's episodes are still those of ft.simulate."""
+    sol = ft.solve(ft.build(ft.load_scenario("platt_lightdark")))
+    assert sol.roadmap.problem.true_start is not None and not sol.roadmap.scenario.world.obstacles
+    runs = external_loop.run(sol, 3, 0, every=1000, out=io.StringIO())
+    assert all(external_loop.same_as_simulate(sol, runs, 0))
