@@ -173,6 +173,35 @@ def test_a_questioned_goal_arrival_waits_and_changes_nothing_else(smoke):
     assert questioned >= 5, questioned
 
 
+def test_the_goal_waits_only_for_a_jump_that_would_take_the_estimate_out_of_it(smoke, monkeypatch):
+    """The jump test made to question every arrival: when the jump it suspects is nil the goal is
+    declared at once (the same episodes as with the check off); when it would carry the estimate far
+    out of the goal, every arrival at the goal waits (``goal_questioned``) and no goal is declared
+    at a questioned step."""
+    from firmtool.online.innovation import JumpTests
+
+    n = smoke.roadmap.problem.model.n
+    real = JumpTests.correction
+    off = ft.simulate(smoke, 12, 2, replan=ReplanSettings(goal_check=0.0), record=False)
+    monkeypatch.setattr(JumpTests, "questioning", lambda self, level: "configuration")
+    for size in (0.0, 50.0):
+        def suspected(self, shrink=True, family=None, size=size):  # the goal check asks for a family
+            if family is None:
+                return real(self, shrink)
+            return np.full(n, size), np.zeros((n, n)), 0
+        monkeypatch.setattr(JumpTests, "correction", suspected)
+        on = ft.simulate(smoke, 12, 2, record=False)
+        asked = [[e.step for e in ep.events if e.kind == ft.EventKind.GOAL_QUESTIONED] for ep in on.episodes]
+        if size == 0.0:
+            assert [_story(a) for a in off.episodes] == [_story(b) for b in on.episodes]
+            continue
+        arrived = [i for i, ep in enumerate(off.episodes) if ep.outcome in (ft.Outcome.SUCCESS, ft.Outcome.GOAL_MISS)]
+        assert len(arrived) >= 8 and all(asked[i] for i in arrived), asked
+        for ep, steps in zip(on.episodes, asked):
+            declared = {e.step for e in ep.events if e.kind in (ft.EventKind.GOAL, ft.EventKind.GOAL_MISS)}
+            assert not declared & set(steps)
+
+
 def test_the_goal_check_is_the_chi_square_quantile_of_its_level():
     """:meth:`JumpTests.questions` against scipy's quantile: a statistic just over ``chi2.isf(level, p)``
     questions the belief, one just under does not, and the family with the smaller p-value is named."""

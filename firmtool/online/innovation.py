@@ -241,16 +241,23 @@ class JumpTests:
         of the family that questions the belief at the tail probability ``level`` per onset (its
         statistic above ``chi2.isf(level, p)``, the smallest p-value if both do), or 0.0 when none
         does. A bound this lax would alarm often as the running test; it only makes a declaration wait."""
-        over = [name for name, t in self.tests.items() if t.statistic > chi2.isf(level, t.basis.shape[1])]
-        return self.tests[self._likeliest(over)].statistic if over else 0.0
+        name = self.questioning(level)
+        return self.tests[name].statistic if name is not None else 0.0
 
-    def correction(self, shrink: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
+    def questioning(self, level: float) -> str | None:
+        """The family that questions the belief at ``level`` per onset (:meth:`questions`), or None."""
+        over = [name for name, t in self.tests.items() if t.statistic > chi2.isf(level, t.basis.shape[1])]
+        return self._likeliest(over) if over else None
+
+    def correction(self, shrink: bool = True, family: str | None = None) -> tuple[np.ndarray, np.ndarray, int]:
         """The estimated jump's effect on the estimate now (n,), its covariance (n, n), and its onset.
 
         ``shrink`` (default): the estimate shrunk by its evidence, :func:`shrunk_jump`; off: as
-        estimated (the configuration family's without a prior, the state family's with one)."""
-        t = self.tests[self.fired]
-        if self.fired != "state":
+        estimated (the configuration family's without a prior, the state family's with one).
+        ``family``: the family's estimate (default: the one that fired)."""
+        family = self.fired if family is None else family
+        t = self.tests[family]
+        if family != "state":
             shift, cov, onset = t.correction()
         else:
             b = t.best
