@@ -221,6 +221,8 @@ class Results(Report):
     replan_deadline_hits : decisions the deadline cut short (anytime: the best candidate scored so far).
     replan_over_deadline : decisions whose wall time exceeded the deadline (measured, whatever the clock).
     replan_latency : ``"0"`` or ``"measured"`` (a new controller applied after the decision's time).
+    jump_false_alarm, goal_check : the jump test's false-alarm probability per step and the goal
+        check's level per onset the policy ran with (None: no jump test ran; :attr:`Policy.jump_levels`).
     calibration : executed vs estimated edge frequencies (None without the edge counts).
     estimate_success_rate, estimate_success_rate_ci95 : the episodes whose policy declared arrival,
         whatever the true state (the criterion before issue 15: the estimate reached the goal).
@@ -267,6 +269,8 @@ class Results(Report):
     replan_deadline_hits: int = 0
     replan_over_deadline: int = 0
     replan_latency: str = "0"
+    jump_false_alarm: float | None = None
+    goal_check: float | None = None
     goal_misses: int = 0
     estimate_success_rate: float | None = None
     estimate_success_rate_ci95: tuple[float, float] | None = None

@@ -229,8 +229,13 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
     at = int(np.median([ep.steps for ep in ft.simulate(sol, 20, 0, record=False).episodes])) - 4
     spec = f"push:{at}:1.0"
     out = tmp_path / "eps.h5"
-    r = runner.invoke(app, ["execute", str(path), "-n", "20", "-d", spec, *option, "--save-episodes", str(out)])
+    r = runner.invoke(app, ["execute", str(path), "-n", "20", "-d", spec, *option, "--save-episodes", str(out),
+                            "--json"])
     assert r.exit_code == 0, r.output
+    report = json.loads(r.stdout)  # the levels the policy ran with
+    ran = ft.Policy(sol, replan=ReplanSettings(**setting)).jump_levels
+    assert (report["jump_false_alarm"], report["goal_check"]) == ran
+    assert ran[1] == setting.get("goal_check", 0.1) and ran[0] == setting.get("jump_false_alarm", ran[0])
     _, eps = load_episodes(out)
     dist = parse_disturbances([spec])
     mine = ft.simulate(sol, 20, 0, disturbances=dist, replan=ReplanSettings(**setting), record=False)
@@ -243,6 +248,12 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
         default = ft.simulate(sol, 20, 0, disturbances=dist, record=False)
         assert sum(k.count("innovation_alarm") for k in kinds) > sum(
             str(e.kind) == "innovation_alarm" for ep in default.episodes for e in ep.events)
+
+
+def test_without_replanning_the_report_has_no_jump_test_levels(smoke):
+    r = runner.invoke(app, ["execute", str(smoke[0]), "-n", "1", "--no-replan", "--json"])
+    report = json.loads(r.stdout)
+    assert r.exit_code == 0 and report["jump_false_alarm"] is None and report["goal_check"] is None
 
 
 @pytest.mark.parametrize("option", [["--goal-check", "1.5"], ["--goal-check", "nan"], ["--jump-false-alarm", "0"],

@@ -225,6 +225,15 @@ class Policy:
         return self._status is not PolicyStatus.RUNNING
 
     @property
+    def jump_levels(self) -> tuple[float, float] | None:
+        """The jump test's per-step false-alarm probability and the goal check's level per onset
+        (:class:`ReplanSettings` ``jump_false_alarm`` as resolved, ``goal_check``), or None when no
+        jump test runs (replanning off, the innovation tests off, perfect measurements)."""
+        if not (self._innovation and self.settings.jump_test):  # as reset() builds the test
+            return None
+        return float(self.jump_false_alarm), float(self.settings.goal_check)
+
+    @property
     def steps(self) -> int:
         """Control periods since :meth:`reset` (the number of act() calls)."""
         return self._total

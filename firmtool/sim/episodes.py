@@ -299,5 +299,7 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
         replan_deadline_hits=int(sum(e.deadline_hits for e in eps)),
         replan_over_deadline=int(np.sum(replan_times > deadline)),
         replan_latency=settings.latency, goal_misses=misses,
+        jump_false_alarm=None if policy.jump_levels is None else policy.jump_levels[0],
+        goal_check=None if policy.jump_levels is None else policy.jump_levels[1],
         estimate_success_rate=(successes + misses) / episodes if episodes else 0.0,
         estimate_success_rate_ci95=wilson_interval(successes + misses, episodes))
