@@ -631,7 +631,10 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         write_episodes(save_episodes, res.episodes,
                        {"roadmap": str(roadmap), "seed": seed, "policy": policy_name,
                         "disturbances": ";".join(report["disturbances"]), "replanning": not no_replan,
-                        "replan_threshold": replan_threshold}, force=force)
+                        "replan_threshold": replan_threshold,
+                        # the jump test's levels as they ran (HDF5 attributes hold no null: absent without it)
+                        **{k: report[k] for k in ("jump_false_alarm", "goal_check") if report[k] is not None}},
+                       force=force)
         report["episodes_file"] = str(save_episodes)
     _emit(report, as_json, _execute_human)
     _exit_if_all_stuck(report, roadmap)

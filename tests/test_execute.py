@@ -236,7 +236,8 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
     ran = ft.Policy(sol, replan=ReplanSettings(**setting)).jump_levels
     assert (report["jump_false_alarm"], report["goal_check"]) == ran
     assert ran[1] == setting.get("goal_check", 0.1) and ran[0] == setting.get("jump_false_alarm", ran[0])
-    _, eps = load_episodes(out)
+    attrs, eps = load_episodes(out)
+    assert (attrs["jump_false_alarm"], attrs["goal_check"]) == ran  # the file says so too
     dist = parse_disturbances([spec])
     mine = ft.simulate(sol, 20, 0, disturbances=dist, replan=ReplanSettings(**setting), record=False)
     kinds = [[e["kind"] for e in ep["events"]] for ep in eps]
