@@ -592,7 +592,7 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     """
     import firmtool.api as ft
     from firmtool.disturbances import parse_disturbances
-    from firmtool.online.replanning import CLOCKS, LATENCIES, ReplanSettings
+    from firmtool.online.replanning import CLOCKS, GOAL_CHECK, LATENCIES, ReplanSettings
     from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
@@ -619,10 +619,9 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     rm = ft.open_roadmap(roadmap)
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
-    chosen = {"goal_check": goal_check} if goal_check is not None else {}
     settings = ReplanSettings(enabled=not no_replan, threshold=replan_threshold, deadline=replan_deadline,
                               clock=replan_clock, latency=replan_latency, jump_false_alarm=jump_false_alarm,
-                              **chosen)
+                              goal_check=GOAL_CHECK if goal_check is None else goal_check)
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
                       replan=settings, record=save_episodes is not None, progress=console.progress())
     report = res.to_dict()

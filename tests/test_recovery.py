@@ -203,7 +203,7 @@ def test_the_goal_waits_only_for_a_jump_that_would_take_the_estimate_out_of_it(s
 
 
 def test_the_goal_check_is_the_chi_square_quantile_of_its_level():
-    """:meth:`JumpTests.questions` against scipy's quantile: a statistic just over ``chi2.isf(level, p)``
+    """:meth:`JumpTests.questioning` against scipy's quantile: a statistic just over ``chi2.isf(level, p)``
     questions the belief, one just under does not, and the family with the smaller p-value is named."""
     from scipy.stats import chi2
 
@@ -213,9 +213,9 @@ def test_the_goal_check_is_the_chi_square_quantile_of_its_level():
     level = 0.1
     conf, state = tests.tests["configuration"], tests.tests["state"]
     conf.statistic, state.statistic = chi2.isf(level, 2) * 0.999, chi2.isf(level, 4) * 0.999
-    assert tests.questions(level) == 0.0
+    assert tests.questioning(level) is None
     conf.statistic = chi2.isf(level, 2) * 1.001
-    assert tests.questions(level) == conf.statistic
+    assert tests.questioning(level) == "configuration"
     state.statistic = chi2.isf(1e-3, 4)  # smaller p-value than the configuration's
-    assert tests.questions(level) == state.statistic
+    assert tests.questioning(level) == "state"
     assert conf.statistic < conf.limit and state.statistic < state.limit  # both below the running test's bound

@@ -236,16 +236,11 @@ class JumpTests:
     def statistic(self) -> float:
         return self.tests[self.fired].statistic if self.fired else 0.0
 
-    def questions(self, level: float) -> float:
-        """The check of an irreversible decision (:attr:`ReplanSettings.goal_check`): the statistic
-        of the family that questions the belief at the tail probability ``level`` per onset (its
-        statistic above ``chi2.isf(level, p)``, the smallest p-value if both do), or 0.0 when none
-        does. A bound this lax would alarm often as the running test; it only makes a declaration wait."""
-        name = self.questioning(level)
-        return self.tests[name].statistic if name is not None else 0.0
-
     def questioning(self, level: float) -> str | None:
-        """The family that questions the belief at ``level`` per onset (:meth:`questions`), or None."""
+        """The check of an irreversible decision (:attr:`ReplanSettings.goal_check`): the family that
+        questions the belief at the tail probability ``level`` per onset (its statistic above
+        ``chi2.isf(level, p)``; the smallest p-value if both do), or None. A bound this lax would
+        alarm often as the running test; it only makes a declaration wait."""
         over = [name for name, t in self.tests.items() if t.statistic > chi2.isf(level, t.basis.shape[1])]
         return self._likeliest(over) if over else None
 

@@ -91,8 +91,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api import Solution
 
 
-
-
 class PolicyStatus(enum.StrEnum):
     """Where the policy stands."""
 
@@ -564,11 +562,12 @@ class Policy:
             jump = self._jump.add(total, A, H, lc.L[k], run.S_inv[k], nu)
         landed = -1
         goal = self.regions.goal  # a goal ball's region of beliefs: tested at every step
-        if goal is not None and goal.contains(xhat, lc.P[k + 1])[0]:
+        in_ball = goal is not None and bool(goal.contains(xhat, lc.P[k + 1])[0])
+        if in_ball:
             landed = run.target if self.design.kinds[run.target] == GOAL else GOAL_INDEX
         elif k + 1 >= run.land_from and run.cand[k].any():
             landed = self._locate(xhat, run.cand[k])
-        if landed >= 0 and self._goal_waits(landed, k, lc, out):
+        if landed >= 0 and self._goal_waits(landed, in_ball, k, lc, out):
             landed = -1  # the declaration waits; the running controller and its tests go on
         deviate = alarm = False
         dev = 0.0
@@ -650,8 +649,9 @@ class Policy:
         self._edges.append(edge)
         self._begin(self._controller(edge))
 
-    def _goal_waits(self, landed: int, k: int, lc, out: list[Event]) -> bool:
-        """Whether the belief's arrival at ``landed`` waits before the goal is declared
+    def _goal_waits(self, landed: int, in_ball: bool, k: int, lc, out: list[Event]) -> bool:
+        """Whether the belief's arrival at ``landed`` (``in_ball``: by the goal ball's test, else by a
+        node's) waits before the goal is declared
         (:attr:`ReplanSettings.goal_check`): the jump test questions it, the jump it suspects (the
         questioning family's estimate, in full) would move the estimate out of that arrival, and
         neither the waiting steps since the last decision (``jump_window``) nor the running
@@ -669,9 +669,8 @@ class Policy:
         # waiting on every question, 0.350 on these)
         shift, _, _ = self._jump.correction(shrink=False, family=family)
         moved = self._xhat + shift[None]
-        goal = self.regions.goal
-        if goal is not None and goal.contains(self._xhat, self._P)[0]:
-            still = bool(goal.contains(moved, self._P)[0])
+        if in_ball:  # the same test the arrival passed, on the moved estimate
+            still = bool(self.regions.goal.contains(moved, self._P)[0])
         else:
             still = self._locate(moved, self._run.cand[k]) == landed
         if still:

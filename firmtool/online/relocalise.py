@@ -3,8 +3,9 @@
 A unicycle's position sensor does not see its heading; only motion shows it. After a kidnap (the
 robot set down somewhere, facing anywhere, which the policy is not told) the jump test corrects
 the position within a step, but the heading the belief keeps is the one from before, and a single
-Gaussian cannot hold "anywhere on the circle": an extended Kalman filter started 90-180 degrees off does not converge (its linearisation
-explains the motion by the wrong direction), and the controllers drive off in the believed
+Gaussian cannot hold "anywhere on the circle": an extended Kalman filter started 90-180 degrees off
+does not converge (its linearisation explains the motion by the wrong direction), and the
+controllers drive off in the believed
 direction. Measured on the unicycle of ``scenarios/unicycle_lightdark.toml`` (20 episodes per
 point): kidnaps at steps 800-1600 succeeded 0.10-0.15 against 0.80-0.90 for a policy told the true
 state; widening the heading's variance instead recovered none.

@@ -130,7 +130,7 @@ class ReplanSettings:
         the policy decides from the corrected belief at once.
     goal_check : a goal declaration waits, at most ``jump_window`` steps after a decision, while the
         jump test questions the belief at this tail probability per onset and family
-        (:meth:`~firmtool.online.innovation.JumpTests.questions`) and the jump it suspects would
+        (:meth:`~firmtool.online.innovation.JumpTests.questioning`) and the jump it suspects would
         move the estimate out of the goal: the running controller goes on,
         and the tests with it, so a push found in the wait is corrected and replanned as any other.
         Default :data:`GOAL_CHECK` (0.1; measurements in the notes there); 0: declare at the first
