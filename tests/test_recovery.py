@@ -204,7 +204,9 @@ def test_the_goal_waits_only_for_a_jump_that_would_take_the_estimate_out_of_it(s
 
 def test_the_goal_check_is_the_chi_square_quantile_of_its_level():
     """:meth:`JumpTests.questioning` against scipy's quantile: a statistic just over ``chi2.isf(level, p)``
-    questions the belief, one just under does not, and the family with the smaller p-value is named."""
+    questions the belief, one just under does not; when both families question it, the one whose
+    evidence (the likelihood ratio averaged over the prior, in closed form for one onset with
+    ``C = c I``: ``sigma^2 |d|^2 / (2 (1 + sigma^2 c)) - p log(1 + sigma^2 c) / 2``) is larger is named."""
     from scipy.stats import chi2
 
     from firmtool.online.innovation import JumpTests
@@ -212,10 +214,25 @@ def test_the_goal_check_is_the_chi_square_quantile_of_its_level():
     tests = JumpTests({"configuration": np.eye(4)[:, :2], "state": np.eye(4)}, 20, 1e-3, np.ones(4))
     level = 0.1
     conf, state = tests.tests["configuration"], tests.tests["state"]
+    c = 3.0
+
+    def one_onset(test, d):
+        test.onset, test.d, test.C = np.array([7]), np.asarray(d, dtype=float)[None], c * np.eye(len(d))[None]
+
+    def evidence(d):
+        return np.dot(d, d) / (2 * (1 + c)) - len(d) * np.log(1 + c) / 2
+
+    one_onset(conf, [2.0, 1.0])
+    one_onset(state, [2.0, 1.0, 4.0, 0.0])  # the velocities explain more than their freedom costs
+    assert evidence([2.0, 1.0, 4.0, 0.0]) > evidence([2.0, 1.0])
+    np.testing.assert_allclose(conf.log_evidence(np.ones(2)), [evidence([2.0, 1.0])])
     conf.statistic, state.statistic = chi2.isf(level, 2) * 0.999, chi2.isf(level, 4) * 0.999
     assert tests.questioning(level) is None
     conf.statistic = chi2.isf(level, 2) * 1.001
     assert tests.questioning(level) == "configuration"
-    state.statistic = chi2.isf(1e-3, 4)  # smaller p-value than the configuration's
+    state.statistic = chi2.isf(level, 4) * 1.001
     assert tests.questioning(level) == "state"
+    one_onset(state, [2.0, 1.0, 0.5, 0.0])  # now they do not: the smaller family explains it
+    assert evidence([2.0, 1.0, 0.5, 0.0]) < evidence([2.0, 1.0])
+    assert tests.questioning(level) == "configuration"
     assert conf.statistic < conf.limit and state.statistic < state.limit  # both below the running test's bound

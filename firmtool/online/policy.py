@@ -32,11 +32,13 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   configuration or of the whole state (Willsky and Jones 1976) over the last
   :attr:`ReplanSettings.jump_window` onsets, and the chi-square test of the normalised innovation
   squares over a moving window (also while the window fills, after a start or a decision). On an
-  alarm the belief is corrected before the decision: by the estimated jump (mean and covariance),
-  or, when only the window test fired, by the step's update redone from a prior the innovations
-  inflated, so that the decision starts from an estimate that has taken the measurements in. After
-  a jump of the configuration the velocities are either kept (a push) or stopped (a kidnap), which
-  a step later nothing tells apart: the belief covers both (:attr:`ReplanSettings.jump_velocity`,
+  alarm the belief is corrected before the decision: by the estimated jump (mean and covariance) of
+  the family and onset with the largest evidence
+  (:meth:`~firmtool.online.innovation.JumpTest.log_evidence`), or, when only the window test fired,
+  by the step's update redone from a prior the innovations inflated, so that the decision starts
+  from an estimate that has taken the measurements in. After a jump of the configuration the
+  velocities are either kept (a push) or stopped (a kidnap), which a step later nothing tells
+  apart: the belief covers both (:attr:`ReplanSettings.jump_velocity`,
   :meth:`firmtool.robots.Robot.after_jump`).
 - **Re-localising an unseen coordinate.** A robot whose sensor cannot see a coordinate at rest (a
   unicycle's heading: a kidnapped robot may face anywhere) holds hypotheses of it after a jump
