@@ -9,7 +9,7 @@ import pytest
 from scipy import stats
 
 from firmtool.controllers import stationary_kalman
-from firmtool.online.innovation import InnovationWindow, JumpTest, JumpTests
+from firmtool.online.innovation import InnovationWindow, JumpTest, JumpTests, shrunk_jump
 
 DT = 0.1
 A = np.block([[np.eye(2), DT * np.eye(2)], [np.zeros((2, 2)), np.eye(2)]])
@@ -253,6 +253,7 @@ def test_the_evidence_finds_a_sudden_jump_at_its_step_where_the_statistic_overfi
     jump, at = np.array([2.0, 1.0, 0.0, -0.7]), 40  # moved and stopped
     right = {"evidence": 0, "statistic": 0}
     error = {"evidence": [], "statistic": []}
+    apart = 0  # detections whose rejecting family is not the one that explains them
     for seed in range(150):
         rng = np.random.default_rng(seed)
         e = rng.multivariate_normal(np.zeros(4), P_d)
@@ -268,7 +269,18 @@ def test_the_evidence_finds_a_sudden_jump_at_its_step_where_the_statistic_overfi
                 break
         else:
             continue
-        shift, _, onset = tests.correction(shrink=False)
+        shift, cov, onset = tests.correction(shrink=False)
+        # the family that corrects is the one with the largest evidence over its onsets; the
+        # correction is shrunk by the margin of the test that rejected, which may be the other one
+        evidence = {f: np.max(t.log_evidence(np.array([25.0, 25.0, 1.0, 1.0]) @ t.basis ** 2))
+                    for f, t in tests.tests.items()}
+        assert tests.fired == max(evidence, key=evidence.get)
+        rejecting = tests.tests[tests.rejecting]
+        assert rejecting.statistic > rejecting.limit and tests.statistic == rejecting.statistic
+        shrunk = shrunk_jump(shift, cov, rejecting.statistic, rejecting.limit)
+        np.testing.assert_allclose(tests.correction()[0], shrunk[0])
+        np.testing.assert_allclose(tests.correction()[1], shrunk[1])
+        apart += tests.rejecting != tests.fired
         right["evidence"] += onset == at
         error["evidence"].append(np.linalg.norm((e - shift)[:2]))
         # the statistic's choice: the family with the smallest p-value, at its best onset
@@ -277,6 +289,12 @@ def test_the_evidence_finds_a_sudden_jump_at_its_step_where_the_statistic_overfi
         right["statistic"] += onset_s == at
         error["statistic"].append(np.linalg.norm((e - shift_s)[:2]))
     found = len(error["evidence"])
-    assert found >= 140
+    assert found >= 140 and apart > 0
     assert right["evidence"] >= 0.9 * found and right["evidence"] >= right["statistic"] + 0.05 * found, right
     assert np.mean(error["evidence"]) < 0.95 * np.mean(error["statistic"])
+
+
+@pytest.mark.parametrize("prior", [np.array([25.0, 25.0, 0.0, 1.0]), np.array([25.0, np.nan, 1.0, 1.0])])
+def test_a_jump_prior_must_be_positive_variances(prior):
+    with pytest.raises(ValueError, match="jump prior"):
+        JumpTests({"configuration": CONFIG, "state": np.eye(4)}, 20, 1e-3, prior)

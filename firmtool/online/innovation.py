@@ -223,59 +223,65 @@ class JumpTests:
     first innovations, which see velocities only through the positions they move, it is noise
     (velocity corrections of 10-40 m/s on the point robot); with the prior (positions: the
     configuration space's extent; velocities: the speed limit) it stays within what a robot can do,
-    and its covariance tells the filter how much it has to learn. The configuration family's jump
-    needs none: a push leaves velocities alone, and giving them the prior's spread anyway made every
+    and its covariance tells the filter how much it has to learn. The configuration family's estimate
+    needs none (its evidence uses the prior's positions): a push leaves velocities alone, and giving them the prior's spread anyway made every
     replan candidate's Monte Carlo flail (arm, push at step 110: 0.23 success instead of 0.53).
 
     Parameters
     ----------
-    bases : dict name -> (n, p) basis of each family; one named ``"state"`` (the identity) is used for
-        the correction when there is one.
+    bases : dict name -> (n, p) basis of each family; the one named ``"state"`` (the identity), when
+        it corrects the belief, is estimated with the prior.
     window : onsets kept.
     false_alarm : per-step false-alarm probability of all families together.
-    prior : (n,) prior variance of a jump of each state coordinate.
+    prior : (n,) prior variance of a jump of each state coordinate, positive.
     """
 
     def __init__(self, bases: dict[str, np.ndarray], window: int, false_alarm: float, prior: np.ndarray) -> None:
         self.tests = {name: JumpTest(b, window, false_alarm / len(bases)) for name, b in bases.items()}
         self.prior = np.asarray(prior, dtype=float)
+        if not (np.all(np.isfinite(self.prior)) and np.all(self.prior > 0)):
+            raise ValueError(f"jump prior: positive finite variances expected, found {self.prior}")
         self.fired: str | None = None
-        self._rejecting: str | None = None  # the family whose statistic is furthest past its bound
+        self.rejecting: str | None = None  # the family whose statistic is furthest past its bound
 
     def clear(self) -> None:
         for t in self.tests.values():
             t.clear()
-        self.fired = self._rejecting = None
+        self.fired = self.rejecting = None
 
     def add(self, step: int, A: np.ndarray, H: np.ndarray, L: np.ndarray, S_inv: np.ndarray,
             gamma: np.ndarray) -> bool:
-        """:meth:`JumpTest.add` for every family; True when one rejects (:attr:`fired` names the family
-        that explains the data best, which need not be the one that rejected)."""
+        """:meth:`JumpTest.add` for every family; True when one rejects (:attr:`rejecting` names the
+        family furthest past its bound, :attr:`fired` the family that explains the data best, which
+        need not be the same)."""
         rejects = [t.add(step, A, H, L, S_inv, gamma) for t in self.tests.values()]
         if not any(rejects):
-            self.fired = self._rejecting = None
+            self.fired = self.rejecting = None
             return False
         self.fired = self._likeliest(self.tests)
-        self._rejecting = max(self.tests, key=lambda name: self.tests[name].statistic / self.tests[name].limit)
+        self.rejecting = max(self.tests, key=lambda name: self.tests[name].statistic / self.tests[name].limit)
         return True
 
+    def _prior(self, name: str) -> np.ndarray:
+        """(p,) the prior variances of family ``name``'s jump."""
+        return self.prior @ self.tests[name].basis ** 2
+
     def _evidence(self, name: str) -> np.ndarray:
-        t = self.tests[name]
-        return t.log_evidence(self.prior @ t.basis ** 2)
+        return self.tests[name].log_evidence(self._prior(name))
 
     def _likeliest(self, names) -> str:
         """Of the families ``names``, the one with the largest evidence at its best onset; on a tie
-        the first (the smaller family: the state family at the configuration's onset, with velocities
-        no measurement has seen yet, is the same explanation)."""
-        names = list(names)
+        the smaller family (the state family at the configuration's onset, with velocities no
+        measurement has seen yet, is the same explanation)."""
+        names = sorted(names, key=lambda name: self.tests[name].basis.shape[1])  # stable: ties keep order
         best = {name: float(np.max(self._evidence(name), initial=-np.inf)) for name in names}
         top = max(best.values())
         return next(name for name in names if best[name] >= top - 1e-9 * max(1.0, abs(top)))
 
     @property
     def statistic(self) -> float:
-        """The statistic of the family that rejected (the largest ratio to its bound), else 0."""
-        return self.tests[self._rejecting].statistic if self._rejecting else 0.0
+        """The statistic of the family that rejected (:attr:`rejecting`), else 0."""
+        return self.tests[self.rejecting].statistic if self.rejecting else 0.0
 
     def questioning(self, level: float) -> str | None:
         """The check of an irreversible decision (:attr:`ReplanSettings.goal_check`): the family that
@@ -293,7 +299,7 @@ class JumpTests:
         off: as estimated (the configuration family's without a prior, the state family's with one).
         ``family``: the family's estimate (default: the one that fired). ``by``: the family's onset
         with the largest evidence (default) or with the largest statistic (``"statistic"``, the
-        likelihood ratio test's own estimate)."""
+        likelihood ratio test's own estimate, for comparison)."""
         family = self.fired if family is None else family
         t = self.tests[family]
         if by not in ("evidence", "statistic"):
@@ -302,12 +308,12 @@ class JumpTests:
         if family != "state":
             shift, cov, onset = t.correction(b)
         else:
-            post = np.linalg.inv(t.C[b] + np.diag(1.0 / (self.prior @ t.basis ** 2)))
+            post = np.linalg.inv(t.C[b] + np.diag(1.0 / self._prior(family)))
             Phi = t.Phi[b]
             cov = Phi @ post @ Phi.T
             shift, cov, onset = Phi @ (post @ t.d[b]), 0.5 * (cov + cov.T), int(t.onset[b])
-        if shrink:  # by the margin of the test that rejected: the evidence that there was a jump at all
-            r = self.tests[self._rejecting] if self._rejecting else t
+        if shrink:  # by the margin of the test that rejected: how sure it is that there was a jump at all
+            r = self.tests[self.rejecting] if self.rejecting else t
             shift, cov = shrunk_jump(shift, cov, r.statistic, r.limit)
         return shift, cov, onset
 
@@ -316,7 +322,7 @@ SHRINK_POWER = 8  # w = 1 - (bound / statistic)^p: half the shift at 1.09x the b
 
 
 def shrunk_jump(shift: np.ndarray, covariance: np.ndarray, statistic: float, bound: float) -> tuple[np.ndarray, np.ndarray]:
-    """A jump estimate shrunk by its evidence: its margin over the test's bound.
+    """A jump estimate shrunk by the test's margin over its bound.
 
     The generalised likelihood ratio test fires on the largest statistic over its onsets and
     families, so a jump found just past the bound is partly the noise that happened to line up with

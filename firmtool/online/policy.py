@@ -708,9 +708,12 @@ class Policy:
             # measurements in, not the one they refute.
             if jump:  # by the estimated jump (Willsky-Jones): mean and covariance
                 shift, cov, onset = self._jump.correction(shrink=self.settings.jump_shrink)
-                dev = self._jump.statistic
+                dev = self._jump.statistic  # the rejecting test's; the fired family explains the data best
+                which = self._jump.fired
+                if self._jump.rejecting != which:
+                    which += f" (the {self._jump.rejecting} test rejected)"
                 self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev,
-                                      f"jump test: a jump of the {self._jump.fired} before step {onset} "
+                                      f"jump test: a jump of the {which} before step {onset} "
                                       f"(estimate moved {np.linalg.norm(shift[:problem.config_dim]):.2f})"))
                 xh, P_now = self._xhat[0] + shift, lc.P[k + 1] + cov
                 if self._jump.fired != "state" and self.settings.jump_velocity == "mixture":

@@ -119,7 +119,7 @@ class ReplanSettings:
         at ``jump_false_alarm`` per step (None, the default: :data:`JUMP_FALSE_ALARMS` nominal false
         alarms over the policy's nominal path from its start, :func:`mission_false_alarm`); on its
         alarm the belief is corrected by the estimated jump.
-    jump_shrink : correct the belief by the jump estimate shrunk by its evidence (default,
+    jump_shrink : correct the belief by the jump estimate shrunk by the test's margin (default,
         :func:`~firmtool.online.innovation.shrunk_jump`); off: by the estimate in full.
     jump_velocity : after a jump of the configuration, ``"mixture"`` (default): the other coordinates
         as the robot says a jump may leave them (:meth:`firmtool.robots.Robot.after_jump`; velocities:
