@@ -224,8 +224,9 @@ class JumpTests:
     (velocity corrections of 10-40 m/s on the point robot); with the prior (positions: the
     configuration space's extent; velocities: the speed limit) it stays within what a robot can do,
     and its covariance tells the filter how much it has to learn. The configuration family's estimate
-    needs none (its evidence uses the prior's positions): a push leaves velocities alone, and giving them the prior's spread anyway made every
-    replan candidate's Monte Carlo flail (arm, push at step 110: 0.23 success instead of 0.53).
+    needs none (its evidence uses the prior's positions): a push leaves velocities alone, and giving
+    them the prior's spread anyway made every replan candidate's Monte Carlo flail (arm, push at step
+    110: 0.23 success instead of 0.53).
 
     Parameters
     ----------

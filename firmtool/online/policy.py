@@ -200,6 +200,7 @@ class Policy:
         self.jump_false_alarm = (s.jump_false_alarm if s.jump_false_alarm is not None
                                  else mission_false_alarm(design_, self.edge_per_node, START_INDEX))
         self._innovation = s.enabled and s.innovation_test and not problem.perfect
+        self._jump_test = self._innovation and s.jump_test  # reset() builds it; jump_levels reports it
         self._rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
         c = problem.scenario.cost
         self._weights = (c.alpha_covariance, c.alpha_time, c.alpha_control)
@@ -229,7 +230,7 @@ class Policy:
         """The jump test's per-step false-alarm probability and the goal check's level per onset
         (:class:`ReplanSettings` ``jump_false_alarm`` as resolved, ``goal_check``), or None when no
         jump test runs (replanning off, the innovation tests off, perfect measurements)."""
-        if not (self._innovation and self.settings.jump_test):  # as reset() builds the test
+        if not self._jump_test:
             return None
         return float(self.jump_false_alarm), float(self.settings.goal_check)
 
@@ -426,7 +427,7 @@ class Policy:
         if problem.config_dim == n:
             bases.pop("state")
         self._jump = (JumpTests(bases, s.jump_window, self.jump_false_alarm, problem.robot.jump_prior(problem))
-                      if self._innovation and s.jump_test else None)
+                      if self._jump_test else None)
         self._cooldown = 0  # no decision before this step (after keeping the running controller)
         self._goal_waited, self._goal_wait_last = 0, -2  # steps a goal declaration waited; the last one
         self._run: RunningController | None = None
@@ -653,11 +654,10 @@ class Policy:
 
     def _goal_waits(self, landed: int, in_ball: bool, k: int, lc, out: list[Event]) -> bool:
         """Whether the belief's arrival at ``landed`` (``in_ball``: by the goal ball's test, else by a
-        node's) waits before the goal is declared
-        (:attr:`ReplanSettings.goal_check`): the jump test questions it, the jump it suspects (the
-        questioning family's estimate, in full) would move the estimate out of that arrival, and
-        neither the waiting steps since the last decision (``jump_window``) nor the running
-        controller's are spent."""
+        node's) waits before the goal is declared (:attr:`ReplanSettings.goal_check`): the jump test
+        questions it, the jump it suspects (the questioning family's estimate, in full) would move
+        the estimate out of that arrival, and neither the waiting steps since the last decision
+        (``jump_window``) nor the running controller's are spent."""
         s, total = self.settings, self._total
         if (s.goal_check <= 0 or self._jump is None or self._goal_waited >= s.jump_window or k + 1 >= lc.steps
                 or not (landed == GOAL_INDEX or self.design.kinds[landed] == GOAL)):
