@@ -226,13 +226,14 @@ class Policy:
         return self._status is not PolicyStatus.RUNNING
 
     @property
-    def jump_levels(self) -> tuple[float, float] | None:
-        """The jump test's per-step false-alarm probability and the goal check's level per onset
-        (:class:`ReplanSettings` ``jump_false_alarm`` as resolved, ``goal_check``), or None when no
-        jump test runs (replanning off, the innovation tests off, perfect measurements)."""
+    def jump_levels(self) -> tuple[float, float, int] | None:
+        """The jump test's per-step false-alarm probability, the goal check's level per onset and the
+        onsets the test keeps (:class:`ReplanSettings` ``jump_false_alarm`` as resolved, ``goal_check``,
+        ``jump_window``), or None when no jump test runs (replanning off, the innovation tests off,
+        perfect measurements)."""
         if not self._jump_test:
             return None
-        return float(self.jump_false_alarm), float(self.settings.goal_check)
+        return float(self.jump_false_alarm), float(self.settings.goal_check), int(self.settings.jump_window)
 
     @property
     def steps(self) -> int:
