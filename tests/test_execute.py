@@ -252,9 +252,11 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
         default = ft.simulate(sol, 20, 0, disturbances=dist, record=False)
         assert sum(k.count("innovation_alarm") for k in kinds) > sum(
             str(e.kind) == "innovation_alarm" for ep in default.episodes for e in ep.events)
-    if "jump_window" in setting:  # 3 onsets instead of 20: other decisions
+    if "jump_window" in setting:  # 3 onsets instead of 20: other decisions, and a goal waits at most 3 steps
         default = ft.simulate(sol, 20, 0, disturbances=dist, record=False)
         assert kinds != [[str(e.kind) for e in ep.events] for ep in default.episodes]
+        waits = [e["detail"] for ep in eps for e in ep["events"] if e["kind"] == "goal_questioned"]
+        assert waits and all("up to 3 steps" in w or "up to 2 steps" in w or "up to 1 step" in w for w in waits)
 
 
 def test_without_replanning_the_report_has_no_jump_test_levels(smoke):

@@ -680,9 +680,10 @@ class Policy:
             return False
         statistic = self._jump.tests[family].statistic
         if self._goal_wait_last != total - 1:
+            left = s.jump_window - self._goal_waited
             self._emit(out, Event(total, EventKind.GOAL_QUESTIONED, landed, statistic,
                                   f"the jump test questions the arrival (at {s.goal_check:g} per onset): "
-                                  f"waiting up to {s.jump_window - self._goal_waited} steps"))
+                                  f"waiting up to {left} step{'s' if left != 1 else ''}"))
         if self._clean:  # the edge's traversal ends here as its Monte Carlo counts it; what follows is not it
             self._traversals.append(Traversal((self._run.edge, landed, self._run_start, total)))
             self._clean = False
