@@ -182,14 +182,15 @@ def test_unicycle_probe_stays_in_free_space_or_is_not_offered():
     near_plan = robot.relocalisation(problem, np.array([1.0, 0.5, 0.0]), cov)  # 0.35 from the wall
     assert open_plan is not None and near_plan is not None
     assert _first_round_trip(near_plan).shape[0] < _first_round_trip(open_plan).shape[0]
-    assert robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov) is None  # inside the wall
+    inside = robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov)  # inside the wall: it stands
+    assert not inside.controls.any() and inside.then(inside.means[0], cov) is None  # and then no probe
     rng = np.random.default_rng(8)
     runs, invalid = 0, 0
     for start in ([0.6, 1.5], [1.0, 0.5], [1.05, 1.3], [2.0, 1.4]):
         for _ in range(15):
             mean = np.array([*start, rng.uniform(-np.pi, np.pi)])
             plan = robot.relocalisation(problem, mean, cov)
-            if plan is None:
+            if plan is None or not plan.controls.any():  # no probe fits: it stands still (tested below)
                 continue
             runs += 1
             bank = GaussianSum(model, plan.means, plan.covariances, plan.weights, plan.angle)
@@ -206,6 +207,75 @@ def test_unicycle_probe_stays_in_free_space_or_is_not_offered():
                 if plan.settled(weight, P) or not plan.may_go_on(m, P):
                     break
     assert runs >= 45 and invalid <= 0.05 * runs, (runs, invalid)
+
+
+def test_unicycle_stands_still_where_no_probe_fits_then_probes():
+    """A jump's correction leaves the position as uncertain as a measurement. Where no probe fits
+    around it (here the estimate sits at the wall, the robot 0.2 m off it), the unicycle first stands
+    still: the hypotheses learn its position (at rest its heading does not show), and the probe planned
+    from what they learned moves. Inside the wall the follow-up finds none either."""
+    from firmtool.robots.unicycle import SETTLE_STEPS
+
+    problem = _unicycle_problem()
+    robot = problem.robot
+    true = np.array([1.1, 0.5, 2.0])
+    cov = np.diag([0.04, 0.04, 0.01])  # position sigma 0.2
+    estimate = np.array([1.3, 0.5, 0.0])
+    plan = robot.relocalisation(problem, estimate, cov)
+    assert plan is not None and plan.then is not None
+    assert plan.controls.shape[0] == SETTLE_STEPS and not plan.controls.any()
+    bank, end = _probe_run(problem, plan, true, np.random.default_rng(5))
+    weight, mean, P = bank.mode()
+    assert np.abs(mean[:2] - end[:2]).max() < 0.06 and np.sqrt(P[0, 0]) < 0.05, (mean, end, P)
+    follow = plan.then(mean, P)
+    assert follow is not None and follow.then is None  # stands still once, not twice
+    assert np.all(follow.controls[:, 1] == 0.0) and np.all(np.abs(follow.controls[:, 0]) > 0)  # straight out and back
+    assert robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov).then(np.array([1.5, 0.5, 0.0]), P) is None
+
+
+def test_policy_runs_the_probe_a_probe_plans_when_its_steps_run_out(tiny_solution, monkeypatch):
+    """``Relocalisation.then``: when a probe's steps run out, the policy asks it for the next one and
+    runs it (a ``relocalised`` then a ``relocalising`` event, no decision between); the first one's
+    controls are applied as planned."""
+    import firmtool as ft
+    from firmtool.online.relocalise import Relocalisation
+    from firmtool.sim import SimulatedSystem
+
+    sol = tiny_solution
+    system = SimulatedSystem(sol.roadmap.problem)
+    found = 0
+    for seed in range(6):
+        policy = ft.Policy(sol, rng=seed)
+        robot, problem = policy.problem.robot, policy.problem
+        real = type(robot).relocalisation
+        asked = []
+
+        def standing(problem_, mean, covariance):
+            first = real(robot, problem_, mean, covariance)
+            if first is None:
+                return None
+
+            def then(m, P):
+                asked.append(m)
+                return real(robot, problem_, m, P)
+            return Relocalisation(first.means, first.covariances, first.weights, np.zeros((5, 2)), angle=first.angle,
+                                  resolved=first.resolved, then=then)
+
+        monkeypatch.setattr(robot, "relocalisation", standing)
+        if _until_probing(policy, system, seed) is None:
+            continue
+        found += 1
+        events = []
+        for _ in range(5):
+            u = policy.act()
+            assert not u.any()  # the first probe's rows
+            z, valid = system.step(u)
+            events += policy.observe(z)
+        kinds = [e.kind for e in events]
+        assert kinds == [ft.EventKind.RELOCALISED, ft.EventKind.RELOCALISING], kinds
+        assert "its steps ran out" in events[0].detail and len(asked) == 1
+        assert policy.act()[0] > 0  # the next probe drives out
+    assert found >= 3
 
 
 def test_bank_rejects_bad_shapes():

@@ -783,6 +783,11 @@ class Policy:
                "settled" if plan.settled(lead, P) else "")
         if why:  # over: without a decision (decide=False) the running controller resumes
             self._end_probe(out, why, lead)
+            follow = (plan.then(xh, P) if plan.then is not None and probe.step >= plan.controls.shape[0]
+                      and not failed and decide and self._total < self.max_steps else None)
+            if follow is not None:  # the robot plans its next probe from what this one showed
+                self._start_probe(follow, probe.s_next, out)
+                return out
             if decide and self._total < self.max_steps:
                 t1, c1 = time.perf_counter(), time.thread_time()
                 self._decide(probe.s_next, P, 0.0, True, out, t1, c1)

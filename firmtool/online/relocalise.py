@@ -56,6 +56,10 @@ class Relocalisation:
     confident : the weight the leading mode must hold for the probe to end early (with ``resolved``).
     allowed : ``allowed(mean (n,), covariance (n, n)) -> bool``, whether the probe may go on from the
         leading mode's belief (the unicycle: while it stays in the disc it checked free); None: always.
+    then : ``then(mean (n,), covariance (n, n)) -> Relocalisation | None``, a further probe planned from
+        the leading mode's belief once this one's steps ran out (the unicycle: a robot set down where
+        no probe fits around an uncertain position stands still until its position is known, then
+        probes); None, or a None returned: the policy decides.
     """
 
     means: np.ndarray
@@ -66,6 +70,7 @@ class Relocalisation:
     resolved: float = np.inf
     confident: float = 0.95
     allowed: Callable[[np.ndarray, np.ndarray], bool] | None = None
+    then: Callable[[np.ndarray, np.ndarray], "Relocalisation | None"] | None = None
 
     def settled(self, weight: float, covariance: np.ndarray) -> bool:
         """Whether the leading mode (its weight, its covariance (n, n)) ends the probe."""

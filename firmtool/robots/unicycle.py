@@ -147,12 +147,19 @@ class UnicycleRobot(Robot):
         ----------
         mean : (3,) the belief's mean after the jump's correction; covariance : (3, 3).
 
+        Where no reach is free around an uncertain position, the robot first stands still for
+        :data:`SETTLE_STEPS` steps (at rest its position shows, its heading does not), then looks for
+        a probe again around the position it now knows.
+
         Returns
         -------
         Relocalisation or None
-            None when not even the shortest reach is free: then the policy decides from the
-            corrected belief at once.
+            None when not even the shortest reach is free after standing still: then the policy
+            decides from the belief at once.
         """
+        return self._relocalisation(problem, mean, covariance, settle=True)
+
+    def _relocalisation(self, problem, mean, covariance, settle: bool):
         from firmtool.online.relocalise import Relocalisation, spread_coordinate
 
         mean = np.asarray(mean, dtype=float)
@@ -167,7 +174,13 @@ class UnicycleRobot(Robot):
             if reach is not None:
                 break
         else:
-            return None
+            if not settle:
+                return None
+            # no probe fits around this estimate, but the estimate is a jump's correction, as
+            # uncertain as one measurement: standing still shows where the robot is
+            return Relocalisation(means, covs, weights, np.zeros((SETTLE_STEPS, problem.model.m)), angle=c,
+                                  resolved=HEADING_RESOLVED,
+                                  then=lambda m, P: self._relocalisation(problem, m, P, settle=False))
         # never past the reach (but one step, if the reach is shorter than a step)
         legs = max(1, int(np.floor(reach / (spec.orbit_speed * spec.dt) + 1e-9)))
         out_and_back = np.concatenate([np.tile([spec.orbit_speed, 0.0], (legs, 1)),
@@ -218,6 +231,7 @@ PROBE_REACH = (0.6, 0.4, 0.25, 0.15, 0.1)  # m, the probe's reach, the longest w
 # of 0.15 m in the dark, sigma 0.3 m: ~150 steps); 2 round trips left modes of 0.37-0.8 there and
 # ended in collisions (unicycle kidnaps at step 1600).
 PROBE_STEPS = 300
+SETTLE_STEPS = 20  # at rest before a probe where none fits: a position measured 20 times, sigma / 4.5
 DISC_SAMPLES = 256  # directions (and radii) at most in the probe's disc check: 12 x 256 x 256 states
 
 
