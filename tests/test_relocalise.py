@@ -182,8 +182,7 @@ def test_unicycle_probe_stays_in_free_space_or_is_not_offered():
     near_plan = robot.relocalisation(problem, np.array([1.0, 0.5, 0.0]), cov)  # 0.35 from the wall
     assert open_plan is not None and near_plan is not None
     assert _first_round_trip(near_plan).shape[0] < _first_round_trip(open_plan).shape[0]
-    inside = robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov)  # inside the wall: it stands
-    assert not inside.controls.any() and inside.then(inside.means[0], cov) is None  # and then no probe
+    assert robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov) is None  # inside the wall, known to 0.02
     rng = np.random.default_rng(8)
     runs, invalid = 0, 0
     for start in ([0.6, 1.5], [1.0, 0.5], [1.05, 1.3], [2.0, 1.4]):
@@ -230,7 +229,11 @@ def test_unicycle_stands_still_where_no_probe_fits_then_probes():
     follow = plan.then(mean, P)
     assert follow is not None and follow.then is None  # stands still once, not twice
     assert np.all(follow.controls[:, 1] == 0.0) and np.all(np.abs(follow.controls[:, 0]) > 0)  # straight out and back
-    assert robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov).then(np.array([1.5, 0.5, 0.0]), P) is None
+    # at rest nothing was learnt of the heading: the follow-up's hypotheses are the first plan's, moved
+    np.testing.assert_allclose(follow.means[:, 2], plan.means[:, 2])
+    np.testing.assert_allclose(follow.covariances[:, 2, 2], plan.covariances[:, 2, 2])
+    inside = robot.relocalisation(problem, np.array([1.5, 0.5, 0.0]), cov)  # inside the wall, position unsure
+    assert not inside.controls.any() and inside.then(np.array([1.5, 0.5, 0.0]), P) is None  # and after it
 
 
 def test_policy_runs_the_probe_a_probe_plans_when_its_steps_run_out(tiny_solution, monkeypatch):
@@ -276,6 +279,26 @@ def test_policy_runs_the_probe_a_probe_plans_when_its_steps_run_out(tiny_solutio
         assert "its steps ran out" in events[0].detail and len(asked) == 1
         assert policy.act()[0] > 0  # the next probe drives out
     assert found >= 3
+
+
+def test_a_probe_of_no_steps_is_refused_naming_the_robot(tiny_solution, monkeypatch):
+    import dataclasses
+
+    import firmtool as ft
+    from firmtool.errors import NumericalError
+    from firmtool.sim import SimulatedSystem
+
+    policy = ft.Policy(tiny_solution, rng=0)
+    robot = policy.problem.robot
+    real = type(robot).relocalisation
+
+    def empty(problem_, mean, covariance):
+        plan = real(robot, problem_, mean, covariance)
+        return None if plan is None else dataclasses.replace(plan, controls=np.zeros((0, 2)))
+
+    monkeypatch.setattr(robot, "relocalisation", empty)
+    with pytest.raises(NumericalError, match="relocalisation: a probe of at least one step"):
+        _until_probing(policy, SimulatedSystem(tiny_solution.roadmap.problem), 0)
 
 
 def test_bank_rejects_bad_shapes():

@@ -42,8 +42,9 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   :meth:`firmtool.robots.Robot.after_jump`).
 - **Re-localising an unseen coordinate.** A robot whose sensor cannot see a coordinate at rest (a
   unicycle's heading: a kidnapped robot may face anywhere) holds hypotheses of it after a jump
-  and runs a probe motion until one mode leads, then decides from that mode
-  (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`,
+  and runs a probe motion until one mode leads (or a further probe the robot plans from what the
+  first showed, :attr:`Relocalisation.then <firmtool.online.relocalise.Relocalisation>`), then
+  decides from that mode (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`,
   :attr:`ReplanSettings.relocalise`). Events: ``relocalising``, then ``relocalised``.
 - **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
   and feedback but re-plans its Kalman gains from the corrected belief (its designed gains assume
@@ -741,6 +742,8 @@ class Policy:
         """Hold the belief as the robot's hypotheses and run its probe before deciding (True: the
         running controller is suspended)."""
         try:
+            if np.ndim(plan.controls) != 2 or np.shape(plan.controls)[0] == 0:
+                raise ValueError("a probe of at least one step (controls (T, m), T >= 1) expected")
             bank = GaussianSum(self.problem.model, plan.means, plan.covariances, plan.weights, plan.angle)
         except ValueError as exc:
             raise NumericalError(f"{type(self.problem.robot).__name__}.relocalisation: {exc}") from None

@@ -19,7 +19,9 @@ it runs the robot executes a *probe*, an open-loop motion the robot chooses so t
 stays clear of obstacles (the unicycle: straight out and back along its unknown heading, inside a
 free disc). The probe ends when one mode holds the given share of the weight with the angle
 resolved to the given spread, or when its steps run out; the belief is then the leading mode, and
-the policy decides from it as after any jump.
+the policy decides from it as after any jump, unless the robot plans a further probe from it
+(``then``: a unicycle set down where no probe fits around its uncertain position first stands still,
+then probes).
 
 Nothing here is specific to the unicycle: a robot opts in through
 :meth:`firmtool.robots.Robot.relocalisation`, which says which coordinate and which probe. The bank

@@ -154,8 +154,9 @@ class UnicycleRobot(Robot):
         Returns
         -------
         Relocalisation or None
-            None when not even the shortest reach is free after standing still: then the policy
-            decides from the belief at once.
+            None when not even the shortest reach is free and the position is known to better
+            than that reach (standing still would not make room): then the policy decides from the
+            belief at once. The stand-still's follow-up (``then``) gives None likewise.
         """
         return self._relocalisation(problem, mean, covariance, settle=True)
 
@@ -174,13 +175,23 @@ class UnicycleRobot(Robot):
             if reach is not None:
                 break
         else:
-            if not settle:
+            if not settle or position_std < min(PROBE_REACH):
                 return None
             # no probe fits around this estimate, but the estimate is a jump's correction, as
-            # uncertain as one measurement: standing still shows where the robot is
+            # uncertain as one measurement: standing still shows where the robot is (and nothing
+            # of its heading, so the follow-up starts from the heading as it was given)
+            kept, kept_var = float(mean[c]), float(np.asarray(covariance)[c, c])
+
+            def then(m: np.ndarray, P: np.ndarray):
+                m, P = np.array(m, dtype=float), np.array(P, dtype=float)
+                m[c] = kept
+                P[c, :] = 0.0
+                P[:, c] = 0.0
+                P[c, c] = kept_var
+                return self._relocalisation(problem, m, P, settle=False)
+
             return Relocalisation(means, covs, weights, np.zeros((SETTLE_STEPS, problem.model.m)), angle=c,
-                                  resolved=HEADING_RESOLVED,
-                                  then=lambda m, P: self._relocalisation(problem, m, P, settle=False))
+                                  resolved=HEADING_RESOLVED, then=then)
         # never past the reach (but one step, if the reach is shorter than a step)
         legs = max(1, int(np.floor(reach / (spec.orbit_speed * spec.dt) + 1e-9)))
         out_and_back = np.concatenate([np.tile([spec.orbit_speed, 0.0], (legs, 1)),
