@@ -515,6 +515,8 @@ def parse_scenario(text: str, path: str = "<string>") -> Scenario:
               for key, fields in (("roadmap", ROADMAP_FIELDS), ("controller", CONTROLLER_FIELDS),
                                   ("estimation", ESTIMATION_FIELDS), ("cost", COST_FIELDS),
                                   ("execution", EXECUTION_FIELDS))}
+    if tables["controller"] is not None:
+        _check_lqr_weights(errors, tables["controller"])
     known = ("scenario", "model", "measurement", "world", "task", "roadmap", *OPTIONAL_SECTIONS)
     for key in data:
         if key not in known:
@@ -530,6 +532,26 @@ def parse_scenario(text: str, path: str = "<string>") -> Scenario:
         controller=ControllerSpec(**specs["controller"]), estimation=EstimationSpec(**specs["estimation"]),
         cost=CostSpec(**specs["cost"]), execution=ExecutionSpec(**specs["execution"]),
     )
+
+
+LQR_WEIGHT_SPAN = 1e12  # the most the controller's LQR weights may differ by
+
+
+def _check_lqr_weights(errors: Errors, controller: dict) -> None:
+    """The controller's LQR weights within :data:`LQR_WEIGHT_SPAN` of each other. Further apart, the
+    Riccati equation has no stabilising solution in floating point (smoke scenario, control weight
+    0.5: a state weight of 1e-20 solves, 1e-30 does not), which design would report as a numerical
+    failure of node 0, naming neither the file nor the field."""
+    names = ("state_weight", "velocity_weight", "control_weight")
+    weights = {name: controller[name] for name in names if valid(controller.get(name, INVALID))}
+    if len(weights) < 2:
+        return
+    largest = max(weights, key=weights.get)
+    for name, value in weights.items():
+        if value * LQR_WEIGHT_SPAN < weights[largest]:
+            errors.add(f"controller.{name}", f"expected within a factor {LQR_WEIGHT_SPAN:.0e} of {largest} "
+                                            f"({weights[largest]:g}), found {value:g}: the LQR cannot be solved "
+                                            "with weights this far apart")
 
 
 def _read_model(errors: Errors, data: dict) -> tuple[ModelSpec | None, type | None]:
