@@ -143,13 +143,13 @@ class UnicycleRobot(Robot):
         :data:`HEADING_RESOLVED`, or once the estimated position leaves the disc it checked by more
         than two of its standard deviations (the open-loop probe's drift).
 
-        Parameters
-        ----------
-        mean : (3,) the belief's mean after the jump's correction; covariance : (3, 3).
-
         Where no reach is free around an uncertain position, the robot first stands still for
         :data:`SETTLE_STEPS` steps (at rest its position shows, its heading does not), then looks for
         a probe again around the position it now knows.
+
+        Parameters
+        ----------
+        mean : (3,) the belief's mean after the jump's correction; covariance : (3, 3).
 
         Returns
         -------
