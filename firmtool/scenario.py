@@ -535,6 +535,10 @@ def parse_scenario(text: str, path: str = "<string>") -> Scenario:
 
 
 LQR_WEIGHT_SPAN = 1e12  # the most the controller's LQR weights may differ by
+# The least robot radius, as a fraction of the world's largest extent: a segment's collision checks
+# are half a radius apart, so a radius of 1e-9 of the smoke world ran out of memory and one of 1e-129
+# overflowed the count of checks; at 1e-6 a 2 m segment takes 8e5 checks, in batches.
+MIN_RADIUS_FRACTION = 1e-6
 
 
 def _check_lqr_weights(errors: Errors, controller: dict) -> None:
@@ -632,6 +636,11 @@ def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
             errors.add("world.bounds", "expected [[xmin, ymin], [xmax, ymax]] with max > min")
         else:
             D = bounds.shape[1]
+            radius, extent = values["robot_radius"], float(np.max(bounds[1] - bounds[0]))
+            if valid(radius) and radius < MIN_RADIUS_FRACTION * extent:
+                errors.add("world.robot_radius", f"expected at least {MIN_RADIUS_FRACTION:g} of the world's extent "
+                                                 f"({extent:g}), found {radius:g}: collisions are checked along a "
+                                                 "segment every half radius")
     raw = values["obstacles"]
     obstacles: list[Obstacle] = []
     ok = True

@@ -798,6 +798,11 @@ def mutated_scenarios(draw):
                                                                   HealthCheck.too_slow])
 @given(data=mutated_scenarios())
 def test_mutated_scenarios_are_accepted_or_refused_in_one_line(data, tmp_path):
+    """A mutant is accepted, refused naming the file (exit 2), or, where its values are valid but
+    extreme enough that a node's filter or controller cannot be designed in floating point, reported
+    as that numerical failure in one line (exit 1; e.g. a light-dark variance of 3e13 from
+    ``a = 31703`` and ``light_x = 31697``: the Kalman Riccati equation has no finite solution). What
+    the scenario can refuse by its fields, it does (LQR weights more than 1e12 apart)."""
     path = tmp_path / "mutant.toml"
     path.write_text(to_toml(data))
     out = tmp_path / "mutant.h5"
@@ -805,6 +810,10 @@ def test_mutated_scenarios_are_accepted_or_refused_in_one_line(data, tmp_path):
     if r.exit_code == 0:
         assert out.exists()
         out.unlink()
+        return
+    if r.exit_code == 1:
+        assert_clean_error(r, 1, "Riccati equation has no stabilising solution")
+        assert not out.exists()
         return
     assert_clean_error(r, 2, f"error: {path}: ", per_mistake=True)
 
