@@ -780,18 +780,19 @@ class Policy:
             self._hist_P.append(P)
         self._observe_s.append(time.perf_counter() - t0)
         plan = probe.plan
+        ran_out = not failed and probe.step >= plan.controls.shape[0]
         why = ("an update failed" + failed if failed else
-               "its steps ran out" if probe.step >= plan.controls.shape[0] else
+               "its steps ran out" if ran_out else
                "the belief left the probe's free region" if not plan.may_go_on(xh, P) else
                "settled" if plan.settled(lead, P) else "")
         if why:  # over: without a decision (decide=False) the running controller resumes
             self._end_probe(out, why, lead)
-            follow = (plan.then(xh, P) if plan.then is not None and probe.step >= plan.controls.shape[0]
-                      and not failed and decide and self._total < self.max_steps else None)
+            go_on = decide and self._total < self.max_steps
+            follow = plan.then(xh, P) if ran_out and go_on and plan.then is not None else None
             if follow is not None:  # the robot plans its next probe from what this one showed
                 self._start_probe(follow, probe.s_next, out)
                 return out
-            if decide and self._total < self.max_steps:
+            if go_on:
                 t1, c1 = time.perf_counter(), time.thread_time()
                 self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
         return out
