@@ -166,7 +166,11 @@ class JumpTest:
         try:
             sol = np.linalg.solve(self.C, self.d[..., None])[..., 0]
         except np.linalg.LinAlgError:  # a direction no measurement has seen yet: that onset can wait
-            sol = np.stack([np.linalg.lstsq(C, d, rcond=None)[0] for C, d in zip(self.C, self.d)])
+            # the least-squares solution of every onset at once (lstsq's cutoff; C is symmetric): one
+            # lstsq per onset in a Python loop was most of a unicycle's observe step (its heading is
+            # unseen for a step or two after every onset): 270 -> 120 us for 20 onsets, 670 -> 150 for 40
+            cutoff = np.finfo(float).eps * self.C.shape[-1]
+            sol = (np.linalg.pinv(self.C, rcond=cutoff, hermitian=True) @ self.d[..., None])[..., 0]
         stat = np.einsum("ij,ij->i", self.d, sol)
         self.best = int(np.argmax(stat))
         self.statistic = float(stat[self.best])
