@@ -568,6 +568,11 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                 help="Onsets the jump test keeps, and the steps a goal declaration may wait on its question "
                      "(default 20). Longer looks further back for a push before the goal and costs a "
                      "higher bound per onset. Needs replanning; see docs/online.md."),
+            goal_lookback: Optional[int] = typer.Option(
+                None, "--goal-lookback",
+                help="Onsets (steps back since the last decision) the goal check asks, at least the jump "
+                     "window; those older than it at a tenth of --goal-check (default 40). Needs "
+                     "replanning; see docs/online.md."),
             start: Optional[str] = typer.Option(
                 None, "--start",
                 help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "
@@ -597,7 +602,8 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     """
     import firmtool.api as ft
     from firmtool.disturbances import parse_disturbances
-    from firmtool.online.replanning import CLOCKS, GOAL_CHECK, JUMP_WINDOW, LATENCIES, ReplanSettings
+    from firmtool.online.replanning import (CLOCKS, GOAL_CHECK, GOAL_LOOKBACK, JUMP_WINDOW, LATENCIES,
+                                            ReplanSettings)
     from firmtool.resources import check_execution
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
@@ -613,9 +619,11 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         raise InputError(f"--goal-check: expected a probability in [0, 1), found {goal_check}")
     if jump_false_alarm is not None and not (np.isfinite(jump_false_alarm) and 0.0 < jump_false_alarm < 1.0):
         raise InputError(f"--jump-false-alarm: expected a probability in (0, 1), found {jump_false_alarm}")
-    if jump_window is not None and jump_window < 1:
-        raise InputError(f"--jump-window: expected a number of steps >= 1, found {jump_window}")
-    levels = {"--goal-check": goal_check, "--jump-false-alarm": jump_false_alarm, "--jump-window": jump_window}
+    for flag, steps in (("--jump-window", jump_window), ("--goal-lookback", goal_lookback)):
+        if steps is not None and steps < 1:
+            raise InputError(f"{flag}: expected a number of steps >= 1, found {steps}")
+    levels = {"--goal-check": goal_check, "--jump-false-alarm": jump_false_alarm, "--jump-window": jump_window,
+              "--goal-lookback": goal_lookback}
     if no_replan and any(v is not None for v in levels.values()):
         flag = next(name for name, v in levels.items() if v is not None)
         raise InputError(f"{flag}: a setting of the jump test, which --no-replan turns off; drop one of them")
@@ -630,7 +638,8 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     settings = ReplanSettings(enabled=not no_replan, threshold=replan_threshold, deadline=replan_deadline,
                               clock=replan_clock, latency=replan_latency, jump_false_alarm=jump_false_alarm,
                               goal_check=GOAL_CHECK if goal_check is None else goal_check,
-                              jump_window=JUMP_WINDOW if jump_window is None else jump_window)
+                              jump_window=JUMP_WINDOW if jump_window is None else jump_window,
+                              goal_lookback=GOAL_LOOKBACK if goal_lookback is None else goal_lookback)
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
                       replan=settings, record=save_episodes is not None, progress=console.progress())
     report = res.to_dict()
@@ -641,7 +650,7 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                         "disturbances": ";".join(report["disturbances"]), "replanning": not no_replan,
                         "replan_threshold": replan_threshold,
                         # the jump test's levels as they ran (HDF5 attributes hold no null: absent without it)
-                        **{k: report[k] for k in ("jump_false_alarm", "goal_check", "jump_window")
+                        **{k: report[k] for k in ("jump_false_alarm", "goal_check", "jump_window", "goal_lookback")
                            if report[k] is not None}},
                        force=force)
         report["episodes_file"] = str(save_episodes)

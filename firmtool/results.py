@@ -221,9 +221,9 @@ class Results(Report):
     replan_deadline_hits : decisions the deadline cut short (anytime: the best candidate scored so far).
     replan_over_deadline : decisions whose wall time exceeded the deadline (measured, whatever the clock).
     replan_latency : ``"0"`` or ``"measured"`` (a new controller applied after the decision's time).
-    jump_false_alarm, goal_check, jump_window : the jump test's false-alarm probability per step, the
-        goal check's level per onset and the onsets the test keeps, as the policy ran them (None: no
-        jump test ran; :attr:`Policy.jump_levels`).
+    jump_false_alarm, goal_check, jump_window, goal_lookback : the jump test's false-alarm probability
+        per step, the goal check's level per onset, the onsets the running test rejects on and those
+        the goal check asks, as the policy ran them (None: no jump test ran; :attr:`Policy.jump_levels`).
     calibration : executed vs estimated edge frequencies (None without the edge counts).
     estimate_success_rate, estimate_success_rate_ci95 : the episodes whose policy declared arrival,
         whatever the true state (the criterion before issue 15: the estimate reached the goal).
@@ -273,6 +273,7 @@ class Results(Report):
     jump_false_alarm: float | None = None
     goal_check: float | None = None
     jump_window: int | None = None
+    goal_lookback: int | None = None
     goal_misses: int = 0
     estimate_success_rate: float | None = None
     estimate_success_rate_ci95: tuple[float, float] | None = None

@@ -219,11 +219,13 @@ def test_saved_episodes_are_readable_with_the_right_shapes(smoke, tmp_path):
 @pytest.mark.parametrize("option, setting", [(["--goal-check", "0.1"], {"goal_check": 0.1}),
                                              (["--goal-check", "0"], {"goal_check": 0.0}),
                                              (["--jump-false-alarm", "0.02"], {"jump_false_alarm": 0.02}),
-                                             (["--jump-window", "3"], {"jump_window": 3})])
+                                             (["--jump-window", "3"], {"jump_window": 3}),
+                                             (["--goal-lookback", "60"], {"goal_lookback": 60}),
+                                             (["--goal-lookback", "1"], {"goal_lookback": 1})])
 def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path, option, setting):
-    """--goal-check, --jump-false-alarm and --jump-window reach the policy: the saved episodes' events
-    are those of ft.simulate with the same ReplanSettings, and differ from the default's where the
-    setting acts."""
+    """--goal-check, --jump-false-alarm, --jump-window and --goal-lookback reach the policy: the saved
+    episodes' events are those of ft.simulate with the same ReplanSettings, and differ from the
+    default's where the setting acts."""
     import firmtool as ft
     path = smoke[0]
     sol = ft.open_roadmap(path).solution()
@@ -236,11 +238,13 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
     assert r.exit_code == 0, r.output
     report = json.loads(r.stdout)  # the levels the policy ran with
     ran = ft.Policy(sol, replan=ReplanSettings(**setting)).jump_levels
-    assert (report["jump_false_alarm"], report["goal_check"], report["jump_window"]) == ran
+    assert (report["jump_false_alarm"], report["goal_check"], report["jump_window"], report["goal_lookback"]) == ran
     assert ran[1] == setting.get("goal_check", 0.1) and ran[0] == setting.get("jump_false_alarm", ran[0])
     assert ran[2] == setting.get("jump_window", 20)
+    assert ran[3] == max(ran[2], setting.get("goal_lookback", 40))  # at least the window
     attrs, eps = load_episodes(out)
-    assert (attrs["jump_false_alarm"], attrs["goal_check"], attrs["jump_window"]) == ran  # the file says so too
+    names = ("jump_false_alarm", "goal_check", "jump_window", "goal_lookback")
+    assert tuple(attrs[k] for k in names) == ran  # the file says so too
     dist = parse_disturbances([spec])
     mine = ft.simulate(sol, 20, 0, disturbances=dist, replan=ReplanSettings(**setting), record=False)
     kinds = [[e["kind"] for e in ep["events"]] for ep in eps]
@@ -263,12 +267,13 @@ def test_without_replanning_the_report_has_no_jump_test_levels(smoke):
     r = runner.invoke(app, ["execute", str(smoke[0]), "-n", "1", "--no-replan", "--json"])
     report = json.loads(r.stdout)
     assert r.exit_code == 0 and report["jump_false_alarm"] is None and report["goal_check"] is None
-    assert report["jump_window"] is None
+    assert report["jump_window"] is None and report["goal_lookback"] is None
 
 
 @pytest.mark.parametrize("option", [["--goal-check", "1.5"], ["--goal-check", "nan"], ["--jump-false-alarm", "0"],
                                     ["--goal-check", "0.1", "--no-replan"], ["--jump-false-alarm", "0.01", "--no-replan"],
-                                    ["--jump-window", "0"], ["--jump-window", "30", "--no-replan"]])
+                                    ["--jump-window", "0"], ["--jump-window", "30", "--no-replan"],
+                                    ["--goal-lookback", "0"], ["--goal-lookback", "60", "--no-replan"]])
 def test_the_cli_refuses_a_level_outside_its_range_in_one_line(smoke, option):
     r = runner.invoke(app, ["execute", str(smoke[0]), "-n", "1", *option])
     assert r.exit_code == 2 and option[0] in r.output and r.output.strip().count("\n") == 0, r.output

@@ -83,6 +83,58 @@ def test_a_jump_is_found_estimated_and_corrected(jump):
     assert np.mean(hits) < 4.0 and np.median(hits) < 3.0
 
 
+def test_onsets_kept_past_the_window_leave_the_running_test_as_it_was():
+    """Keeping 40 onsets for the goal check (``kept``) changes nothing of the running test over its
+    20: at every step of a long run its statistic, best onset, bound and alarms are those of a test
+    that keeps 20; its 20 newest statistics are that test's; and an older onset's statistic is
+    chi-square with p = 2 without a jump (the oldest kept onset, sampled every 40 steps so the samples
+    share no innovation: Kolmogorov-Smirnov against scipy's chi2 does not reject)."""
+    rng = np.random.default_rng(3)
+    gammas, _ = innovations(4000, rng)
+    window, kept = JumpTest(CONFIG, window=20, false_alarm=0.02), JumpTest(CONFIG, window=20, false_alarm=0.02, kept=40)
+    oldest = []
+    for k, g in enumerate(gammas):
+        assert window.add(k, A, H, L, S_inv, g) == kept.add(k, A, H, L, S_inv, g)
+        assert window.statistic == kept.statistic and window.onset[window.best] == kept.onset[kept.best]
+        np.testing.assert_array_equal(kept.statistics[kept.older:], window.statistics)
+        assert kept.onset.size == min(k + 1, 40) and kept.older == max(0, min(k + 1, 40) - 20)
+        if k >= 39 and k % 40 == 39:
+            oldest.append(kept.statistics[0])
+    assert window.limit == kept.limit and len(oldest) == 100
+    assert stats.kstest(oldest, stats.chi2(2).cdf).pvalue > 1e-3
+
+
+def test_the_goal_check_finds_a_jump_older_than_the_window():
+    """A jump of the configuration 30 steps back is out of the running test's 20 onsets; kept 40
+    back, its onset's statistic passes the older onsets' level (0.01) in every run, the goal check
+    asks, naming the configuration, and its estimate is at the jump's step with the error that is
+    left of it now (the corrected error consistent with the estimate's covariance)."""
+    from scipy.stats import chi2
+
+    hits, left, named = [], [], []
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        gammas, errors = innovations(81, rng, np.array([1.0, -0.5, 0.0, 0.0]), at=50)
+        tests = JumpTests({"configuration": CONFIG, "state": np.eye(4)}, 20, 1e-6, np.array([25.0, 25.0, 1.0, 1.0]),
+                          kept=40)
+        for k, g in enumerate(gammas):
+            tests.add(k, A, H, L, S_inv, g)
+        conf = tests.tests["configuration"]
+        assert conf.onset[conf.best] > 60  # the running test's onsets: 61-80
+        assert np.any(conf.older_asking(0.01))
+        family = tests.questioning(0.01, older=True)
+        named.append(family)
+        shift, cov, onset = tests.correction(shrink=False, family=family, older_level=0.01)
+        assert abs(onset - 50) <= 2, onset
+        residual = errors[80] - shift
+        hits.append(residual[:2] @ np.linalg.solve(P[:2, :2] + cov[:2, :2], residual[:2]))
+        left.append(errors[80][:2] @ np.linalg.solve(P[:2, :2] + cov[:2, :2], errors[80][:2]))
+    # the goal check asks every run; the configuration explains a push better than the state's freedom
+    assert None not in named and named.count("configuration") >= 27, named
+    # the corrected error is consistent with its covariance (chi2(2) on average), the uncorrected is not
+    assert np.mean(hits) < 4.0 and np.median(hits) < 3.0 and np.mean(left) > 2 * np.mean(hits)
+
+
 def test_a_change_of_velocity_is_corrected_within_the_prior():
     """A kidnap stops a moving robot: the whole state jumps. The state family's estimate with a prior
     on the jump (speed limit 1) corrects the velocity too, and never by absurd amounts."""

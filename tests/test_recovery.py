@@ -183,9 +183,9 @@ def test_the_goal_waits_only_for_a_jump_that_would_take_the_estimate_out_of_it(s
     n = smoke.roadmap.problem.model.n
     real = JumpTests.correction
     off = ft.simulate(smoke, 12, 2, replan=ReplanSettings(goal_check=0.0), record=False)
-    monkeypatch.setattr(JumpTests, "questioning", lambda self, level: "configuration")
+    monkeypatch.setattr(JumpTests, "questioning", lambda self, level, older=False: "configuration")
     for size in (0.0, 50.0):
-        def suspected(self, shrink=True, family=None, size=size):  # the goal check asks for a family
+        def suspected(self, shrink=True, family=None, size=size, older_level=None):  # the goal check asks for a family
             if family is None:
                 return real(self, shrink)
             return np.full(n, size), np.zeros((n, n)), 0
@@ -200,6 +200,36 @@ def test_the_goal_waits_only_for_a_jump_that_would_take_the_estimate_out_of_it(s
         for ep, steps in zip(on.episodes, asked):
             declared = {e.step for e in ep.events if e.kind in (ft.EventKind.GOAL, ft.EventKind.GOAL_MISS)}
             assert not declared & set(steps)
+
+
+def test_the_goal_check_asks_onsets_older_than_the_window_as_far_back_as_goal_lookback(smoke, monkeypatch):
+    """Every onset kept before the window made to question the belief, with a suspected jump that
+    would carry the estimate far out of the goal: with the default ``goal_lookback`` (40) an arrival
+    more than 20 steps after the last decision waits on the older onsets' question (its event says
+    so) and no goal is declared at a questioned step; with ``goal_lookback`` at the window (20) no
+    onset is kept before it, and the episodes are those of the unpatched policy."""
+    from firmtool.online.innovation import JumpTest, JumpTests
+
+    real_correction = JumpTests.correction
+    plain = ft.simulate(smoke, 12, 2, replan=ReplanSettings(goal_lookback=20), record=False)
+
+    def far(self, shrink=True, family=None, by="evidence", older_level=None):
+        if older_level is None:
+            return real_correction(self, shrink, family, by)
+        n = smoke.roadmap.problem.model.n
+        return np.full(n, 50.0), np.zeros((n, n)), 0
+
+    monkeypatch.setattr(JumpTest, "older_asking", lambda self, level: np.ones(self.older, bool))
+    monkeypatch.setattr(JumpTests, "correction", far)
+    window_only = ft.simulate(smoke, 12, 2, replan=ReplanSettings(goal_lookback=20), record=False)
+    assert [_story(a) for a in plain.episodes] == [_story(b) for b in window_only.episodes]
+    looked_back = ft.simulate(smoke, 12, 2, record=False)
+    older = [[e for e in ep.events if e.kind == ft.EventKind.GOAL_QUESTIONED and "before the last 20 steps" in e.detail]
+             for ep in looked_back.episodes]
+    assert sum(map(bool, older)) >= 6, older
+    for ep, asked in zip(looked_back.episodes, older):
+        declared = {e.step for e in ep.events if e.kind in (ft.EventKind.GOAL, ft.EventKind.GOAL_MISS)}
+        assert not declared & {e.step for e in asked}
 
 
 def test_the_goal_check_is_the_chi_square_quantile_of_its_level():
@@ -236,3 +266,37 @@ def test_the_goal_check_is_the_chi_square_quantile_of_its_level():
     assert evidence([2.0, 1.0, 0.5, 0.0]) < evidence([2.0, 1.0])
     assert tests.questioning(level) == "configuration"
     assert conf.statistic < conf.limit and state.statistic < state.limit  # both below the running test's bound
+
+
+def test_the_goal_check_asks_older_onsets_at_a_tenth_of_its_level():
+    """Onsets kept past the window (``goal_lookback``) question the belief only above
+    ``chi2.isf(goal_check x GOAL_CHECK_OLDER, p)`` (scipy's quantile), and only when asked; the
+    window's question is about the window's onsets alone, and the older question's estimate comes from
+    the older onsets that question."""
+    from scipy.stats import chi2
+
+    from firmtool.online.innovation import JumpTests
+    from firmtool.online.replanning import GOAL_CHECK_OLDER
+
+    assert GOAL_CHECK_OLDER == 0.1
+    level = 0.1
+    older_level = level * GOAL_CHECK_OLDER
+    tests = JumpTests({"configuration": np.eye(4)[:, :2]}, 20, 1e-3, np.ones(4), kept=40)
+    conf = tests.tests["configuration"]
+    conf.onset = np.arange(25)  # 5 older than the window
+    conf.d, conf.C, conf.Phi = np.ones((25, 2)), np.stack([np.eye(2)] * 25), np.stack([np.eye(4)[:, :2]] * 25)
+    conf.statistics = np.full(25, 0.5)
+    conf.statistic = 0.5
+    assert conf.older == 5
+    conf.statistics[2] = chi2.isf(older_level, 2) * 1.001
+    conf.d[2] = [3.0, 0.0]  # its estimate (d, with C = I): moved 3 along x; the others 1, 1
+    assert chi2.isf(older_level, 2) > chi2.isf(level, 2)  # passes the window's level too, yet:
+    assert tests.questioning(level) is None  # the window's question is about its own onsets
+    assert tests.questioning(older_level, older=True) == "configuration"
+    shift, _, onset = tests.correction(shrink=False, family="configuration", older_level=older_level)
+    assert onset == 2 and np.allclose(shift[:2], [3.0, 0.0])  # the onset that questions, of the older
+    conf.statistics[2] = chi2.isf(older_level, 2) * 0.999
+    assert tests.questioning(older_level, older=True) is None
+    conf.statistic = conf.statistics[24] = chi2.isf(level, 2) * 1.001  # the window's own level
+    assert tests.questioning(level) == "configuration" and tests.questioning(older_level, older=True) is None
+    assert tests.correction(shrink=False, family="configuration")[2] >= 5  # the window's onsets only

@@ -121,17 +121,24 @@ class JumpTest:
     and it estimates the jump: ``nu_hat = C^-1 d`` with covariance ``C^-1``, so the belief can be
     corrected (:meth:`correction`).
 
+    Older onsets can be kept as well (``kept`` > ``window``) for a check that looks further back
+    than the running test (:meth:`JumpTests.questioning`); the running test, its bound and
+    :attr:`statistic` stay those of the last ``window`` onsets.
+
     Parameters
     ----------
     basis : (n, p) the directions a jump can take (the configuration coordinates).
-    window : onsets kept.
+    window : onsets the test rejects on (its bound splits the false alarm over them).
     false_alarm : per-step false-alarm probability.
+    kept : onsets kept in all (at least ``window``; None: ``window``).
     """
 
-    def __init__(self, basis: np.ndarray, window: int, false_alarm: float) -> None:
+    def __init__(self, basis: np.ndarray, window: int, false_alarm: float, kept: int | None = None) -> None:
         self.basis = np.asarray(basis, dtype=float)
         n, p = self.basis.shape
         self.window = window
+        self.kept = window if kept is None else max(window, int(kept))
+        self.statistics = np.zeros(0)  # (k,) every kept onset's, oldest first
         self.limit = float(chi2.isf(false_alarm / window, p))
         self.Phi = np.zeros((0, n, p))
         self.d = np.zeros((0, p))
@@ -145,14 +152,24 @@ class JumpTest:
         n, p = self.basis.shape
         self.Phi, self.d, self.C = np.zeros((0, n, p)), np.zeros((0, p)), np.zeros((0, p, p))
         self.onset = np.zeros(0, dtype=np.int64)
+        self.statistics = np.zeros(0)
         self.best, self.statistic = -1, 0.0
+
+    @property
+    def older(self) -> int:
+        """How many of the kept onsets are older than the running test's window (the first ones)."""
+        return max(0, self.onset.size - self.window)
+
+    def older_asking(self, level: float) -> np.ndarray:
+        """(older,) bool: the onsets older than the window whose statistic passes ``chi2.isf(level, p)``."""
+        return self.statistics[:self.older] > chi2.isf(level, self.basis.shape[1])
 
     def add(self, step: int, A: np.ndarray, H: np.ndarray, L: np.ndarray, S_inv: np.ndarray,
             gamma: np.ndarray) -> bool:
         """Take in one step's innovation ``gamma`` (nz,), with the step's linearisation ``A`` (n, n),
         ``H`` (nz, n), the filter gain ``L`` (n, nz) and the inverse innovation covariance; a jump
         before this step (onset ``step``) is a new candidate. True when the test rejects."""
-        keep = max(0, self.onset.size + 1 - self.window)
+        keep = max(0, self.onset.size + 1 - self.kept)
         self.Phi = np.concatenate([self.Phi[keep:], self.basis[None]])
         self.d = np.concatenate([self.d[keep:], np.zeros((1, self.d.shape[1]))])
         self.C = np.concatenate([self.C[keep:], np.zeros((1,) + self.C.shape[1:])])
@@ -163,26 +180,25 @@ class JumpTest:
         self.d = self.d + GtS @ gamma
         self.C = self.C + GtS @ G
         self.Phi = APhi - L @ G  # (I - L H) A Phi: its part of the error after the update
-        try:
-            sol = np.linalg.solve(self.C, self.d[..., None])[..., 0]
-        except np.linalg.LinAlgError:  # a direction no measurement has seen yet: that onset can wait
-            # the least-squares solution of every onset at once (lstsq's cutoff; C is symmetric): one
-            # lstsq per onset in a Python loop was most of a unicycle's observe step (its heading is
-            # unseen for a step or two after every onset): 270 -> 120 us for 20 onsets, 670 -> 150 for 40
-            cutoff = np.finfo(float).eps * self.C.shape[-1]
-            sol = (np.linalg.pinv(self.C, rcond=cutoff, hermitian=True) @ self.d[..., None])[..., 0]
-        stat = np.einsum("ij,ij->i", self.d, sol)
-        self.best = int(np.argmax(stat))
-        self.statistic = float(stat[self.best])
+        # the onsets kept before the window have seen its measurements: only the window's newest may
+        # hold a direction none has seen yet, so they are solved apart (kept together, the goal
+        # check's older onsets took the fallback's eigendecompositions too: the arm's observe step
+        # +55%; apart, +7-15%)
+        older = self.older
+        sol = np.concatenate([_least_squares(self.C[:older], self.d[:older]),
+                              _least_squares(self.C[older:], self.d[older:])])
+        self.statistics = np.einsum("ij,ij->i", self.d, sol)
+        self.best = self.older + int(np.argmax(self.statistics[self.older:]))
+        self.statistic = float(self.statistics[self.best])
         return self.statistic > self.limit
 
     def log_evidence(self, prior: np.ndarray) -> np.ndarray:
-        """(k,) log Bayes factor of a jump at each kept onset against no jump, the jump drawn from
-        ``N(0, diag(prior))`` (prior: (p,) variances): the innovations' likelihood ratio integrated
-        over it, ``0.5 d' (C + prior^-1)^-1 d - 0.5 log det(I + prior C)``. Unlike the statistic
-        (the ratio at the best jump), it pays for the freedom of a larger family and for a jump the
-        prior finds implausible: what tells which onset and family explain the data, once the
-        statistic said that something does."""
+        """(k,) log Bayes factor of a jump at each kept onset (oldest first) against no jump, the
+        jump drawn from ``N(0, diag(prior))`` (prior: (p,) variances): the innovations' likelihood
+        ratio integrated over it, ``0.5 d' (C + prior^-1)^-1 d - 0.5 log det(I + prior C)``. Unlike
+        the statistic (the ratio at the best jump), it pays for the freedom of a larger family and
+        for a jump the prior finds implausible: what tells which onset and family explain the data,
+        once the statistic said that something does."""
         if self.onset.size == 0:
             return np.zeros(0)
         root = np.sqrt(np.asarray(prior, dtype=float))
@@ -203,6 +219,19 @@ class JumpTest:
         Phi = self.Phi[b]
         cov = Phi @ C_inv @ Phi.T
         return Phi @ nu, 0.5 * (cov + cov.T), int(self.onset[b])
+
+
+def _least_squares(C: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(k, p) the solutions of ``C_i x = d_i``, ``C`` (k, p, p) symmetric, ``d`` (k, p); where a
+    ``C_i`` is singular (a direction no measurement has seen yet: that onset can wait), the
+    least-squares solutions (lstsq's cutoff)."""
+    try:
+        return np.linalg.solve(C, d[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        # every onset at once: one lstsq per onset in a Python loop was most of a unicycle's observe
+        # step (its heading is unseen for a step or two after every onset): 270 -> 120 us for 20 onsets
+        cutoff = np.finfo(float).eps * C.shape[-1]
+        return (np.linalg.pinv(C, rcond=cutoff, hermitian=True) @ d[..., None])[..., 0]
 
 
 class JumpTests:
@@ -236,13 +265,15 @@ class JumpTests:
     ----------
     bases : dict name -> (n, p) basis of each family; the one named ``"state"`` (the identity), when
         it corrects the belief, is estimated with the prior.
-    window : onsets kept.
+    window : onsets the running test rejects on.
     false_alarm : per-step false-alarm probability of all families together.
     prior : (n,) prior variance of a jump of each state coordinate, positive.
+    kept : onsets kept for :meth:`questioning` (at least ``window``; None: ``window``).
     """
 
-    def __init__(self, bases: dict[str, np.ndarray], window: int, false_alarm: float, prior: np.ndarray) -> None:
-        self.tests = {name: JumpTest(b, window, false_alarm / len(bases)) for name, b in bases.items()}
+    def __init__(self, bases: dict[str, np.ndarray], window: int, false_alarm: float, prior: np.ndarray,
+                 kept: int | None = None) -> None:
+        self.tests = {name: JumpTest(b, window, false_alarm / len(bases), kept) for name, b in bases.items()}
         self.prior = np.asarray(prior, dtype=float)
         if not (np.all(np.isfinite(self.prior)) and np.all(self.prior > 0)):
             raise ValueError(f"jump prior: positive finite variances expected, found {self.prior}")
@@ -263,7 +294,7 @@ class JumpTests:
         if not any(rejects):
             self.fired = self.rejecting = None
             return False
-        self.fired = self._likeliest(self.tests)
+        self.fired = self._likeliest(self.tests, None)
         self.rejecting = max(self.tests, key=lambda name: self.tests[name].statistic / self.tests[name].limit)
         return True
 
@@ -271,15 +302,24 @@ class JumpTests:
         """(p,) the prior variances of family ``name``'s jump."""
         return self.prior @ self.tests[name].basis ** 2
 
-    def _evidence(self, name: str) -> np.ndarray:
-        return self.tests[name].log_evidence(self._prior(name))
+    def _evidence(self, name: str, older_level: float | None) -> np.ndarray:
+        """(k,) log evidence of family ``name``'s kept onsets, the others at -inf: the window's (None),
+        or of the onsets kept before it those whose statistic passes ``older_level``."""
+        test = self.tests[name]
+        evidence = test.log_evidence(self._prior(name))
+        if older_level is None:
+            evidence[:test.older] = -np.inf
+        else:
+            evidence[test.older:] = -np.inf
+            evidence[:test.older][~test.older_asking(older_level)] = -np.inf  # a view: written through
+        return evidence
 
-    def _likeliest(self, names) -> str:
+    def _likeliest(self, names, older_level: float | None) -> str:
         """Of the families ``names``, the one with the largest evidence at its best onset; on a tie
         the smaller family (the state family at the configuration's onset, with velocities no
         measurement has seen yet, is the same explanation)."""
         names = sorted(names, key=lambda name: self.tests[name].basis.shape[1])  # stable: ties keep order
-        best = {name: float(np.max(self._evidence(name), initial=-np.inf)) for name in names}
+        best = {name: float(np.max(self._evidence(name, older_level), initial=-np.inf)) for name in names}
         top = max(best.values())
         return next(name for name in names if best[name] >= top - 1e-9 * max(1.0, abs(top)))
 
@@ -288,28 +328,35 @@ class JumpTests:
         """The statistic of the family that rejected (:attr:`rejecting`), else 0."""
         return self.tests[self.rejecting].statistic if self.rejecting else 0.0
 
-    def questioning(self, level: float) -> str | None:
+    def questioning(self, level: float, older: bool = False) -> str | None:
         """The check of an irreversible decision (:attr:`ReplanSettings.goal_check`): the family that
-        questions the belief at the tail probability ``level`` per onset (its statistic above
-        ``chi2.isf(level, p)``; the larger evidence if both do), or None. A bound this lax would
-        alarm often as the running test; it only makes a declaration wait."""
-        over = [name for name, t in self.tests.items() if t.statistic > chi2.isf(level, t.basis.shape[1])]
-        return self._likeliest(over) if over else None
+        questions the belief at the tail probability ``level`` per onset of the window (its statistic
+        above ``chi2.isf(level, p)``; the larger evidence if both do), or None. ``older``: the same
+        question of the onsets kept before the window instead (their evidence: of the onsets that
+        question). A bound this lax would alarm often as the running test; it only makes a
+        declaration wait."""
+        if older:
+            over = [name for name, t in self.tests.items() if np.any(t.older_asking(level))]
+        else:
+            over = [name for name, t in self.tests.items() if t.statistic > chi2.isf(level, t.basis.shape[1])]
+        return self._likeliest(over, level if older else None) if over else None
 
     def correction(self, shrink: bool = True, family: str | None = None,
-                   by: str = "evidence") -> tuple[np.ndarray, np.ndarray, int]:
+                   by: str = "evidence", older_level: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
         """The estimated jump's effect on the estimate now (n,), its covariance (n, n), and its onset.
 
         ``shrink`` (default): the estimate shrunk by the rejecting test's margin, :func:`shrunk_jump`;
         off: as estimated (the configuration family's without a prior, the state family's with one).
         ``family``: the family's estimate (default: the one that fired). ``by``: the family's onset
         with the largest evidence (default) or with the largest statistic (``"statistic"``, the
-        likelihood ratio test's own estimate, for comparison)."""
+        likelihood ratio test's own estimate, for comparison). ``older_level``: the onsets kept before
+        the window that question the belief at that level instead (:meth:`questioning` ``older``; by
+        evidence only)."""
         family = self.fired if family is None else family
         t = self.tests[family]
         if by not in ("evidence", "statistic"):
             raise ValueError(f"by: 'evidence' or 'statistic', not {by!r}")
-        b = int(np.argmax(self._evidence(family))) if by == "evidence" else t.best
+        b = int(np.argmax(self._evidence(family, older_level))) if by == "evidence" else t.best
         if family != "state":
             shift, cov, onset = t.correction(b)
         else:

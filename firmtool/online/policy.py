@@ -85,7 +85,8 @@ from firmtool.errors import InputError, NumericalError
 from firmtool.nodes import GOAL, GOAL_INDEX, START_INDEX
 from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
 from firmtool.online.relocalise import GaussianSum, Relocalisation
-from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps, mission_false_alarm
+from firmtool.online.replanning import (GOAL_CHECK_OLDER, Replanner, ReplanSettings, latency_steps,
+                                        mission_false_alarm)
 from firmtool.online.running import RunningController, remainder, running_controller
 from firmtool.problem import Problem
 from firmtool.results import Event, EventKind
@@ -227,14 +228,17 @@ class Policy:
         return self._status is not PolicyStatus.RUNNING
 
     @property
-    def jump_levels(self) -> tuple[float, float, int] | None:
-        """The jump test's per-step false-alarm probability, the goal check's level per onset and the
-        onsets the test keeps (:class:`ReplanSettings` ``jump_false_alarm`` as resolved, ``goal_check``,
-        ``jump_window``), or None when no jump test runs (replanning off, the innovation tests off,
-        perfect measurements)."""
+    def jump_levels(self) -> tuple[float, float, int, int] | None:
+        """The jump test's per-step false-alarm probability, the goal check's level per onset, the
+        onsets the running test rejects on and the onsets the goal check asks (:class:`ReplanSettings`
+        ``jump_false_alarm`` as resolved, ``goal_check``, ``jump_window``, ``goal_lookback`` as
+        resolved: at least ``jump_window``), or None when no jump test runs (replanning off, the
+        innovation tests off, perfect measurements)."""
         if not self._jump_test:
             return None
-        return float(self.jump_false_alarm), float(self.settings.goal_check), int(self.settings.jump_window)
+        s = self.settings
+        return (float(self.jump_false_alarm), float(s.goal_check), int(s.jump_window),
+                max(int(s.jump_window), int(s.goal_lookback)))
 
     @property
     def steps(self) -> int:
@@ -428,7 +432,8 @@ class Policy:
         bases = {"configuration": np.eye(n)[:, :problem.config_dim], "state": np.eye(n)}
         if problem.config_dim == n:
             bases.pop("state")
-        self._jump = (JumpTests(bases, s.jump_window, self.jump_false_alarm, problem.robot.jump_prior(problem))
+        self._jump = (JumpTests(bases, s.jump_window, self.jump_false_alarm, problem.robot.jump_prior(problem),
+                                kept=s.goal_lookback if s.goal_check > 0 else None)
                       if self._jump_test else None)
         self._cooldown = 0  # no decision before this step (after keeping the running controller)
         self._goal_waited, self._goal_wait_last = 0, -2  # steps a goal declaration waited; the last one
@@ -657,33 +662,42 @@ class Policy:
     def _goal_waits(self, landed: int, in_ball: bool, k: int, lc, out: list[Event]) -> bool:
         """Whether the belief's arrival at ``landed`` (``in_ball``: by the goal ball's test, else by a
         node's) waits before the goal is declared (:attr:`ReplanSettings.goal_check`): the jump test
-        questions it, the jump it suspects (the questioning family's estimate, in full) would move
-        the estimate out of that arrival, and neither the waiting steps since the last decision
-        (``jump_window``) nor the running controller's are spent."""
+        questions it (on the window's onsets, or on those kept before it,
+        :attr:`ReplanSettings.goal_lookback`), the jump it suspects (the questioning family's
+        estimate, in full) would move the estimate out of that arrival, and neither the waiting
+        steps since the last decision (``jump_window``) nor the running controller's are spent."""
         s, total = self.settings, self._total
         if (s.goal_check <= 0 or self._jump is None or self._goal_waited >= s.jump_window or k + 1 >= lc.steps
                 or not (landed == GOAL_INDEX or self.design.kinds[landed] == GOAL)):
             return False
-        family = self._jump.questioning(s.goal_check)
-        if family is None:
-            return False
-        # a question matters only if the jump it suspects would move the estimate out of the arrival:
-        # a tight goal questioned on noise lost more to the wait (the true state drifting out while
-        # the belief waits in it) than it found (arm, 200 episodes, seed 1: 0.330 at once, 0.295
-        # waiting on every question, 0.350 on these)
-        shift, _, _ = self._jump.correction(shrink=False, family=family)
-        moved = self._xhat + shift[None]
-        if in_ball:  # the same test the arrival passed, on the moved estimate
-            still = bool(self.regions.goal.contains(moved, self._P)[0])
+        # the window's onsets at the goal check's level; then the older ones kept (goal_lookback) at a
+        # tenth of it, each question on its own onsets, so that an older one never hides the window's
+        for level, older in ((s.goal_check, False), (s.goal_check * GOAL_CHECK_OLDER, True)):
+            family = self._jump.questioning(level, older=older)
+            if family is None:
+                continue
+            # a question matters only if the jump it suspects would move the estimate out of the
+            # arrival: a tight goal questioned on noise lost more to the wait (the true state drifting
+            # out while the belief waits in it) than it found (arm, 200 episodes, seed 1: 0.330 at
+            # once, 0.295 waiting on every question, 0.350 on these)
+            asked = level if older else None
+            shift, _, _ = self._jump.correction(shrink=False, family=family, older_level=asked)
+            moved = self._xhat + shift[None]
+            if in_ball:  # the same test the arrival passed, on the moved estimate
+                still = bool(self.regions.goal.contains(moved, self._P)[0])
+            else:
+                still = self._locate(moved, self._run.cand[k]) == landed
+            if not still:
+                break
         else:
-            still = self._locate(moved, self._run.cand[k]) == landed
-        if still:
             return False
-        statistic = self._jump.tests[family].statistic
+        test = self._jump.tests[family]
+        statistic = float(np.max(test.statistics[:test.older])) if older else test.statistic
         if self._goal_wait_last != total - 1:
             left = s.jump_window - self._goal_waited
             self._emit(out, Event(total, EventKind.GOAL_QUESTIONED, landed, statistic,
-                                  f"the jump test questions the arrival (at {s.goal_check:g} per onset): "
+                                  f"the jump test questions the arrival (at {level:g} per onset"
+                                  f"{f' before the last {s.jump_window} steps' if older else ''}): "
                                   f"waiting up to {left} step{'s' if left != 1 else ''}"))
         if self._clean:  # the edge's traversal ends here as its Monte Carlo counts it; what follows is not it
             self._traversals.append(Traversal((self._run.edge, landed, self._run_start, total)))

@@ -275,7 +275,7 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
     replans = int(sum(e.replans for e in eps))
     us = lambda a, f: 1e6 * float(f(a)) if a.size else None  # noqa: E731
     p99 = lambda a: np.percentile(a, 99)  # noqa: E731
-    levels = policy.jump_levels or (None, None, None)  # None: no jump test ran
+    levels = policy.jump_levels or (None, None, None, None)  # None: no jump test ran
     return Results(
         episodes=eps, successes=successes, collisions=count(Outcome.COLLISION), timeouts=count(Outcome.TIMEOUT),
         stuck=count(Outcome.STUCK), success_rate=successes / episodes if episodes else 0.0,
@@ -300,6 +300,6 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
         replan_deadline_hits=int(sum(e.deadline_hits for e in eps)),
         replan_over_deadline=int(np.sum(replan_times > deadline)),
         replan_latency=settings.latency, goal_misses=misses,
-        jump_false_alarm=levels[0], goal_check=levels[1], jump_window=levels[2],
+        jump_false_alarm=levels[0], goal_check=levels[1], jump_window=levels[2], goal_lookback=levels[3],
         estimate_success_rate=(successes + misses) / episodes if episodes else 0.0,
         estimate_success_rate_ci95=wilson_interval(successes + misses, episodes))
