@@ -565,14 +565,14 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                      "success. Needs replanning; see docs/online.md."),
             jump_window: Optional[int] = typer.Option(
                 None, "--jump-window",
-                help="Onsets the jump test keeps, and the steps a goal declaration may wait on its question "
-                     "(default 20). Longer looks further back for a push before the goal and costs a "
-                     "higher bound per onset. Needs replanning; see docs/online.md."),
+                help="Onsets the jump test rejects on, and the steps a goal declaration may wait on its "
+                     "question (default 20). Longer finds some pushes sooner and costs a higher bound per "
+                     "onset. Needs replanning; see docs/online.md."),
             goal_lookback: Optional[int] = typer.Option(
                 None, "--goal-lookback",
-                help="Onsets (steps back since the last decision) the goal check asks, at least the jump "
-                     "window; those older than it at a tenth of --goal-check (default 40). Needs "
-                     "replanning; see docs/online.md."),
+                help="Onsets (steps back since the last decision) the goal check asks (default 40, at "
+                     "least the jump window); those older than the window at a tenth of --goal-check. "
+                     "Needs replanning; see docs/online.md."),
             start: Optional[str] = typer.Option(
                 None, "--start",
                 help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "

@@ -109,8 +109,6 @@ def test_the_goal_check_finds_a_jump_older_than_the_window():
     back, its onset's statistic passes the older onsets' level (0.01) in every run, the goal check
     asks, naming the configuration, and its estimate is at the jump's step with the error that is
     left of it now (the corrected error consistent with the estimate's covariance)."""
-    from scipy.stats import chi2
-
     hits, left, named = [], [], []
     for seed in range(30):
         rng = np.random.default_rng(seed)
@@ -121,7 +119,7 @@ def test_the_goal_check_finds_a_jump_older_than_the_window():
             tests.add(k, A, H, L, S_inv, g)
         conf = tests.tests["configuration"]
         assert conf.onset[conf.best] > 60  # the running test's onsets: 61-80
-        assert np.any(conf.older_asking(0.01))
+        assert np.any(conf.older_questioning(0.01))
         family = tests.questioning(0.01, older=True)
         named.append(family)
         shift, cov, onset = tests.correction(shrink=False, family=family, older_level=0.01)

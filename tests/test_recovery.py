@@ -206,8 +206,9 @@ def test_the_goal_check_asks_onsets_older_than_the_window_as_far_back_as_goal_lo
     """Every onset kept before the window made to question the belief, with a suspected jump that
     would carry the estimate far out of the goal: with the default ``goal_lookback`` (40) an arrival
     more than 20 steps after the last decision waits on the older onsets' question (its event says
-    so) and no goal is declared at a questioned step; with ``goal_lookback`` at the window (20) no
-    onset is kept before it, and the episodes are those of the unpatched policy."""
+    so; asked at a tenth of ``goal_check``) and no goal is declared at a questioned step; with
+    ``goal_lookback`` at the window (20) no onset is kept before it, and the episodes are those of
+    the unpatched policy."""
     from firmtool.online.innovation import JumpTest, JumpTests
 
     real_correction = JumpTests.correction
@@ -219,7 +220,13 @@ def test_the_goal_check_asks_onsets_older_than_the_window_as_far_back_as_goal_lo
         n = smoke.roadmap.problem.model.n
         return np.full(n, 50.0), np.zeros((n, n)), 0
 
-    monkeypatch.setattr(JumpTest, "older_asking", lambda self, level: np.ones(self.older, bool))
+    levels = set()
+
+    def every_one(self, level):
+        levels.add(level)
+        return np.ones(self.older, bool)
+
+    monkeypatch.setattr(JumpTest, "older_questioning", every_one)
     monkeypatch.setattr(JumpTests, "correction", far)
     window_only = ft.simulate(smoke, 12, 2, replan=ReplanSettings(goal_lookback=20), record=False)
     assert [_story(a) for a in plain.episodes] == [_story(b) for b in window_only.episodes]
@@ -227,6 +234,8 @@ def test_the_goal_check_asks_onsets_older_than_the_window_as_far_back_as_goal_lo
     older = [[e for e in ep.events if e.kind == ft.EventKind.GOAL_QUESTIONED and "before the last 20 steps" in e.detail]
              for ep in looked_back.episodes]
     assert sum(map(bool, older)) >= 6, older
+    assert levels == {0.1 * 0.1} and all("(at 0.01 per onset before the last 20 steps)" in e.detail
+                                         for asked in older for e in asked)
     for ep, asked in zip(looked_back.episodes, older):
         declared = {e.step for e in ep.events if e.kind in (ft.EventKind.GOAL, ft.EventKind.GOAL_MISS)}
         assert not declared & {e.step for e in asked}

@@ -131,6 +131,11 @@ class JumpTest:
     window : onsets the test rejects on (its bound splits the false alarm over them).
     false_alarm : per-step false-alarm probability.
     kept : onsets kept in all (at least ``window``; None: ``window``).
+
+    Attributes
+    ----------
+    statistics : (k,) the statistic ``l(theta)`` of every kept onset, oldest first.
+    statistic, best : the running test's: the largest over the window's onsets, and its index.
     """
 
     def __init__(self, basis: np.ndarray, window: int, false_alarm: float, kept: int | None = None) -> None:
@@ -160,7 +165,7 @@ class JumpTest:
         """How many of the kept onsets are older than the running test's window (the first ones)."""
         return max(0, self.onset.size - self.window)
 
-    def older_asking(self, level: float) -> np.ndarray:
+    def older_questioning(self, level: float) -> np.ndarray:
         """(older,) bool: the onsets older than the window whose statistic passes ``chi2.isf(level, p)``."""
         return self.statistics[:self.older] > chi2.isf(level, self.basis.shape[1])
 
@@ -180,10 +185,11 @@ class JumpTest:
         self.d = self.d + GtS @ gamma
         self.C = self.C + GtS @ G
         self.Phi = APhi - L @ G  # (I - L H) A Phi: its part of the error after the update
-        # the onsets kept before the window have seen its measurements: only the window's newest may
-        # hold a direction none has seen yet, so they are solved apart (kept together, the goal
-        # check's older onsets took the fallback's eigendecompositions too: the arm's observe step
-        # +55%; apart, +7-15%)
+        # the window's onsets and the older ones solved apart: the window's then as a test that keeps
+        # only them solves them, whatever else is kept, and the older ones, which have seen more
+        # measurements, seldom need the fallback's eigendecompositions (solved together, one new
+        # onset with an unseen direction sent them all there: the arm's observe step +55%; apart,
+        # +7-15%)
         older = self.older
         sol = np.concatenate([_least_squares(self.C[:older], self.d[:older]),
                               _least_squares(self.C[older:], self.d[older:])])
@@ -311,7 +317,7 @@ class JumpTests:
             evidence[:test.older] = -np.inf
         else:
             evidence[test.older:] = -np.inf
-            evidence[:test.older][~test.older_asking(older_level)] = -np.inf  # a view: written through
+            evidence[:test.older][~test.older_questioning(older_level)] = -np.inf  # a view: written through
         return evidence
 
     def _likeliest(self, names, older_level: float | None) -> str:
@@ -336,7 +342,7 @@ class JumpTests:
         question). A bound this lax would alarm often as the running test; it only makes a
         declaration wait."""
         if older:
-            over = [name for name, t in self.tests.items() if np.any(t.older_asking(level))]
+            over = [name for name, t in self.tests.items() if np.any(t.older_questioning(level))]
         else:
             over = [name for name, t in self.tests.items() if t.statistic > chi2.isf(level, t.basis.shape[1])]
         return self._likeliest(over, level if older else None) if over else None
@@ -356,6 +362,8 @@ class JumpTests:
         t = self.tests[family]
         if by not in ("evidence", "statistic"):
             raise ValueError(f"by: 'evidence' or 'statistic', not {by!r}")
+        if by == "statistic" and older_level is not None:
+            raise ValueError("older_level: the older onsets are chosen by their evidence, not by='statistic'")
         b = int(np.argmax(self._evidence(family, older_level))) if by == "evidence" else t.best
         if family != "state":
             shift, cov, onset = t.correction(b)

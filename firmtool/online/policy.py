@@ -232,13 +232,13 @@ class Policy:
         """The jump test's per-step false-alarm probability, the goal check's level per onset, the
         onsets the running test rejects on and the onsets the goal check asks (:class:`ReplanSettings`
         ``jump_false_alarm`` as resolved, ``goal_check``, ``jump_window``, ``goal_lookback`` as
-        resolved: at least ``jump_window``), or None when no jump test runs (replanning off, the
-        innovation tests off, perfect measurements)."""
+        resolved: at least ``jump_window``; ``jump_window`` with the goal check off), or None when no
+        jump test runs (replanning off, the innovation tests off, perfect measurements)."""
         if not self._jump_test:
             return None
         s = self.settings
-        return (float(self.jump_false_alarm), float(s.goal_check), int(s.jump_window),
-                max(int(s.jump_window), int(s.goal_lookback)))
+        asked = max(int(s.jump_window), int(s.goal_lookback)) if s.goal_check > 0 else int(s.jump_window)
+        return float(self.jump_false_alarm), float(s.goal_check), int(s.jump_window), asked
 
     @property
     def steps(self) -> int:
@@ -688,7 +688,7 @@ class Policy:
             else:
                 still = self._locate(moved, self._run.cand[k]) == landed
             if not still:
-                break
+                break  # this question (its level, family, onsets) makes the declaration wait
         else:
             return False
         test = self._jump.tests[family]
