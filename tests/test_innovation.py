@@ -128,8 +128,11 @@ def test_the_goal_check_finds_a_jump_older_than_the_window():
         hits.append(residual[:2] @ np.linalg.solve(P[:2, :2] + cov[:2, :2], residual[:2]))
         left.append(errors[80][:2] @ np.linalg.solve(P[:2, :2] + cov[:2, :2], errors[80][:2]))
     # the goal check asks every run; the configuration explains a push better than the state's freedom
+    # (29 of 30 here: the bound was set after that first run, at 90%, not derived)
     assert None not in named and named.count("configuration") >= 27, named
-    # the corrected error is consistent with its covariance (chi2(2) on average), the uncorrected is not
+    # the corrected error is consistent with its covariance (chi2(2) on average: the bounds of
+    # test_a_jump_is_found_estimated_and_corrected), the uncorrected is not (means 2.5 and 7.4 here;
+    # the factor 2 was set after that run)
     assert np.mean(hits) < 4.0 and np.median(hits) < 3.0 and np.mean(left) > 2 * np.mean(hits)
 
 

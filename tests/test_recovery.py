@@ -233,7 +233,7 @@ def test_the_goal_check_asks_onsets_older_than_the_window_as_far_back_as_goal_lo
     looked_back = ft.simulate(smoke, 12, 2, record=False)
     older = [[e for e in ep.events if e.kind == ft.EventKind.GOAL_QUESTIONED and "before the last 20 steps" in e.detail]
              for ep in looked_back.episodes]
-    assert sum(map(bool, older)) >= 6, older
+    assert sum(map(bool, older)) >= 6, older  # 10 of 12 here; half, set after that run, not derived
     assert levels == {0.1 * 0.1} and all("(at 0.01 per onset before the last 20 steps)" in e.detail
                                          for asked in older for e in asked)
     for ep, asked in zip(looked_back.episodes, older):

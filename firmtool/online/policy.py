@@ -231,14 +231,13 @@ class Policy:
     def jump_levels(self) -> tuple[float, float, int, int] | None:
         """The jump test's per-step false-alarm probability, the goal check's level per onset, the
         onsets the running test rejects on and the onsets the goal check asks (:class:`ReplanSettings`
-        ``jump_false_alarm`` as resolved, ``goal_check``, ``jump_window``, ``goal_lookback`` as
-        resolved: at least ``jump_window``; ``jump_window`` with the goal check off), or None when no
-        jump test runs (replanning off, the innovation tests off, perfect measurements)."""
+        ``jump_false_alarm`` as resolved, ``goal_check``, ``jump_window``, and
+        :attr:`ReplanSettings.goal_onsets`), or None when no jump test runs (replanning off, the
+        innovation tests off, perfect measurements)."""
         if not self._jump_test:
             return None
         s = self.settings
-        asked = max(int(s.jump_window), int(s.goal_lookback)) if s.goal_check > 0 else int(s.jump_window)
-        return float(self.jump_false_alarm), float(s.goal_check), int(s.jump_window), asked
+        return float(self.jump_false_alarm), float(s.goal_check), int(s.jump_window), int(s.goal_onsets)
 
     @property
     def steps(self) -> int:
@@ -433,7 +432,7 @@ class Policy:
         if problem.config_dim == n:
             bases.pop("state")
         self._jump = (JumpTests(bases, s.jump_window, self.jump_false_alarm, problem.robot.jump_prior(problem),
-                                kept=s.goal_lookback if s.goal_check > 0 else None)
+                                kept=s.goal_onsets)
                       if self._jump_test else None)
         self._cooldown = 0  # no decision before this step (after keeping the running controller)
         self._goal_waited, self._goal_wait_last = 0, -2  # steps a goal declaration waited; the last one

@@ -218,6 +218,12 @@ class ReplanSettings:
             raise InputError(f"replan window, jump_window, goal_lookback and candidates: expected integers >= 1, "
                              f"found {self.window}, {self.jump_window}, {self.goal_lookback}, {self.candidates}")
 
+    @property
+    def goal_onsets(self) -> int:
+        """The onsets the jump test keeps, as many as the goal check asks: ``goal_lookback``, at least
+        ``jump_window``; ``jump_window`` alone with the goal check off (nothing older is asked)."""
+        return max(self.jump_window, self.goal_lookback) if self.goal_check > 0 else self.jump_window
+
 
 @dataclass
 class Decision:
