@@ -79,9 +79,9 @@ JUMP_WINDOW = 20  # onsets the jump test (generalised likelihood ratio) keeps
 # 0.74, undisturbed 0.92 both; the arm within 0.02 either way (undisturbed and pushes at 6 times,
 # 200-400 episodes; its 28-point sweep's means within 0.01). But the unicycle's kidnaps lost at every
 # look: 200 episodes (seed 1) at step 0 0.900 -> 0.885, 160 (seed 2) at steps 1200 / 2000 0.875 /
-# 0.875 -> 0.856 / 0.844, the 40-episode sweep's 6 times 0.847 -> 0.817 on average (its false
-# decisions per undisturbed episode 0.65 -> 0.96, kidnapped at step 1200 1.5 -> 1.9; undisturbed the
-# same or up, pushes within 0.01 on average). A gain on two robots and a loss on a third, as the
+# 0.875 -> 0.856 / 0.844, the 40-episode sweep's 6 times 0.847 -> 0.817 on average (its decisions
+# per undisturbed episode 0.65 -> 0.96, per episode kidnapped at step 1200 1.5 -> 1.9; undisturbed
+# the same or up, pushes within 0.01 on average). A gain on two robots and a loss on a third, as the
 # longer window was, so the budget stays, and a user whose robot meets pushes more than noise sets
 # the rate (`jump_false_alarm`).
 # Why the unicycle differs: the budget counts the path's nominal edge steps, and a mission runs for
