@@ -194,7 +194,7 @@ class JumpTest:
         sol = np.concatenate([_least_squares(self.C[:older], self.d[:older]),
                               _least_squares(self.C[older:], self.d[older:])])
         self.statistics = np.einsum("ij,ij->i", self.d, sol)
-        self.best = self.older + int(np.argmax(self.statistics[self.older:]))
+        self.best = older + int(np.argmax(self.statistics[older:]))
         self.statistic = float(self.statistics[self.best])
         return self.statistic > self.limit
 
