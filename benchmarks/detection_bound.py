@@ -23,8 +23,9 @@ run by the replanning policy in several ways:
   splits it (families x window), told the direction only.
 
 A told detector runs until the policy's own test decides first (then the policy goes on as it is).
-No detector that sees only the measurements finds a push sooner than the first, so where even it
-stays below the undisturbed rate minus 0.10, the shortfall is not detection's to close.
+No detector at that false alarm that sees only the measurements finds a push sooner than the
+first, so where even it stays below the undisturbed rate minus 0.10, the shortfall is not
+detection's to close.
 
 The episode loop is :func:`firmtool.sim.episodes.run_episode`'s (the same streams: the policy column
 equals the sweep's ``replan``), written out here because the told detectors act between steps, a
