@@ -19,8 +19,8 @@ run by the replanning policy in several ways:
   its recursion on the filter's own gains), which fires at ``z > norm.isf(alpha)`` with ``alpha``
   the policy's per-step false alarm (no search over onsets or directions to pay for); when it fires,
   the belief is corrected by that onset's jump estimate (in full) and the policy decides
-  (:meth:`~firmtool.Policy.relocalise`). The same with ``alpha`` split as the policy's own bound
-  splits it (families x window), told the direction only.
+  (:meth:`~firmtool.Policy.relocalise`). The same detector with ``alpha`` split as the policy's own
+  bound splits it (families x window), though it searches neither onsets nor directions.
 
 A told detector runs until the policy's own test decides first (then the policy goes on as it is).
 No detector at that false alarm that sees only the measurements finds a push sooner than the
@@ -29,12 +29,14 @@ detection's to close.
 
 The episode loop is :func:`firmtool.sim.episodes.run_episode`'s (the same streams: the policy column
 equals the sweep's ``replan``), written out here because the told detectors act between steps, a
-place the library's loop keeps for nobody (the policy must not be told).
+place the library's loop keeps for nobody (the policy must not be told); the filter steps and the
+push come from benchmarks/push_evidence.py's record of them.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing
 import sys
 from collections import Counter
@@ -45,6 +47,7 @@ from scipy.stats import norm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import one_blas_thread  # noqa: E402
+from push_evidence import recording  # noqa: E402
 from sweep_disturbances import ROBOTS, solution  # noqa: E402
 
 _JOB: dict = {}  # what forked workers inherit: the policy, the system, the settings
@@ -53,7 +56,8 @@ _JOB: dict = {}  # what forked workers inherit: the policy, the system, the sett
 class ToldDetector:
     """The Neyman-Pearson test of a push by ``delta`` (d,) with a known onset: a
     :class:`~firmtool.online.innovation.JumpTest` of the configuration started at the push's onset,
-    fed the policy's filter steps."""
+    fed the policy's filter steps (recorded by :func:`push_evidence.recording`). It keeps every later
+    onset as well (a :class:`JumpTest` drops its oldest), of which only the first is read."""
 
     def __init__(self, n: int, delta: np.ndarray, alpha: float) -> None:
         from firmtool.online.innovation import JumpTest
@@ -77,11 +81,9 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     """Episode ``i`` pushed at ``_JOB['step']`` in ``mode``: ``("policy", 0)``, ``("told", k)`` or
     ``("detector", alpha)``; its outcome and the steps from the push to the told detector's action."""
     from firmtool.disturbances import as_disturbances, schedule
-    from firmtool.online import innovation
     from firmtool.online.policy import PolicyStatus
-    from firmtool.results import EventKind
     from firmtool.sim.episodes import episode_seeds
-    from firmtool.sim.sweep import informed
+    from firmtool.sim.sweep import DECISIONS, informed
 
     policy, system, t_push, size, seed = (_JOB[k] for k in ("policy", "system", "step", "size", "seed"))
     problem = policy.problem
@@ -97,34 +99,31 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     key = tuple(seeds.disturbances)
     due = schedule(as_disturbances((f"push:{t_push}:{size:g}",)), policy.max_steps,
                    np.random.default_rng(np.random.SeedSequence([*key])))
-    decisions = {EventKind.INNOVATION_ALARM, EventKind.REPLAN, EventKind.KEPT_CONTROLLER, EventKind.REPLAN_FAILED}
     pushed = detector = acted = None
-    add = innovation.JumpTests.add
-
-    def fed(self, *args):  # the policy's filter steps, to the told detector too
-        if detector is not None:
-            detector.add(*args)
-        return add(self, *args)
-
-    innovation.JumpTests.add = fed
-    try:
+    fed = 0  # the recorded filter steps the told detector has taken in
+    # push_evidence's record of the policy's filter steps and of the push's displacement, for the
+    # told detector only
+    with recording() if kind == "detector" else contextlib.nullcontext(([], [])) as (steps, moves):
         while not policy.done:
             u = policy.act()
             now = policy.steps - 1
             if due and due[0][0] <= now:
                 _, dist = due.pop(0)
-                before = system.state.copy()
                 system.disturb(dist, np.random.default_rng(np.random.SeedSequence([*key, 1])))
                 pushed = now
                 if kind == "detector":
-                    detector = ToldDetector(n, (system.state - before)[:d], value)
+                    detector, fed = ToldDetector(n, moves[-1][:d], value), len(steps)
             z, valid = system.step(u)
             if not valid:
                 return "collision", acted
             events = policy.observe(z)
+            if detector is not None:
+                for step in steps[fed:]:
+                    detector.add(*step)
+                fed = len(steps)
             if pushed is None or acted is not None or policy.done:
                 continue
-            if any(e.kind in decisions for e in events):  # the policy's own test came first
+            if any(e.kind in DECISIONS for e in events):  # the policy's own test came first
                 detector, acted = None, -1
             elif kind == "told" and now - pushed + 1 >= value:
                 informed(size)(policy, system)
@@ -133,8 +132,6 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
                 shift, cov, _ = detector.test.correction(0)
                 policy.relocalise(policy.mean + shift, policy.covariance + cov)
                 detector, acted = None, now - pushed + 1
-    finally:
-        innovation.JumpTests.add = add
     if policy.status == PolicyStatus.GOAL:
         inside = policy.regions.true_arrival(np.array([policy.node]), system.state,
                                              angles=problem.robot.angle_coordinates)[0]
