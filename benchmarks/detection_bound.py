@@ -21,6 +21,17 @@ run by the replanning policy in several ways:
   the belief is corrected by that onset's jump estimate (in full) and the policy decides
   (:meth:`~firmtool.Policy.relocalise`). The same detector with ``alpha`` split as the policy's own
   bound splits it (families x window), though it searches neither onsets nor directions.
+- **told onset only**: the same detector told the onset but not the direction: the jump test's
+  statistic at that onset (its likelihood ratio maximised over the push's direction and size),
+  beyond ``chi2.isf(alpha, p)``, at the policy's per-step false alarm or at those of
+  ``--onset-alphas`` (e.g. the rate at which the policy's test really rejects, which its bound
+  over correlated onsets makes lower than nominal). Against the column above: what knowing the
+  direction is worth, apart from knowing the onset.
+
+``--columns`` picks which of these run (default: all). ``--measure-rate N`` first runs ``N``
+undisturbed episodes (the same seeds): their success (the line is 0.10 under it), and how often
+the policy's jump test rejects per step, none of them pushed; a told-onset column at that rate
+follows.
 
 A told detector runs until the policy's own test decides first (then the policy goes on as it is).
 No detector at that false alarm that sees only the measurements finds a push sooner than the
@@ -43,7 +54,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import one_blas_thread  # noqa: E402
@@ -59,11 +70,11 @@ class ToldDetector:
     fed the policy's filter steps (recorded by :func:`push_evidence.recording`). It keeps every later
     onset as well (a :class:`JumpTest` drops its oldest), of which only the first is read."""
 
-    def __init__(self, n: int, delta: np.ndarray, alpha: float) -> None:
+    def __init__(self, n: int, delta: np.ndarray, alpha: float, direction: bool = True) -> None:
         from firmtool.online.innovation import JumpTest
 
-        self.delta = delta
-        self.limit = float(norm.isf(alpha))
+        self.delta = delta if direction else None
+        self.limit = float(norm.isf(alpha)) if direction else float(chi2.isf(alpha, delta.size))
         self.test = JumpTest(np.eye(n)[:, :delta.size], window=1 << 20, false_alarm=0.5)
 
     def add(self, step, A, H, L, S_inv, gamma) -> None:
@@ -73,13 +84,15 @@ class ToldDetector:
         t = self.test
         if t.onset.size == 0:
             return False
+        if self.delta is None:  # told the onset only: the likelihood ratio maximised over directions
+            return float(t.statistics[0]) > self.limit
         q = float(self.delta @ t.C[0] @ self.delta)
         return q > 0 and float(self.delta @ t.d[0]) / np.sqrt(q) > self.limit
 
 
 def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     """Episode ``i`` pushed at ``_JOB['step']`` in ``mode``: ``("policy", 0)``, ``("told", k)`` or
-    ``("detector", alpha)``; its outcome and the steps from the push to the told detector's action."""
+    ``("detector", alpha)`` (told onset and direction) or ``("onset", alpha)``; its outcome and the steps from the push to the told detector's action."""
     from firmtool.disturbances import as_disturbances, schedule
     from firmtool.online.policy import PolicyStatus
     from firmtool.sim.episodes import episode_seeds
@@ -103,7 +116,7 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     fed = 0  # the recorded filter steps the told detector has taken in
     # push_evidence's record of the policy's filter steps and of the push's displacement, for the
     # told detector only
-    with recording() if kind == "detector" else contextlib.nullcontext(([], [])) as (steps, moves):
+    with recording() if kind in ("detector", "onset") else contextlib.nullcontext(([], [])) as (steps, moves):
         while not policy.done:
             u = policy.act()
             now = policy.steps - 1
@@ -111,8 +124,8 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
                 _, dist = due.pop(0)
                 system.disturb(dist, np.random.default_rng(np.random.SeedSequence([*key, 1])))
                 pushed = now
-                if kind == "detector":
-                    detector, fed = ToldDetector(n, moves[-1][:d], value), len(steps)
+                if kind in ("detector", "onset"):
+                    detector, fed = ToldDetector(n, moves[-1][:d], value, kind == "detector"), len(steps)
             z, valid = system.step(u)
             if not valid:
                 return "collision", acted
@@ -139,6 +152,40 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     return str(policy.status), acted
 
 
+def _undisturbed(task: tuple[int, int]) -> tuple[int, int, int]:
+    """Undisturbed episodes ``i0..i1``: the jump test's filter steps, its rejections (each a false
+    alarm, none of them pushed) and the successes."""
+    from firmtool.online import innovation
+    from firmtool.results import Outcome
+    from firmtool.sim.episodes import episode_seeds, run_episode
+
+    i0, i1 = task
+    tested = rejected = successes = 0
+    add = innovation.JumpTests.add
+
+    def counted(self, *step):
+        nonlocal tested, rejected
+        rejects = add(self, *step)
+        tested, rejected = tested + 1, rejected + bool(rejects)
+        return rejects
+
+    innovation.JumpTests.add = counted
+    try:
+        for i in range(i0, i1):
+            ep = run_episode(_JOB["policy"], _JOB["system"], episode_seeds(_JOB["seed"], i))
+            successes += ep.outcome == Outcome.SUCCESS
+    finally:
+        innovation.JumpTests.add = add
+    return tested, rejected, successes
+
+
+def _map(fn, tasks: list, workers: int) -> list:
+    if workers > 1:
+        with multiprocessing.get_context("fork").Pool(workers) as pool:
+            return pool.map(fn, tasks, chunksize=1)
+    return [fn(task) for task in tasks]
+
+
 def _chunk(task: tuple[int, int, tuple[str, float]]) -> list[tuple[str, int | None]]:
     i0, i1, mode = task
     return [episode(i, mode) for i in range(i0, i1)]
@@ -151,6 +198,13 @@ def main() -> None:
     p.add_argument("--times", type=int, nargs="+", default=[20, 90])
     p.add_argument("--size", type=float, default=1.0)
     p.add_argument("--delays", type=int, nargs="+", default=[1, 3, 5])
+    p.add_argument("--columns", nargs="+", default=["policy", "late", "direction", "onset"],
+                   choices=["policy", "late", "direction", "onset"])
+    p.add_argument("--onset-alphas", type=float, nargs="+",
+                   help="false alarms of the detector told the onset only (default: the policy's)")
+    p.add_argument("--measure-rate", type=int, default=0, metavar="EPISODES",
+                   help="measure the jump test's per-step rejection rate on that many undisturbed episodes "
+                        "(the same seeds) and add a told-onset column at it")
     p.add_argument("--episodes", type=int, default=200)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1)
@@ -165,22 +219,31 @@ def main() -> None:
     families = 2 if d < n else 1
     alpha = policy.jump_false_alarm
     split = alpha / (families * policy.settings.jump_window)
-    modes = ([("policy", 0)] + [("told", k) for k in args.delays] + [("detector", alpha), ("detector", split)])
-    names = (["policy"] + [f"told {k} late" for k in args.delays]
-             + [f"told onset+direction, {alpha:.2g}", f"the same at {split:.2g} (the policy's split)"])
+    columns = {"policy": [(("policy", 0), "policy")],
+               "late": [(("told", k), f"told {k} late") for k in args.delays],
+               "direction": [(("detector", alpha), f"told onset+direction, {alpha:.2g}"),
+                             (("detector", split), f"the same at {split:.2g} (the policy's split)")],
+               "onset": [(("onset", a), f"told onset only, {a:.2g}") for a in (args.onset_alphas or [alpha])]}
+    _JOB.update(policy=policy, system=SimulatedSystem(policy.problem), size=args.size, seed=args.seed)
+    if args.measure_rate:  # the rate the test really rejects at: a told-onset column at it
+        counts = np.sum(_map(_undisturbed, [(i0, min(args.measure_rate, i0 + 25))
+                                            for i0 in range(0, args.measure_rate, 25)], args.workers), axis=0)
+        tested, rejected, successes = (int(c) for c in counts)
+        rate = max(rejected, 1) / tested  # none rejected: a column at one in that many steps, not at 0
+        print(f"undisturbed, {args.measure_rate} episodes: success {successes / args.measure_rate:.3f}; the jump "
+              f"test rejected at {rejected} of {tested} steps, {rejected / tested:.2g} per step against its "
+              f"nominal {alpha:.2g}")
+        columns["onset"].append((("onset", rate), f"told onset only, {rate:.2g} (the measured rate)"))
+    chosen = [c for name in args.columns for c in columns[name]]
+    modes, names = [m for m, _ in chosen], [name for _, name in chosen]
     print(f"{ROBOTS[args.robot][0]}: pushes of {args.size:g}, {args.episodes} episodes a time, seed {args.seed}; "
           f"the policy's jump test at {alpha:.3g} per step")
     print("push step | " + " | ".join(names) + "  (success rate; a told detector: rate, acted first / median steps)")
-    _JOB.update(policy=policy, system=SimulatedSystem(policy.problem), size=args.size, seed=args.seed)
     for t in args.times:
         _JOB["step"] = t
         chunk = 25
         tasks = [(i0, min(args.episodes, i0 + chunk), m) for m in modes for i0 in range(0, args.episodes, chunk)]
-        if args.workers > 1:
-            with multiprocessing.get_context("fork").Pool(args.workers) as pool:
-                results = pool.map(_chunk, tasks, chunksize=1)
-        else:
-            results = [_chunk(task) for task in tasks]
+        results = _map(_chunk, tasks, args.workers)
         per_mode: dict = {}
         for (_, _, m), rows in zip(tasks, results):
             per_mode.setdefault(m, []).extend(rows)
@@ -189,7 +252,7 @@ def main() -> None:
             rows = per_mode[m]
             rate = Counter(o for o, _ in rows)["success"] / len(rows)
             acted = [a for _, a in rows if a is not None and a > 0]
-            cells.append(f"{rate:.3f}" if m[0] != "detector" else
+            cells.append(f"{rate:.3f}" if m[0] not in ("detector", "onset") else
                          f"{rate:.3f}, {len(acted)} / {np.median(acted) if acted else float('nan'):g}")
         print(f"{t} | " + " | ".join(cells), flush=True)
 

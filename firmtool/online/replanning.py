@@ -69,7 +69,9 @@ JUMP_WINDOW = 20  # onsets the jump test (generalised likelihood ratio) keeps
 # 3e-2, 400 episodes); the unicycle's ~2000-step missions (nominal path 461 steps) take 0.03 false
 # decisions per episode at 1e-4, 0.17 at 5.4e-4 (its budget's rate), 0.6-0.7 at 2.2e-3 and 2 at
 # 1e-2 (undisturbed 0.82, 0.80, 0.75-0.78, 0.60 in 20-40 episodes). The test is conservative (the
-# onsets' statistics are correlated): false alarms are ~10x fewer than nominal.
+# onsets' statistics are correlated): it rejects 3-5x less often than nominal (undisturbed, 2026-12-01:
+# point robot 4.8e-4 per step against 2.5e-3, 1000 episodes; flyer 2.6e-4 against 7.6e-4, 400;
+# benchmarks/detection_bound.py --measure-rate).
 # Measured again on the later policy (the evidence rule, the goal check and its look-back made a
 # false decision cheaper), on common random numbers, 0.25 against 0.8 (the point robot's rate 2.5e-3
 # against 8e-3): point robot, 1500 episodes a point (seeds 0-2), pushes of 1.0 at steps 0 / 20 / 70 /
