@@ -68,7 +68,8 @@ class ToldDetector:
     """The Neyman-Pearson test of a push by ``delta`` (d,) with a known onset: a
     :class:`~firmtool.online.innovation.JumpTest` of the configuration started at the push's onset,
     fed the policy's filter steps (recorded by :func:`push_evidence.recording`). It keeps every later
-    onset as well (a :class:`JumpTest` drops its oldest), of which only the first is read."""
+    onset as well (a :class:`JumpTest` drops its oldest), of which only the first is read.
+    ``direction`` False: told the onset only, the test's statistic at it beyond ``chi2.isf(alpha, d)``."""
 
     def __init__(self, n: int, delta: np.ndarray, alpha: float, direction: bool = True) -> None:
         from firmtool.online.innovation import JumpTest
@@ -91,8 +92,9 @@ class ToldDetector:
 
 
 def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
-    """Episode ``i`` pushed at ``_JOB['step']`` in ``mode``: ``("policy", 0)``, ``("told", k)`` or
-    ``("detector", alpha)`` (told onset and direction) or ``("onset", alpha)``; its outcome and the steps from the push to the told detector's action."""
+    """Episode ``i`` pushed at ``_JOB['step']`` in ``mode``: ``("policy", 0)``, ``("told", k)``,
+    ``("detector", alpha)`` (told onset and direction) or ``("onset", alpha)`` (told the onset only);
+    its outcome and the steps from the push to the told detector's action."""
     from firmtool.disturbances import as_disturbances, schedule
     from firmtool.online.policy import PolicyStatus
     from firmtool.sim.episodes import episode_seeds
