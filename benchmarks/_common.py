@@ -42,7 +42,7 @@ def designed_roadmap(name: str) -> Path:
 def load(name: str):
     """(problem, design, regions) of a designed roadmap."""
     from firmtool.pipeline import design_of, problem_of
-    from firmtool.roadmap import Roadmap
+    from firmtool.io.roadmap_file import Roadmap
     rm = Roadmap(designed_roadmap(name))
     problem, d = problem_of(rm), design_of(rm)
     return problem, d, d.regions(problem)

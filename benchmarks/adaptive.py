@@ -37,7 +37,7 @@ def run(path: Path, out: Path, workers: int, **estimation) -> dict:
     seconds = time.perf_counter() - t0
     sol = solve_stage(out)
     lo, hi = sol.start_success_probability_ci95
-    from firmtool.roadmap import Roadmap
+    from firmtool.io.roadmap_file import Roadmap
     e = Roadmap(out).require("edges", "particles", "particle_steps")
     return {"particles_per_edge_first_pass": sc.estimation.particles, "edges": report.edges,
             "particles": int(e["particles"].sum()), "particle_steps": int(e["particle_steps"].sum()),

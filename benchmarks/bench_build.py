@@ -55,7 +55,7 @@ class SessionTimer:
     """Times parallel.Workers.run (the parallel sections) and counts tasks, by wrapping it."""
 
     def __init__(self) -> None:
-        from firmtool import parallel
+        from firmtool.estimation import executors as parallel
         self.parallel = parallel
         self.real = getattr(getattr(parallel, "Workers", None), "run", None)  # None: an older tree
         self.seconds, self.tasks, self.by_fn = (0.0 if self.real else float("nan")), 0, {}

@@ -84,10 +84,10 @@ def main(argv=None) -> dict:
     one_blas_thread()
     import contextlib
 
-    from firmtool import parallel
-    from firmtool.kernels import engine_choice
-    from firmtool.parallel import EstimationJob, job_extras, run_edges
-    from firmtool.roadmap import Roadmap
+    from firmtool.estimation import executors as parallel
+    from firmtool.estimation.compiled import engine_choice
+    from firmtool.estimation.executors import EstimationJob, job_extras, run_edges
+    from firmtool.io.roadmap_file import Roadmap
 
     @contextlib.contextmanager
     def session_of(executor: str, scheduler: str | None):

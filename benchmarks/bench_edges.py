@@ -4,7 +4,7 @@
 
 Two measurements per robot, on the same fixed random subset of the scenario's edges:
 
-* engine: ``firmtool.edges.simulate`` alone (gains designed beforehand), one process: the numpy
+* engine: ``firmtool.estimation.edges.simulate`` alone (gains designed beforehand), one process: the numpy
   path, the compiled kernel fed numpy's noise (``numpy_noise=True``: exactly the numpy path's
   particles) and the compiled kernel as it runs in builds (noise drawn in the kernel);
 * estimate: ``parallel.run_edges`` end to end (per edge: the local controller's gains, node
@@ -32,8 +32,8 @@ def _edges(d, count: int, seed: int = 0) -> np.ndarray:
 
 
 def engine_throughput(name: str, edges_count: int, repeat: int, particles: int | None = None) -> dict:
-    from firmtool.design import local_controller
-    from firmtool.edges import initial_ensemble, simulate
+    from firmtool.roadmap.design import local_controller
+    from firmtool.estimation.edges import initial_ensemble, simulate
     problem, d, regions = load(name)
     M = particles or problem.scenario.estimation.particles
     edges = _edges(d, edges_count)
@@ -60,9 +60,9 @@ def engine_throughput(name: str, edges_count: int, repeat: int, particles: int |
 
 
 def estimate_throughput(name: str, edges_count: int, repeat: int, workers: int, eng: str) -> dict:
-    from firmtool.parallel import EstimationJob, run_edges
+    from firmtool.estimation.executors import EstimationJob, run_edges
     from _common import designed_roadmap
-    from firmtool.roadmap import Roadmap
+    from firmtool.io.roadmap_file import Roadmap
     problem, d, _ = load(name)
     sc = problem.scenario
     rm = Roadmap(designed_roadmap(name))

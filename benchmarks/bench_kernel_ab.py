@@ -1,8 +1,8 @@
-"""A/B of versions of firmtool/kernels.py in one process: does every particle end identically, and
+"""A/B of versions of firmtool/estimation/compiled.py in one process: does every particle end identically, and
 how long does the step kernel take per particle-step?
 
-    git show main:firmtool/kernels.py > /tmp/k_main.py
-    ROUNDS=15 python benchmarks/bench_kernel_ab.py /tmp/k_main.py firmtool/kernels.py
+    git show main:firmtool/estimation/compiled.py > /tmp/k_main.py
+    ROUNDS=15 python benchmarks/bench_kernel_ab.py /tmp/k_main.py firmtool/estimation/compiled.py
 
 Each file is copied into a fresh temporary directory and loaded as its own module (so each compiles
 its kernel once, here, with no disk cache that could be stale); both use this checkout's package for
@@ -44,10 +44,10 @@ CASES = [(name, kind) for name in ("arm", "point") for kind in ("imperfect", "pe
 
 def _case(name: str, kind: str, edges_count: int, particles: int, tmp: Path) -> dict:
     """The designed roadmap of one scenario (perfect: its [measurement] replaced), edges, controllers, starts."""
-    from firmtool.design import local_controller
-    from firmtool.edges import initial_ensemble
+    from firmtool.roadmap.design import local_controller
+    from firmtool.estimation.edges import initial_ensemble
     from firmtool.pipeline import design_of, design_stage, problem_of, sample_stage
-    from firmtool.roadmap import Roadmap
+    from firmtool.io.roadmap_file import Roadmap
 
     text = SCENARIOS[name].read_text()
     if kind == "perfect":

@@ -1,4 +1,4 @@
-"""Cold compile time of the compiled Monte Carlo engine (``firmtool.kernels``), and its load from
+"""Cold compile time of the compiled Monte Carlo engine (``firmtool.estimation.compiled``), and its load from
 numba's disk cache.
 
     python benchmarks/bench_kernel_compile.py [--repeat 3]
@@ -39,9 +39,9 @@ def _small_arm() -> str:
 def child() -> None:
     import numpy as np
 
-    from firmtool.design import design, local_controller
-    from firmtool.edges import initial_ensemble, simulate
-    from firmtool.nodes import roadmap_nodes
+    from firmtool.roadmap.design import design, local_controller
+    from firmtool.estimation.edges import initial_ensemble, simulate
+    from firmtool.roadmap.nodes import roadmap_nodes
     from firmtool.problem import build_problem
     from firmtool.scenario import parse_scenario
 

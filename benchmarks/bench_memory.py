@@ -22,7 +22,7 @@ CHILD = r"""
 import json, resource, sys, tracemalloc
 sys.path.insert(0, {here!r})
 from _common import load, one_blas_thread
-from firmtool.edges import estimate_edge
+from firmtool.estimation.edges import estimate_edge
 import numpy as np
 one_blas_thread()
 problem, d, regions = load("arm")

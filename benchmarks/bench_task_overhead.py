@@ -13,9 +13,9 @@ import time
 import scipy.linalg  # noqa: F401  (scipy's own BLAS loaded first, so the limit below covers it)
 from threadpoolctl import threadpool_limits
 
-from firmtool.parallel import EstimationJob, run_edges
+from firmtool.estimation.executors import EstimationJob, run_edges
 from firmtool.pipeline import design_of, problem_of
-from firmtool.roadmap import Roadmap
+from firmtool.io.roadmap_file import Roadmap
 
 
 def main() -> None:

@@ -36,8 +36,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args(argv)
     one_blas_thread()
-    from firmtool.parallel import EstimationJob, run_edges
-    from firmtool.roadmap import Roadmap
+    from firmtool.estimation.executors import EstimationJob, run_edges
+    from firmtool.io.roadmap_file import Roadmap
 
     problem, d, _ = load("arm")
     sc = problem.scenario

@@ -38,7 +38,7 @@ def posterior_mean_prediction(rm, policy) -> float:
     import numpy as np
     import scipy.sparse
 
-    from firmtool.calibration import posterior_rows
+    from firmtool.estimation.calibration import posterior_rows
     from firmtool.graph import success_probability
 
     E, N = rm.edges.shape[0], rm.nodes.shape[0]

@@ -95,7 +95,7 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     """Episode ``i`` pushed at ``_JOB['step']`` in ``mode``: ``("policy", 0)``, ``("told", k)``,
     ``("detector", alpha)`` (told onset and direction) or ``("onset", alpha)`` (told the onset only);
     its outcome and the steps from the push to the told detector's action."""
-    from firmtool.disturbances import as_disturbances, schedule
+    from firmtool.sim.disturbances import as_disturbances, schedule
     from firmtool.online.policy import PolicyStatus
     from firmtool.sim.episodes import episode_seeds
     from firmtool.sim.sweep import DECISIONS, informed

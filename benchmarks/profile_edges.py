@@ -41,10 +41,10 @@ def main(argv=None) -> dict:
                     help="time the local controller with its recursion run to the end (as execution reads it)")
     args = ap.parse_args(argv)
     one_blas_thread()
-    from firmtool.design import local_controller
-    from firmtool.edges import edge_seed_sequence, initial_ensemble, simulate
-    from firmtool.parallel import EstimationJob, run_batch
-    from firmtool.roadmap import Roadmap
+    from firmtool.roadmap.design import local_controller
+    from firmtool.estimation.edges import edge_seed_sequence, initial_ensemble, simulate
+    from firmtool.estimation.executors import EstimationJob, run_batch
+    from firmtool.io.roadmap_file import Roadmap
 
     problem, d, regions = load(args.robot)
     sc = problem.scenario

@@ -99,7 +99,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
     one_blas_thread()
-    from firmtool.disturbances import as_disturbances
+    from firmtool.sim.disturbances import as_disturbances
     from firmtool.results import EventKind, Outcome
     from firmtool.sim.environment import SimulatedSystem
     from firmtool.sim.episodes import episode_seeds, run_episode

@@ -46,8 +46,8 @@ _EXPORTS = {
     "PolicyStatus": "firmtool.online.policy",
     "SimulatedSystem": "firmtool.sim.environment",
     "episode_seeds": "firmtool.sim.episodes",
-    "UserDisturbance": "firmtool.disturbances",
-    "Disturbance": "firmtool.disturbances",
+    "UserDisturbance": "firmtool.sim.disturbances",
+    "Disturbance": "firmtool.sim.disturbances",
     "SolveStatus": "firmtool.graph",
     "SampleReport": "firmtool.reports",
     "DesignReport": "firmtool.reports",
@@ -69,7 +69,7 @@ __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
     from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, plot, simulate, solve
-    from firmtool.disturbances import Disturbance, UserDisturbance
+    from firmtool.sim.disturbances import Disturbance, UserDisturbance
     from firmtool.errors import FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError
     from firmtool.online.policy import Policy, PolicyStatus
     from firmtool.online.replanning import ReplanSettings

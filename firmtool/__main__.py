@@ -1,18 +1,18 @@
 """The ``firmtool`` console script and ``python -m firmtool``.
 
 The Ctrl-C handler is installed when this module is imported, the earliest moment firmtool's own
-code runs (before numpy, scipy and typer are imported); see :mod:`firmtool.interrupts`. The
+code runs (before numpy, scipy and typer are imported); see :mod:`firmtool.io.interrupts`. The
 interpreter's own start-up before it (a few tens of milliseconds) is outside firmtool's reach.
 """
 
-from firmtool import interrupts
+from firmtool.io import interrupts
 
 interrupts.install()
 
 
 def main() -> None:
     """Run the command line (imported only now, after the handler is in place)."""
-    from firmtool.cli import main as cli_main
+    from firmtool.cli.commands import main as cli_main
 
     cli_main()
 

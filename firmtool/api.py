@@ -25,14 +25,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.errors import InputError
 from firmtool.graph import SolveStatus, policy_path
-from firmtool.nodes import GOAL, START_INDEX
+from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.reports import BuildReport, SolveReport
 from firmtool.results import Outcome, Results
-from firmtool.roadmap import STAGES, write_roadmap
-from firmtool.roadmap import Roadmap as RoadmapFile
+from firmtool.io.roadmap_file import STAGES, write_roadmap
+from firmtool.io.roadmap_file import Roadmap as RoadmapFile
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 
@@ -40,9 +40,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-    from firmtool.calibration import EdgeCounts
-    from firmtool.design import Design
-    from firmtool.disturbances import Disturbance
+    from firmtool.estimation.calibration import EdgeCounts
+    from firmtool.roadmap.design import Design
+    from firmtool.sim.disturbances import Disturbance
     from firmtool.online.replanning import ReplanSettings
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
@@ -140,7 +140,7 @@ class Roadmap:
 
     @property
     def node_kinds(self) -> np.ndarray:
-        """(N,) int8: 0 regular, 1 start, 2 goal (``firmtool.nodes.REGULAR / START / GOAL``)."""
+        """(N,) int8: 0 regular, 1 start, 2 goal (``firmtool.roadmap.nodes.REGULAR / START / GOAL``)."""
         return self._data.require("nodes", "kind")["kind"]
 
     @property
@@ -210,8 +210,8 @@ class Roadmap:
 
     @functools.cached_property
     def edge_counts(self) -> "EdgeCounts":
-        """The outcome counts in sparse form (``firmtool.calibration.EdgeCounts``), for calibration."""
-        from firmtool.calibration import edge_counts_of
+        """The outcome counts in sparse form (``firmtool.estimation.calibration.EdgeCounts``), for calibration."""
+        from firmtool.estimation.calibration import edge_counts_of
 
         return edge_counts_of(self._data)
 
@@ -458,7 +458,7 @@ class Solution:
 
     def success_probability_interval(self, policy: str = "firm") -> tuple[float, float]:
         """95% interval of the start node's success probability under ``policy``, from the
-        uncertainty of the edge counts (:func:`firmtool.calibration.predicted_interval`): every
+        uncertainty of the edge counts (:func:`firmtool.estimation.calibration.predicted_interval`): every
         policy edge's outcome distribution is drawn from its Dirichlet posterior (prior 1/2 on every
         observed outcome and on failure), and the interval is the shortest one holding 95% of the
         draws and the point estimate. Computed once when the roadmap is solved, from a stream keyed by
@@ -469,7 +469,7 @@ class Solution:
         ----------
         policy : ``"firm"`` or ``"shortest-path"``.
         """
-        from firmtool.calibration import predicted_interval
+        from firmtool.estimation.calibration import predicted_interval
 
         if policy not in self._intervals:
             edges, probabilities = self._policy(policy)
@@ -591,7 +591,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         initial controller to the best nearby node).
     disturbances : iterable of str, Disturbance or callable
         ``"push:STEP:SIZE"``, ``"push:random:SIZE:RATE"``, ``"kidnap:STEP"``,
-        ``"kidnap:random:RATE"`` (see :mod:`firmtool.disturbances`), or a callable
+        ``"kidnap:random:RATE"`` (see :mod:`firmtool.sim.disturbances`), or a callable
         ``fn(step, state, rng) -> new state (n,) or None`` asked before every step.
     replan : ReplanSettings, optional
         Replanning settings (default: on, threshold 3, a decision's deadline the control period on
@@ -609,7 +609,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         Success rate with its Wilson interval, the prediction with its interval, the calibration
         check of the edges taken, compute per step and per decision, and the episodes.
     """
-    from firmtool.disturbances import as_disturbances
+    from firmtool.sim.disturbances import as_disturbances
     from firmtool.online.policy import Policy
     from firmtool.sim.episodes import run_episodes
 

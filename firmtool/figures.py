@@ -26,9 +26,9 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Ellipse, Rectangle
 
 from firmtool import __version__
-from firmtool.atomic import check_target, write_bytes
-from firmtool.design import Design
-from firmtool.nodes import GOAL, START_INDEX
+from firmtool.io.atomic import check_target, write_bytes
+from firmtool.roadmap.design import Design
+from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.problem import Problem
 from firmtool.results import Episode
 
@@ -358,12 +358,12 @@ def is_firmtool_png(path: str | Path) -> bool:
 
 def check_output(path: str | Path, force: bool = False) -> Path:
     """Refuse a figure output path that is not a firmtool PNG (unless ``force``), a folder, a device,
-    or lies under a file (:func:`firmtool.atomic.check_target`)."""
+    or lies under a file (:func:`firmtool.io.atomic.check_target`)."""
     return check_target(path, "PNG image", is_firmtool_png, force)
 
 
 def save_figure(fig: Figure, path: str | Path, force: bool = False) -> None:
-    """Write a PNG atomically: rendered in memory, then :func:`firmtool.atomic.write_bytes` (an
+    """Write a PNG atomically: rendered in memory, then :func:`firmtool.io.atomic.write_bytes` (an
     existing file there is replaced only if it is a firmtool PNG, or with ``force``)."""
     try:
         check_output(path, force)

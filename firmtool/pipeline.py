@@ -15,32 +15,34 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
-from firmtool import interrupts, warmup
-from firmtool.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
-from firmtool.atomic import check_target
-from firmtool.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
-from firmtool.connectivity import connect_goals, connectivity_report
-from firmtool.design import Design, design, start_covariance
-from firmtool.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, edge_costs, edge_keys, from_arrays,
+from firmtool.io import interrupts
+
+from firmtool.estimation import warmup
+from firmtool.estimation.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
+from firmtool.io.atomic import check_target
+from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
+from firmtool.roadmap.connectivity import connect_goals, connectivity_report
+from firmtool.roadmap.design import Design, design, start_covariance
+from firmtool.estimation.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, edge_costs, edge_keys, from_arrays,
                                  outcome_probabilities, to_arrays)
-from firmtool.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.graph import (SolveStatus, policy_path, reachable_from, shortest_path_policy, solve_dp,
                             success_probability)
-from firmtool.kernels import engine_choice
-from firmtool.locking import writer_lock
-from firmtool.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
-from firmtool.parallel import (EstimationJob, Workers, default_workers, job_extras, parallel_design,
+from firmtool.estimation.compiled import engine_choice
+from firmtool.io.locking import writer_lock
+from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
+from firmtool.estimation.executors import (EstimationJob, Workers, default_workers, job_extras, parallel_design,
                                parallel_validity, remember_problem, run_edges)
 from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import DESIGN_NODES, ESTIMATE, SOLVE, Counter, ProgressCallback
 from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
                               DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
-from firmtool.resources import check_budget, check_workers
-from firmtool.roadmap import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, is_roadmap_file,
+from firmtool.estimation.budgets import check_budget, check_workers
+from firmtool.io.roadmap_file import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, is_roadmap_file,
                               read_edge_cache, restamp, update_scenario, write_edge_cache, write_stage)
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
-from firmtool.scenario_io import synced
+from firmtool.scenario.write import synced
 
 # Seconds between checkpoints of the estimate stage (finished edges written to /edge_cache).
 CHECKPOINT_SECONDS = 10.0
@@ -106,7 +108,7 @@ def _identity(problem: Problem) -> str:
 
 def check_output(path: str | Path, force: bool = False) -> Path:
     """Refuse a roadmap output path that is not a firmtool roadmap (unless ``force``), a folder, a
-    device, or lies under a file (:func:`firmtool.atomic.check_target`)."""
+    device, or lies under a file (:func:`firmtool.io.atomic.check_target`)."""
     return check_target(path, "roadmap", is_roadmap_file, force)
 
 
@@ -143,7 +145,7 @@ def execution_design(roadmap: Roadmap) -> Design:
 def as_scenario(scenario: Scenario | str | Path) -> Scenario:
     """A scenario, or the one in the file at a path; a scenario whose fields no longer say what its
     text says (changed with :func:`dataclasses.replace`) gets the text of its fields
-    (:func:`firmtool.scenario_io.synced`), since the roadmap stores the text."""
+    (:func:`firmtool.scenario.write.synced`), since the roadmap stores the text."""
     return synced(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
 
 
@@ -159,7 +161,7 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     force : replace an existing file there even if it is not a firmtool roadmap.
     validity : a user's vectorised checker (:func:`firmtool.problem.build_problem`); the roadmap
         records its identity, and the later stages need the same checker.
-    session : workers (:class:`firmtool.parallel.Workers`) that check large batches of states
+    session : workers (:class:`firmtool.estimation.executors.Workers`) that check large batches of states
         (the collision checks of node pairs); the nodes are the same without them.
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the nodes sampled.
     """
@@ -220,7 +222,7 @@ def design_stage(path: str | Path, *, validity: Callable | None = None, workers:
     roadmap's Python validity checker, if it was built with one.
 
     The node stabilisers, the collision checks of node pairs and the edges' nominals run on the
-    workers of ``session`` (a :class:`firmtool.parallel.Workers` of the calling command), or of
+    workers of ``session`` (a :class:`firmtool.estimation.executors.Workers` of the calling command), or of
     ``workers`` / ``executor`` / ``scheduler`` as in :func:`estimate_stage` (default: in this
     process). The design is the same, bit for bit, however it runs. ``progress``: told of the nodes
     and edges designed (:mod:`firmtool.progress`)."""
@@ -270,12 +272,12 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     """Monte Carlo estimation of every edge, in parallel, then adaptive rounds; writes ``/edges``.
 
     A uniform first pass gives every edge ``estimation.particles`` particles; then, unless
-    ``estimation.adaptive_particles`` is 0, :func:`firmtool.adaptive.refine` adds particles to the
+    ``estimation.adaptive_particles`` is 0, :func:`firmtool.estimation.adaptive.refine` adds particles to the
     edges the DP's policy depends on until the start's success probability is known to
     ``estimation.target_halfwidth`` (its 95% interval) or the budget is spent.
 
-    Estimates whose key (:func:`firmtool.edge_table.edge_keys`, and
-    :func:`firmtool.edge_table.blocks_key` for more particles) matches a stored one, in ``/edges``
+    Estimates whose key (:func:`firmtool.estimation.edge_table.edge_keys`, and
+    :func:`firmtool.estimation.edge_table.blocks_key` for more particles) matches a stored one, in ``/edges``
     or in ``/edge_cache``, are reused. Finished edges are checkpointed to ``/edge_cache`` every
     ``checkpoint_seconds`` and on Ctrl-C, so an interrupted run resumes where it stopped. An edge
     that fails twice is left out of ``/edges`` and listed in the report's ``failed_edges`` (and the
@@ -291,7 +293,7 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
         estimated (``total``: the edges this run estimates).
     checkpoint_seconds : seconds between checkpoints (the first comes after the first batch).
     validity : the roadmap's Python validity checker, if it was built with one.
-    session : the :class:`firmtool.parallel.Workers` of the calling command (a build keeps one for
+    session : the :class:`firmtool.estimation.executors.Workers` of the calling command (a build keeps one for
         all its stages); ``workers`` and ``executor`` are then its own.
     """
     if workers is not None:
@@ -488,7 +490,7 @@ def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, fa
 def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
     """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``.
 
-    Failure includes the goal misses (:data:`firmtool.edges.GOAL_MISS`: the belief declared arrival in
+    Failure includes the goal misses (:data:`firmtool.estimation.edges.GOAL_MISS`: the belief declared arrival in
     a goal ball that the true task point was outside of), so that the DP and the success
     probabilities are for success judged on the true state."""
     e = roadmap.require("edges", "source", "particles", "outcome_edge", "outcome_code", "outcome_count")
@@ -511,7 +513,7 @@ class PolicyGroup:
         ``failure_cost``, ``method``; the prediction intervals of the start node's success probability
         under each policy, ``success_probability_ci95`` and ``shortest_path_success_probability_ci95``
         (2,), with ``interval_method``, ``interval_prior`` and ``interval_samples``
-        (:func:`firmtool.calibration.predicted_interval`; absent in files solved before them).
+        (:func:`firmtool.estimation.calibration.predicted_interval`; absent in files solved before them).
     seconds : wall time of the solve (0 for a group read from a file).
     """
 
@@ -677,7 +679,7 @@ def add_nodes_stage(path: str | Path, count: int, connect: bool = False, *,
     round number (so a densified build is reproducible). Later stages are rebuilt by the caller.
 
     With ``connect`` (the start cannot reach the goal), the nodes go first where connections fail
-    (:func:`firmtool.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
+    (:func:`firmtool.roadmap.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
     the rest."""
     with writer_lock(path):
         return _add_nodes_stage(path, count, connect, validity)
@@ -816,7 +818,7 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
 
 
 def roadmap_connectivity(roadmap: Roadmap, validity: Callable | None = None) -> ConnectivityReport:
-    """The connected structure of a roadmap's nodes (:func:`firmtool.connectivity.connectivity_report`),
+    """The connected structure of a roadmap's nodes (:func:`firmtool.roadmap.connectivity.connectivity_report`),
     what its connection stage added, and the goal nodes the start reaches under the estimated edges
     (when ``/edges`` is there). ``validity``: the roadmap's Python validity checker, if it was built
     with one (the free segments between nodes depend on it)."""

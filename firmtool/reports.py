@@ -134,7 +134,7 @@ class AdaptiveRound(Report):
 
 @dataclasses.dataclass(frozen=True)
 class AdaptiveReport(Report):
-    """Adaptive Monte Carlo (:func:`firmtool.adaptive.refine`): particles where they change the answer.
+    """Adaptive Monte Carlo (:func:`firmtool.estimation.adaptive.refine`): particles where they change the answer.
 
     Attributes
     ----------
@@ -143,7 +143,7 @@ class AdaptiveReport(Report):
     first_pass_particles : particles of the uniform first pass; ``particles_added`` by the rounds.
     rounds : the roadmap after the first pass and after every round.
     reached : the start's interval half-width reached the target (scaled to the probability:
-        :func:`firmtool.adaptive.required_halfwidth`).
+        :func:`firmtool.estimation.adaptive.required_halfwidth`).
     reason : why the rounds stopped.
     halfwidth : the last half-width.
     """
@@ -201,7 +201,7 @@ class EstimateReport(Report):
 @dataclasses.dataclass(frozen=True)
 class AddNodesReport(Report):
     """One densification round's new nodes (paper III-E); ``connect_added`` of them placed where
-    connections to the goal failed (:func:`firmtool.connectivity.connect_goals`)."""
+    connections to the goal failed (:func:`firmtool.roadmap.connectivity.connect_goals`)."""
 
     added: int
     nodes: int
@@ -266,7 +266,7 @@ class ConnectivityReport(Report):
     start_component_nodes : nodes in the start's component.
     goal_nodes, connected_goal_nodes : the goal nodes sampling found, and those in the start's component.
     goal_components : every component holding goal nodes (the start's first).
-    added_nodes : nodes the connection stage added (:func:`firmtool.connectivity.connect_goals`).
+    added_nodes : nodes the connection stage added (:func:`firmtool.roadmap.connectivity.connect_goals`).
     budget : its node budget (``roadmap.bridge_nodes``).
     complete : every goal node is connected to the start.
     stop_reason : why the connection stage stopped: ``connected``, ``budget`` (nodes spent) or
@@ -350,7 +350,7 @@ class SolveReport(Report):
     seconds : wall time of the solve.
     start_success_probability_ci95, shortest_path_start_success_probability_ci95 : 95% intervals of
         the two start success probabilities from the edge-count uncertainty, computed at solve time
-        (:func:`firmtool.calibration.predicted_interval`); None for a policy solved before they were.
+        (:func:`firmtool.estimation.calibration.predicted_interval`); None for a policy solved before they were.
     path_task_points : the task point (a point robot's position, the arm's tip) of each node of
         ``path``, where the caller knows the robot (empty otherwise).
     """

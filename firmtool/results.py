@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+from scipy.stats import binomtest
 
 from firmtool.reports import Report
 
@@ -81,7 +82,7 @@ class Episode:
     replans, replan_failures, disturbances : counts.
     events : what happened, in order (:class:`Event`).
     traversals : ``(edge, outcome)`` of policy edges run from their source node to their end with no
-        replan or disturbance; outcome a node id, or ``firmtool.edges.FAILURE`` / ``TIMEOUT``
+        replan or disturbance; outcome a node id, or ``firmtool.estimation.edges.FAILURE`` / ``TIMEOUT``
         (compared with the edge estimates by the calibration check).
     step_times : (T,) seconds of the policy's compute per control step (act + observe, replan
         decisions apart; the simulated system's own step is not counted).
@@ -128,7 +129,7 @@ class Episode:
 
 @dataclass(frozen=True)
 class EdgeCheck(Report):
-    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.calibration.edge_calibration`).
+    """Executed vs estimated frequencies of one policy edge (see :func:`firmtool.estimation.calibration.edge_calibration`).
 
     ``target_*``: landing in the edge's target node; ``failure_*``: collision or timeout. Each with
     its Wilson 95% interval, the two-sided p-value of Fisher's exact test of executed against
@@ -194,7 +195,7 @@ class Results(Report):
     successes, collisions, timeouts, stuck, goal_misses : outcome counts.
     success_rate : successes / episodes: episodes whose policy declared arrival with the TRUE state in
         the goal (in a goal ball: the true task point in the ball; at a goal state: the true state in
-        the goal node's region, :meth:`firmtool.nodes.NodeRegions.true_arrival`), as the environment
+        the goal node's region, :meth:`firmtool.roadmap.nodes.NodeRegions.true_arrival`), as the environment
         judges it.
     success_rate_ci95 : Wilson 95% interval of the success rate (also :attr:`ci95`).
     predicted_success_probability : the plan's success probability from the start (None for a
@@ -300,3 +301,17 @@ class Results(Report):
 
 
 __all__ = ["Calibration", "EdgeCheck", "Episode", "Event", "EventKind", "Outcome", "Results"]
+
+
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (scipy's ``binomtest(...).proportion_ci``).
+
+    Exact at the boundaries (scipy sets them): ``successes == n`` has upper bound 1.0 and
+    ``successes == 0`` lower bound 0.0, where the closed form's rounding gives 0.9999999999999999
+    (an observed 400/400 would fall outside an interval against a prediction of 1.0).
+    ``n == 0`` gives (0.0, 1.0).
+    """
+    if n == 0:
+        return 0.0, 1.0
+    ci = binomtest(int(successes), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(ci.low), float(ci.high)

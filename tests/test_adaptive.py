@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import firmtool.pipeline
-from firmtool.adaptive import BINOMIAL_FLOOR, AdaptiveSettings, _neyman, allocate, required_halfwidth, solve_table
-from firmtool.edge_table import to_arrays
-from firmtool.edges import FAILURE, EdgeEstimate, estimate_blocks, estimate_edge, merge_estimates
+from firmtool.estimation.adaptive import BINOMIAL_FLOOR, AdaptiveSettings, _neyman, allocate, required_halfwidth, solve_table
+from firmtool.estimation.edge_table import to_arrays
+from firmtool.estimation.edges import FAILURE, EdgeEstimate, estimate_blocks, estimate_edge, merge_estimates
 from firmtool.pipeline import build, design_of, problem_of, solve_stage
-from firmtool.roadmap import Roadmap
+from firmtool.io.roadmap_file import Roadmap
 from firmtool.scenario import CostSpec
 
 ROOT = Path(__file__).resolve().parents[1]

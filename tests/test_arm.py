@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from firmtool.models import planar_arm
-from firmtool.nodes import GOAL, roadmap_nodes
+from firmtool.roadmap.nodes import GOAL, roadmap_nodes
 from firmtool.problem import build_problem
 from firmtool.scenario import load_scenario
 
@@ -58,7 +58,7 @@ def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     from firmtool.sim import run_episodes
     from firmtool.graph import policy_path
     from firmtool.pipeline import build, design_of, problem_of, solve_stage
-    from firmtool.roadmap import Roadmap
+    from firmtool.io.roadmap_file import Roadmap
 
     out = tmp_path / "arm.h5"
     build(ARM, out, workers=2)

@@ -1,4 +1,4 @@
-"""Atomic replacement (firmtool.atomic): leftovers of dead writers go, live writers' files stay."""
+"""Atomic replacement (firmtool.io.atomic): leftovers of dead writers go, live writers' files stay."""
 
 import os
 import subprocess
@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from firmtool.atomic import _HOST, remove_dead_writers_files, replacing
+from firmtool.io.atomic import _HOST, remove_dead_writers_files, replacing
 
 
 def _dead_pid() -> int:

@@ -18,8 +18,9 @@ import pytest
 from typer.testing import CliRunner
 
 import firmtool as ft
-from firmtool import console, progress
-from firmtool.cli import app
+from firmtool import progress
+from firmtool.cli import console
+from firmtool.cli.commands import app
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "scenarios" / "smoke.toml"

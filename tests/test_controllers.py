@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from firmtool.controllers import (equilibrium_input, estimate_spread, kalman_update, lqr_gain,
+from firmtool.control.controllers import (equilibrium_input, estimate_spread, kalman_update, lqr_gain,
                                   min_energy_trajectory, plan_local_controller, stationary_kalman, design_node)
 from firmtool.errors import NumericalError
 from firmtool.models.linear import LightDarkNoise, LinearGaussianModel, discretize, noise_factor
@@ -171,7 +171,7 @@ def test_backward_recursion_shortcut_matches_full_recursion(monkeypatch, termina
     from a far one (converges along a long edge first)."""
     import dataclasses
 
-    from firmtool import controllers
+    from firmtool.control import controllers
 
     model, x, u, src, dst, Wx, Wu, _ = _edge(steps=300, stab=20)
     if terminal == "far":
@@ -191,7 +191,7 @@ def test_backward_recursion_shortcut_matches_full_recursion(monkeypatch, termina
 
 
 def test_min_energy_trajectory_memo_gives_the_fresh_result():
-    from firmtool import controllers
+    from firmtool.control import controllers
 
     A, B, _ = double_integrator()
     x0, xf = np.array([0.0, 0.0, 0, 0]), np.array([1.0, -2.0, 0, 0])
@@ -208,7 +208,7 @@ def test_min_energy_trajectory_memo_gives_the_fresh_result():
 
 def test_filter_recursion_reports_an_innovation_covariance_that_is_not_positive_definite():
     """A numerical fault in the compiled filter recursion is reported as such, not as NaNs."""
-    from firmtool.controllers import _filter_recursion
+    from firmtool.control.controllers import _filter_recursion
     from firmtool.errors import NumericalError
 
     n, nz, T = 2, 1, 3
@@ -224,7 +224,7 @@ def test_filter_recursion_reports_an_innovation_covariance_that_is_not_positive_
 def test_cholesky_solve_gives_the_textbook_column_loop_bit_for_bit():
     """The compiled solve runs its substitutions with the columns inside (to vectorise); each entry
     must still be the column-by-column loop's value, subtraction for subtraction."""
-    from firmtool.controllers import _cholesky_solve
+    from firmtool.control.controllers import _cholesky_solve
 
     rng = np.random.default_rng(5)
     for q, nc in ((1, 3), (4, 7), (8, 16)):
@@ -250,7 +250,7 @@ def test_cholesky_solve_gives_the_textbook_column_loop_bit_for_bit():
 
 
 def test_min_energy_trajectories_equal_the_single_edge_ones():
-    from firmtool.controllers import min_energy_trajectories
+    from firmtool.control.controllers import min_energy_trajectories
 
     A, B, _ = double_integrator()
     rng = np.random.default_rng(2)
@@ -286,8 +286,8 @@ def test_batched_local_controllers_equal_the_single_edge_ones(scenario):
     import re
     from pathlib import Path
 
-    from firmtool.design import design, local_controller, local_controllers
-    from firmtool.nodes import roadmap_nodes
+    from firmtool.roadmap.design import design, local_controller, local_controllers
+    from firmtool.roadmap.nodes import roadmap_nodes
     from firmtool.problem import build_problem
     from firmtool.scenario import parse_scenario
 

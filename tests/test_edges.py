@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from firmtool.design import design
-from firmtool.edges import FAILURE, GOAL_MISS, estimate_edge, simulate, initial_ensemble
-from firmtool.design import local_controller
-from firmtool.nodes import GOAL, roadmap_nodes
+from firmtool.roadmap.design import design
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, simulate, initial_ensemble
+from firmtool.roadmap.design import local_controller
+from firmtool.roadmap.nodes import GOAL, roadmap_nodes
 from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario
 from conftest import PERFECT, open_world
@@ -54,7 +54,7 @@ def test_particle_estimates_follow_the_designed_covariance():
     rng = np.random.default_rng(3)
     M = 4000
     x, xhat = initial_ensemble(problem, d, int(d.edge_source[0]), M, rng)
-    from firmtool.edges import belief_step
+    from firmtool.estimation.edges import belief_step
     model = problem.model
     r = model.F.shape[1]
     for k in range(lc.steps):
@@ -123,7 +123,7 @@ def test_region_starts_spread_over_the_node_region(measurement):
 
 
 def test_the_start_mode_is_part_of_the_edge_key():
-    from firmtool.edge_table import edge_keys
+    from firmtool.estimation.edge_table import edge_keys
     text = open_world(q=0.2, std=0.1)
     problem, d, _ = _setup(text)
     region = build_problem(parse_scenario(text.replace("particles = 200", 'particles = 200\nstart = "region"'),

@@ -8,21 +8,21 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli import app
-from firmtool.design import local_controller
-from firmtool.disturbances import Disturbance, parse_disturbance, parse_disturbances
-from firmtool.edges import initial_ensemble, simulate
-from firmtool.episodes_io import load_episodes
+from firmtool.cli.commands import app
+from firmtool.roadmap.design import local_controller
+from firmtool.sim.disturbances import Disturbance, parse_disturbance, parse_disturbances
+from firmtool.estimation.edges import initial_ensemble, simulate
+from firmtool.io.episodes import load_episodes
 from firmtool.errors import InputError
-from firmtool.calibration import edge_counts_of, predicted_interval
-from firmtool.execute import wilson_interval
-from firmtool.nodes import GOAL, START_INDEX
+from firmtool.estimation.calibration import edge_counts_of, predicted_interval
+from firmtool.results import wilson_interval
+from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.online import Policy, ReplanSettings
 from firmtool.online.innovation import reset_belief
 from firmtool.results import EventKind
 from firmtool.sim import SimulatedSystem, run_episodes
 from firmtool.pipeline import design_of, problem_of
-from firmtool.roadmap import Roadmap
+from firmtool.io.roadmap_file import Roadmap
 
 runner = CliRunner()
 EV_DISTURBANCE, EV_REPLAN = EventKind.DISTURBANCE, EventKind.REPLAN
@@ -426,8 +426,8 @@ def _tiny_unicycle(start="[0.4, 0.4]", goal="[2.6, 0.4]"):
 def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
     """--start on a nonlinear model (no model.A): the belief at a start state is the periodic
     filter's at phase 0 of the orbit through it (at rest its heading is not observable)."""
-    from firmtool.design import design as design_stage
-    from firmtool.nodes import GOAL, START
+    from firmtool.roadmap.design import design as design_stage
+    from firmtool.roadmap.nodes import GOAL, START
 
     problem = _tiny_unicycle()
     centers = problem.state_of(np.array([[0.4, 1.4], [2.4, 1.2]]))

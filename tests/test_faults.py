@@ -22,10 +22,10 @@ import h5py
 import pytest
 from typer.testing import CliRunner
 
-import firmtool.atomic
-from firmtool.cli import app
-from firmtool.locking import lock_path, writer_lock
-from firmtool.roadmap import Roadmap
+import firmtool.io.atomic
+from firmtool.cli.commands import app
+from firmtool.io.locking import lock_path, writer_lock
+from firmtool.io.roadmap_file import Roadmap
 from _processes import as_a_shell_starts_it
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,7 +74,7 @@ def disk_full_after(monkeypatch):
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
             return real(fd, data)
 
-        monkeypatch.setattr(firmtool.atomic, "_os_write", write)
+        monkeypatch.setattr(firmtool.io.atomic, "_os_write", write)
 
     return install
 
@@ -337,7 +337,7 @@ def test_sigint_at_random_moments_gives_one_line_and_130(tmp_path):
 
 HOLD_LOCK = """
 import sys, time
-from firmtool.locking import writer_lock
+from firmtool.io.locking import writer_lock
 with writer_lock(sys.argv[1]):
     print("locked", flush=True)
     time.sleep(3600)  # killed by the test; outlives any slow test

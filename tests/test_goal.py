@@ -1,4 +1,4 @@
-"""Goal balls (firmtool.goal): the probability of a Gaussian in a ball against independent truths,
+"""Goal balls (firmtool.problem.goal): the probability of a Gaussian in a ball against independent truths,
 the exact bounds, the task Jacobians of the robots, the goal region in both Monte Carlo engines,
 and what the edge table counts (issue 15).
 
@@ -18,11 +18,11 @@ import pytest
 from scipy.integrate import dblquad
 from scipy.stats import multivariate_normal, ncx2
 
-from firmtool import kernels
-from firmtool.design import design, local_controller
-from firmtool.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble, simulate
-from firmtool.goal import GoalRegion, ball_probability, confidence_bounds, meets_confidence
-from firmtool.nodes import GOAL, GOAL_INDEX, roadmap_nodes
+from firmtool.estimation import compiled as kernels
+from firmtool.roadmap.design import design, local_controller
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble, simulate
+from firmtool.problem.goal import GoalRegion, ball_probability, confidence_bounds, meets_confidence
+from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, roadmap_nodes
 from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario
 from conftest import open_world

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from firmtool.controllers import stationary_kalman
+from firmtool.control.controllers import stationary_kalman
 from firmtool.online.innovation import InnovationWindow, JumpTest, JumpTests, shrunk_jump
 
 DT = 0.1
@@ -236,7 +236,7 @@ def test_the_mission_false_alarm_is_a_budget_over_the_policy_path():
     start (up to a node it returns to), clipped; the fixed rate without a path."""
     from types import SimpleNamespace
 
-    from firmtool.nodes import GOAL, REGULAR, START
+    from firmtool.roadmap.nodes import GOAL, REGULAR, START
     from firmtool.online import replanning as rp
 
     kinds = np.array([START, GOAL, REGULAR, REGULAR])

@@ -1,4 +1,4 @@
-"""numba's disk cache and edits of compiled functions in other modules (firmtool._jit).
+"""numba's disk cache and edits of compiled functions in other modules (firmtool.jit).
 
 numba keys a cached function on its own source file only, so a caller whose callee lives in another
 module kept running the callee's old machine code after an edit of it. These tests compile with the
@@ -19,7 +19,9 @@ import pytest
 
 numba = pytest.importorskip("numba")
 
-from firmtool import _jit, kernels  # noqa: E402
+from firmtool import jit as _jit  # noqa: E402
+
+from firmtool.estimation import compiled as kernels
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,7 +51,7 @@ PACKAGE = {
                   "@jit\ndef middle(x):\n    return leaf_module.leaf(x) * 2.0\n"),
     "caller.py": "DECORATOR\nfrom pkg.middle import middle\n\n@jit\ndef caller(x):\n    return middle(x) + 100.0\n",
 }
-DECORATORS = {"firmtool": "from firmtool._jit import cached_njit\njit = cached_njit()",
+DECORATORS = {"firmtool": "from firmtool.jit import cached_njit\njit = cached_njit()",
               "numba": "import numba\njit = numba.njit(cache=True)"}
 CALL = ("import json\nfrom pkg.caller import caller\nv = caller(1.0)\n"
         "print(json.dumps({'value': v, 'hits': sum(caller.stats.cache_hits.values())}))")
@@ -70,14 +72,14 @@ def test_a_callees_edit_in_another_module_is_compiled_not_loaded_stale(tmp_path,
     if decorator == "firmtool":
         assert edited == 106.0
     else:  # the trap itself, with numba's own cache: if this fails, numba now tracks callees (issue #1833)
-        assert edited == 104.0, "numba's cache noticed the callee's edit: firmtool._jit may no longer be needed"
+        assert edited == 104.0, "numba's cache noticed the callee's edit: firmtool.jit may no longer be needed"
 
 
 KERNEL_CALLS = textwrap.dedent("""
     import json
     import numpy as np
     import firmtool
-    from firmtool import kernels
+    from firmtool.estimation import compiled as kernels
     assert firmtool.__file__.startswith({root!r}), firmtool.__file__
     # the control through controllers.mat_rows: U = u_ref - K (XH - x_ref)
     XH, DX, U = np.array([[1.0, 2.0], [3.0, 4.0]]), np.empty((2, 2)), np.empty((1, 2))
@@ -112,5 +114,5 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
 
 def test_the_kernels_cache_key_covers_every_module_it_calls_into():
     assert set(_jit.dependency_files(kernels.run.py_func)) == {
-        "firmtool.kernels", "firmtool.controllers", "firmtool.geometry._numba"}
-    assert set(_jit.dependency_files(kernels.fill_normals.py_func)) == {"firmtool.kernels"}
+        "firmtool.estimation.compiled", "firmtool.control.controllers", "firmtool.geometry._numba"}
+    assert set(_jit.dependency_files(kernels.fill_normals.py_func)) == {"firmtool.estimation.compiled"}

@@ -1,4 +1,4 @@
-"""The compiled Monte Carlo engine (firmtool.kernels) against the numpy path of firmtool.edges.
+"""The compiled Monte Carlo engine (firmtool.estimation.compiled) against the numpy path of firmtool.estimation.edges.
 
 Given the same noise (``numpy_noise=True``: the kernel consumes the numpy Generator's stream in the
 numpy path's order), the strongest check holds: every particle ends the same way (node, failure or
@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmtool import kernels
-from firmtool.design import design, local_controller
-from firmtool.edges import FAILURE, estimate_edge, initial_ensemble, simulate
+from firmtool.estimation import compiled as kernels
+from firmtool.roadmap.design import design, local_controller
+from firmtool.estimation.edges import FAILURE, estimate_edge, initial_ensemble, simulate
 from firmtool.errors import InputError
-from firmtool.nodes import roadmap_nodes
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario
 from conftest import PERFECT, open_world
@@ -236,7 +236,7 @@ def _local_controller_step(problem, rng):
 @pytest.mark.parametrize("robot", ["point", "arm"])
 def test_control_and_true_step_are_the_numpy_step(robot, arm_problem):
     """kernels.control and kernels.true_step against edges.control_and_move (u, then f(x, u) + F w)."""
-    from firmtool.edges import control_and_move
+    from firmtool.estimation.edges import control_and_move
 
     problem = arm_problem if robot == "arm" else _point_problem()
     rng = np.random.default_rng(3)
@@ -289,7 +289,7 @@ def test_measurement_variance_is_the_noise_models(measurement):
 def test_filter_update_is_the_numpy_update(robot, arm_problem):
     """kernels.filter_update against edges.filter_update with the variance at the TRUE state's
     sensing points (model.noise.variance(problem.sensing_from_points(problem.points(x))))."""
-    from firmtool.edges import control_and_move, filter_update
+    from firmtool.estimation.edges import control_and_move, filter_update
 
     problem = arm_problem if robot == "arm" else _point_problem(LIGHTDARK_VARIANCE)
     rng = np.random.default_rng(6)

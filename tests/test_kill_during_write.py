@@ -25,7 +25,7 @@ import time
 import numpy as np
 import pytest
 
-from firmtool.roadmap import Roadmap, create_roadmap, write_stage
+from firmtool.io.roadmap_file import Roadmap, create_roadmap, write_stage
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32" or not hasattr(os, "fork"), reason="needs fork and SIGKILL")
 

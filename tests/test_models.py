@@ -18,7 +18,7 @@ import pytest
 import scipy.integrate
 import scipy.linalg
 
-from firmtool import kernels
+from firmtool.estimation import compiled as kernels
 from firmtool.errors import InputError, ScenarioError
 from firmtool.models import noise
 from firmtool.models.linear import discretize, discretize_statespace, from_statespace, noise_factor
@@ -26,7 +26,7 @@ from firmtool.problem import build_problem
 from firmtool.robots import register
 from firmtool.robots.point import PointRobot
 from firmtool.scenario import parse_scenario
-from firmtool.schema import Field
+from firmtool.io.schema import Field
 
 ROOT = Path(__file__).resolve().parents[1]
 POINT = (ROOT / "scenarios" / "point_lightdark.toml").read_text()

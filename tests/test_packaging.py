@@ -111,7 +111,7 @@ def test_test_and_example_imports_are_declared_for_the_test_extra(folder):
 
 
 def test_a_missing_extra_is_one_line_naming_it(monkeypatch):
-    from firmtool.parallel import run_edges
+    from firmtool.estimation.executors import run_edges
     monkeypatch.setitem(sys.modules, "dask", None)  # import dask... raises ImportError
     monkeypatch.setitem(sys.modules, "dask.distributed", None)
     with pytest.raises(InputError, match=re.escape("pip install 'firmtool[dask]'")) as info:

@@ -25,11 +25,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import firmtool.parallel
-from firmtool.cli import app
-from firmtool.edges import estimate_edge as real_estimate_edge
+import firmtool.estimation.executors
+from firmtool.cli.commands import app
+from firmtool.estimation.edges import estimate_edge as real_estimate_edge
 from firmtool.pipeline import build, design_stage, estimate_stage, sample_stage, solve_stage
-from firmtool.roadmap import Roadmap
+from firmtool.io.roadmap_file import Roadmap
 
 from _processes import as_a_shell_starts_it
 
@@ -93,9 +93,9 @@ def test_dask_local_cluster_gives_the_one_worker_table(designed, tmp_path):
 def test_the_engine_is_chosen_once_keyed_and_run_by_every_worker(designed, tmp_path, monkeypatch):
     """The edge keys record the engine, and the workers run the one the caller chose, whatever their
     own FIRMTOOL_ENGINE says: a switch of engine re-estimates instead of reusing the other's results."""
-    from firmtool.edge_table import edge_keys
-    from firmtool.edges import estimate_edge
-    from firmtool.kernels import ENGINE_ENV
+    from firmtool.estimation.edge_table import edge_keys
+    from firmtool.estimation.edges import estimate_edge
+    from firmtool.estimation.compiled import ENGINE_ENV
     from firmtool.pipeline import design_of, problem_of
 
     path, reference = designed
@@ -103,11 +103,11 @@ def test_the_engine_is_chosen_once_keyed_and_run_by_every_worker(designed, tmp_p
     problem, d = problem_of(rm), design_of(rm)
     assert not np.array_equal(edge_keys(problem, d, engine="numpy"), edge_keys(problem, d, engine="numba"))
     sc = problem.scenario
-    job = firmtool.parallel.EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(path), design=d,
+    job = firmtool.estimation.executors.EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(path), design=d,
                                           particles=sc.estimation.particles, chunk=sc.estimation.chunk,
                                           seed=sc.seed, engine="numpy")
     monkeypatch.setenv(ENGINE_ENV, "numba")  # a worker's own setting is not what runs
-    got = firmtool.parallel.run_batch(job, [0])[0]
+    got = firmtool.estimation.executors.run_batch(job, [0])[0]
     want = estimate_edge(problem, d, d.regions(problem), int(d.edge_source[0]), int(d.edge_target[0]),
                          sc.estimation.particles, sc.seed, sc.estimation.chunk, engine="numpy")
     assert got.counts.tolist() == want.counts.tolist() and np.array_equal(got.terms_mean, want.terms_mean)
@@ -128,12 +128,12 @@ def test_batch_size_does_not_change_results(designed, tmp_path):
     from firmtool.pipeline import design_of, problem_of
     rm = Roadmap(copy)
     problem, d = problem_of(rm), design_of(rm)
-    job = firmtool.parallel.EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(copy), design=d,
+    job = firmtool.estimation.executors.EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(copy), design=d,
                                           particles=problem.scenario.estimation.particles,
                                           chunk=problem.scenario.estimation.chunk, seed=problem.scenario.seed)
     E = d.edge_source.size
     results = {}
-    for r in firmtool.parallel.run_edges(job, range(E), workers=1, per_batch=1):
+    for r in firmtool.estimation.executors.run_edges(job, range(E), workers=1, per_batch=1):
         assert len(r.edges) == 1 and r.error is None
         results[r.edges[0]] = r.estimates[0]
     # the reference's edges that adaptive Monte Carlo did not refine hold the first pass's estimates
@@ -182,7 +182,7 @@ def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, si
     for particles in (2000, 8000, 32000):
         scenario = _scenario(tmp_path, **{"particles = 100": f"particles = {particles}\nadaptive_particles = 0"})
         out.unlink(missing_ok=True)
-        cmd = [sys.executable, "-m", "firmtool.cli", "build", str(scenario), "-o", str(out), "--workers", "2",
+        cmd = [sys.executable, "-m", "firmtool.cli.commands", "build", str(scenario), "-o", str(out), "--workers", "2",
                "--checkpoint-seconds", "0"]
         done, seen = _run_until_cached(cmd, out, 8, sig)
         # finished before the signal: exit 0, or the signal's own exit once the command had printed its
@@ -324,7 +324,7 @@ def test_failing_edge_is_retried_once_then_reported(designed, tmp_path, monkeypa
     copy = tmp_path / "f.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][3]), int(reference["target"][3]))
-    monkeypatch.setattr(firmtool.parallel, "estimate_edge", _flaky(tmp_path, bad, "always"))
+    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, "always"))
     report = estimate_stage(copy, workers=workers)
     (failure,) = report.failed_edges
     assert (failure.source, failure.target) == bad and failure.edge == 3
@@ -332,7 +332,7 @@ def test_failing_edge_is_retried_once_then_reported(designed, tmp_path, monkeypa
     e = _edges(copy)
     assert e["source"].size == reference["source"].size - 1 and bad not in set(zip(e["source"], e["target"]))
     # the others are exactly what a clean run gives; a re-run estimates only the missing edge
-    monkeypatch.setattr(firmtool.parallel, "estimate_edge", real_estimate_edge)
+    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", real_estimate_edge)
     again = estimate_stage(copy, workers=1)
     assert again.estimated_edges == 1 and again.failed_edges == ()
     _assert_same_tables(_edges(copy), reference)
@@ -344,7 +344,7 @@ def test_transient_failure_and_dead_worker_are_retried(designed, tmp_path, monke
     copy = tmp_path / "t.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][5]), int(reference["target"][5]))
-    monkeypatch.setattr(firmtool.parallel, "estimate_edge", _flaky(tmp_path, bad, mode))
+    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, mode))
     report = estimate_stage(copy, workers=workers)
     assert report.failed_edges == () and (tmp_path / f"failed-{bad[0]}-{bad[1]}").exists()
     _assert_same_tables(_edges(copy), reference)
@@ -355,7 +355,7 @@ def test_cli_failed_edges_exit_1_in_one_line(designed, tmp_path, monkeypatch):
     copy = tmp_path / "c.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][0]), int(reference["target"][0]))
-    monkeypatch.setattr(firmtool.parallel, "estimate_edge", _flaky(tmp_path, bad, "always"))
+    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, "always"))
     r = CliRunner().invoke(app, ["estimate", str(copy), "-w", "1"])
     assert r.exit_code == 1
     lines = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
@@ -372,7 +372,7 @@ def test_dask_failing_edge_is_retried_once_then_reported(designed, tmp_path, mon
     copy = tmp_path / "d.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][4]), int(reference["target"][4]))
-    monkeypatch.setattr(firmtool.parallel, "estimate_edge", _flaky(tmp_path, bad, mode))
+    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, mode))
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
         report = estimate_stage(copy, workers=2, executor="dask", scheduler=cluster.scheduler_address)
@@ -402,8 +402,8 @@ def test_whole_build_is_identical_with_one_and_two_workers_and_dask(tmp_path, mo
     one = tmp_path / "one.h5"
     build(scenario, one, workers=1)
     reference = _groups(one)
-    monkeypatch.setattr(firmtool.parallel, "PARALLEL_STATES", 16)
-    real_run = firmtool.parallel.Workers.run
+    monkeypatch.setattr(firmtool.estimation.executors, "PARALLEL_STATES", 16)
+    real_run = firmtool.estimation.executors.Workers.run
     for name, options in (("two", {"workers": 2}), ("dask", {"workers": 2, "executor": "dask"})):
         ran = []
 
@@ -411,7 +411,7 @@ def test_whole_build_is_identical_with_one_and_two_workers_and_dask(tmp_path, mo
             ran.append(fn.__name__)  # which kinds of task the workers got
             return real_run(self, job, fn, work, **kwargs)
 
-        monkeypatch.setattr(firmtool.parallel.Workers, "run", run)
+        monkeypatch.setattr(firmtool.estimation.executors.Workers, "run", run)
         out = tmp_path / f"{name}.h5"
         report = build(scenario, out, **options)
         assert report.failed_edges == ()
@@ -436,7 +436,7 @@ def test_dask_scheduler_and_two_worker_processes_joined_by_address(designed, tmp
     worker built the problem once (the job is scattered once, not rebuilt per task), and loaded the
     compiled kernel from the disk cache the test process left warm (no compilation per worker)."""
     distributed = pytest.importorskip("dask.distributed")
-    from firmtool import kernels
+    from firmtool.estimation import compiled as kernels
 
     path, reference = designed
     dask = _dask_command()
@@ -468,10 +468,10 @@ def test_dask_scheduler_and_two_worker_processes_joined_by_address(designed, tmp
             _assert_same_tables(_edges(copy), reference)
 
             def worker_state():
-                import firmtool.kernels
-                import firmtool.parallel
-                stats = firmtool.kernels.run.stats
-                return len(firmtool.parallel._problems), sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
+                import firmtool.estimation.compiled
+                import firmtool.estimation.executors
+                stats = firmtool.estimation.compiled.run.stats
+                return len(firmtool.estimation.executors._problems), sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
 
             states = list(client.run(worker_state).values())
         assert len(states) == 2 and all(problems == 1 for problems, _, _ in states)

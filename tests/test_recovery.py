@@ -77,7 +77,7 @@ def test_a_sweep_is_the_same_for_any_number_of_workers(smoke):
 def test_the_oracle_relocalises_right_after_the_disturbance(smoke):
     """In the sweep's oracle mode the policy is re-localised at the true state right after the step the
     push hit (a decision at that step), with the true state as its estimate."""
-    from firmtool.disturbances import as_disturbances
+    from firmtool.sim.disturbances import as_disturbances
     from firmtool.sim import SimulatedSystem, episode_seeds, run_episode
     from firmtool.sim.sweep import oracle
 

@@ -318,8 +318,8 @@ def test_kidnap_sets_the_heading_anywhere_on_the_turn_of_the_old_one():
     the turn of its old estimate)."""
     from scipy.stats import kstest
 
-    from firmtool.angles import wrap
-    from firmtool.disturbances import apply, parse_disturbance
+    from firmtool.models.angles import wrap
+    from firmtool.sim.disturbances import apply, parse_disturbance
 
     problem = _unicycle_problem()
     kidnap = parse_disturbance("kidnap:5")
@@ -493,7 +493,7 @@ def test_probe_state_machine_timeout_outside_belief_and_no_decision(tiny_solutio
 def test_goal_node_arrival_is_judged_modulo_a_turn_in_the_heading(tiny_solution):
     """A true heading a turn away from the goal node's is the same pose: execution counts it as
     arrived when told the angle coordinates; the Monte Carlo's test (no angles) does not."""
-    from firmtool.nodes import GOAL
+    from firmtool.roadmap.nodes import GOAL
 
     rm = tiny_solution.roadmap
     regions = rm.execution_design.regions(rm.problem)

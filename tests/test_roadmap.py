@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from firmtool.errors import RoadmapError
-from firmtool.roadmap import SCHEMA_VERSION, Roadmap, create_roadmap, write_stage
+from firmtool.io.roadmap_file import SCHEMA_VERSION, Roadmap, create_roadmap, write_stage
 
 TEXT = '[scenario]\nname = "x"\n'
 SHA = __import__("hashlib").sha256(TEXT.encode()).hexdigest()

@@ -30,10 +30,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from firmtool.cli import app, to_json
+from firmtool.cli.commands import app, to_json
 from firmtool.errors import ScenarioError
 from firmtool.problem import build_problem
-from firmtool.resources import budget, check_budget
+from firmtool.estimation.budgets import budget, check_budget
 from firmtool.scenario import load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -170,7 +170,7 @@ def test_brackets_in_strings_and_comments_are_not_nesting(tmp_path):
 def test_real_process_prints_no_traceback(tmp_path):
     """The console entry point itself (not CliRunner): stderr is one line, exit 2."""
     bad = BAD / "not_stabilisable.toml"
-    p = subprocess.run([sys.executable, "-c", "from firmtool.cli import main; main()", "sample", str(bad),
+    p = subprocess.run([sys.executable, "-c", "from firmtool.cli.commands import main; main()", "sample", str(bad),
                         "-o", str(tmp_path / "x.h5")], capture_output=True, text=True, timeout=900)
     assert p.returncode == 2, p.stderr
     assert p.stderr.strip().count("\n") == 0 and "Traceback" not in p.stderr
@@ -493,7 +493,7 @@ def test_broken_roadmap_gives_one_line_exit_2(name, roadmap_copy):
 
 def test_a_damaged_edge_cache_is_ignored_not_fatal(roadmap_copy):
     """The /edge_cache only saves work: one that fails the /edges checks is not reused, and the stage runs."""
-    from firmtool.roadmap import read_edge_cache
+    from firmtool.io.roadmap_file import read_edge_cache
     with h5py.File(roadmap_copy, "r+") as f:
         if "edge_cache" in f:  # the earlier particle blocks of refined edges
             del f["edge_cache"]
@@ -864,20 +864,20 @@ def test_a_closed_loop_policy_gives_probability_0_without_warnings(recwarn):
 
 def test_riccati_failure_exit_1(roadmap_copy, monkeypatch):
     """A Riccati equation without a stabilising solution (controllers.py) is a numerical fault, exit 1."""
-    import firmtool.controllers as controllers
+    import firmtool.control.controllers as controllers
     from firmtool.errors import NumericalError
 
     def fail(*a, **k):
         raise NumericalError("LQR Riccati equation has no stabilising solution")
 
     monkeypatch.setattr(controllers, "lqr_gain", fail)
-    import firmtool.design as design
+    import firmtool.roadmap.design as design
     monkeypatch.setattr(design, "lqr_gain", fail, raising=False)
     assert_clean_error(invoke("design", roadmap_copy), 1, "Riccati")
 
 
 def test_an_unexpected_exception_is_one_line_not_a_traceback(roadmap_copy, monkeypatch):
-    import firmtool.inspect as inspect_mod
+    import firmtool.cli.inspect as inspect_mod
 
     def boom(path):
         raise ZeroDivisionError("division by zero")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmtool import nodes
+from firmtool.roadmap import nodes
 from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario
 
@@ -139,7 +139,7 @@ def test_batched_segment_checks_are_the_single_segment_checks(name, monkeypatch)
 def test_the_arm_roadmap_nodes_are_unchanged():
     """The whole sampling of the shipped arm scenario, smaller, against the reference loops
     assembled as roadmap_nodes assembles them (stranded goal nodes are connected afterwards, by
-    firmtool.connectivity.connect_goals: tests/test_connectivity.py)."""
+    firmtool.roadmap.connectivity.connect_goals: tests/test_connectivity.py)."""
     problem = _problem("arm8_lightdark", nodes=40, bridge_nodes=12, goal_nodes=3)
     spec = problem.scenario.roadmap
     got_c, got_k = nodes.roadmap_nodes(problem, np.random.default_rng(11))
@@ -160,7 +160,7 @@ def test_covariance_candidates_are_the_full_products_decisions():
     """NodeRegions.covariance_candidates evaluates only the nodes its norm window leaves, on upper
     triangles; its decisions must be those of the plain formula over every node's full matrix, on
     the covariances a Monte Carlo meets (arm edges: the nominal and the stabiliser phase)."""
-    from firmtool.design import design, local_controller
+    from firmtool.roadmap.design import design, local_controller
 
     problem = _problem("arm8_lightdark", nodes=30, bridge_nodes=0, goal_nodes=2)
     centers, kinds = nodes.roadmap_nodes(problem, np.random.default_rng(2))

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli import app
+from firmtool.cli.commands import app
 from firmtool.errors import RoadmapError
-from firmtool.roadmap import SCHEMA_VERSION, STAGES, Roadmap
+from firmtool.io.roadmap_file import SCHEMA_VERSION, STAGES, Roadmap
 
 DATA = Path(__file__).resolve().parent / "data"
 FIXTURES = sorted(DATA.glob("roadmap_schema*.h5"))

@@ -24,16 +24,16 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool import kernels
-from firmtool.cli import app
-from firmtool.design import design
-from firmtool.edge_table import edge_keys
-from firmtool.edges import FAILURE, estimate_edge
+from firmtool.estimation import compiled as kernels
+from firmtool.cli.commands import app
+from firmtool.roadmap.design import design
+from firmtool.estimation.edge_table import edge_keys
+from firmtool.estimation.edges import FAILURE, estimate_edge
 from firmtool.errors import InputError
-from firmtool.nodes import roadmap_nodes
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.pipeline import VALIDITY_ATTR, build, problem_of, solve_stage
 from firmtool.problem import ValidityChecker, build_problem
-from firmtool.roadmap import Roadmap
+from firmtool.io.roadmap_file import Roadmap
 from firmtool.scenario import parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -20,10 +20,10 @@ MESSAGE = "compiling the Monte Carlo engine, once per install"
 ARM_EDGE = """
 import numpy as np
 from numba.core import event
-from firmtool import warmup
-from firmtool.design import design
-from firmtool.edges import estimate_edge
-from firmtool.nodes import roadmap_nodes
+from firmtool.estimation import warmup
+from firmtool.roadmap.design import design
+from firmtool.estimation.edges import estimate_edge
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario, shipped_scenarios
 
@@ -46,7 +46,7 @@ centers, kinds = roadmap_nodes(problem, np.random.default_rng(1))
 d = design(problem, centers, kinds)
 estimate_edge(problem, d, d.regions(problem), int(d.edge_source[0]), int(d.edge_target[0]), 16, 0, 16, "numba")
 # the estimation workers' path: a batch of edges whose controllers are designed together
-from firmtool.parallel import EstimationJob, remember_problem, run_batch
+from firmtool.estimation.executors import EstimationJob, remember_problem, run_batch
 job = EstimationJob(scenario_text=text, scenario_path="arm.toml", design=d, particles=16, chunk=16, seed=0,
                     engine="numba")
 remember_problem(job, problem)
@@ -82,7 +82,7 @@ def test_a_cold_cache_is_compiled_once_announced_and_reused(tmp_path):
     assert report["estimated_edges"] == report["edges"] > 0
     assert _run(cached, cache, tmp_path).stdout.strip() == "True"
 
-    warm = _run(["-m", "firmtool.cli", "build", "smoke", "-o", "b.h5", "--workers", "2"], cache, tmp_path)
+    warm = _run(["-m", "firmtool.cli.commands", "build", "smoke", "-o", "b.h5", "--workers", "2"], cache, tmp_path)
     assert warm.returncode == 0, warm.stderr
     assert MESSAGE not in warm.stderr
 

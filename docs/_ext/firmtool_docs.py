@@ -4,7 +4,7 @@ The directives are used in MyST (Markdown) pages and generate MyST text, parsed 
 
 ``{scenario-reference}``
     Every section and key of a scenario file (type, shape, default, unit, allowed values, doc,
-    example), from the loader's own schema (:func:`firmtool.scenario_docs.reference`).
+    example), from the loader's own schema (:func:`firmtool.scenario.docs.reference`).
 ``{firmtool-help} COMMAND``
     A command's usage, description, examples and options, from the command line's definitions.
 ``{firmtool-commands}``
@@ -63,7 +63,7 @@ def _parse(directive: SphinxDirective, markdown: str) -> list[nodes.Node]:
 
 
 def _escape(text: str) -> str:
-    from firmtool.scenario_docs import md_escape
+    from firmtool.scenario.docs import md_escape
 
     return md_escape(text)
 
@@ -72,7 +72,7 @@ class ScenarioReference(SphinxDirective):
     """Every scenario key, from the loader's schema."""
 
     def run(self) -> list[nodes.Node]:
-        from firmtool.scenario_docs import reference_markdown
+        from firmtool.scenario.docs import reference_markdown
 
         return _parse(self, reference_markdown(level=2))
 
@@ -80,7 +80,7 @@ class ScenarioReference(SphinxDirective):
 def _command(name: str):
     import typer
 
-    from firmtool.cli import app
+    from firmtool.cli.commands import app
 
     group = typer.main.get_command(app)
     return group, group.commands.get(name)
@@ -89,7 +89,7 @@ def _command(name: str):
 def _metavar(name: str, param) -> str:
     """The kind of value an option takes, from the command function's annotation (typer's own
     parameter classes differ between its versions)."""
-    from firmtool import cli
+    from firmtool.cli import commands as cli
 
     annotation = str(inspect.signature(getattr(cli, name)).parameters[param.name].annotation)
     for word, metavar in (("Path", "PATH"), ("list", "TEXT"), ("float", "NUMBER"), ("int", "INTEGER"),
@@ -173,7 +173,7 @@ class FirmtoolTemplate(SphinxDirective):
     required_arguments = 1
 
     def run(self) -> list[nodes.Node]:
-        from firmtool.scenario_docs import template
+        from firmtool.scenario.docs import template
 
         text = template("my_scenario", self.arguments[0])
         block = nodes.literal_block(text, text)

@@ -1,7 +1,7 @@
 """Optional numba kernel for :class:`NumbaCollisionBackend`: the numpy geometry, scalar, one
 configuration at a time with early exit. The numpy backend stays the reference; the tests check
 that both agree. The distance primitives are shared with the Monte Carlo kernel
-(:mod:`firmtool.kernels`). Module-level and cached on disk by numba (compiled once, ~1-2 s; later
+(:mod:`firmtool.estimation.compiled`). Module-level and cached on disk by numba (compiled once, ~1-2 s; later
 processes load them in well under a second).
 """
 
@@ -17,10 +17,10 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
 # Module-level functions (not a closure): numba caches them on disk (a closure recompiled in every
-# process). firmtool.kernels compiles these distances into its step kernel; firmtool._jit's cache key
+# process). firmtool.estimation.compiled compiles these distances into its step kernel; firmtool.jit's cache key
 # covers this file, so the kernel is recompiled after an edit here, not loaded stale.
 if numba is not None:
-    from firmtool._jit import cached_njit
+    from firmtool.jit import cached_njit
 
     njit = cached_njit(nogil=True, fastmath=False, error_model="numpy")
 

@@ -23,7 +23,7 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from firmtool.schema import Field
+from firmtool.io.schema import Field
 
 
 class Obstacle:

@@ -29,7 +29,7 @@ from typing import Any, Callable, ClassVar, Mapping
 import numpy as np
 
 from firmtool.errors import InputError
-from firmtool.schema import Field
+from firmtool.io.schema import Field
 
 
 class NoiseModel:
@@ -39,7 +39,7 @@ class NoiseModel:
     form: ClassVar[str] = ""
     #: the ``[measurement]`` keys this form reads (besides kind, noise and H)
     fields: ClassVar[tuple[Field, ...]] = ()
-    #: the compiled engine's name of the same law (see :data:`firmtool.kernels.NOISE_FORMS`), or None
+    #: the compiled engine's name of the same law (see :data:`firmtool.estimation.compiled.NOISE_FORMS`), or None
     compiled: ClassVar[str | None] = None
 
     @classmethod

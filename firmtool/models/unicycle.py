@@ -18,7 +18,7 @@ Sensor: the position, ``z = (px, py) + v``, ``v ~ N(0, R(x))``, ``R`` diagonal f
 noise on the robot's x-coordinate (paper eq. 14 or Platt's variance form). The heading is not
 measured: it is observable only while the robot moves, which is why a unicycle node needs a
 periodic stabiliser (a robot at rest can neither be steered sideways nor have its heading seen;
-see :mod:`firmtool.stabilisers`).
+see :mod:`firmtool.control.stabilisers`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.angles import on_turn_of
+from firmtool.models.angles import on_turn_of
 from firmtool.errors import NumericalError
 from firmtool.models.noise import NoiseModel
 

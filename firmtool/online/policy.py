@@ -63,7 +63,7 @@ of steps, or the mission's step budget :attr:`max_steps` is spent). A collision 
 decide: the robot (or the simulated system) stops the loop.
 
 Each step (but a re-localisation's probe, which is open loop) is the same math as the Monte Carlo
-that estimated the edges (:func:`firmtool.edges.simulate`):
+that estimated the edges (:func:`firmtool.estimation.edges.simulate`):
 ``u = u_ref[k] - K[k] (xhat - x_ref[k])`` and the filter update
 ``xhat = f(xhat, u) + L[k] (z - h(f(xhat, u)))`` with the edge's precomputed gains, so executed
 frequencies are comparable with the estimated probabilities (``tests/test_online.py`` checks
@@ -78,11 +78,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmtool import kernels
-from firmtool.design import Design, local_controller
-from firmtool.edges import TIMEOUT as EDGE_TIMEOUT, simulate
+from firmtool.estimation import compiled as kernels
+from firmtool.roadmap.design import Design, local_controller
+from firmtool.estimation.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
-from firmtool.nodes import GOAL, GOAL_INDEX, START_INDEX
+from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START_INDEX
 from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
 from firmtool.online.relocalise import GaussianSum, Relocalisation
 from firmtool.online.replanning import (GOAL_CHECK_OLDER, Replanner, ReplanSettings, latency_steps,
@@ -107,7 +107,7 @@ class PolicyStatus(enum.StrEnum):
 
 class Traversal(tuple):
     """``(edge, outcome, first_step, last_step)`` of a policy edge run from its node to its end without
-    a belief reset; outcome a node id or ``firmtool.edges.TIMEOUT`` (a simulation adds the collisions,
+    a belief reset; outcome a node id or ``firmtool.estimation.edges.TIMEOUT`` (a simulation adds the collisions,
     ``FAILURE``, and drops the traversals a disturbance hit: :mod:`firmtool.sim.episodes`)."""
 
     __slots__ = ()
@@ -487,7 +487,7 @@ class Policy:
         xhat = self._xhat
         probe = self._probe
         if probe is None:
-            u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T  # as firmtool.edges.control_and_move
+            u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T  # as firmtool.estimation.edges.control_and_move
             trP = run.trP[k]
         else:  # re-localising: the probe's next control, open loop
             u = probe.plan.controls[probe.step][None].copy()
@@ -550,7 +550,7 @@ class Policy:
         nu = None
         if problem.perfect:
             xhat = z[None].copy()
-        else:  # as firmtool.edges.filter_update, on the measurement given
+        else:  # as firmtool.estimation.edges.filter_update, on the measurement given
             pred = model.f(xhat_prev, u)
             innovation = z[None] - model.h(pred)
             xhat = pred + innovation @ lc.L[k].T

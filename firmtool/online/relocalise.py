@@ -36,8 +36,8 @@ from typing import Callable
 
 import numpy as np
 
-from firmtool.angles import on_turn_of, wrap
-from firmtool.controllers import kalman_update
+from firmtool.models.angles import on_turn_of, wrap
+from firmtool.control.controllers import kalman_update
 from firmtool.errors import NumericalError
 
 

@@ -42,12 +42,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from firmtool.controllers import LocalController, plan_local_controller
-from firmtool.design import Design, lqr_weights, node_controller
-from firmtool.edges import simulate
+from firmtool.control.controllers import LocalController, plan_local_controller
+from firmtool.roadmap.design import Design, lqr_weights, node_controller
+from firmtool.estimation.edges import simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.graph import policy_path
-from firmtool.nodes import GOAL, NodeRegions, segment_is_valid
+from firmtool.roadmap.nodes import GOAL, NodeRegions, segment_is_valid
 from firmtool.online.running import RunningController, running_controller
 from firmtool.problem import Problem
 
@@ -348,7 +348,7 @@ class Replanner:
     def runtime_controller(self, x0: np.ndarray, P0: np.ndarray, j: int) -> LocalController:
         """TV-LQG from the belief ``(x0, P0)`` to node ``j``, then its stabiliser, designed in real time.
 
-        The same design as :func:`firmtool.design.local_controller` with ``start_state``, except for the
+        The same design as :func:`firmtool.roadmap.design.local_controller` with ``start_state``, except for the
         nominal: the robot's real-time one (:meth:`~firmtool.robots.Robot.runtime_nominal`; for a
         linear model the analytic rest-to-rest bound plus the steps to brake the current speed, tried
         at most :data:`RUNTIME_NOMINAL_TRIES` times, since growing it until the limits hold, as the
@@ -415,7 +415,7 @@ class Replanner:
 
         ``M`` particles start with the estimate ``xhat`` and true states drawn from ``N(xhat, P)`` (as
         an edge's particles start at its source node) and run the same compiled step as the edge
-        estimates (:func:`firmtool.edges.simulate`). Score: mean cost + mean of ``J(landing node)``,
+        estimates (:func:`firmtool.estimation.edges.simulate`). Score: mean cost + mean of ``J(landing node)``,
         with ``J_F`` for a collision, a timeout or a node that cannot reach the goal.
         """
         problem = self.problem

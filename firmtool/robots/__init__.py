@@ -9,6 +9,6 @@ package through the entry-point group ``firmtool.robots``; scenario files name i
 
 from firmtool.robots.base import ENTRY_POINT_GROUP, CompiledKinematics, Robot, get, names, register
 from firmtool.robots.linear import LinearRobot
-from firmtool.schema import Field  # a robot declares its [model] keys with it
+from firmtool.io.schema import Field  # a robot declares its [model] keys with it
 
 __all__ = ["ENTRY_POINT_GROUP", "CompiledKinematics", "Field", "LinearRobot", "Robot", "get", "names", "register"]

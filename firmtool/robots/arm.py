@@ -22,7 +22,7 @@ from firmtool.errors import ScenarioError
 from firmtool.models import planar_arm
 from firmtool.robots.base import CompiledKinematics, register
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
-from firmtool.schema import Errors, Field, valid
+from firmtool.io.schema import Errors, Field, valid
 
 
 class ArmRobot(LinearRobot):

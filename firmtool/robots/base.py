@@ -8,7 +8,7 @@ firmtool changes: the planner, the Monte Carlo, execution and plots see only its
 What a robot says (class attributes and methods of :class:`Robot`; the defaults suit a holonomic
 robot with a linear model, node stabilisers at rest and rest-to-rest nominals):
 
-- its ``[model]`` keys (:attr:`Robot.model_fields`, declarative, see :mod:`firmtool.schema`) and
+- its ``[model]`` keys (:attr:`Robot.model_fields`, declarative, see :mod:`firmtool.io.schema`) and
   their cross-checks (:meth:`Robot.read_model`);
 - its discrete model (:attr:`Robot.model`, a :class:`firmtool.models.base.Model`), configuration
   space (:attr:`config_dim`, :attr:`config_lo`, :attr:`config_hi`), key points in the workspace
@@ -40,10 +40,10 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar
 import numpy as np
 
 from firmtool.errors import InputError, NumericalError, ScenarioError
-from firmtool.schema import Errors, Field
+from firmtool.io.schema import Errors, Field
 
 if TYPE_CHECKING:  # pragma: no cover
-    from firmtool.controllers import NodeController
+    from firmtool.control.controllers import NodeController
     from firmtool.models.base import Model
     from firmtool.problem import Problem
     from firmtool.scenario import Scenario
@@ -54,7 +54,7 @@ DEFAULT_ROBOT = "point"  # the robot of a scenario whose [model] names none
 
 @dataclass(frozen=True)
 class CompiledKinematics:
-    """What the compiled Monte Carlo engine (:mod:`firmtool.kernels`) needs of a robot's kinematics.
+    """What the compiled Monte Carlo engine (:mod:`firmtool.estimation.compiled`) needs of a robot's kinematics.
 
     The engine knows two planar kinds, and a robot that returns one promises that its key points,
     sensing coordinates and collision shape are exactly the kind's:
@@ -111,11 +111,11 @@ class Robot:
     replan_candidate_seconds: ClassVar[float] = 2e-3
     #: state coordinates that are angles kept continuous along a run (not wrapped): a kidnap draws
     #: those past the configuration uniformly and puts them on the turn nearest their old value
-    #: (:mod:`firmtool.disturbances`; configuration coordinates are drawn within their bounds), and
+    #: (:mod:`firmtool.sim.disturbances`; configuration coordinates are drawn within their bounds), and
     #: execution judges arrival at a goal node modulo a turn in them
     angle_coordinates: ClassVar[tuple[int, ...]] = ()
     #: the tables of a small scenario for this robot that builds as it is, in seconds (``firmtool init
-    #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario_docs.template`);
+    #: NAME --robot ROBOT`` writes it with every key commented, :func:`firmtool.scenario.docs.template`);
     #: ``[scenario]`` is added; None: no template
     template: ClassVar[dict[str, dict[str, Any]] | None] = None
 
@@ -133,7 +133,7 @@ class Robot:
     @classmethod
     def read_model(cls, values: dict[str, Any], errors: Errors) -> dict[str, Any]:
         """Cross-checks of this robot's ``[model]`` values, read one by one from
-        :attr:`model_fields` (a value that failed its own check is :data:`firmtool.schema.INVALID`).
+        :attr:`model_fields` (a value that failed its own check is :data:`firmtool.io.schema.INVALID`).
         Record problems in ``errors`` (``errors.add("model.KEY", "expected ...")``) and return the
         values to keep (derived ones may be added)."""
         return values
@@ -152,9 +152,9 @@ class Robot:
     def code_identity(cls) -> str:
         """The class's module, name and ``version`` attribute (raise it when a packaged robot's
         behaviour changes), and for a class of the user's own code (a script, a notebook, a module
-        outside site-packages) a fingerprint of its code (:mod:`firmtool.fingerprint`), so that
+        outside site-packages) a fingerprint of its code (:mod:`firmtool.io.fingerprint`), so that
         editing it re-estimates instead of reusing estimates of the old code."""
-        from firmtool.fingerprint import _by_reference, fingerprint
+        from firmtool.io.fingerprint import _by_reference, fingerprint
 
         head = f"{cls.__module__}.{cls.__qualname__}:{getattr(cls, 'version', '')}"
         return head if _by_reference(cls) else f"{head}:{fingerprint(cls)}"
@@ -217,7 +217,7 @@ class Robot:
 
     def task_jacobian(self, X: np.ndarray) -> np.ndarray:
         """d task_point / d state at states (M, n) -> (M, D, n): what maps the belief's covariance to
-        the task space (:mod:`firmtool.goal`). Default: central finite differences of
+        the task space (:mod:`firmtool.problem.goal`). Default: central finite differences of
         :meth:`task_point` (a robot with a closed form overrides it; tests compare the two)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         M, n = X.shape
@@ -302,7 +302,7 @@ class Robot:
         """The stabiliser of a node at ``center`` (design stage). Default: stationary SLQR / SLQG of
         the linear model, R at the centre, one LQR gain for all nodes (kept in ``memo``, a dict
         shared by the nodes of one design)."""
-        from firmtool.controllers import design_node, lqr_gain
+        from firmtool.control.controllers import design_node, lqr_gain
 
         model = problem.model
         if "lqr" not in memo:
@@ -317,7 +317,7 @@ class Robot:
     def start_covariance(self, problem: "Problem", state: np.ndarray) -> np.ndarray:
         """The belief covariance (n, n) at a start state that is no node (imperfect measurements).
         Default: the stationary Kalman filter of the model linearised at the state, at rest."""
-        from firmtool.controllers import stationary_kalman
+        from firmtool.control.controllers import stationary_kalman
 
         model = problem.model
         A, _ = model.dynamics_jacobians(state, np.zeros(model.m))
@@ -382,7 +382,7 @@ class Robot:
         """The nominal (x (T+1, n), u (T, m)) from ``x0`` to ``xf`` (design stage). Default: the
         rest-to-rest minimum-energy trajectory of the linear model whose length respects the speed
         and input limits: from the analytic bound, grown by 10% until both hold."""
-        from firmtool.controllers import min_energy_trajectory
+        from firmtool.control.controllers import min_energy_trajectory
 
         model, c = problem.model, problem.scenario.controller
         dt, d = model.dt, problem.config_dim
@@ -407,12 +407,12 @@ class Robot:
         A robot that overrides :meth:`nominal_trajectory` gets it per pair. The default nominal is
         searched for all pairs at once: every pair's length starts from the analytic bound and grows
         by 10% until the limits hold, as in :meth:`nominal_trajectory`, with the pairs of one length
-        computed together (:func:`firmtool.controllers.min_energy_trajectories`, bit for bit the
+        computed together (:func:`firmtool.control.controllers.min_energy_trajectories`, bit for bit the
         single-pair trajectory)."""
         x0, xf = np.atleast_2d(x0), np.atleast_2d(xf)
         if type(self).nominal_trajectory is not Robot.nominal_trajectory:
             return [self.nominal_trajectory(problem, a, b) for a, b in zip(x0, xf)]
-        from firmtool.controllers import min_energy_trajectories
+        from firmtool.control.controllers import min_energy_trajectories
 
         model, c = problem.model, problem.scenario.controller
         dt, d = model.dt, problem.config_dim
@@ -452,7 +452,7 @@ class Robot:
         analytic rest-to-rest bound plus the steps to brake the current speed, grown x1.5 at most
         ``tries`` times until the limits hold (the last try is used even if they do not: design
         limits, not actuator saturation)."""
-        from firmtool.controllers import min_energy_trajectory
+        from firmtool.control.controllers import min_energy_trajectory
 
         model, c, d = problem.model, problem.scenario.controller, problem.config_dim
         steps = int(self.nominal_steps_bound(problem, x0, xf[None])[0])

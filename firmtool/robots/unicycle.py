@@ -3,7 +3,7 @@
 
 It cannot be regulated to a pose at rest (its linearisation there is neither controllable nor, with
 a position sensor, observable), so every node stabiliser is a periodic LQG tracking a figure eight
-through the node (:mod:`firmtool.stabilisers`), and edges follow turn-drive-turn nominals that
+through the node (:mod:`firmtool.control.stabilisers`), and edges follow turn-drive-turn nominals that
 respect the nonholonomic constraint and arrive in phase.
 
 ``[model]`` keys: ``dynamics = "unicycle"``, ``process_noise_std`` (position, per sqrt(s)),
@@ -27,7 +27,7 @@ import numpy as np
 from firmtool.errors import ScenarioError
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
 from firmtool.robots.base import Robot, register
-from firmtool.schema import Field
+from firmtool.io.schema import Field
 
 
 class UnicycleRobot(Robot):
@@ -101,13 +101,13 @@ class UnicycleRobot(Robot):
     # -- periodic node stabilisers -------------------------------------------------------------------
 
     def _weights(self, problem):
-        from firmtool.design import lqr_weights
+        from firmtool.roadmap.design import lqr_weights
 
         return lqr_weights(problem)
 
     def periodic_node(self, problem, center: np.ndarray):
         """The periodic (PLQG / PLQR) stabiliser of the node at ``center``, memoised per centre."""
-        from firmtool.stabilisers import OrbitSpec, cached_periodic_node
+        from firmtool.control.stabilisers import OrbitSpec, cached_periodic_node
 
         Wx, Wu = self._weights(problem)
         spec = problem.scenario.model

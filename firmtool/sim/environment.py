@@ -3,7 +3,7 @@
 It holds the true state, moves it with the control and process noise, measures it with the noise of
 the TRUE state (paper eq. 14: R at the true state, not at the nominal), says whether the state
 violates a constraint, and takes disturbances (push, kidnap, a user's callable) that the filter is
-never told of. Each step is the Monte Carlo's (:func:`firmtool.edges.simulate`) on one particle:
+never told of. Each step is the Monte Carlo's (:func:`firmtool.estimation.edges.simulate`) on one particle:
 ``x' = f(x, u) + F w``, the robot's points once for both the collision test and the sensing noise,
 ``z = h(x') + sqrt(R(x')) v``, with ``(w, v)`` one row of standard normals drawn together, process
 noise first.
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool import disturbances as dist_mod
+from firmtool.sim import disturbances as dist_mod
 from firmtool.errors import InputError
 from firmtool.problem import Problem
 
@@ -89,11 +89,11 @@ class SimulatedSystem:
         problem, model = self.problem, self.problem.model
         u = np.asarray(u, dtype=float).reshape(1, -1)
         noise = self._rng.standard_normal((1, self._width))
-        x = model.f(self._x, u) + noise[:, :self._r] @ model.F.T  # as firmtool.edges.control_and_move
+        x = model.f(self._x, u) + noise[:, :self._r] @ model.F.T  # as firmtool.estimation.edges.control_and_move
         pts = problem.points(x)  # the kinematics once, for the collision test and the sensing noise
         if problem.perfect:
             z = x[0].copy()
-        else:  # as firmtool.edges.filter_update: R at the TRUE state
+        else:  # as firmtool.estimation.edges.filter_update: R at the TRUE state
             variance = model.noise.variance(problem.sensing_from_points(pts))
             z = (model.h(x) + np.sqrt(variance) * noise[:, self._r:])[0]
         self._x = x
@@ -101,7 +101,7 @@ class SimulatedSystem:
         return z, bool(problem.states_valid(x, pts)[0])
 
     def disturb(self, disturbance: dist_mod.Disturbance, rng: np.random.Generator) -> float:
-        """Apply a push or kidnap (:func:`firmtool.disturbances.apply`) to the true state.
+        """Apply a push or kidnap (:func:`firmtool.sim.disturbances.apply`) to the true state.
 
         Returns
         -------

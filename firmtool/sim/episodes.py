@@ -18,7 +18,7 @@ Random streams (each a function of the seed and the episode only, so results do 
 order of episodes, on replanning or on how many run at once): the true system of episode ``i``
 (start draw, process and measurement noise) draws from ``SeedSequence([seed, 0xE7EC, i])``, the
 policy's own draws (replan Monte Carlo) from that sequence's first spawned child, and the
-disturbances from ``SeedSequence([seed, 0xD157, i, ...])`` (:mod:`firmtool.disturbances`).
+disturbances from ``SeedSequence([seed, 0xD157, i, ...])`` (:mod:`firmtool.sim.disturbances`).
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmtool import disturbances as dist_mod
-from firmtool.edges import FAILURE, GOAL_MISS
+from firmtool.sim import disturbances as dist_mod
+from firmtool.estimation.edges import FAILURE, GOAL_MISS
 from firmtool.errors import InputError
 from firmtool.online.policy import Policy, PolicyStatus
 from firmtool.results import Episode, Event, EventKind, Outcome, Results
@@ -100,7 +100,7 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     policy, system : the agent and the environment.
     seeds : the episode's random streams (:func:`episode_seeds`).
     start : (n,) start state instead of the start node (:func:`start_state` checks one).
-    disturbances : parsed disturbances (:func:`firmtool.disturbances.as_disturbances`).
+    disturbances : parsed disturbances (:func:`firmtool.sim.disturbances.as_disturbances`).
     record : keep the episode's states, estimates, covariances and controls.
     after_disturbance : for analyses, ``fn(policy, system) -> events``, called after the policy observed
         the step a disturbance hit (e.g. an oracle that re-localises the policy at the true state:
@@ -221,11 +221,11 @@ def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray 
     episodes : number of episodes; episode ``i`` draws from :func:`episode_seeds` ``(seed, i)``.
     seed : the run's seed.
     start : (config_dim,) or (n,) start configuration or state instead of the start node.
-    disturbances : specification strings, :class:`~firmtool.disturbances.Disturbance` or callables.
+    disturbances : specification strings, :class:`~firmtool.sim.disturbances.Disturbance` or callables.
     record : keep every episode's states, estimates, covariances and controls.
     predicted, predicted_ci95 : the plan's success probability from the start node and its interval
         (reported next to the executed rate).
-    edge_counts : the roadmap's outcome counts (:class:`firmtool.calibration.EdgeCounts`): with them, the
+    edge_counts : the roadmap's outcome counts (:class:`firmtool.estimation.calibration.EdgeCounts`): with them, the
         calibration check of the edges taken.
     system : the environment (default: a :class:`SimulatedSystem` of the policy's problem).
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the episodes run.
@@ -234,7 +234,7 @@ def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray 
     -------
     Results
     """
-    from firmtool.calibration import edge_calibration
+    from firmtool.estimation.calibration import edge_calibration
     from firmtool.progress import EXECUTE, Counter
 
     dists = dist_mod.as_disturbances(disturbances)
@@ -256,7 +256,7 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
               disturbances: tuple, predicted: float | None, predicted_ci95: tuple[float, float] | None,
               calibration=None) -> Results:
     """The :class:`~firmtool.results.Results` of episodes of ``policy``."""
-    from firmtool.execute import wilson_interval
+    from firmtool.results import wilson_interval
 
     episodes = len(eps)
     count = lambda o: sum(e.outcome == o for e in eps)  # noqa: E731

@@ -1,0 +1,1 @@
+"""Controllers: LQR/LQG gains, Kalman filters, time-varying edge controllers, stabilisers."""

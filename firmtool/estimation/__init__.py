@@ -1,0 +1,1 @@
+"""Edge estimation: Monte Carlo engines, edge table and keys, executors, adaptive rounds, budgets."""

@@ -1,0 +1,338 @@
+"""Monte Carlo estimation of one edge (paper Sec. IV-E), vectorised over particles.
+
+Per step, for all live particles at once: control from the estimate -> true-state step with
+process noise -> constraint test of the true state -> observation with R at the TRUE state ->
+filter update with the precomputed gain -> the goal region of a goal ball (every step) -> node
+membership (from the stabiliser phase on).
+Each particle ends landed in a node, failed (constraint violation) or timed out. A particle whose
+belief lands in the goal (the goal region of a goal ball, :mod:`firmtool.problem.goal`, or a goal node)
+ends there only if its TRUE state is where the goal is (:meth:`firmtool.roadmap.nodes.NodeRegions.true_arrival`),
+else with :data:`GOAL_MISS` (the policy would declare an arrival the environment refutes): the DP
+and the success probabilities count it as a failure, so that they predict success judged on the
+true state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmtool.control.controllers import LocalController
+from firmtool.roadmap.design import Design, local_controller, start_covariance
+from firmtool.errors import NumericalError
+from firmtool.models.base import Model
+from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START, NodeRegions
+from firmtool.problem import Problem
+from firmtool.scenario import START_MODES, CostSpec
+
+# Outcome codes besides node ids: a constraint violated, no node reached in time, and a belief that
+# landed in the goal region of a goal ball while the true task point was outside the ball.
+FAILURE, TIMEOUT, GOAL_MISS = -1, -2, -3
+
+
+def edge_seed_sequence(seed: int, source: int, target: int, chunk: int = 0) -> np.random.SeedSequence:
+    """The random stream of one chunk of one edge: a function of the scenario seed and the edge only,
+    so results do not depend on the number of workers or on the executor."""
+    return np.random.SeedSequence([seed, source, target, chunk])
+
+
+def control_and_move(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+                     w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Control from the estimate, then the true-state step: returns the new true states and the controls."""
+    u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T
+    return model.f(x, u) + w @ model.F.T, u
+
+
+def filter_update(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+                  u: np.ndarray, v: np.ndarray, variance: np.ndarray) -> np.ndarray:
+    """Observe the new true states ``x`` (noise variance ``variance``, at the TRUE state) and update
+    with the precomputed gain (an extended Kalman filter for a nonlinear model: the prediction and
+    the innovation use ``f`` and ``h``, the gain is linearised along the nominal once per edge)."""
+    pred = model.f(xhat, u)
+    z = model.h(x) + np.sqrt(variance) * v
+    return pred + (z - model.h(pred)) @ lc.L[k].T
+
+
+def belief_step(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
+                w: np.ndarray, v: np.ndarray, perfect: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Advance true states and estimates by one step of the local controller.
+
+    Parameters
+    ----------
+    x, xhat : (M, n) true states and estimates.
+    w : (M, r) standard normal process noise; v : (M, nz) standard normal measurement noise.
+
+    Returns
+    -------
+    x, xhat, u : the new true states and estimates, and the applied controls (M, m).
+    """
+    x, u = control_and_move(model, lc, k, x, xhat, w)
+    if perfect:
+        return x, x, u
+    return x, filter_update(model, lc, k, x, xhat, u, v, model.measurement_variance(x)), u
+
+
+@dataclass(frozen=True)
+class ParticleOutcomes:
+    """Per-particle results of running a local controller on an ensemble."""
+
+    outcome: np.ndarray  # (M,) node id, FAILURE, TIMEOUT or GOAL_MISS
+    steps: np.ndarray  # (M,) stopping time
+    terms: np.ndarray  # (M, 3) cost terms: sum of tr(P_k), steps, control effort sum |u_k|^2
+
+    def cost(self, spec: CostSpec) -> np.ndarray:
+        """Per-particle eq. 16 cost (+ control effort if weighted) under the weights of ``spec``."""
+        return self.terms @ cost_weights(spec)
+
+
+def cost_weights(spec: CostSpec) -> np.ndarray:
+    """The weights of the cost terms (:attr:`ParticleOutcomes.terms`): alpha1, alpha2, alpha_control."""
+    return np.array([spec.alpha_covariance, spec.alpha_time, spec.alpha_control])
+
+
+def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np.ndarray:
+    """(M, 3) cost terms of particles that stopped after ``steps``: the weights are applied later, so
+    that a change of cost weights re-solves without re-estimating."""
+    last = int(steps.max(initial=0))
+    P = lc.compute(last)[1]  # the filter recursion only as far as the last particle lived
+    trP = np.concatenate([[0.0], np.cumsum(np.trace(P[1:last + 1], axis1=1, axis2=2))])
+    return np.column_stack([trP[steps], steps.astype(float), effort])
+
+
+def goal_code(design_: Design, target: int) -> int:
+    """The outcome code of a landing in the goal region on an edge to ``target``: the target if it is
+    a goal node, else the first goal node (every goal node is the same absorbing goal of the DP)."""
+    return int(target) if design_.kinds[target] == GOAL else GOAL_INDEX
+
+
+def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.ndarray, xhat: np.ndarray,
+             rng: np.random.Generator, engine: str | None = None, numpy_noise: bool = False,
+             goal_node: int = GOAL_INDEX) -> ParticleOutcomes:
+    """Run ``lc`` on an ensemble until every particle lands, fails or times out.
+
+    ``goal_node``: the outcome of a particle whose belief lands in the goal region of a goal ball
+    with its true task point in the ball (:func:`goal_code`).
+
+    ``engine``: ``"numpy"`` (this function's body), ``"numba"`` (:func:`firmtool.estimation.compiled.simulate`,
+    the same step compiled) or None: chosen by :func:`firmtool.estimation.compiled.engine_for` (the compiled one
+    when it supports the problem; ``FIRMTOOL_ENGINE=numpy|numba`` overrides). The compiled engine
+    draws its noise inside the kernel from ``rng``'s seed, unless ``numpy_noise``: then it consumes
+    ``rng.standard_normal`` exactly as this body does, and both engines simulate the same particles.
+    """
+    from firmtool.estimation import compiled as kernels
+
+    if (engine or kernels.engine_for(problem)) == "numba":
+        return kernels.simulate(problem, lc, regions, x, xhat, rng, numpy_noise, goal_node)
+    model, perfect = problem.model, problem.perfect
+    M = x.shape[0]
+    outcome = np.full(M, TIMEOUT, dtype=np.int64)
+    steps = np.full(M, lc.steps, dtype=np.int64)
+    effort = np.zeros(M)
+    candidates = regions.covariance_candidates(lc.P[1:])  # (T, N), once per edge
+    goal = regions.goal
+    alive = np.arange(M)
+    r, nz = model.F.shape[1], model.nz
+    for k in range(lc.steps):
+        if alive.size == 0:
+            break
+        noise = rng.standard_normal((alive.size, r + (0 if perfect else nz)))
+        # the same step as belief_step, with the robot's kinematics computed once for both the
+        # collision test and the state-dependent sensor noise
+        x_a, u = control_and_move(model, lc, k, x[alive], xhat[alive], noise[:, :r])
+        pts = problem.points(x_a)
+        if perfect:
+            xhat_a = x_a
+        else:
+            variance = model.noise.variance(problem.sensing_from_points(pts))
+            xhat_a = filter_update(model, lc, k, x_a, xhat[alive], u, noise[:, r:], variance)
+        x[alive], xhat[alive] = x_a, xhat_a
+        effort[alive] += np.einsum("ij,ij->i", u, u)
+        failed = ~problem.states_valid(x_a, pts)
+        done = failed.copy()
+        outcome[alive[failed]] = FAILURE
+        if goal is not None:  # the goal region of a goal ball, along the whole edge
+            arrived = ~failed
+            arrived[arrived] = goal.contains(xhat_a[arrived], lc.P[k + 1])
+            if arrived.any():
+                outcome[alive[arrived]] = np.where(goal.true_inside(x_a[arrived]), goal_node, GOAL_MISS)
+                done |= arrived
+        if k + 1 >= lc.edge_steps and candidates[k].any():
+            node = regions.locate(xhat_a, candidates[k])
+            landed = (node >= 0) & ~done
+            at_goal = np.flatnonzero(landed)[regions.goal_nodes[node[landed]]] if regions.goal_nodes is not None \
+                else np.zeros(0, dtype=np.int64)
+            if at_goal.size:  # a goal state's node: judged on the true state too
+                node[at_goal] = np.where(regions.true_arrival(node[at_goal], x_a[at_goal]), node[at_goal], GOAL_MISS)
+            outcome[alive[landed]] = node[landed]
+            done |= landed
+        steps[alive[done]] = k + 1
+        alive = alive[~done]
+    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort))
+
+
+@dataclass(frozen=True)
+class EdgeEstimate:
+    """Outcome counts and cost statistics of one edge."""
+
+    source: int
+    target: int
+    particles: int
+    outcomes: np.ndarray  # (K,) distinct outcomes (node ids, FAILURE, TIMEOUT, GOAL_MISS)
+    counts: np.ndarray  # (K,) particle counts
+    terms_mean: np.ndarray  # (3,) mean of the cost terms (ParticleOutcomes.terms)
+    terms_cov: np.ndarray  # (3, 3) their sample covariance (ddof 1; zeros for one particle)
+    steps_mean: float
+    particle_steps: int
+
+    def cost_mean(self, spec: CostSpec) -> float:
+        return float(self.terms_mean @ cost_weights(spec))
+
+    def cost_std(self, spec: CostSpec) -> float:
+        w = cost_weights(spec)
+        return float(np.sqrt(max(w @ self.terms_cov @ w, 0.0)))
+
+
+REGION_DRAW_ROUNDS = 64  # rejection rounds of a region start (each draws 2 M candidates)
+
+
+def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
+                     start: str = "center") -> tuple[np.ndarray, np.ndarray]:
+    """Start of every particle of an edge's Monte Carlo: (true states, estimates), each (M, n).
+
+    ``"center"`` (the paper's eq. 8: the node's centre represents the node): the estimate at the
+    node centre ``v``, the true state drawn from the node's belief, ``N(v, P_s)``.
+
+    ``"region"``: beliefs spread over the node's region, as a robot arrives there in execution: the
+    estimate drawn from the stationary distribution of the estimate under the node's stabiliser,
+    ``N(v, Sigma)``, restricted to the region (``rms((xhat - v) / s) < radius``, by rejection), and the
+    true state ``N(xhat, P_s)`` around it (the filter's error is independent of its estimate), kept
+    only where the true state is valid (a robot arriving at a node is alive; without this a node
+    near an obstacle would count starts inside it as failures). In execution, arrivals' rms offsets
+    follow this law closely (quantiles 0.52/0.91/1.38 vs 0.53/0.90/1.30 on point_perfect).
+
+    From a start node whose start belief the task gives (``task.start_covariance``): the estimate at
+    the start's mean and the true state drawn from that belief, in either mode.
+    """
+    v = design_.centers[source]
+    n = len(v)
+    if problem.start_covariance is not None and design_.kinds[source] == START and not problem.perfect:
+        # the task's start belief (whatever the start mode: the start node is never landed in)
+        xhat = np.repeat(v[None], M, axis=0)
+        chol = np.linalg.cholesky(start_covariance(problem, design_, source) + 1e-15 * np.eye(n))
+        return xhat + rng.standard_normal((M, n)) @ chol.T, xhat
+    if start == "center":
+        xhat = np.repeat(v[None], M, axis=0)
+        if problem.perfect:
+            return xhat.copy(), xhat
+        return xhat + rng.standard_normal((M, n)) @ _start_factor(design_, source).T, xhat
+    if start != "region":
+        raise ValueError(f"start: expected one of {START_MODES}, found {start!r}")
+    radius = problem.scenario.controller.node_radius
+    chol_s = np.linalg.cholesky(design_.Sigma[source] + 1e-15 * np.eye(n))
+    chol_p = None if problem.perfect else _start_factor(design_, source)
+    scale = design_.scale[source]
+    xs, xhats, drawn = [], [], 0
+    for _ in range(REGION_DRAW_ROUNDS):  # a node region holds most of the stationary mass: few rounds
+        z = rng.standard_normal((2 * M, n)) @ chol_s.T
+        xhat = v + z[np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius]
+        x = xhat if chol_p is None else xhat + rng.standard_normal(xhat.shape) @ chol_p.T
+        alive = problem.is_valid(x)  # a robot that arrived is alive: its true state is valid
+        xs.append(x[alive])
+        xhats.append(xhat[alive])
+        drawn += int(alive.sum())
+        if drawn >= M:
+            break
+    else:
+        raise NumericalError(f"node {source}: fewer than {M} of {REGION_DRAW_ROUNDS * 2 * M} beliefs drawn over its "
+                             "region have a valid true state; a region start is impossible there")
+    x, xhat = np.concatenate(xs)[:M], np.concatenate(xhats)[:M]
+    return (xhat.copy(), xhat) if problem.perfect else (x, xhat)
+
+
+_factor_cache: dict[tuple[int, int], tuple[Design, np.ndarray]] = {}
+
+
+def _start_factor(design_: Design, source: int) -> np.ndarray:
+    """The Cholesky factor of node ``source``'s covariance (jittered by 1e-15 I), once per design and
+    node: a worker's batch of edges shares a few sources (edges come sorted by source)."""
+    hit = _factor_cache.get((id(design_), source))
+    if hit is not None and hit[0] is design_:
+        return hit[1]
+    chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(design_.P.shape[1]))
+    if len(_factor_cache) >= 256:
+        _factor_cache.clear()
+    _factor_cache[(id(design_), source)] = (design_, chol)
+    return chol
+
+
+def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
+                  particles: int, seed: int, chunk: int, engine: str | None = None,
+                  numpy_noise: bool = False, start: str | None = None,
+                  controller: LocalController | None = None) -> EdgeEstimate:
+    """Monte Carlo of the local controller ``source -> target`` from the source node.
+
+    The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
+    with its own seed derived from ``(seed, source, target, chunk index)``. ``engine`` and
+    ``numpy_noise``: as in :func:`simulate`; ``start``: as in :func:`initial_ensemble` (None: the
+    scenario's ``estimation.start``). ``controller``:
+    the edge's local controller if the caller designed it already
+    (:func:`firmtool.roadmap.design.local_controllers` designs a batch of edges at once, bit for bit the
+    controller designed here otherwise). This is block 0 of :func:`estimate_blocks`.
+    """
+    return estimate_blocks(problem, design_, regions, source, target, particles, 0, 1, seed, chunk, engine,
+                           numpy_noise, start, controller)[0]
+
+
+def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
+                    block_size: int, first_block: int, blocks: int, seed: int, chunk: int, engine: str | None = None,
+                    numpy_noise: bool = False, start: str | None = None,
+                    controller: LocalController | None = None) -> list[EdgeEstimate]:
+    """Blocks ``first_block .. first_block + blocks - 1`` of an edge's particles, one estimate each.
+
+    An edge's particles come in blocks of ``block_size`` (the scenario's ``estimation.particles``);
+    block ``b`` is simulated in ``ceil(block_size / chunk)`` chunks whose indices continue those of
+    the blocks before it (block ``b``, chunk ``j``: index ``b * ceil(block_size / chunk) + j``), each
+    chunk drawing from :func:`edge_seed_sequence`. So the particles of an edge with ``k`` blocks are a
+    function of the seed, the edge and ``k`` alone: more particles for an edge are new chunks, and an
+    estimate with ``k`` blocks is the in-order merge (:func:`merge_estimates`) of blocks 0 to k - 1,
+    whoever computed them and in whatever batches. ``controller``: as in :func:`estimate_edge`.
+    """
+    lc = controller if controller is not None else local_controller(problem, design_, source, target)
+    start = problem.scenario.estimation.start if start is None else start
+    per_block = -(-block_size // chunk)
+    out = []
+    for b in range(first_block, first_block + blocks):
+        results = []
+        for j, first in enumerate(range(0, block_size, chunk)):
+            M = min(chunk, block_size - first)
+            rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
+            x, xhat = initial_ensemble(problem, design_, source, M, rng, start)
+            results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise,
+                                    goal_code(design_, target)))
+        outcome = np.concatenate([r.outcome for r in results])
+        steps = np.concatenate([r.steps for r in results])
+        terms = np.concatenate([r.terms for r in results])
+        values, counts = np.unique(outcome, return_counts=True)
+        cov = np.cov(terms, rowvar=False, ddof=1) if block_size > 1 else np.zeros((3, 3))
+        out.append(EdgeEstimate(source=source, target=target, particles=block_size, outcomes=values, counts=counts,
+                                terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
+                                steps_mean=float(steps.mean()), particle_steps=int(steps.sum())))
+    return out
+
+
+def merge_estimates(a: EdgeEstimate, b: EdgeEstimate) -> EdgeEstimate:
+    """One estimate from the particles of two estimates of the same edge: counts added, means and
+    sample covariances pooled exactly (Chan et al.'s parallel update)."""
+    n1, n2 = a.particles, b.particles
+    n = n1 + n2
+    outcomes = np.union1d(a.outcomes, b.outcomes)
+    counts = np.zeros(outcomes.size, dtype=np.int64)
+    counts[np.searchsorted(outcomes, a.outcomes)] += a.counts
+    counts[np.searchsorted(outcomes, b.outcomes)] += b.counts
+    delta = b.terms_mean - a.terms_mean
+    mean = a.terms_mean + delta * (n2 / n)
+    m2 = a.terms_cov * max(n1 - 1, 0) + b.terms_cov * max(n2 - 1, 0) + np.outer(delta, delta) * (n1 * n2 / n)
+    return EdgeEstimate(source=a.source, target=a.target, particles=n, outcomes=outcomes, counts=counts,
+                        terms_mean=mean, terms_cov=m2 / (n - 1), steps_mean=(a.steps_mean * n1 + b.steps_mean * n2) / n,
+                        particle_steps=a.particle_steps + b.particle_steps)

@@ -1,0 +1,1 @@
+"""Files: the roadmap file, episode files, atomic writes, locks, input limits, fingerprints."""

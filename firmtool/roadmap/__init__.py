@@ -1,0 +1,1 @@
+"""Roadmap construction: node sampling and regions, edge design, connectivity."""

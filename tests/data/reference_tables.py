@@ -1,0 +1,113 @@
+"""Reference roadmaps: digests of every stored array of the shipped scenarios' roadmaps (issue 34).
+
+The package's redesign (issue 34) must change no number: the same scenario and seed give the same
+nodes, controllers, edge tables and policies, bit for bit. This module builds and solves roadmaps
+through the public API only (``ft.load_scenario``, ``ft.build``, ``ft.solve``, ``Solution.save``),
+so that it runs on any checkout, and records per dataset of ``/nodes``, ``/controllers``, ``/edges``
+and ``/policy`` its dtype, shape and the sha256 of its bytes, plus the stages' numeric attributes.
+``tests/test_tables_unchanged.py`` compares the current code with the reference.
+
+Two sets, both written on main at 4071a87 (before the redesign):
+
+- ``reduced``: every shipped scenario with few nodes and particles (a build of seconds), for the
+  suite;
+- ``shipped``: the shipped scenarios as they ship (minutes on 2 cores), for ``pytest -m slow``.
+
+Regenerate (only when a change of numbers is intended, and say why in the commit)::
+
+    python tests/data/reference_tables.py [reduced|shipped]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+FIXTURE = HERE / "reference_tables.json"
+
+SCENARIOS = ("smoke", "point_lightdark", "point_perfect", "platt_lightdark", "maze_lightdark",
+             "unicycle_lightdark", "unicycle_perfect", "arm8_lightdark")
+
+# few nodes and particles: every scenario's build in seconds, every stage and engine still exercised
+REDUCED = {"roadmap": {"nodes": 14}, "estimation": {"particles": 40}}
+GROUPS = ("nodes", "controllers", "edges", "policy")
+
+
+def scenario(name: str, kind: str):
+    import firmtool as ft
+
+    sc = ft.load_scenario(name)
+    if kind == "reduced":
+        sc = sc.replace(**REDUCED)
+    return sc
+
+
+def _attr(value):
+    if isinstance(value, bytes):
+        value = value.decode()
+    if isinstance(value, str):
+        return value
+    a = np.asarray(value)
+    if a.dtype.kind in "fiub":
+        return [float(v) for v in a.ravel()]
+    return str(value)
+
+
+# attributes that name times, versions or the file, not numbers of the roadmap
+VOLATILE = ("created", "firmtool_version", "seconds", "time", "elapsed", "wall", "path", "source")
+
+
+def digests(path: Path) -> dict:
+    """Per dataset of the stage groups: dtype, shape and sha256 of its bytes; per group its attributes."""
+    import h5py
+
+    out: dict = {}
+    with h5py.File(path, "r") as f:
+        for group in GROUPS:
+            if group not in f:
+                continue
+            g = f[group]
+            entry: dict = {"attrs": {k: _attr(v) for k, v in sorted(g.attrs.items())
+                                     if not any(w in k for w in VOLATILE)}, "datasets": {}}
+
+            def visit(name, obj, entry=entry):
+                if isinstance(obj, h5py.Dataset):
+                    data = obj[()]
+                    arr = np.asarray(data)
+                    entry["datasets"][name] = [str(arr.dtype), list(arr.shape),
+                                               hashlib.sha256(np.ascontiguousarray(arr).tobytes()).hexdigest()]
+
+            g.visititems(visit)
+            out[group] = entry
+    return out
+
+
+def record(name: str, kind: str) -> dict:
+    import firmtool as ft
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
+        sol = ft.solve(ft.build(scenario(name, kind), workers=1))
+        path = sol.save(Path(tmp) / f"{name}.h5")
+        return {"success_probability": float(sol.success_probability), "policy": [int(e) for e in sol.policy],
+                "digests": digests(path)}
+
+
+def main(kinds: list[str]) -> None:
+    out = json.loads(FIXTURE.read_text()) if FIXTURE.exists() else {}
+    for kind in kinds:
+        out[kind] = {}
+        for name in SCENARIOS:
+            out[kind][name] = record(name, kind)
+            print(kind, name, out[kind][name]["success_probability"], file=sys.stderr)
+            FIXTURE.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:] or ["reduced", "shipped"])
