@@ -30,7 +30,7 @@ _EXPORTS = {
     "open_roadmap": "firmtool.api",
     "solve": "firmtool.api",
     "simulate": "firmtool.api",
-    "plot": "firmtool.api",
+    "plot": "firmtool.figures",
     "Roadmap": "firmtool.api",
     "Solution": "firmtool.api",
     "Scenario": "firmtool.scenario",
@@ -68,7 +68,8 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
-    from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, plot, simulate, solve
+    from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
+    from firmtool.figures import plot
     from firmtool.sim.disturbances import Disturbance, UserDisturbance
     from firmtool.errors import FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError
     from firmtool.online.policy import Policy, PolicyStatus

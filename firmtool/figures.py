@@ -1,7 +1,7 @@
 """Figures of a roadmap, its policies and executed episodes (the paper's Fig. 1), for any robot.
 
 :func:`panel` draws one panel into a matplotlib Axes; the public calls are :func:`firmtool.plot`
-(one panel) and :func:`firmtool.api.plot_policies` (panels side by side, ``firmtool plot``). Nothing
+(one panel) and :func:`plot_policies` (panels side by side, ``firmtool plot``). Nothing
 here selects a matplotlib backend, so a notebook keeps its own. (Named ``figures``, not ``plot``: a
 submodule ``firmtool.plot`` would replace the function ``firmtool.plot`` as soon as it was imported.)
 
@@ -18,7 +18,8 @@ import io
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from matplotlib.collections import LineCollection
@@ -26,11 +27,17 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Ellipse, Rectangle
 
 from firmtool import __version__
+from firmtool.api import Solution, simulate
+from firmtool.errors import InputError
+from firmtool.graph import policy_path
 from firmtool.io.atomic import check_target, write_bytes
 from firmtool.roadmap.design import Design
 from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.problem import Problem
-from firmtool.results import Episode
+from firmtool.results import Episode, Outcome, Results
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.axes import Axes
 
 OBSTACLE_COLOR = "#8c564b"  # brown, as in the paper
 GOAL_COLOR = "#9467bd"  # purple
@@ -141,7 +148,6 @@ def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = 
     Axes are labelled in ``unit`` (the scenario's length unit); the sensing field gets a colour bar
     as tall as the axes (``colorbar``); the legend (``legend``) is placed under the axes, outside the
     data (a figure of several panels draws one legend for all: :func:`legend_below`)."""
-    from firmtool.graph import policy_path
 
     image = _background(ax, problem, unit)
     tips = problem.points(design.centers)[:, -1, :2]
@@ -248,7 +254,6 @@ def calibration_figure(results, *, dpi: int = 120, title: str | None = None) -> 
     InputError
         The results have no calibration check (no edge counts) or no edge was taken often enough.
     """
-    from firmtool.errors import InputError
 
     cal = results.calibration
     if cal is None or not cal.edges:
@@ -294,20 +299,16 @@ def _relabel(progress, stage: str):
 
 
 def paths_figure(solution, options: FigureOptions) -> Figure:
-    """The paper's Fig. 1, one panel per policy (:func:`firmtool.api.plot_policies`)."""
-    import firmtool.api as ft
-
-    results = [ft.simulate(solution, options.episodes, options.seed, policy=name,
+    """The paper's Fig. 1, one panel per policy (:func:`plot_policies`)."""
+    results = [simulate(solution, options.episodes, options.seed, policy=name,
                            progress=_relabel(options.progress, f"plot: {name} episodes"))
                if options.episodes else None for name in options.policies]
-    return ft.plot_policies(solution, results, list(options.policies), dpi=options.dpi, unit=options.unit)
+    return plot_policies(solution, results, list(options.policies), dpi=options.dpi, unit=options.unit)
 
 
 def calibration_kind_figure(solution, options: FigureOptions) -> Figure:
     """The calibration plot of the FIRM policy's edges over ``options.episodes`` episodes."""
-    import firmtool.api as ft
-
-    results = ft.simulate(solution, max(options.episodes, 1), options.seed, record=False,
+    results = simulate(solution, max(options.episodes, 1), options.seed, record=False,
                           progress=_relabel(options.progress, "plot: episodes"))
     return calibration_figure(results, dpi=options.dpi)
 
@@ -324,7 +325,6 @@ def register_figure(kind: str, make: Callable[..., Figure]) -> None:
 
 def make_figure(kind: str, solution, options: FigureOptions) -> Figure:
     """The figure of a kind (:data:`FIGURE_KINDS`) for a solved roadmap."""
-    from firmtool.errors import InputError
 
     if kind not in FIGURE_KINDS:
         raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
@@ -376,3 +376,86 @@ def save_figure(fig: Figure, path: str | Path, force: bool = False) -> None:
             import matplotlib.pyplot as plt
 
             plt.close(fig)
+
+
+def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" = None, *,
+         policy: str | None = None, episode: int | None = None, unit: str = "m", legend: bool = True) -> "Axes":
+    """Draw one panel of the paper's Fig. 1 for a policy: obstacles, sensing field, goal, roadmap,
+    the policy's nominal path, the robot at the start, and with ``results`` their success rate and
+    one executed episode's estimated mean with 3-sigma ellipses of the followed point (the arm's tip).
+
+    Parameters
+    ----------
+    solution : Solution
+    results : Results, optional
+        Episodes of the same policy (:func:`simulate`); the drawn one needs its arrays
+        (``record=True``).
+    ax : matplotlib Axes, optional
+        Where to draw (default: the Axes of a new 6 x 6 inch pyplot figure).
+    policy : {"firm", "shortest-path"}, optional
+        Default: the policy of ``results``, else ``"firm"``.
+    episode : int, optional
+        Index of the episode of ``results`` to draw (default: the first success, else the first).
+    unit : str
+        The length unit of the scenario's world, for the axis labels.
+    legend : bool
+        Draw the legend under the axes.
+
+    Returns
+    -------
+    matplotlib Axes
+        ``ax``.
+    """
+    name = policy or (results.policy if results is not None and results.policy else "firm")
+    if results is not None and results.policy is not None and results.policy != name:
+        raise InputError(f"plot: the results are of policy {results.policy!r}, not {name!r}")
+    edges, probabilities = solution._policy(name)
+    drawn, label, executed = None, None, None
+    if results is not None:
+        executed = (results.success_rate, *results.success_rate_ci95)
+        if episode is not None:
+            if not 0 <= episode < len(results.episodes):
+                raise InputError(f"plot: episode {episode} is not in 0..{len(results.episodes) - 1}")
+            if not results.episodes[episode].recorded:
+                raise InputError(f"plot: episode {episode} was not recorded (simulate with record=True)")
+            index = episode
+        else:
+            recorded = [i for i, ep in enumerate(results.episodes) if ep.recorded]
+            successes = [i for i in recorded if results.episodes[i].outcome == Outcome.SUCCESS]
+            index = (successes or recorded or [None])[0]
+        if index is not None:
+            drawn, label = results.episodes[index], f"episode {index} of seed {results.seed}"
+    predicted = float(probabilities[START_INDEX]) if results is None or results.start is None else None
+    if ax is None:
+        import matplotlib.pyplot as plt  # pyplot only where a user asked for a new figure
+
+        _, ax = plt.subplots(figsize=(6.0, 6.0), layout="constrained")
+    rm = solution.roadmap
+    panel(ax, rm.problem, rm.execution_design,
+          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label),
+          unit=unit, legend=legend)
+    return ax
+
+
+def plot_policies(solution: Solution, results: Sequence[Results | None], policies: Sequence[str], *,
+                  dpi: int = 120, unit: str = "m") -> "Figure":
+    """Panels side by side, one :func:`plot` per policy (``firmtool plot``), on a bare matplotlib
+    Figure (no pyplot, no backend; write it with :func:`firmtool.figures.save_figure`).
+
+    Parameters
+    ----------
+    solution : Solution
+    results : one Results (or None) per policy.
+    policies : the policies' names.
+    dpi : resolution of the figure.
+    unit : the length unit of the axes.
+    """
+    sc = solution.roadmap.scenario
+    ratio = (sc.world.hi[1] - sc.world.lo[1]) / (sc.world.hi[0] - sc.world.lo[0])  # panels are drawn to scale
+    fig = Figure(figsize=(6.0 * len(policies), 4.7 * ratio + 2.3), dpi=dpi, layout="constrained")
+    axes = fig.subplots(1, len(policies), squeeze=False)[0]
+    for ax, res, name in zip(axes, results, policies):
+        plot(solution, res, ax, policy=name, unit=unit, legend=False)
+    legend_below(fig, axes[0])
+    fig.suptitle(f"{sc.name} ({sc.measurement.kind} measurements)")
+    return fig

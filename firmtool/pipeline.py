@@ -23,7 +23,7 @@ from firmtool.io.atomic import check_target
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.roadmap.connectivity import connect_goals, connectivity_report
 from firmtool.roadmap.design import Design, design, start_covariance
-from firmtool.estimation.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, digest, edge_costs, edge_keys, from_arrays,
+from firmtool.estimation.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, edge_costs, edge_keys, from_arrays,
                                  outcome_probabilities, to_arrays)
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
@@ -39,7 +39,8 @@ from firmtool.progress import DESIGN_NODES, ESTIMATE, SOLVE, Counter, ProgressCa
 from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
                               DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
 from firmtool.estimation.budgets import check_budget, check_workers
-from firmtool.io.roadmap_file import (Roadmap, concat_edge_tables, create_roadmap, inputs_hash, is_roadmap_file,
+from firmtool.io.hashing import digest, inputs_hash
+from firmtool.io.roadmap_file import (Roadmap, concat_edge_tables, create_roadmap, is_roadmap_file,
                               read_edge_cache, restamp, update_scenario, write_edge_cache, write_stage)
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
 from firmtool.scenario.write import synced

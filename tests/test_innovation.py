@@ -171,7 +171,7 @@ def test_the_velocity_mixture_is_the_moments_of_kept_or_stopped():
     """After a configuration jump the belief is the 50/50 mixture of the velocities kept (a push) and
     stopped (a kidnap): its mean and covariance are that mixture's, checked against 400000 draws of it;
     the configuration block and the cross terms stay, and a robot at rest is left as it was."""
-    from firmtool.online.innovation import mixed_velocity
+    from firmtool.robots.jumps import mixed_velocity
 
     rng = np.random.default_rng(11)
     n, d = 4, 2
@@ -254,7 +254,7 @@ def test_the_mission_false_alarm_is_a_budget_over_the_policy_path():
 def test_a_unicycle_keeps_its_belief_after_a_jump_and_a_double_integrator_mixes_its_velocities():
     """Robot.after_jump: a unicycle's third coordinate is its heading (nothing stops it), so its
     belief stays as corrected; a double integrator's velocities become kept-or-stopped."""
-    from firmtool.online.innovation import mixed_velocity
+    from firmtool.robots.jumps import mixed_velocity
     from firmtool.robots.base import Robot
     from firmtool.robots.unicycle import UnicycleRobot
 

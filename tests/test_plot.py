@@ -43,7 +43,7 @@ def test_figures_fit_for_a_paper(scenario, smoke_roadmap, tmp_path):
     """Axis labels with units, a colour bar for the sensing field, one legend under the panels (outside
     the data), and no text outside the canvas (the arm's tick labels used to be cut at the bottom)."""
     import firmtool as ft
-    from firmtool.api import plot_policies
+    from firmtool.figures import plot_policies
 
     if scenario == "smoke":
         rm = ft.open_roadmap(smoke_roadmap[0])

@@ -6,7 +6,8 @@ from scipy.stats import multivariate_normal
 
 from firmtool.models.linear import LightDarkNoise
 from firmtool.models.unicycle import UnicycleModel
-from firmtool.online.relocalise import GaussianSum, spread_coordinate
+from firmtool.online.relocalise import GaussianSum
+from firmtool.robots.relocalisation import spread_coordinate
 from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario
 from test_unicycle import LIGHTDARK, TINY  # the unicycle tests' tiny scenario
@@ -242,7 +243,7 @@ def test_policy_runs_the_probe_a_probe_plans_when_its_steps_run_out(tiny_solutio
     runs it (a ``relocalised`` then a ``relocalising`` event, no decision between); the first one's
     controls are applied as planned."""
     import firmtool as ft
-    from firmtool.online.relocalise import Relocalisation
+    from firmtool.robots.relocalisation import Relocalisation
     from firmtool.sim import SimulatedSystem
 
     sol = tiny_solution

@@ -9,6 +9,7 @@ path, with no Kalman gains.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
@@ -17,6 +18,9 @@ from firmtool.jit import cached_njit
 from firmtool.errors import NumericalError
 from firmtool.models.base import Model
 from firmtool.models.linear import LinearGaussianModel
+
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.problem import Problem
 
 # compiled, cached on disk by a key that covers the compiled functions each calls (firmtool.jit)
 njit = cached_njit()
@@ -849,3 +853,9 @@ def plan_local_controllers(model: Model, nominals: list[tuple[np.ndarray, np.nda
         for lc in out:
             lc.compute(lc.edge_steps + filter_steps_past_edge)
     return out
+
+
+def lqr_weights(problem: "Problem") -> tuple[np.ndarray, np.ndarray]:
+    """The LQR weights (Wx (n, n), Wu (m, m)) of the scenario's ``[controller]`` for the problem's model."""
+    c = problem.scenario.controller
+    return weights(problem.model, c.state_weight, c.velocity_weight, c.control_weight, problem.config_dim)

@@ -76,12 +76,13 @@ import os
 
 import numpy as np
 
+from firmtool.estimation.outcomes import FAILURE, GOAL_MISS, TIMEOUT, ParticleOutcomes, cost_terms
+
 try:  # numba is a dependency, but keep the numpy path usable without it
     import numba
 except ImportError:  # pragma: no cover
     numba = None
 
-FAILURE, TIMEOUT, GOAL_MISS = -1, -2, -3  # same codes as firmtool.estimation.edges
 ROBOT_POINT, ROBOT_ARM = 0, 1
 KINEMATICS = {"planar_point": ROBOT_POINT, "planar_chain": ROBOT_ARM}  # robots' compiled hooks
 NOISE_FORMS = {"lightdark_std": 0, "lightdark_variance": 1, "constant": 2}
@@ -1099,7 +1100,6 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     the kernel ``rng.standard_normal`` in the numpy path's order instead, so that both engines
     simulate the same particles (the tests' particle-by-particle check of the arithmetic).
     """
-    from firmtool.estimation.edges import ParticleOutcomes, cost_terms
     from firmtool.errors import InputError
 
     hit = _problem_cache.get(id(problem))

@@ -25,6 +25,7 @@ import scipy.sparse
 
 from firmtool.roadmap.design import Design
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, cost_weights
+from firmtool.io.hashing import digest
 from firmtool.problem import Problem
 from firmtool.scenario import CostSpec
 
@@ -33,37 +34,6 @@ from firmtool.scenario import CostSpec
 ENGINE_VERSION = 3  # 2: the compiled engine draws its noise in the kernel; 3: goal balls' regions and goal misses
 KEY_BYTES = 32
 _NODE_ARRAYS = ("centers", "u_eq", "K", "S", "L", "P", "Sigma", "scale")
-
-
-def _feed(h: "hashlib._Hash", obj: Any) -> None:
-    """Hash a value canonically: dataclasses by field, arrays by dtype, shape and bytes."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        h.update(type(obj).__name__.encode())
-        for f in dataclasses.fields(obj):
-            h.update(f.name.encode())
-            _feed(h, getattr(obj, f.name))
-    elif isinstance(obj, np.ndarray):
-        a = np.ascontiguousarray(obj)
-        h.update(f"{a.dtype}{a.shape}".encode() + a.tobytes())
-    elif isinstance(obj, Mapping):
-        for k in sorted(obj):
-            h.update(repr(k).encode())
-            _feed(h, obj[k])
-    elif isinstance(obj, (list, tuple)):
-        h.update(f"seq{len(obj)}".encode())
-        for item in obj:
-            _feed(h, item)
-    else:
-        h.update(repr(obj).encode())
-    h.update(b"\x00")
-
-
-def digest(*parts: Any) -> bytes:
-    """sha256 digest of ``parts`` (dataclasses, arrays, mappings, sequences, scalars)."""
-    h = hashlib.sha256()
-    for p in parts:
-        _feed(h, p)
-    return h.digest()
 
 
 def robot_identity(problem: Problem) -> str:

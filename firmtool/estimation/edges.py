@@ -24,17 +24,11 @@ from firmtool.errors import NumericalError
 from firmtool.models.base import Model
 from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START, NodeRegions
 from firmtool.problem import Problem
-from firmtool.scenario import START_MODES, CostSpec
+from firmtool.scenario import START_MODES
+from firmtool.estimation import compiled as kernels
+from firmtool.estimation.outcomes import (FAILURE, GOAL_MISS, TIMEOUT, ParticleOutcomes, cost_terms,  # noqa: F401
+                                          cost_weights, edge_seed_sequence, goal_code)
 
-# Outcome codes besides node ids: a constraint violated, no node reached in time, and a belief that
-# landed in the goal region of a goal ball while the true task point was outside the ball.
-FAILURE, TIMEOUT, GOAL_MISS = -1, -2, -3
-
-
-def edge_seed_sequence(seed: int, source: int, target: int, chunk: int = 0) -> np.random.SeedSequence:
-    """The random stream of one chunk of one edge: a function of the scenario seed and the edge only,
-    so results do not depend on the number of workers or on the executor."""
-    return np.random.SeedSequence([seed, source, target, chunk])
 
 
 def control_and_move(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,
@@ -73,39 +67,6 @@ def belief_step(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: 
     return x, filter_update(model, lc, k, x, xhat, u, v, model.measurement_variance(x)), u
 
 
-@dataclass(frozen=True)
-class ParticleOutcomes:
-    """Per-particle results of running a local controller on an ensemble."""
-
-    outcome: np.ndarray  # (M,) node id, FAILURE, TIMEOUT or GOAL_MISS
-    steps: np.ndarray  # (M,) stopping time
-    terms: np.ndarray  # (M, 3) cost terms: sum of tr(P_k), steps, control effort sum |u_k|^2
-
-    def cost(self, spec: CostSpec) -> np.ndarray:
-        """Per-particle eq. 16 cost (+ control effort if weighted) under the weights of ``spec``."""
-        return self.terms @ cost_weights(spec)
-
-
-def cost_weights(spec: CostSpec) -> np.ndarray:
-    """The weights of the cost terms (:attr:`ParticleOutcomes.terms`): alpha1, alpha2, alpha_control."""
-    return np.array([spec.alpha_covariance, spec.alpha_time, spec.alpha_control])
-
-
-def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np.ndarray:
-    """(M, 3) cost terms of particles that stopped after ``steps``: the weights are applied later, so
-    that a change of cost weights re-solves without re-estimating."""
-    last = int(steps.max(initial=0))
-    P = lc.compute(last)[1]  # the filter recursion only as far as the last particle lived
-    trP = np.concatenate([[0.0], np.cumsum(np.trace(P[1:last + 1], axis1=1, axis2=2))])
-    return np.column_stack([trP[steps], steps.astype(float), effort])
-
-
-def goal_code(design_: Design, target: int) -> int:
-    """The outcome code of a landing in the goal region on an edge to ``target``: the target if it is
-    a goal node, else the first goal node (every goal node is the same absorbing goal of the DP)."""
-    return int(target) if design_.kinds[target] == GOAL else GOAL_INDEX
-
-
 def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.ndarray, xhat: np.ndarray,
              rng: np.random.Generator, engine: str | None = None, numpy_noise: bool = False,
              goal_node: int = GOAL_INDEX) -> ParticleOutcomes:
@@ -120,8 +81,6 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
     draws its noise inside the kernel from ``rng``'s seed, unless ``numpy_noise``: then it consumes
     ``rng.standard_normal`` exactly as this body does, and both engines simulate the same particles.
     """
-    from firmtool.estimation import compiled as kernels
-
     if (engine or kernels.engine_for(problem)) == "numba":
         return kernels.simulate(problem, lc, regions, x, xhat, rng, numpy_noise, goal_node)
     model, perfect = problem.model, problem.perfect

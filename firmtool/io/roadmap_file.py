@@ -53,10 +53,14 @@ from firmtool import __version__
 from firmtool.io.atomic import write_bytes
 from firmtool.errors import FileBusyError, RoadmapError
 from firmtool.io.limits import MAX_SCENARIO_BYTES
+from firmtool.io.schema import MAX_STATE_DIM
 
 SCHEMA_VERSION = 1
 ENCODING_TYPE = "firmtool.io.roadmap_file"
 STAGES = ("nodes", "controllers", "edges", "policy")
+# Node kinds as /nodes/kind stores them, and the start and goal nodes: always nodes 0 and 1.
+REGULAR, START, GOAL = 0, 1, 2
+START_INDEX, GOAL_INDEX = 0, 1
 CACHE = "edge_cache"  # not a stage: estimates kept for reuse while /edges is incomplete or stale
 STAGE_COMMANDS = {"nodes": "firmtool sample", "controllers": "firmtool design",
                   "edges": "firmtool estimate", "policy": "firmtool solve"}
@@ -65,19 +69,6 @@ STAGE_COMMANDS = {"nodes": "firmtool sample", "controllers": "firmtool design",
 MAX_READ_BYTES = 2**30
 # Largest attribute read (the scenario text is bounded like a scenario file).
 MAX_ATTRIBUTE_BYTES = MAX_SCENARIO_BYTES
-
-
-def inputs_hash(*parts: Any) -> str:
-    """sha256 over strings and arrays: the identity of a stage's inputs."""
-    h = hashlib.sha256()
-    for part in parts:
-        if isinstance(part, np.ndarray):
-            h.update(str(part.dtype).encode() + str(part.shape).encode())
-            h.update(np.ascontiguousarray(part).tobytes())
-        else:
-            h.update(repr(part).encode())
-        h.update(b"\x00")
-    return h.hexdigest()
 
 
 @contextmanager
@@ -594,8 +585,6 @@ def _index(at: str, a: np.ndarray, low: int, high: int | None, sym: str = "") ->
 
 
 def _check_nodes(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
-    from firmtool.roadmap.nodes import GOAL, REGULAR, START, START_INDEX
-    from firmtool.scenario import MAX_STATE_DIM
     p = rm.path
     if "centers" in arrays:
         c = arrays["centers"]
@@ -705,7 +694,6 @@ def _check_edges_stage(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Map
 
 
 def _check_policy(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
-    from firmtool.roadmap.nodes import GOAL, START_INDEX
     p, dims = rm.path, rm._dims
     N, F = dims.get("N"), dims.get("F", 0)
     at = lambda name: _where(p, "policy", name)  # noqa: E731

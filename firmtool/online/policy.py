@@ -43,7 +43,7 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
 - **Re-localising an unseen coordinate.** A robot whose sensor cannot see a coordinate at rest (a
   unicycle's heading: a kidnapped robot may face anywhere) holds hypotheses of it after a jump
   and runs a probe motion until one mode leads (or a further probe the robot plans from what the
-  first showed, :attr:`Relocalisation.then <firmtool.online.relocalise.Relocalisation>`), then
+  first showed, :attr:`Relocalisation.then <firmtool.robots.relocalisation.Relocalisation>`), then
   decides from that mode (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`,
   :attr:`ReplanSettings.relocalise`). Events: ``relocalising``, then ``relocalised``.
 - **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
@@ -84,7 +84,8 @@ from firmtool.estimation.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START_INDEX
 from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
-from firmtool.online.relocalise import GaussianSum, Relocalisation
+from firmtool.online.relocalise import GaussianSum
+from firmtool.robots.relocalisation import Relocalisation
 from firmtool.online.replanning import (GOAL_CHECK_OLDER, Replanner, ReplanSettings, latency_steps,
                                         mission_false_alarm)
 from firmtool.online.running import RunningController, remainder, running_controller

@@ -43,7 +43,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from firmtool.control.controllers import LocalController, plan_local_controller
-from firmtool.roadmap.design import Design, lqr_weights, node_controller
+from firmtool.control.controllers import lqr_weights
+from firmtool.roadmap.design import Design, node_controller
 from firmtool.estimation.edges import simulate
 from firmtool.errors import InputError, NumericalError
 from firmtool.graph import policy_path

@@ -14,6 +14,7 @@ import numpy as np
 
 from firmtool.errors import InputError, ScenarioError
 from firmtool.io.fingerprint import fingerprint
+from firmtool.io.hashing import digest
 from firmtool.models.base import Model
 from firmtool.scenario import Scenario
 
@@ -225,8 +226,6 @@ def _task_states(robot: "Robot", scenario: Scenario, is_valid: Callable[[np.ndar
     and a robot's task setup can be costly (the arm's goal state by inverse kinematics, ~0.1-0.5 s).
     The key holds everything a task's states depend on: the seed, model, measurement, world and task
     sections, the robot's code identity and the checker's."""
-    from firmtool.estimation.edge_table import digest
-
     key = (type(robot), robot.identity, checker.identity if checker is not None else "",
            digest(scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task))
     hit = _task_cache.get(key)

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.control.controllers import (LocalController, NodeController, plan_local_controller, plan_local_controllers,
-                                  weights)
+from firmtool.control.controllers import (LocalController, NodeController, lqr_weights, plan_local_controller,
+                                          plan_local_controllers)
 from firmtool.errors import NumericalError
 from firmtool.roadmap.nodes import GOAL, START, START_INDEX, NodeRegions, start_belief_targets, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
@@ -60,11 +60,6 @@ def true_scale(Sigma: np.ndarray, P: np.ndarray) -> np.ndarray:
     estimate's covariance plus the error's (uncorrelated in the stationary filter), floored like
     :func:`region_scale`."""
     return region_scale(Sigma + P)
-
-
-def lqr_weights(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
-    c = problem.scenario.controller
-    return weights(problem.model, c.state_weight, c.velocity_weight, c.control_weight, problem.config_dim)
 
 
 def node_controller(problem: Problem, design_: Design, j: int) -> NodeController:

@@ -30,15 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from firmtool.io.roadmap_file import GOAL, GOAL_INDEX, REGULAR, START, START_INDEX  # node kinds: the file format's
 from firmtool.models.angles import wrap
 from firmtool.errors import RunFailure, ScenarioError
 from firmtool.problem.goal import GoalRegion
 from firmtool.problem import Problem
 from firmtool.progress import SAMPLE, ProgressCallback, report
 
-REGULAR, START, GOAL = 0, 1, 2
 SEGMENT_CHECK_SPACING = 0.5  # validity checks per robot radius of workspace motion along a segment
-START_INDEX, GOAL_INDEX = 0, 1  # the start and goal nodes are always nodes 0 and 1
 
 
 def sample_nodes(problem: Problem, count: int, rng: np.random.Generator, *,

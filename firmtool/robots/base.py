@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar
 import numpy as np
 
 from firmtool.errors import InputError, NumericalError, ScenarioError
+from firmtool.robots.jumps import mixed_velocity
 from firmtool.io.schema import Errors, Field
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -330,9 +331,7 @@ class Robot:
         online policy's jump test found a step or two after it, widened for what the jump may have
         done to the other coordinates, which so few measurements cannot tell. Default (the other
         coordinates are velocities): kept (a push) or stopped (a kidnap, a collision), equally
-        likely, moment-matched (:func:`firmtool.online.innovation.mixed_velocity`)."""
-        from firmtool.online.innovation import mixed_velocity
-
+        likely, moment-matched (:func:`firmtool.robots.jumps.mixed_velocity`)."""
         return mixed_velocity(mean, covariance, problem.config_dim)
 
     def relocalisation(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray):
@@ -346,7 +345,7 @@ class Robot:
 
         Returns
         -------
-        :class:`firmtool.online.relocalise.Relocalisation` or None
+        :class:`firmtool.robots.relocalisation.Relocalisation` or None
             None (default): the belief is one Gaussian and the policy decides from it at once.
         """
         return None

@@ -24,9 +24,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from firmtool.control.controllers import lqr_weights
 from firmtool.errors import ScenarioError
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
 from firmtool.robots.base import Robot, register
+from firmtool.robots.relocalisation import Relocalisation, spread_coordinate
 from firmtool.io.schema import Field
 
 
@@ -101,7 +103,6 @@ class UnicycleRobot(Robot):
     # -- periodic node stabilisers -------------------------------------------------------------------
 
     def _weights(self, problem):
-        from firmtool.roadmap.design import lqr_weights
 
         return lqr_weights(problem)
 
@@ -161,7 +162,6 @@ class UnicycleRobot(Robot):
         return self._relocalisation(problem, mean, covariance, settle=True)
 
     def _relocalisation(self, problem, mean, covariance, settle: bool):
-        from firmtool.online.relocalise import Relocalisation, spread_coordinate
 
         mean = np.asarray(mean, dtype=float)
         c = self.angle_coordinates[0]

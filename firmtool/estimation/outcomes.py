@@ -1,0 +1,59 @@
+"""What one particle's run of a local controller ends in, and what it costs: the outcome codes,
+per-particle outcomes, the cost terms of eq. 16 (weighted at solve time), and the random stream of
+an edge's chunk. Shared by both Monte Carlo engines (:mod:`firmtool.estimation.edges`, numpy;
+:mod:`firmtool.estimation.compiled`) and by everything that reads their results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmtool.control.controllers import LocalController
+from firmtool.roadmap.design import Design
+from firmtool.roadmap.nodes import GOAL, GOAL_INDEX
+from firmtool.scenario import CostSpec
+
+# Outcome codes besides node ids: a constraint violated, no node reached in time, and a belief that
+# landed in the goal region of a goal ball while the true task point was outside the ball.
+FAILURE, TIMEOUT, GOAL_MISS = -1, -2, -3
+
+
+def edge_seed_sequence(seed: int, source: int, target: int, chunk: int = 0) -> np.random.SeedSequence:
+    """The random stream of one chunk of one edge: a function of the scenario seed and the edge only,
+    so results do not depend on the number of workers or on the executor."""
+    return np.random.SeedSequence([seed, source, target, chunk])
+
+
+@dataclass(frozen=True)
+class ParticleOutcomes:
+    """Per-particle results of running a local controller on an ensemble."""
+
+    outcome: np.ndarray  # (M,) node id, FAILURE, TIMEOUT or GOAL_MISS
+    steps: np.ndarray  # (M,) stopping time
+    terms: np.ndarray  # (M, 3) cost terms: sum of tr(P_k), steps, control effort sum |u_k|^2
+
+    def cost(self, spec: CostSpec) -> np.ndarray:
+        """Per-particle eq. 16 cost (+ control effort if weighted) under the weights of ``spec``."""
+        return self.terms @ cost_weights(spec)
+
+
+def cost_weights(spec: CostSpec) -> np.ndarray:
+    """The weights of the cost terms (:attr:`ParticleOutcomes.terms`): alpha1, alpha2, alpha_control."""
+    return np.array([spec.alpha_covariance, spec.alpha_time, spec.alpha_control])
+
+
+def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np.ndarray:
+    """(M, 3) cost terms of particles that stopped after ``steps``: the weights are applied later, so
+    that a change of cost weights re-solves without re-estimating."""
+    last = int(steps.max(initial=0))
+    P = lc.compute(last)[1]  # the filter recursion only as far as the last particle lived
+    trP = np.concatenate([[0.0], np.cumsum(np.trace(P[1:last + 1], axis1=1, axis2=2))])
+    return np.column_stack([trP[steps], steps.astype(float), effort])
+
+
+def goal_code(design_: Design, target: int) -> int:
+    """The outcome code of a landing in the goal region on an edge to ``target``: the target if it is
+    a goal node, else the first goal node (every goal node is the same absorbing goal of the DP)."""
+    return int(target) if design_.kinds[target] == GOAL else GOAL_INDEX
