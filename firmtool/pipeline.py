@@ -43,7 +43,7 @@ from firmtool.io.hashing import digest, inputs_hash
 from firmtool.io.roadmap_file import (Roadmap, concat_edge_tables, create_roadmap, is_roadmap_file,
                               read_edge_cache, restamp, update_scenario, write_edge_cache, write_stage)
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
-from firmtool.scenario.write import synced
+from firmtool.scenario.core import synced
 
 # Seconds between checkpoints of the estimate stage (finished edges written to /edge_cache).
 CHECKPOINT_SECONDS = 10.0
@@ -146,7 +146,7 @@ def execution_design(roadmap: Roadmap) -> Design:
 def as_scenario(scenario: Scenario | str | Path) -> Scenario:
     """A scenario, or the one in the file at a path; a scenario whose fields no longer say what its
     text says (changed with :func:`dataclasses.replace`) gets the text of its fields
-    (:func:`firmtool.scenario.write.synced`), since the roadmap stores the text."""
+    (:func:`firmtool.scenario.core.synced`), since the roadmap stores the text."""
     return synced(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from firmtool.errors import ScenarioError
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
-from firmtool.scenario.write import _settings, is_synced, scenario_to_dict, synced
+from firmtool.scenario.core import _settings, is_synced, scenario_to_dict, synced
 from conftest import ROOT, open_world
 
 SHIPPED = sorted(p.stem for p in (ROOT / "scenarios").glob("*.toml"))

@@ -425,7 +425,7 @@ def template(name: str, robot: str = DEFAULT_ROBOT) -> str:
     from firmtool.errors import InputError
     from firmtool.geometry.shapes import KIND_FIELD, KINDS
     from firmtool.models import noise
-    from firmtool.scenario import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, _name_problem, sections
+    from firmtool.scenario.fields import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, _name_problem, sections
 
     if robot not in template_robots():
         raise InputError(f"--robot: expected one of {', '.join(template_robots())}, found {robot!r}")

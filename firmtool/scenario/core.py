@@ -1,4 +1,7 @@
-"""Scenarios from Python values, and back to the TOML text a roadmap stores.
+"""A validated scenario (:class:`Scenario`): read from a file or a shipped name, made from Python values,
+changed, and written back to the TOML text a roadmap stores.
+
+Scenarios from Python values, and back to the TOML text a roadmap stores.
 
 A :class:`~firmtool.scenario.Scenario` is validated by one reader only, the TOML one
 (:func:`~firmtool.scenario.parse_scenario`): a scenario made in Python is written as TOML text
@@ -27,16 +30,172 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.resources
 import math
 import tomllib
 from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import tomli_w
 
 from firmtool.errors import ScenarioError
-from firmtool.scenario import Scenario, parse_scenario
+from firmtool.io.limits import LimitError, read_regular_file
+from firmtool.scenario.read import read_tables
+from firmtool.scenario.specs import ControllerSpec, CostSpec, EstimationSpec, ExecutionSpec, MeasurementSpec, ModelSpec, RoadmapSpec, TaskSpec, WorldSpec
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A validated scenario. ``text`` is the exact file text, hashed into ``sha256``."""
+
+    path: str
+    text: str
+    sha256: str
+    name: str
+    seed: int
+    model: ModelSpec
+    measurement: MeasurementSpec
+    world: WorldSpec
+    task: TaskSpec
+    roadmap: RoadmapSpec
+    controller: ControllerSpec
+    estimation: EstimationSpec
+    cost: CostSpec
+    execution: ExecutionSpec = field(default_factory=lambda: ExecutionSpec(max_steps=5000))
+
+    @property
+    def perfect(self) -> bool:
+        return self.measurement.kind == "perfect"
+
+    # -- made in Python, written back (the work is done by the functions below) -----------------------
+
+    @classmethod
+    def from_dict(cls, tables: Mapping[str, Any], path: str = "<dict>") -> "Scenario":
+        """A scenario from its TOML tables as Python values, validated as a file would be
+        (:func:`scenario_from_dict`)."""
+        return scenario_from_dict(tables, path)
+
+    @classmethod
+    def from_toml(cls, text: str, path: str = "<string>") -> "Scenario":
+        """A scenario from TOML text (:func:`parse_scenario`)."""
+        return parse_scenario(text, path)
+
+    def to_dict(self) -> dict:
+        """The scenario's TOML tables as Python values (:func:`scenario_to_dict`)."""
+        return scenario_to_dict(self)
+
+    def to_toml(self) -> str:
+        """The scenario as TOML text (:func:`scenario_to_toml`)."""
+        return scenario_to_toml(self)
+
+    def replace(self, **changes: Any) -> "Scenario":
+        """A copy with some settings changed, validated: ``sc.replace(seed=3, estimation={"particles": 100})``
+        (:func:`replace_scenario`)."""
+        return replace_scenario(self, **changes)
+
+    def __eq__(self, other: object) -> bool:
+        """Two scenarios are equal when they say the same thing (name, seed, every section), whatever
+        their file name, text or comments (:func:`same_settings`)."""
+        return same_settings(self, other)
+
+    __hash__ = None  # type: ignore[assignment]  # settings hold arrays
+
+
+SHIPPED_PACKAGE = "firmtool.scenarios"
+
+
+def shipped_scenarios() -> dict[str, Path]:
+    """The scenarios installed with firmtool: name (the file's stem) -> file, sorted by name.
+
+    Returns
+    -------
+    dict of str to Path
+        Empty if the scenario package is missing (a broken install) and there is no source tree's
+        ``scenarios/`` folder next to the ``firmtool`` package.
+    """
+    try:
+        folder = importlib.resources.files(SHIPPED_PACKAGE)
+    except ModuleNotFoundError:  # a source tree used without installing it: the repository's folder
+        folder = Path(__file__).resolve().parents[2] / "scenarios"
+        if not folder.is_dir():
+            return {}
+    files = sorted((Path(str(f)) for f in folder.iterdir() if f.name.endswith(".toml")), key=lambda f: f.stem)
+    return {f.stem: f for f in files}
+
+
+def scenario_description(path: str | Path) -> str:
+    """The ``scenario.description`` of a scenario file ('' if it has none or cannot be read)."""
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return ""
+    section = data.get("scenario")
+    description = section.get("description", "") if isinstance(section, dict) else ""
+    return description if isinstance(description, str) else ""
+
+
+def resolve_scenario(name_or_path: str | Path) -> Path:
+    """The scenario file meant by ``name_or_path``: a path that exists, else a shipped scenario's name.
+
+    An existing path wins over a shipped name (``smoke`` is the file ``./smoke`` if there is one).
+
+    Raises
+    ------
+    ScenarioError
+        Neither an existing path nor a shipped name; the message lists the shipped names.
+    """
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    shipped = shipped_scenarios()
+    if str(name_or_path) in shipped:
+        return shipped[str(name_or_path)]
+    names = ", ".join(shipped) or "none (the firmtool.scenarios package is missing: reinstall firmtool)"
+    raise ScenarioError(str(name_or_path), "", f"no such file, nor a shipped scenario (shipped: {names})")
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read, parse and validate a scenario file, or a shipped scenario by name.
+
+    Parameters
+    ----------
+    path : str or Path
+        A TOML file, or the name of a shipped scenario (:func:`shipped_scenarios`, e.g.
+        ``"arm8_lightdark"``); an existing path wins (:func:`resolve_scenario`).
+
+    Returns
+    -------
+    Scenario
+        Frozen dataclasses; numeric arrays are read-only.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the file, and each field with what was expected.
+    """
+    p = resolve_scenario(path)
+    try:
+        raw = read_regular_file(p)  # a regular file of bounded size, checked before reading it
+    except FileNotFoundError:
+        raise ScenarioError(str(p), "", "no such file") from None
+    except LimitError as exc:
+        raise ScenarioError(str(p), exc.field, exc.message) from None
+    except OSError as exc:
+        raise ScenarioError(str(p), "", f"cannot read the file ({exc.strerror or exc})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ScenarioError(str(p), "", "expected a UTF-8 TOML file") from None
+    return parse_scenario(text, str(p))
+
+
+def parse_scenario(text: str, path: str = "<string>") -> Scenario:
+    """Validate scenario ``text`` (the contents of a TOML file named ``path``; relative file names
+    in it, e.g. a mesh's, are taken from that file's folder): :func:`firmtool.scenario.read.read_tables`."""
+    return Scenario(**read_tables(text, path))
 
 SECTIONS = ("model", "measurement", "world", "task", "roadmap", "controller", "estimation", "cost", "execution")
 _TOP = ("name", "seed")  # Scenario fields kept in the [scenario] table

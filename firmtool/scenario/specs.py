@@ -1,0 +1,201 @@
+"""The sections of a scenario as frozen, typed dataclasses (what :func:`firmtool.scenario.parse_scenario`
+makes of each TOML table), and the defaults they share with the field declarations."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from firmtool.geometry.shapes import Obstacle
+
+MEASUREMENT_KINDS = ("perfect", "imperfect")
+
+
+def _equal(a: Any, b: Any) -> bool:
+    """Equality of setting values, arrays by shape and value (``==`` of two dicts of arrays raises)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and \
+            bool(np.array_equal(a, b))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
+class _Params:
+    """Attribute access to the keys a plugin declared (``spec.link_lengths``), kept in ``params``;
+    equality of the settings, arrays included."""
+
+    params: Mapping[str, Any]
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        return all(_equal(getattr(self, f.name), getattr(other, f.name)) for f in dataclasses.fields(self))
+
+    __hash__ = None  # type: ignore[assignment]  # settings hold arrays
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "params":
+            raise AttributeError(name)
+        try:
+            return self.params[name]
+        except KeyError:
+            raise AttributeError(f"{type(self).__name__} has no key {name!r}") from None
+
+
+@dataclass(frozen=True, init=False, eq=False)
+class ModelSpec(_Params):
+    """``[model]``: the robot's name, the step, and the keys the robot declares (``params``, also
+    readable as attributes: ``spec.dynamics``; ``dataclasses.replace(spec, link_lengths=...)`` and
+    ``ModelSpec(robot, dt, dynamics=...)`` set them by name)."""
+
+    robot: str
+    dt: float
+    params: dict[str, Any]
+
+    def __init__(self, robot: str, dt: float, params: Mapping[str, Any] | None = None, **more: Any) -> None:
+        object.__setattr__(self, "robot", robot)
+        object.__setattr__(self, "dt", dt)
+        object.__setattr__(self, "params", {**(params or {}), **more})
+
+
+@dataclass(frozen=True, init=False, eq=False)
+class MeasurementSpec(_Params):
+    """``[measurement]``: perfect or imperfect; the noise form, its keys (``params``, also readable
+    and settable by name, like :class:`ModelSpec`'s) and an optional observation matrix ``H``."""
+
+    kind: str  # "perfect" | "imperfect"
+    noise: str  # a registered noise form (firmtool.models.noise); "constant" when perfect
+    H: np.ndarray | None  # optional observation matrix (default: the robot's)
+    params: dict[str, Any]
+
+    def __init__(self, kind: str, noise: str, H: np.ndarray | None = None, params: Mapping[str, Any] | None = None,
+                 **more: Any) -> None:
+        object.__setattr__(self, "kind", kind)
+        object.__setattr__(self, "noise", noise)
+        object.__setattr__(self, "H", H)
+        object.__setattr__(self, "params", {**(params or {}), **more})
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """``[world]``: bounds ``lo``, ``hi`` (D,) (D = 2 or 3), the robot's radius, the obstacles
+    (:mod:`firmtool.geometry.shapes`) and the collision backend's name."""
+
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
+    robot_radius: float
+    obstacles: tuple[Obstacle, ...]
+    collision_backend: str = "numpy"
+
+    @property
+    def dim(self) -> int:
+        return len(self.lo)
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """``[task]``: the start belief, the goal, and (simulation only) the true start.
+
+    ``start`` is the start belief's mean (a configuration or a state), ``start_covariance`` its
+    covariance (None: the stationary belief of a node at the start, as the robot designs it). The goal
+    is a configuration or state (``goal_radius`` None: reaching the goal node's region is arrival), or
+    with ``goal_radius`` the centre of a ball in the robot's task space (its last key point:
+    :meth:`firmtool.robots.Robot.task_point`), which the policy may declare reached when the belief's
+    mean lies in it and the belief puts at least ``goal_confidence`` on the true task point lying in
+    it (:mod:`firmtool.problem.goal`). ``true_start`` (simulation only) is the true start state; None: drawn
+    from the start belief.
+    """
+
+    start: np.ndarray
+    goal: np.ndarray | None
+    goal_radius: float | None = None
+    goal_confidence: float = 0.95
+    start_covariance: np.ndarray | None = None
+    true_start: np.ndarray | None = None
+
+    @property
+    def goal_ball(self) -> bool:
+        """Whether the goal is a ball in the task space (``goal_radius`` given)."""
+        return self.goal_radius is not None
+
+
+@dataclass(frozen=True)
+class RoadmapSpec:
+    nodes: int
+    neighbors: int
+    min_separation: float
+    max_edge_length: float
+    goal_nodes: int = 1
+    goal_bias: float = 0.0
+    # Node budget of the connection stage (firmtool.roadmap.connectivity.connect_goals): nodes added between
+    # the start's component and goal nodes it does not reach (default: default_bridge_nodes(nodes)).
+    bridge_nodes: int = 0
+    bias_step: float = 0.3
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    state_weight: float
+    velocity_weight: float
+    control_weight: float
+    max_speed: float
+    max_accel: float
+    node_radius: float
+    covariance_tolerance: float
+    max_steps: int
+
+
+# Default work budget of one build's Monte Carlo (particle-steps): about an hour on two cores at
+# the measured ~3M particle-steps/s. A scenario may raise it with estimation.max_particle_steps.
+DEFAULT_MAX_PARTICLE_STEPS = 1e10
+
+
+# Where an edge's Monte Carlo starts (firmtool.estimation.edges.initial_ensemble): "center" (the paper's eq. 8,
+# the node centre represents the node) or "region" (beliefs spread over the node's region).
+START_MODES = ("center", "region")
+DEFAULT_START = "region"
+# Default target of adaptive Monte Carlo: the 95% interval of the start's success probability at
+# most +-0.02 (firmtool.estimation.adaptive).
+DEFAULT_TARGET_HALFWIDTH = 0.02
+
+
+@dataclass(frozen=True)
+class EstimationSpec:
+    """Monte Carlo settings.
+
+    ``particles`` per edge in the uniform first pass (and the block size of later ones), simulated in
+    chunks of ``chunk``; ``target_halfwidth`` and ``adaptive_particles`` steer adaptive Monte Carlo
+    (:mod:`firmtool.estimation.adaptive`): rounds add particles to the policy's edges and their competitors until
+    the 95% interval of the start's success probability is at most +-``target_halfwidth`` (at a
+    probability of 1/2; scaled like a binomial proportion's, :func:`firmtool.estimation.adaptive.required_halfwidth`) or
+    ``adaptive_particles`` more particles were spent (None: as many as the first pass; 0: no rounds).
+    ``start``: where each particle starts (:func:`firmtool.estimation.edges.initial_ensemble`), ``"center"`` or
+    ``"region"``.
+    """
+
+    particles: int
+    chunk: int
+    max_particle_steps: float = DEFAULT_MAX_PARTICLE_STEPS
+    target_halfwidth: float = DEFAULT_TARGET_HALFWIDTH
+    adaptive_particles: int | None = None
+    start: str = DEFAULT_START
+
+
+@dataclass(frozen=True)
+class CostSpec:
+    alpha_covariance: float
+    alpha_time: float
+    alpha_control: float
+    failure_cost: float
+
+
+@dataclass(frozen=True)
+class ExecutionSpec:
+    max_steps: int
+
+
