@@ -69,16 +69,24 @@ __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
     from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
-    from firmtool.figures import plot
-    from firmtool.sim.disturbances import Disturbance, UserDisturbance
     from firmtool.errors import FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError
+    from firmtool.figures import plot
+    from firmtool.graph import SolveStatus
     from firmtool.online.policy import Policy, PolicyStatus
     from firmtool.online.replanning import ReplanSettings
-    from firmtool.graph import SolveStatus
-    from firmtool.reports import (BuildReport, DensifyReport, DesignReport, EstimateReport, FailedEdge,
-                                  RoadmapSummary, SampleReport, SolveReport)
+    from firmtool.reports import (
+        BuildReport,
+        DensifyReport,
+        DesignReport,
+        EstimateReport,
+        FailedEdge,
+        RoadmapSummary,
+        SampleReport,
+        SolveReport,
+    )
     from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
     from firmtool.scenario import Scenario
+    from firmtool.sim.disturbances import Disturbance, UserDisturbance
     from firmtool.sim.environment import SimulatedSystem
     from firmtool.sim.episodes import episode_seeds
 

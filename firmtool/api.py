@@ -18,34 +18,37 @@ from __future__ import annotations
 import dataclasses
 import functools
 import tempfile
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.errors import InputError
+from firmtool.estimation.calibration import edge_counts_of, predicted_interval
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.graph import SolveStatus, policy_path
-from firmtool.roadmap.nodes import GOAL, START_INDEX
-from firmtool.reports import BuildReport, SolveReport
-from firmtool.results import Outcome, Results
 from firmtool.io.roadmap_file import STAGES, write_roadmap
 from firmtool.io.roadmap_file import Roadmap as RoadmapFile
+from firmtool.online.policy import Policy
+from firmtool.problem import ValidityChecker
+from firmtool.reports import BuildReport, SolveReport
+from firmtool.results import Results
+from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
+from firmtool.sim.disturbances import as_disturbances
+from firmtool.sim.episodes import run_episodes
 
 if TYPE_CHECKING:  # pragma: no cover
-    from matplotlib.axes import Axes
-    from matplotlib.figure import Figure
 
     from firmtool.estimation.calibration import EdgeCounts
-    from firmtool.roadmap.design import Design
-    from firmtool.sim.disturbances import Disturbance
     from firmtool.online.replanning import ReplanSettings
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
+    from firmtool.roadmap.design import Design
+    from firmtool.sim.disturbances import Disturbance
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
 # /policy attributes that hold each policy's prediction interval
@@ -211,8 +214,6 @@ class Roadmap:
     @functools.cached_property
     def edge_counts(self) -> "EdgeCounts":
         """The outcome counts in sparse form (``firmtool.estimation.calibration.EdgeCounts``), for calibration."""
-        from firmtool.estimation.calibration import edge_counts_of
-
         return edge_counts_of(self._data)
 
     @functools.cached_property
@@ -338,7 +339,6 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
         Bad settings; no collision-free edge; a Riccati equation without a stabilising solution.
     """
     scenario = pipeline.as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
-    from firmtool.problem import ValidityChecker
 
     checker = None if validity is None else ValidityChecker(validity)
     options: dict[str, Any] = dict(workers=workers, executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min,
@@ -469,8 +469,6 @@ class Solution:
         ----------
         policy : ``"firm"`` or ``"shortest-path"``.
         """
-        from firmtool.estimation.calibration import predicted_interval
-
         if policy not in self._intervals:
             edges, probabilities = self._policy(policy)
             rm = self.roadmap
@@ -609,10 +607,6 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         Success rate with its Wilson interval, the prediction with its interval, the calibration
         check of the edges taken, compute per step and per decision, and the episodes.
     """
-    from firmtool.sim.disturbances import as_disturbances
-    from firmtool.online.policy import Policy
-    from firmtool.sim.episodes import run_episodes
-
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise InputError(f"episodes: expected an integer >= 1, found {episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:

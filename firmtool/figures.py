@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import io
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -31,10 +31,10 @@ from firmtool.api import Solution, simulate
 from firmtool.errors import InputError
 from firmtool.graph import policy_path
 from firmtool.io.atomic import check_target, write_bytes
-from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.problem import Problem
 from firmtool.results import Episode, Outcome, Results
+from firmtool.roadmap.design import Design
+from firmtool.roadmap.nodes import GOAL, START_INDEX
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes

@@ -15,33 +15,68 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse
 
-from firmtool.io import interrupts
-
+from firmtool import robots
+from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.estimation import warmup
 from firmtool.estimation.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
-from firmtool.io.atomic import check_target
+from firmtool.estimation.budgets import check_budget, check_workers
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
-from firmtool.roadmap.connectivity import connect_goals, connectivity_report
-from firmtool.roadmap.design import Design, design, start_covariance
-from firmtool.estimation.edge_table import (ENGINE_VERSION, KEY_BYTES, blocks_key, edge_costs, edge_keys, from_arrays,
-                                 outcome_probabilities, to_arrays)
-from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
-from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
-from firmtool.graph import (SolveStatus, policy_path, reachable_from, shortest_path_policy, solve_dp,
-                            success_probability)
 from firmtool.estimation.compiled import engine_choice
+from firmtool.estimation.edge_table import (
+    ENGINE_VERSION,
+    KEY_BYTES,
+    blocks_key,
+    edge_costs,
+    edge_keys,
+    from_arrays,
+    outcome_probabilities,
+    to_arrays,
+)
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, merge_estimates
+from firmtool.estimation.executors import (
+    EstimationJob,
+    Workers,
+    default_workers,
+    job_extras,
+    parallel_design,
+    parallel_validity,
+    remember_problem,
+    run_edges,
+)
+from firmtool.graph import SolveStatus, policy_path, reachable_from, shortest_path_policy, solve_dp, success_probability
+from firmtool.io import interrupts
+from firmtool.io.atomic import check_target
+from firmtool.io.hashing import digest, inputs_hash
 from firmtool.io.locking import writer_lock
-from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
-from firmtool.estimation.executors import (EstimationJob, Workers, default_workers, job_extras, parallel_design,
-                               parallel_validity, remember_problem, run_edges)
+from firmtool.io.roadmap_file import (
+    Roadmap,
+    concat_edge_tables,
+    create_roadmap,
+    is_roadmap_file,
+    read_edge_cache,
+    restamp,
+    update_scenario,
+    write_edge_cache,
+    write_stage,
+)
 from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import DESIGN_NODES, ESTIMATE, SOLVE, Counter, ProgressCallback
-from firmtool.reports import (AdaptiveReport, AddNodesReport, BuildReport, ConnectivityReport, DensifyReport,
-                              DensifyRound, DesignReport, EstimateReport, FailedEdge, SampleReport, SolveReport)
-from firmtool.estimation.budgets import check_budget, check_workers
-from firmtool.io.hashing import digest, inputs_hash
-from firmtool.io.roadmap_file import (Roadmap, concat_edge_tables, create_roadmap, is_roadmap_file,
-                              read_edge_cache, restamp, update_scenario, write_edge_cache, write_stage)
+from firmtool.reports import (
+    AdaptiveReport,
+    AddNodesReport,
+    BuildReport,
+    ConnectivityReport,
+    DensifyReport,
+    DensifyRound,
+    DesignReport,
+    EstimateReport,
+    FailedEdge,
+    SampleReport,
+    SolveReport,
+)
+from firmtool.roadmap.connectivity import connect_goals, connectivity_report
+from firmtool.roadmap.design import Design, design, start_covariance
+from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.scenario import Scenario, load_scenario, parse_scenario
 from firmtool.scenario.core import synced
 
@@ -61,8 +96,6 @@ def nodes_inputs(scenario: Scenario, validity: str = "") -> str:
     """Identity of what the sampled nodes depend on: every section but the cost weights, the
     estimation and execution settings and the name (changing those keeps the nodes), the robot's
     code and the identity of a user's validity checker (``validity``, "" without one)."""
-    from firmtool import robots
-
     parts = (scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
              scenario.roadmap, scenario.controller, robots.get(scenario.model.robot).code_identity(), validity)
     return digest(*parts).hex()
@@ -641,8 +674,6 @@ def node_task_points(roadmap: Roadmap) -> np.ndarray | None:
     """The nodes' task points (N, D) (:meth:`firmtool.robots.Robot.task_point`; the robot alone is
     built, not the problem), or None when the robot cannot be built here (a robot class the
     roadmap's process had and this one has not)."""
-    from firmtool import robots
-
     try:
         scenario = parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml")
         robot = robots.get(scenario.model.robot)(scenario)

@@ -18,7 +18,13 @@ from typing import Callable
 
 import numpy as np
 
+from firmtool.api import load_scenario
+from firmtool.errors import InputError
+from firmtool.estimation.budgets import check_budget
+from firmtool.pipeline import _check_start_apart_from_goals, as_scenario
+from firmtool.problem import build_problem
 from firmtool.reports import Report
+from firmtool.roadmap.nodes import GOAL, START
 from firmtool.scenario import Scenario
 
 
@@ -86,13 +92,6 @@ def check_scenario(scenario: Scenario | str | Path, *, validity: Callable | None
     NumericalError
         A start or goal node whose stabiliser has no stabilising Riccati solution.
     """
-    from firmtool.api import load_scenario
-    from firmtool.errors import InputError
-    from firmtool.roadmap.nodes import GOAL, START
-    from firmtool.pipeline import _check_start_apart_from_goals, as_scenario
-    from firmtool.problem import build_problem
-    from firmtool.estimation.budgets import check_budget
-
     t0 = time.perf_counter()
     sc = as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
     problem = build_problem(sc, validity=validity)

@@ -20,12 +20,10 @@ import typer
 from typer.core import TyperGroup
 
 from firmtool import __version__
-
 from firmtool.cli import console
-
-from firmtool.io import interrupts
 from firmtool.cli.console import interval, items, num, prob
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure, ScenarioError
+from firmtool.io import interrupts
 
 DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 # The click that typer's commands raise from: recent typer vendors its own copy as typer._click,
@@ -605,10 +603,9 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
       firmtool execute artifacts/point_lightdark.h5 --start 6.0,1.0
     """
     import firmtool.api as ft
-    from firmtool.sim.disturbances import parse_disturbances
-    from firmtool.online.replanning import (CLOCKS, GOAL_CHECK, GOAL_LOOKBACK, JUMP_WINDOW, LATENCIES,
-                                            ReplanSettings)
     from firmtool.estimation.budgets import check_execution
+    from firmtool.online.replanning import CLOCKS, GOAL_CHECK, GOAL_LOOKBACK, JUMP_WINDOW, LATENCIES, ReplanSettings
+    from firmtool.sim.disturbances import parse_disturbances
     _check_exists(roadmap, "roadmap file")
     dists = parse_disturbances(disturbance)
     if not (np.isfinite(replan_threshold) and replan_threshold > 0):
@@ -701,8 +698,8 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
       firmtool plot artifacts/point_lightdark.h5 --kind calibration -n 400 -o calibration.png
     """
     import firmtool.api as ft
-    from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
     from firmtool.estimation.budgets import check_execution
+    from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
     _check_exists(roadmap, "roadmap file")
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
@@ -754,9 +751,9 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
     Example: firmtool run smoke --episodes 50
     """
     import firmtool.api as ft
+    from firmtool.estimation.budgets import check_execution
     from firmtool.pipeline import default_output, unreachable_failure
     from firmtool.problem import build_problem
-    from firmtool.estimation.budgets import check_execution
     sc = ft.load_scenario(scenario)
     check_execution(build_problem(sc), episodes, max_total_steps=max_total_steps)
     out = output or default_output(sc)

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from firmtool.roadmap.nodes import START_INDEX
-from firmtool.reports import RoadmapSummary
 from firmtool.io.roadmap_file import STAGES, Roadmap, read_edge_cache
+from firmtool.reports import RoadmapSummary
+from firmtool.roadmap.nodes import START_INDEX
 from firmtool.scenario import parse_scenario
 
 

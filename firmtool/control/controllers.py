@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.linalg
 
-from firmtool.jit import cached_njit
 from firmtool.errors import NumericalError
+from firmtool.jit import cached_njit
 from firmtool.models.base import Model
 from firmtool.models.linear import LinearGaussianModel
 

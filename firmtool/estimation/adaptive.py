@@ -45,8 +45,8 @@ from firmtool.estimation.calibration import INTERVAL_SAMPLES, PRIOR, counts_of_t
 from firmtool.estimation.edge_table import edge_costs, outcome_probabilities, to_arrays
 from firmtool.estimation.edges import EdgeEstimate
 from firmtool.graph import expected_visits, solve_dp, success_probability
-from firmtool.roadmap.nodes import START_INDEX
 from firmtool.reports import AdaptiveReport, AdaptiveRound
+from firmtool.roadmap.nodes import START_INDEX
 from firmtool.scenario import CostSpec
 
 # Bump when the allocation changes what it asks for: a stored table refined by an older version is

@@ -19,8 +19,8 @@ from scipy.stats import binomtest, fisher_exact
 
 from firmtool.estimation.edges import FAILURE
 from firmtool.graph import success_probability_samples
-from firmtool.roadmap.nodes import START_INDEX
 from firmtool.results import Calibration, EdgeCheck, Episode
+from firmtool.roadmap.nodes import START_INDEX
 
 CI_KEY = 0xC1B0  # stable key of the prediction-interval stream
 MIN_EDGE_TRAVERSALS = 20  # executed traversals an edge needs before its calibration is checked

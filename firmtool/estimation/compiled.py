@@ -76,7 +76,9 @@ import os
 
 import numpy as np
 
+from firmtool.errors import InputError
 from firmtool.estimation.outcomes import FAILURE, GOAL_MISS, TIMEOUT, ParticleOutcomes, cost_terms
+from firmtool.models.linear import LinearGaussianModel
 
 try:  # numba is a dependency, but keep the numpy path usable without it
     import numba
@@ -110,8 +112,6 @@ def supports(problem) -> str | None:
     noise form with a compiled twin, the problem's validity to be exactly the scenario's planar
     geometry (numpy/numba backend, boxes, the robot's own test, no user's checker), and a goal ball's
     task point to be the kinematics' last key point."""
-    from firmtool.models.linear import LinearGaussianModel
-
     if numba is None:
         return "numba is not installed"
     if len(problem.scenario.world.lo) != 2:
@@ -151,8 +151,6 @@ def engine_choice(problem) -> tuple[str, str | None]:
     The compiled engine runs only where it computes exactly the problem's Monte Carlo
     (:func:`supports`); where it was asked for (``auto`` with numba installed, or ``numba``) but
     cannot, the numpy engine runs and ``notice`` says why, in one line (else None)."""
-    from firmtool.errors import InputError
-
     choice = os.environ.get(ENGINE_ENV, "auto").strip().lower() or "auto"
     if choice not in ("auto", "numpy", "numba"):
         raise InputError(f"{ENGINE_ENV}: expected 'auto', 'numpy' or 'numba' but found {choice!r}")
@@ -373,9 +371,9 @@ PLANAR_POINT, PLANAR_CHAIN = ROBOT_POINT, ROBOT_ARM  # the kernel's two kinemati
 #              the landing's code; the goal nodes (N,) and the true state's spread at each node (N, n)
 #              (a goal state's landing is judged on the true state: NodeRegions.true_arrival)
 if numba is not None:
-    from firmtool.jit import cached_njit
     from firmtool.control.controllers import mat_rows
     from firmtool.geometry._numba import seg_box_d2, seg_seg_d2
+    from firmtool.jit import cached_njit
     from firmtool.problem.goal import BASE_DIRECTIONS, MAX_LEVEL, MIN_STD_FRACTION
 
     njit = cached_njit(nogil=True, fastmath=False, error_model="numpy")
@@ -1100,8 +1098,6 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     the kernel ``rng.standard_normal`` in the numpy path's order instead, so that both engines
     simulate the same particles (the tests' particle-by-particle check of the arithmetic).
     """
-    from firmtool.errors import InputError
-
     hit = _problem_cache.get(id(problem))
     if hit is None or hit[0] is not problem:  # checked once per problem (a frozen dataclass), not per edge
         reason = supports(problem)

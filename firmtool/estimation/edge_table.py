@@ -16,17 +16,17 @@ earlier); the new edges see every node.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
-from typing import Any, Iterable, Mapping
+from typing import Iterable, Mapping
 
 import numpy as np
 import scipy.sparse
 
-from firmtool.roadmap.design import Design
+from firmtool.estimation.compiled import engine_for
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, cost_weights
 from firmtool.io.hashing import digest
 from firmtool.problem import Problem
+from firmtool.roadmap.design import Design
 from firmtool.scenario import CostSpec
 
 # Bump when the Monte Carlo's results change meaning (not for rounding-level changes): stored
@@ -52,8 +52,6 @@ def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = N
     Carlo ``engine`` (default: the one :func:`firmtool.estimation.compiled.engine_for` picks here)."""
     sc = problem.scenario
     if engine is None:
-        from firmtool.estimation.compiled import engine_for
-
         engine = engine_for(problem)
     parts = [ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
              sc.estimation.particles, sc.estimation.chunk, robot_identity(problem), validity_identity(problem)]

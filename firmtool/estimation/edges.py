@@ -19,16 +19,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmtool.control.controllers import LocalController
-from firmtool.roadmap.design import Design, local_controller, start_covariance
 from firmtool.errors import NumericalError
-from firmtool.models.base import Model
-from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START, NodeRegions
-from firmtool.problem import Problem
-from firmtool.scenario import START_MODES
 from firmtool.estimation import compiled as kernels
-from firmtool.estimation.outcomes import (FAILURE, GOAL_MISS, TIMEOUT, ParticleOutcomes, cost_terms,  # noqa: F401
-                                          cost_weights, edge_seed_sequence, goal_code)
-
+from firmtool.estimation.outcomes import (  # noqa: F401
+    FAILURE,
+    GOAL_MISS,
+    TIMEOUT,
+    ParticleOutcomes,
+    cost_terms,
+    cost_weights,
+    edge_seed_sequence,
+    goal_code,
+)
+from firmtool.models.base import Model
+from firmtool.problem import Problem
+from firmtool.roadmap.design import Design, local_controller, start_covariance
+from firmtool.roadmap.nodes import GOAL_INDEX, START, NodeRegions
+from firmtool.scenario import START_MODES
 
 
 def control_and_move(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,

@@ -55,16 +55,18 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from firmtool.io import interrupts
+from firmtool import robots
 from firmtool.control.controllers import NodeController
-from firmtool.roadmap.design import Design, design_nodes, local_controllers, region_scale
-from firmtool.estimation.edges import estimate_blocks, estimate_edge
 from firmtool.errors import InputError
-from firmtool.estimation.compiled import engine_for
-from firmtool.roadmap.nodes import neighbour_pairs, segments_valid, trajectory_is_valid
+from firmtool.estimation.compiled import FIRST_SEGMENT_PAST_EDGE, engine_for
+from firmtool.estimation.edges import estimate_blocks, estimate_edge
+from firmtool.io import interrupts
+from firmtool.io.locking import forget_inherited
 from firmtool.problem import Problem, build_problem
+from firmtool.roadmap.design import Design, design, design_nodes, directed_edges, local_controllers, region_scale
+from firmtool.roadmap.nodes import neighbour_pairs, segments_valid, trajectory_is_valid
+from firmtool.robots.base import is_importable
 from firmtool.scenario import parse_scenario
-
 
 # ---------------------------------------------------------------------------------------------------
 # jobs: what a worker needs, plain text and arrays
@@ -114,8 +116,6 @@ def job_extras(problem: Problem) -> dict:
     """The job fields that carry ``problem``'s Python objects to the workers: the user's validity
     checker, and its robot class when it is neither built in nor an installed entry point (a class
     defined in ``__main__`` travels by value)."""
-    from firmtool.robots.base import is_importable
-
     extras: dict = {}
     if problem.validity is not None:
         extras["validity"] = problem.validity.pickled
@@ -167,8 +167,6 @@ def _problem(job) -> Problem:
     problem = _problems.get(key)
     if problem is None:
         if job.robot is not None:  # a robot defined in the caller's script: register it here too
-            from firmtool import robots
-
             name, cls = job.robot
             robots.register(name, pickle.loads(cls), replace=True)
         validity = pickle.loads(job.validity) if job.validity is not None else None
@@ -204,7 +202,6 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
     tasks = [tuple(int(v) for v in job.block_tasks[t]) for t in edges] if job.block_tasks is not None else \
         [(int(e), 0, 0) for e in edges]  # (edge, first block, blocks); blocks 0: the edge's first pass
     pairs = [(int(src[e]), int(dst[e])) for e, _, _ in tasks]
-    from firmtool.estimation.compiled import FIRST_SEGMENT_PAST_EDGE
 
     engine = job.engine or engine_for(problem)
     controllers = local_controllers(problem, design, pairs, FIRST_SEGMENT_PAST_EDGE if engine == "numba" else None)
@@ -290,7 +287,6 @@ def _init_worker(parent_pid: int | None = None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C, then stops the workers
     if parent_pid is not None:
         die_with_parent(parent_pid)
-    from firmtool.io.locking import forget_inherited
     forget_inherited()  # the parent's writer lock must end with the parent, not with its workers
     _one_blas_thread()
 
@@ -715,8 +711,6 @@ def parallel_design(problem: Problem, centers: np.ndarray, kinds: np.ndarray, se
     """:func:`firmtool.roadmap.design.design` on ``session``'s workers: the node stabilisers, the collision
     checks of the neighbour pairs and the nominal lengths of the edges, in tasks. The same design
     (every array bit for bit: each item is computed by the function the serial design uses)."""
-    from firmtool.roadmap.design import design, directed_edges
-
     if not session.parallel:
         return design(problem, centers, kinds)
     N, size = centers.shape[0], session.size

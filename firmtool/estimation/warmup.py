@@ -29,6 +29,15 @@ import threading
 from pathlib import Path
 from typing import Callable
 
+from firmtool.control import controllers
+from firmtool.estimation import compiled as kernels
+from firmtool.estimation.edges import estimate_edge
+from firmtool.estimation.executors import EstimationJob, job_extras, remember_problem, run_batch
+from firmtool.problem import build_problem
+from firmtool.roadmap.design import design, local_controller
+from firmtool.roadmap.nodes import roadmap_nodes
+from firmtool.scenario import load_scenario
+
 # The background process's reports (one line each on its stdout).
 COMPILING, DESIGN, DONE = "compiling", "design", "done"
 # A compile that takes longer is abandoned (the workers then compile for themselves): a guard
@@ -91,8 +100,6 @@ class _Warmup:
 
 def engine_functions() -> list:
     """The numba dispatchers whose compile :func:`start` takes off the critical path."""
-    from firmtool.control import controllers
-    from firmtool.estimation import compiled as kernels
     return [kernels.run, controllers._filter_recursion, controllers._filter_recursions,
             controllers._spread_recursion, controllers._rollout, controllers._rollouts]
 
@@ -163,13 +170,6 @@ def compile_engine(on_design: Callable[[], None] | None = None) -> None:
     worker runs them (batched controllers, the kernel) with a few particles, one edge alone, and its
     controller's spread recursion (which execution reads)."""
     import numpy as np
-
-    from firmtool.roadmap.design import design, local_controller
-    from firmtool.estimation.edges import estimate_edge
-    from firmtool.roadmap.nodes import roadmap_nodes
-    from firmtool.estimation.executors import EstimationJob, job_extras, remember_problem, run_batch
-    from firmtool.problem import build_problem
-    from firmtool.scenario import load_scenario
 
     scenario = load_scenario(WARMUP_SCENARIO)
     problem = build_problem(scenario)

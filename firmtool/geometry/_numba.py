@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from firmtool.errors import InputError
 from firmtool.geometry.backends import NumpyCollisionBackend, _check_capsules
 
 try:  # numba is optional
@@ -123,7 +124,6 @@ class NumbaCollisionBackend(NumpyCollisionBackend):
 
     def __init__(self, *args, **kwargs) -> None:
         if numba is None:  # pragma: no cover
-            from firmtool.errors import InputError
             raise InputError("collision backend 'numba': numba is not installed")
         kwargs.pop("prefilter", None)
         super().__init__(*args, **kwargs)

@@ -39,6 +39,7 @@ from firmtool.geometry.distance import (
     segment_box_distance_sq_local,
     segment_segment_distance_sq,
 )
+from firmtool.geometry.registry import get_backend
 
 
 @runtime_checkable
@@ -304,8 +305,6 @@ def make_backend(name: str, obstacle_centers: np.ndarray, obstacle_half_sizes: n
     Extra keyword ``options`` go to the backend's constructor. Raises :class:`InputError` for an
     unknown name. (A world of any kind and dimension: :func:`firmtool.geometry.registry.backend_for_world`.)
     """
-    from firmtool.geometry.registry import get_backend
-
     cls = get_backend(name).load()
     if not hasattr(cls, "from_boxes"):
         raise InputError(f"collision backend {name!r} does not take planar rectangles")

@@ -31,8 +31,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from firmtool.io import interrupts
 from firmtool.errors import OutputError, WriteFailure
+from firmtool.io import interrupts
 
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)  # reading the umask means setting it; restored at once (at import, before any thread)

@@ -31,8 +31,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from firmtool.io.atomic import check_target, write_bytes
 from firmtool.errors import InputError
+from firmtool.io.atomic import check_target, write_bytes
 
 FORMAT, FORMAT_VERSION = "firmtool-episodes", 1
 FULL_COVARIANCE_MAX_DIM = 8

@@ -50,8 +50,8 @@ import h5py
 import numpy as np
 
 from firmtool import __version__
-from firmtool.io.atomic import write_bytes
 from firmtool.errors import FileBusyError, RoadmapError
+from firmtool.io.atomic import write_bytes
 from firmtool.io.limits import MAX_SCENARIO_BYTES
 from firmtool.io.schema import MAX_STATE_DIM
 

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.models.angles import on_turn_of
 from firmtool.errors import NumericalError
+from firmtool.models.angles import on_turn_of
 from firmtool.models.noise import NoiseModel
 
 _SMALL = 1e-4  # |a| below which sinc and its derivative use their Taylor series

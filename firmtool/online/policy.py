@@ -78,19 +78,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmtool.estimation import compiled as kernels
-from firmtool.roadmap.design import Design, local_controller
-from firmtool.estimation.edges import TIMEOUT as EDGE_TIMEOUT, simulate
 from firmtool.errors import InputError, NumericalError
-from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START_INDEX
+from firmtool.estimation import compiled as kernels
+from firmtool.estimation.edges import TIMEOUT as EDGE_TIMEOUT
+from firmtool.estimation.edges import simulate
 from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
 from firmtool.online.relocalise import GaussianSum
-from firmtool.robots.relocalisation import Relocalisation
-from firmtool.online.replanning import (GOAL_CHECK_OLDER, Replanner, ReplanSettings, latency_steps,
-                                        mission_false_alarm)
+from firmtool.online.replanning import GOAL_CHECK_OLDER, Replanner, ReplanSettings, latency_steps, mission_false_alarm
 from firmtool.online.running import RunningController, remainder, running_controller
 from firmtool.problem import Problem
 from firmtool.results import Event, EventKind
+from firmtool.roadmap.design import Design, local_controller
+from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START_INDEX
+from firmtool.robots.relocalisation import Relocalisation
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api import Solution

@@ -31,15 +31,11 @@ on one belief, not in the Monte Carlo's hot loop.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
-
 import numpy as np
 
-from firmtool.models.angles import on_turn_of, wrap
 from firmtool.control.controllers import kalman_update
 from firmtool.errors import NumericalError
-from firmtool.robots.relocalisation import Relocalisation
+from firmtool.models.angles import on_turn_of, wrap
 
 
 class GaussianSum:

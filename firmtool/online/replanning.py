@@ -42,15 +42,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from firmtool.control.controllers import LocalController, plan_local_controller
-from firmtool.control.controllers import lqr_weights
-from firmtool.roadmap.design import Design, node_controller
-from firmtool.estimation.edges import simulate
+from firmtool.control.controllers import LocalController, lqr_weights, plan_local_controller
 from firmtool.errors import InputError, NumericalError
+from firmtool.estimation.edges import simulate
 from firmtool.graph import policy_path
-from firmtool.roadmap.nodes import GOAL, NodeRegions, segment_is_valid
 from firmtool.online.running import RunningController, running_controller
 from firmtool.problem import Problem
+from firmtool.roadmap.design import Design, node_controller
+from firmtool.roadmap.nodes import GOAL, NodeRegions, segment_is_valid
 
 DEFAULT_REPLAN_THRESHOLD = 3.0  # rms-scaled deviation (node regions use 1.5 by default)
 MAX_REPLANS_PER_EPISODE = 50  # then the current controller runs on without replanning

@@ -12,10 +12,12 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
 from firmtool.io.fingerprint import fingerprint
 from firmtool.io.hashing import digest
 from firmtool.models.base import Model
+from firmtool.problem.goal import GoalRegion
 from firmtool.scenario import Scenario
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -173,8 +175,6 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     ScenarioError
         For inconsistencies between sections (dimensions, a start or goal in collision).
     """
-    from firmtool import robots
-
     try:
         robot_cls = robots.get(scenario.model.robot)
     except InputError as exc:
@@ -191,8 +191,6 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     task = scenario.task
     goal_region = None
     if goal_disc is not None:
-        from firmtool.problem.goal import GoalRegion
-
         goal_region = GoalRegion(center=goal_disc[0], radius=goal_disc[1], confidence=task.goal_confidence,
                                  perfect=scenario.perfect, task_point=robot.task_point,
                                  task_jacobian=robot.task_jacobian)

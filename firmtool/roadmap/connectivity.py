@@ -38,9 +38,9 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from firmtool.roadmap.nodes import GOAL, SEGMENT_CHECK_SPACING, START_INDEX, valid_pairs
 from firmtool.problem import Problem
 from firmtool.reports import ConnectivityReport, GoalComponent
+from firmtool.roadmap.nodes import GOAL, REGULAR, SEGMENT_CHECK_SPACING, START_INDEX, valid_pairs
 
 CLOSEST_PAIRS = 8  # closest node pairs across a gap whose blocked segments seed the narrow-passage targets
 BRIDGE_TRIES = 64  # bridge-test candidates per blocked segment
@@ -267,8 +267,6 @@ def connect_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray, budg
     added : nodes added.
     reason : why the loop stopped: ``"connected"``, ``"budget"``, ``"no path found"`` or ``"rounds"``.
     """
-    from firmtool.roadmap.nodes import REGULAR
-
     d = problem.config_dim
     spec = problem.scenario.roadmap
     cache: dict = {}

@@ -11,12 +11,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.control.controllers import (LocalController, NodeController, lqr_weights, plan_local_controller,
-                                          plan_local_controllers)
+from firmtool.control.controllers import (
+    LocalController,
+    NodeController,
+    lqr_weights,
+    plan_local_controller,
+    plan_local_controllers,
+)
 from firmtool.errors import NumericalError
-from firmtool.roadmap.nodes import GOAL, START, START_INDEX, NodeRegions, start_belief_targets, trajectory_is_valid, valid_pairs
 from firmtool.problem import Problem
 from firmtool.progress import DESIGN_EDGES, DESIGN_NODES, Counter, ProgressCallback
+from firmtool.roadmap.nodes import (
+    GOAL,
+    START,
+    START_INDEX,
+    NodeRegions,
+    start_belief_targets,
+    trajectory_is_valid,
+    valid_pairs,
+)
 
 
 @dataclass(frozen=True)

@@ -30,11 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from firmtool.errors import RunFailure, ScenarioError
 from firmtool.io.roadmap_file import GOAL, GOAL_INDEX, REGULAR, START, START_INDEX  # node kinds: the file format's
 from firmtool.models.angles import wrap
-from firmtool.errors import RunFailure, ScenarioError
-from firmtool.problem.goal import GoalRegion
 from firmtool.problem import Problem
+from firmtool.problem.goal import GoalRegion
 from firmtool.progress import SAMPLE, ProgressCallback, report
 
 SEGMENT_CHECK_SPACING = 0.5  # validity checks per robot radius of workspace motion along a segment

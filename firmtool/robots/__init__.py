@@ -7,8 +7,8 @@ package through the entry-point group ``firmtool.robots``; scenario files name i
 ``[model] robot``. See :mod:`firmtool.robots.base`.
 """
 
+from firmtool.io.schema import Field  # a robot declares its [model] keys with it
 from firmtool.robots.base import ENTRY_POINT_GROUP, CompiledKinematics, Robot, get, names, register
 from firmtool.robots.linear import LinearRobot
-from firmtool.io.schema import Field  # a robot declares its [model] keys with it
 
 __all__ = ["ENTRY_POINT_GROUP", "CompiledKinematics", "Field", "LinearRobot", "Robot", "get", "names", "register"]

@@ -19,10 +19,10 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 
 from firmtool.errors import ScenarioError
+from firmtool.io.schema import Errors, Field, valid
 from firmtool.models import planar_arm
 from firmtool.robots.base import CompiledKinematics, register
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
-from firmtool.io.schema import Errors, Field, valid
 
 
 class ArmRobot(LinearRobot):

@@ -39,9 +39,19 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 
+from firmtool.control.controllers import (
+    design_node,
+    lqr_gain,
+    min_energy_trajectories,
+    min_energy_trajectory,
+    stationary_kalman,
+)
 from firmtool.errors import InputError, NumericalError, ScenarioError
-from firmtool.robots.jumps import mixed_velocity
+from firmtool.geometry.registry import backend_for_world
+from firmtool.io.fingerprint import _by_reference, fingerprint
 from firmtool.io.schema import Errors, Field
+from firmtool.models import noise as noise_models
+from firmtool.robots.jumps import mixed_velocity
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.control.controllers import NodeController
@@ -155,8 +165,6 @@ class Robot:
         behaviour changes), and for a class of the user's own code (a script, a notebook, a module
         outside site-packages) a fingerprint of its code (:mod:`firmtool.io.fingerprint`), so that
         editing it re-estimates instead of reusing estimates of the old code."""
-        from firmtool.io.fingerprint import _by_reference, fingerprint
-
         head = f"{cls.__module__}.{cls.__qualname__}:{getattr(cls, 'version', '')}"
         return head if _by_reference(cls) else f"{head}:{fingerprint(cls)}"
 
@@ -178,8 +186,6 @@ class Robot:
 
     def noise(self):
         """The measurement noise law the scenario's ``[measurement]`` names (:mod:`firmtool.models.noise`)."""
-        from firmtool.models import noise as noise_models
-
         m = self.scenario.measurement
         if m.kind == "perfect":
             return noise_models.ConstantNoise(std=0.0)
@@ -188,8 +194,6 @@ class Robot:
     def collision(self):
         """The world's collision backend (built once)."""
         if self._collision is None:
-            from firmtool.geometry.registry import backend_for_world
-
             try:
                 self._collision = backend_for_world(self.scenario.world, self_collision=self.shape == "chain")
             except InputError as exc:
@@ -303,8 +307,6 @@ class Robot:
         """The stabiliser of a node at ``center`` (design stage). Default: stationary SLQR / SLQG of
         the linear model, R at the centre, one LQR gain for all nodes (kept in ``memo``, a dict
         shared by the nodes of one design)."""
-        from firmtool.control.controllers import design_node, lqr_gain
-
         model = problem.model
         if "lqr" not in memo:
             memo["lqr"] = lqr_gain(model.A, model.B, Wx, Wu)
@@ -318,8 +320,6 @@ class Robot:
     def start_covariance(self, problem: "Problem", state: np.ndarray) -> np.ndarray:
         """The belief covariance (n, n) at a start state that is no node (imperfect measurements).
         Default: the stationary Kalman filter of the model linearised at the state, at rest."""
-        from firmtool.control.controllers import stationary_kalman
-
         model = problem.model
         A, _ = model.dynamics_jacobians(state, np.zeros(model.m))
         H = model.observation_jacobian(state)
@@ -381,8 +381,6 @@ class Robot:
         """The nominal (x (T+1, n), u (T, m)) from ``x0`` to ``xf`` (design stage). Default: the
         rest-to-rest minimum-energy trajectory of the linear model whose length respects the speed
         and input limits: from the analytic bound, grown by 10% until both hold."""
-        from firmtool.control.controllers import min_energy_trajectory
-
         model, c = problem.model, problem.scenario.controller
         dt, d = model.dt, problem.config_dim
         dist = float(np.max(np.abs(xf[:d] - x0[:d])))
@@ -411,7 +409,6 @@ class Robot:
         x0, xf = np.atleast_2d(x0), np.atleast_2d(xf)
         if type(self).nominal_trajectory is not Robot.nominal_trajectory:
             return [self.nominal_trajectory(problem, a, b) for a, b in zip(x0, xf)]
-        from firmtool.control.controllers import min_energy_trajectories
 
         model, c = problem.model, problem.scenario.controller
         dt, d = model.dt, problem.config_dim
@@ -451,8 +448,6 @@ class Robot:
         analytic rest-to-rest bound plus the steps to brake the current speed, grown x1.5 at most
         ``tries`` times until the limits hold (the last try is used even if they do not: design
         limits, not actuator saturation)."""
-        from firmtool.control.controllers import min_energy_trajectory
-
         model, c, d = problem.model, problem.scenario.controller, problem.config_dim
         steps = int(self.nominal_steps_bound(problem, x0, xf[None])[0])
         if problem.velocity_dim:

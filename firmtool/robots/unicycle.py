@@ -25,11 +25,12 @@ from typing import ClassVar
 import numpy as np
 
 from firmtool.control.controllers import lqr_weights
+from firmtool.control.stabilisers import OrbitSpec, cached_periodic_node
 from firmtool.errors import ScenarioError
+from firmtool.io.schema import Field
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
 from firmtool.robots.base import Robot, register
 from firmtool.robots.relocalisation import Relocalisation, spread_coordinate
-from firmtool.io.schema import Field
 
 
 class UnicycleRobot(Robot):
@@ -108,8 +109,6 @@ class UnicycleRobot(Robot):
 
     def periodic_node(self, problem, center: np.ndarray):
         """The periodic (PLQG / PLQR) stabiliser of the node at ``center``, memoised per centre."""
-        from firmtool.control.stabilisers import OrbitSpec, cached_periodic_node
-
         Wx, Wu = self._weights(problem)
         spec = problem.scenario.model
         return cached_periodic_node((problem.scenario.sha256,), problem.model, center,

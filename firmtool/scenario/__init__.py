@@ -13,11 +13,28 @@ Every key is declared once (:mod:`firmtool.io.schema`): the sections' keys in
 - :mod:`firmtool.scenario.docs`: the scenario reference and ``firmtool init``'s templates.
 """
 
-from firmtool.scenario.core import (Scenario, load_scenario, parse_scenario, resolve_scenario, scenario_description,
-                                    shipped_scenarios)
+from firmtool.scenario.core import (
+                                    Scenario,
+                                    load_scenario,
+                                    parse_scenario,
+                                    resolve_scenario,
+                                    scenario_description,
+                                    shipped_scenarios,
+)
 from firmtool.scenario.fields import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, sections
-from firmtool.scenario.specs import (MEASUREMENT_KINDS, START_MODES, ControllerSpec, CostSpec, EstimationSpec,
-                                     ExecutionSpec, MeasurementSpec, ModelSpec, RoadmapSpec, TaskSpec, WorldSpec)
+from firmtool.scenario.specs import (
+                                    MEASUREMENT_KINDS,
+                                    START_MODES,
+                                    ControllerSpec,
+                                    CostSpec,
+                                    EstimationSpec,
+                                    ExecutionSpec,
+                                    MeasurementSpec,
+                                    ModelSpec,
+                                    RoadmapSpec,
+                                    TaskSpec,
+                                    WorldSpec,
+)
 
 __all__ = ["MEASUREMENT_FIELDS", "MEASUREMENT_KINDS", "OPTIONAL_SECTIONS", "START_MODES", "ControllerSpec", "CostSpec",
            "EstimationSpec", "ExecutionSpec", "MeasurementSpec", "ModelSpec", "RoadmapSpec", "Scenario", "TaskSpec",

@@ -44,7 +44,17 @@ import tomli_w
 from firmtool.errors import ScenarioError
 from firmtool.io.limits import LimitError, read_regular_file
 from firmtool.scenario.read import read_tables
-from firmtool.scenario.specs import ControllerSpec, CostSpec, EstimationSpec, ExecutionSpec, MeasurementSpec, ModelSpec, RoadmapSpec, TaskSpec, WorldSpec
+from firmtool.scenario.specs import (
+    ControllerSpec,
+    CostSpec,
+    EstimationSpec,
+    ExecutionSpec,
+    MeasurementSpec,
+    ModelSpec,
+    RoadmapSpec,
+    TaskSpec,
+    WorldSpec,
+)
 
 
 @dataclass(frozen=True, eq=False)

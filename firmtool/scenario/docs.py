@@ -17,18 +17,25 @@ scenario gives the key, else the default (:func:`example_value`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import tomllib
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from firmtool.robots.base import DEFAULT_ROBOT
+from firmtool import robots as robot_registry
+from firmtool.errors import InputError, OutputError
+from firmtool.geometry.shapes import KIND_FIELD, KINDS
+from firmtool.io.atomic import check_target, write_bytes
 from firmtool.io.schema import Field
+from firmtool.models import noise
+from firmtool.robots.base import DEFAULT_ROBOT, _builtin, get, names
+from firmtool.scenario.core import shipped_scenarios
+from firmtool.scenario.fields import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, _name_problem, sections
 
 # What each section is, for the reference and the templates (one line each).
 SECTION_DOCS = {
@@ -115,15 +122,7 @@ class SectionDoc:
 
 def shipped_scenario_files() -> list[Path]:
     """The scenario files shipped with firmtool (the installed package's, else the source tree's)."""
-    from firmtool import scenario as scenario_module
-
-    shipped = getattr(scenario_module, "shipped_scenarios", None)  # issue 13: scenarios installed with firmtool
-    if shipped is not None:
-        files = list(shipped().values())
-        if files:
-            return files
-    folder = Path(__file__).resolve().parents[1] / "scenarios"
-    return sorted(folder.glob("*.toml")) if folder.is_dir() else []
+    return list(shipped_scenarios().values())
 
 
 def _shipped_values() -> dict[tuple[str, str], Any]:
@@ -270,11 +269,6 @@ def reference(robots: Iterable[str] | None = None) -> list[SectionDoc]:
         In file order: each section, and after ``model``, ``measurement`` and ``world`` the keys of
         each robot, noise form and obstacle kind.
     """
-    from firmtool import robots as robot_registry
-    from firmtool.geometry.shapes import KIND_FIELD, KINDS
-    from firmtool.models import noise
-    from firmtool.scenario import OPTIONAL_SECTIONS, sections
-
     robots = builtin_robots() if robots is None else tuple(robots)
     shipped = _shipped_values()
     out: list[SectionDoc] = []
@@ -360,22 +354,16 @@ def reference_markdown(robots: Iterable[str] | None = None, level: int = 2) -> s
 
 def builtin_robots() -> tuple[str, ...]:
     """The robots that come with firmtool (registered by firmtool's own modules)."""
-    from firmtool.robots.base import _builtin, get, names
-
     return tuple(n for n in names() if _builtin(get(n)))
 
 
 def builtin_noise_forms() -> tuple[str, ...]:
     """The noise forms of firmtool's own (:mod:`firmtool.models.noise`) a scenario file can name."""
-    from firmtool.models import noise
-
     return tuple(n for n in noise.names(scenario_only=True) if noise.get(n).__module__.startswith("firmtool."))
 
 
 def template_robots() -> tuple[str, ...]:
     """The robots with a scenario template (:attr:`firmtool.robots.Robot.template`)."""
-    from firmtool.robots.base import get, names
-
     return tuple(n for n in names() if get(n).template is not None)
 
 
@@ -421,12 +409,6 @@ def template(name: str, robot: str = DEFAULT_ROBOT) -> str:
     str
         TOML text.
     """
-    from firmtool import robots as robot_registry
-    from firmtool.errors import InputError
-    from firmtool.geometry.shapes import KIND_FIELD, KINDS
-    from firmtool.models import noise
-    from firmtool.scenario.fields import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, _name_problem, sections
-
     if robot not in template_robots():
         raise InputError(f"--robot: expected one of {', '.join(template_robots())}, found {robot!r}")
     problem = _name_problem(name)
@@ -490,9 +472,6 @@ def write_template(path: str | Path, name: str, robot: str = DEFAULT_ROBOT, *, f
     InputError
         An unknown robot or a name that is not a valid scenario name.
     """
-    from firmtool.io.atomic import check_target, write_bytes
-    from firmtool.errors import OutputError
-
     p = Path(path)
     text = template(name, robot)  # bad names and robots first: nothing is written
     if p.is_file() and not force:

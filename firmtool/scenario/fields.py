@@ -9,10 +9,12 @@ import math
 
 import numpy as np
 
+from firmtool.geometry.registry import backend_names
 from firmtool.io.schema import Field
+from firmtool.models import noise
 from firmtool.robots.base import DEFAULT_ROBOT
+from firmtool.robots.linear import psd_problem
 from firmtool.scenario.specs import DEFAULT_START, DEFAULT_TARGET_HALFWIDTH, MEASUREMENT_KINDS, START_MODES
-
 
 # ---------------------------------------------------------------------------------------------------
 # the declarative schema of each section (robots, noise forms and obstacle kinds declare their own)
@@ -61,8 +63,6 @@ def _open_probability(x: float) -> str | None:
 
 
 def _covariance_problem(M: np.ndarray) -> str | None:
-    from firmtool.robots.linear import psd_problem
-
     if M.shape[0] != M.shape[1] or M.shape[0] == 0:
         return f"expected a square matrix but found shape {M.shape}"
     return psd_problem(M, strict=True)
@@ -147,14 +147,10 @@ def sections() -> dict[str, tuple[Field, ...]]:
 
 
 def _noise_names() -> tuple[str, ...]:
-    from firmtool.models import noise
-
     return noise.names(scenario_only=True)
 
 
 def _backend_names() -> tuple[str, ...]:
-    from firmtool.geometry.registry import backend_names
-
     return backend_names()
 
 

@@ -11,12 +11,38 @@ from typing import Any
 
 import numpy as np
 
+from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
+from firmtool.geometry.registry import backends_for, get_backend
 from firmtool.geometry.shapes import KIND_FIELD, KINDS, Mesh, Obstacle, obstacle_from_values, read_obj
 from firmtool.io.limits import MAX_SCENARIO_BYTES, data_limit_error, toml_nesting_error
 from firmtool.io.schema import INVALID, Errors, Field, read_table, read_value, valid
-from firmtool.scenario.fields import CONTROLLER_FIELDS, COST_FIELDS, ESTIMATION_FIELDS, EXECUTION_FIELDS, MEASUREMENT_FIELDS, MODEL_FIELDS, OPTIONAL_SECTIONS, ROADMAP_FIELDS, SCENARIO_FIELDS, TASK_ALIASES, TASK_FIELDS, WORLD_FIELDS
-from firmtool.scenario.specs import ControllerSpec, CostSpec, EstimationSpec, ExecutionSpec, MeasurementSpec, ModelSpec, RoadmapSpec, TaskSpec, WorldSpec
+from firmtool.models import noise
+from firmtool.scenario.fields import (
+    CONTROLLER_FIELDS,
+    COST_FIELDS,
+    ESTIMATION_FIELDS,
+    EXECUTION_FIELDS,
+    MEASUREMENT_FIELDS,
+    MODEL_FIELDS,
+    OPTIONAL_SECTIONS,
+    ROADMAP_FIELDS,
+    SCENARIO_FIELDS,
+    TASK_ALIASES,
+    TASK_FIELDS,
+    WORLD_FIELDS,
+)
+from firmtool.scenario.specs import (
+    ControllerSpec,
+    CostSpec,
+    EstimationSpec,
+    ExecutionSpec,
+    MeasurementSpec,
+    ModelSpec,
+    RoadmapSpec,
+    TaskSpec,
+    WorldSpec,
+)
 
 
 def read_tables(text: str, path: str = "<string>") -> dict[str, Any]:
@@ -101,8 +127,6 @@ def _check_lqr_weights(errors: Errors, controller: dict) -> None:
 
 def _read_model(errors: Errors, data: dict) -> tuple[ModelSpec | None, type | None]:
     """``[model]``: the robot's name first, then dt and the keys the robot declares."""
-    from firmtool import robots
-
     if "model" not in data:
         errors.add("model", "missing required field")
         return None, None
@@ -131,8 +155,6 @@ def _read_model(errors: Errors, data: dict) -> tuple[ModelSpec | None, type | No
 
 def _read_measurement(errors: Errors, data: dict) -> MeasurementSpec | None:
     """``[measurement]``: perfect, or imperfect with a noise form and the keys the form declares."""
-    from firmtool.models import noise
-
     if "measurement" not in data:
         errors.add("measurement", "missing required field")
         return None
@@ -161,8 +183,6 @@ def _read_measurement(errors: Errors, data: dict) -> MeasurementSpec | None:
 def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
     """``[world]``: bounds (their number of columns is the world's dimension), radius, backend and
     obstacles, each read by its kind's keys; the backend must handle the dimension and the kinds."""
-    from firmtool.geometry.registry import backends_for, get_backend
-
     if "world" not in data:
         errors.add("world", "missing required field")
         return None

@@ -39,10 +39,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.models.angles import on_turn_of
 from firmtool.errors import InputError
-from firmtool.roadmap.nodes import segment_is_valid
+from firmtool.models.angles import on_turn_of
 from firmtool.problem import Problem
+from firmtool.roadmap.nodes import segment_is_valid
 
 PUSH, KIDNAP = "push", "kidnap"
 DISTURBANCE_KEY = 0xD157

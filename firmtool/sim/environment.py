@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.sim import disturbances as dist_mod
 from firmtool.errors import InputError
 from firmtool.problem import Problem
+from firmtool.sim import disturbances as dist_mod
 
 
 class SimulatedSystem:

@@ -29,11 +29,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmtool.sim import disturbances as dist_mod
-from firmtool.estimation.edges import FAILURE, GOAL_MISS
 from firmtool.errors import InputError
+from firmtool.estimation.calibration import edge_calibration
+from firmtool.estimation.edges import FAILURE, GOAL_MISS
 from firmtool.online.policy import Policy, PolicyStatus
-from firmtool.results import Episode, Event, EventKind, Outcome, Results
+from firmtool.progress import EXECUTE, Counter
+from firmtool.results import Episode, Event, EventKind, Outcome, Results, wilson_interval
+from firmtool.sim import disturbances as dist_mod
 from firmtool.sim.environment import SimulatedSystem
 
 if TYPE_CHECKING:
@@ -234,9 +236,6 @@ def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray 
     -------
     Results
     """
-    from firmtool.estimation.calibration import edge_calibration
-    from firmtool.progress import EXECUTE, Counter
-
     dists = dist_mod.as_disturbances(disturbances)
     start = start_state(policy, start)
     system = system or SimulatedSystem(policy.problem)
@@ -256,8 +255,6 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
               disturbances: tuple, predicted: float | None, predicted_ci95: tuple[float, float] | None,
               calibration=None) -> Results:
     """The :class:`~firmtool.results.Results` of episodes of ``policy``."""
-    from firmtool.results import wilson_interval
-
     episodes = len(eps)
     count = lambda o: sum(e.outcome == o for e in eps)  # noqa: E731
     successes, misses = count(Outcome.SUCCESS), count(Outcome.GOAL_MISS)

@@ -41,7 +41,8 @@ import numpy as np
 from firmtool.errors import InputError
 from firmtool.online.policy import Policy
 from firmtool.online.replanning import ReplanSettings
-from firmtool.results import EventKind, Outcome
+from firmtool.results import EventKind, Outcome, wilson_interval
+from firmtool.sim.disturbances import as_disturbances
 from firmtool.sim.environment import SimulatedSystem
 from firmtool.sim.episodes import episode_seeds, run_episode
 
@@ -172,7 +173,6 @@ def _run_chunk(task: tuple[int, str, int, int]) -> list[tuple]:
     system: SimulatedSystem = _JOB["system"]
     seed, immediate = _JOB["seed"], _JOB["immediate"]
     dists = (cond.spec,) if cond.spec else ()
-    from firmtool.sim.disturbances import as_disturbances
     dists = as_disturbances(dists)
     after = _after(mode, cond)
     out = []
@@ -238,7 +238,6 @@ def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list
             chunks = [_run_chunk(t) for t in tasks]
     finally:
         _JOB.clear()
-    from firmtool.results import wilson_interval
 
     points: dict[tuple[int, str], SweepPoint] = {}
     for (c, mode, _, _), rows in zip(tasks, chunks):
