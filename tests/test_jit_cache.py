@@ -105,7 +105,7 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
     second = _run(code, src, cache)
     assert first["control"] == [[-4.0, -6.0]] and first["collides"] is False and first["hits"] == 0
     assert second["hits"] == 2 and second["control"] == first["control"] and second["collides"] is False
-    _edit(src / "firmtool" / "controllers.py", "out[i, c] += a * B[l, c]", "out[i, c] += 2.0 * a * B[l, c]")
+    _edit(src / "firmtool" / "control" / "controllers.py", "out[i, c] += a * B[l, c]", "out[i, c] += 2.0 * a * B[l, c]")
     nearest_corner = "d = min(pbox_d2(ax, ay, hx, hy), pbox_d2(bx, by, hx, hy))"  # seg_box_d2: now always 0
     _edit(src / "firmtool" / "geometry" / "_numba.py", nearest_corner, nearest_corner.replace("= min", "= 0.0 * min"))
     edited = _run(code, src, cache)
