@@ -56,7 +56,7 @@ from firmtool.io.limits import MAX_SCENARIO_BYTES
 from firmtool.io.schema import MAX_STATE_DIM
 
 SCHEMA_VERSION = 1
-ENCODING_TYPE = "firmtool.io.roadmap_file"
+ENCODING_TYPE = "firmtool.roadmap"  # stored in every file: a name of the format, not of this module
 STAGES = ("nodes", "controllers", "edges", "policy")
 # Node kinds as /nodes/kind stores them, and the start and goal nodes: always nodes 0 and 1.
 REGULAR, START, GOAL = 0, 1, 2
