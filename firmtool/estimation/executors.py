@@ -65,7 +65,7 @@ from firmtool.io.locking import forget_inherited
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import Design, design, design_nodes, directed_edges, local_controllers, region_scale
 from firmtool.roadmap.nodes import neighbour_pairs, segments_valid, trajectory_is_valid
-from firmtool.robots.base import is_importable
+from firmtool.robots.registry import is_importable
 from firmtool.scenario import parse_scenario
 
 # ---------------------------------------------------------------------------------------------------
