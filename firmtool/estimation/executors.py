@@ -56,7 +56,7 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from firmtool import robots
-from firmtool.control.controllers import NodeController
+from firmtool.control.stabilisers import NodeController
 from firmtool.errors import InputError
 from firmtool.estimation.compiled import FIRST_SEGMENT_PAST_EDGE, engine_for
 from firmtool.estimation.edges import estimate_blocks, estimate_edge

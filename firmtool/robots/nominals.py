@@ -3,7 +3,7 @@
 :class:`Nominals` is what the design stage (:mod:`firmtool.roadmap.design`, the executors' nominal
 lengths) and execution's replanning (:mod:`firmtool.online.replanning`) ask of a robot;
 :class:`NominalDefaults` holds the defaults :class:`firmtool.robots.Robot` inherits: rest-to-rest
-minimum-energy trajectories of the linear model (:func:`firmtool.control.controllers.min_energy_trajectory`)
+minimum-energy trajectories of the linear model (:func:`firmtool.control.trajectories.min_energy_trajectory`)
 whose length respects the scenario's speed and input limits.
 """
 
@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from firmtool.control.controllers import min_energy_trajectories, min_energy_trajectory
+from firmtool.control.trajectories import min_energy_trajectories, min_energy_trajectory
 from firmtool.errors import NumericalError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -108,7 +108,7 @@ class NominalDefaults:
         A robot that overrides :meth:`nominal_trajectory` gets it per pair. The default nominal is
         searched for all pairs at once: every pair's length starts from the analytic bound and grows
         by 10% until the limits hold, as in :meth:`nominal_trajectory`, with the pairs of one length
-        computed together (:func:`firmtool.control.controllers.min_energy_trajectories`, bit for bit the
+        computed together (:func:`firmtool.control.trajectories.min_energy_trajectories`, bit for bit the
         single-pair trajectory)."""
         x0, xf = np.atleast_2d(x0), np.atleast_2d(xf)
         if type(self).nominal_trajectory is not NominalDefaults.nominal_trajectory:

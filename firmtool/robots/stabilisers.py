@@ -3,7 +3,7 @@
 :class:`NodeStabilisers` is what the design stage (:mod:`firmtool.roadmap.design`), the roadmap's
 loader and execution ask of a robot; :class:`StabiliserDefaults` holds the defaults
 :class:`firmtool.robots.Robot` inherits: stationary SLQR / SLQG of the linear model
-(:func:`firmtool.control.controllers.design_node`) with the stored arrays as they are, and a start
+(:func:`firmtool.control.stabilisers.design_node`) with the stored arrays as they are, and a start
 belief from the stationary Kalman filter at the start. A robot that cannot be held still designs
 periodic ones instead (the unicycle: :mod:`firmtool.control.stabilisers`).
 """
@@ -14,10 +14,11 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
-from firmtool.control.controllers import design_node, lqr_gain, stationary_kalman
+from firmtool.control.gains import lqr_gain, stationary_kalman
+from firmtool.control.stabilisers import design_node
 
 if TYPE_CHECKING:  # pragma: no cover
-    from firmtool.control.controllers import NodeController
+    from firmtool.control.stabilisers import NodeController
     from firmtool.problem import Problem
 
 

@@ -24,7 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from firmtool.control.controllers import lqr_weights
+from firmtool.control.gains import lqr_weights
 from firmtool.control.stabilisers import OrbitSpec, cached_periodic_node
 from firmtool.errors import ScenarioError
 from firmtool.io.schema import Field
