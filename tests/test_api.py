@@ -16,7 +16,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import firmtool as ft  # noqa: E402
-import firmtool.estimation.executors  # noqa: E402
+import firmtool.estimation.tasks  # noqa: E402
 from firmtool.estimation.edges import estimate_edge as real_estimate_edge  # noqa: E402
 from conftest import ROOT  # noqa: E402
 
@@ -240,7 +240,7 @@ def test_a_failed_edge_does_not_shift_the_policy_onto_other_controllers(monkeypa
             raise FloatingPointError("injected failure")
         return real_estimate_edge(problem, design_, regions, source, target, *args, **kwargs)
 
-    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", fake)
+    monkeypatch.setattr(firmtool.estimation.tasks, "estimate_edge", fake)
     rm = ft.build(sc, workers=1)
     (failed,) = rm.report.failed_edges
     assert (failed.source, failed.target) == bad and len(rm.edges) == len(first.edges) - 1

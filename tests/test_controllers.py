@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from firmtool.control.controllers import (equilibrium_input, estimate_spread, kalman_update, lqr_gain,
-                                  min_energy_trajectory, plan_local_controller, stationary_kalman, design_node)
+from firmtool.control.gains import kalman_update, lqr_gain, stationary_kalman
+from firmtool.control.local import plan_local_controller
+from firmtool.control.stabilisers import design_node, equilibrium_input, estimate_spread
+from firmtool.control.trajectories import min_energy_trajectory
 from firmtool.errors import NumericalError
 from firmtool.models.linear import LightDarkNoise, LinearGaussianModel, discretize, noise_factor
 
@@ -171,13 +173,13 @@ def test_backward_recursion_shortcut_matches_full_recursion(monkeypatch, termina
     from a far one (converges along a long edge first)."""
     import dataclasses
 
-    from firmtool.control import controllers
+    from firmtool.control import local
 
     model, x, u, src, dst, Wx, Wu, _ = _edge(steps=300, stab=20)
     if terminal == "far":
         dst = dataclasses.replace(dst, S=100.0 * np.eye(4))
     short = plan_local_controller(model, x, u, src.P, dst, Wx, Wu, 20, False)
-    monkeypatch.setattr(controllers, "BACKWARD_RTOL", -1.0)  # never stationary: the full recursion
+    monkeypatch.setattr(local, "BACKWARD_RTOL", -1.0)  # never stationary: the full recursion
     full = plan_local_controller(model, x, u, src.P, dst, Wx, Wu, 20, False)
     assert not np.array_equal(full.K[:300], np.broadcast_to(full.K[299], (300, 2, 4)))  # varies in the last bits
     np.testing.assert_allclose(short.K, full.K, rtol=0, atol=1e-9 * np.abs(full.K).max())
@@ -191,15 +193,15 @@ def test_backward_recursion_shortcut_matches_full_recursion(monkeypatch, termina
 
 
 def test_min_energy_trajectory_memo_gives_the_fresh_result():
-    from firmtool.control import controllers
+    from firmtool.control import trajectories
 
     A, B, _ = double_integrator()
     x0, xf = np.array([0.0, 0.0, 0, 0]), np.array([1.0, -2.0, 0, 0])
-    controllers._reachability_cache.clear()
+    trajectories._reachability_cache.clear()
     x1, u1 = min_energy_trajectory(A, B, x0, xf, 40)
     x2, u2 = min_energy_trajectory(A.copy(), B.copy(), x0, 2 * xf, 40)  # hit: keyed by value
-    assert len(controllers._reachability_cache) == 1
-    controllers._reachability_cache.clear()
+    assert len(trajectories._reachability_cache) == 1
+    trajectories._reachability_cache.clear()
     x3, u3 = min_energy_trajectory(A, B, x0, 2 * xf, 40)
     np.testing.assert_array_equal(x2, x3)
     np.testing.assert_array_equal(u2, u3)
@@ -208,23 +210,23 @@ def test_min_energy_trajectory_memo_gives_the_fresh_result():
 
 def test_filter_recursion_reports_an_innovation_covariance_that_is_not_positive_definite():
     """A numerical fault in the compiled filter recursion is reported as such, not as NaNs."""
-    from firmtool.control.controllers import _filter_recursion
+    from firmtool.control.recursions import filter_recursion
     from firmtool.errors import NumericalError
 
     n, nz, T = 2, 1, 3
     L, P, innovation = np.zeros((T, n, nz)), np.zeros((T + 1, n, n)), np.zeros((T, nz, nz))
     P[0] = 0.1 * np.eye(n)
     args = (np.eye(n)[None], np.array([[[1.0, 0.0]]]), np.zeros(T, dtype=np.int64))
-    _filter_recursion(*args, np.full((T, nz), 0.5), 0.01 * np.eye(n), L, P, innovation, 0, T)
+    filter_recursion(*args, np.full((T, nz), 0.5), 0.01 * np.eye(n), L, P, innovation, 0, T)
     assert np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P[1:]) > 0)
     with pytest.raises(NumericalError, match="not positive definite"):  # R < 0: S = P- + R < 0
-        _filter_recursion(*args, np.full((T, nz), -10.0), 0.01 * np.eye(n), L, P, innovation, 0, T)
+        filter_recursion(*args, np.full((T, nz), -10.0), 0.01 * np.eye(n), L, P, innovation, 0, T)
 
 
 def test_cholesky_solve_gives_the_textbook_column_loop_bit_for_bit():
     """The compiled solve runs its substitutions with the columns inside (to vectorise); each entry
     must still be the column-by-column loop's value, subtraction for subtraction."""
-    from firmtool.control.controllers import _cholesky_solve
+    from firmtool.control.linalg import cholesky_solve
 
     rng = np.random.default_rng(5)
     for q, nc in ((1, 3), (4, 7), (8, 16)):
@@ -232,7 +234,7 @@ def test_cholesky_solve_gives_the_textbook_column_loop_bit_for_bit():
         S = M @ M.T + q * np.eye(q)
         B = rng.standard_normal((q, nc))
         C, out = np.zeros((q, q)), np.zeros((q, nc))
-        assert _cholesky_solve(S, B, C, out)
+        assert cholesky_solve(S, B, C, out)
         ref = np.zeros((q, nc))
         for c in range(nc):
             for i in range(q):
@@ -250,7 +252,7 @@ def test_cholesky_solve_gives_the_textbook_column_loop_bit_for_bit():
 
 
 def test_min_energy_trajectories_equal_the_single_edge_ones():
-    from firmtool.control.controllers import min_energy_trajectories
+    from firmtool.control.trajectories import min_energy_trajectories
 
     A, B, _ = double_integrator()
     rng = np.random.default_rng(2)
@@ -286,9 +288,9 @@ def test_batched_local_controllers_equal_the_single_edge_ones(scenario):
     import re
     from pathlib import Path
 
+    from firmtool.problem import build_problem
     from firmtool.roadmap.design import design, local_controller, local_controllers
     from firmtool.roadmap.nodes import roadmap_nodes
-    from firmtool.problem import build_problem
     from firmtool.scenario import parse_scenario
 
     root = Path(__file__).resolve().parents[1] / "scenarios"

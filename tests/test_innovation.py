@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from firmtool.control.controllers import stationary_kalman
+from firmtool.control.gains import stationary_kalman
 from firmtool.online.innovation import InnovationWindow, JumpTest, JumpTests, shrunk_jump
 
 DT = 0.1
@@ -236,8 +236,8 @@ def test_the_mission_false_alarm_is_a_budget_over_the_policy_path():
     start (up to a node it returns to), clipped; the fixed rate without a path."""
     from types import SimpleNamespace
 
-    from firmtool.roadmap.nodes import GOAL, REGULAR, START
     from firmtool.online import replanning as rp
+    from firmtool.roadmap.nodes import GOAL, REGULAR, START
 
     kinds = np.array([START, GOAL, REGULAR, REGULAR])
     # edges: 0: 0->2 (40 steps), 1: 2->3 (60), 2: 3->1 (25), 3: 3->2 (10)
@@ -254,8 +254,8 @@ def test_the_mission_false_alarm_is_a_budget_over_the_policy_path():
 def test_a_unicycle_keeps_its_belief_after_a_jump_and_a_double_integrator_mixes_its_velocities():
     """Robot.after_jump: a unicycle's third coordinate is its heading (nothing stops it), so its
     belief stays as corrected; a double integrator's velocities become kept-or-stopped."""
-    from firmtool.robots.jumps import mixed_velocity
     from firmtool.robots.base import Robot
+    from firmtool.robots.jumps import mixed_velocity
     from firmtool.robots.unicycle import UnicycleRobot
 
     mean, cov = np.array([1.0, 1.0, 2.5]), 0.01 * np.eye(3)

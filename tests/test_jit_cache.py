@@ -20,7 +20,6 @@ import pytest
 numba = pytest.importorskip("numba")
 
 from firmtool import jit as _jit  # noqa: E402
-
 from firmtool.estimation import compiled as kernels
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,7 +80,7 @@ KERNEL_CALLS = textwrap.dedent("""
     import firmtool
     from firmtool.estimation import compiled as kernels
     assert firmtool.__file__.startswith({root!r}), firmtool.__file__
-    # the control through controllers.mat_rows: U = u_ref - K (XH - x_ref)
+    # the control through linalg.mat_rows: U = u_ref - K (XH - x_ref)
     XH, DX, U = np.array([[1.0, 2.0], [3.0, 4.0]]), np.empty((2, 2)), np.empty((1, 2))
     kernels.control(XH, np.zeros(2), np.zeros(1), np.array([[1.0, 1.0]]), DX, U, 2)
     # a disc of radius 0.1 at (0.38, 0.38), 0.113 from the corner of the box [-0.3, 0.3]^2: its
@@ -95,7 +94,7 @@ KERNEL_CALLS = textwrap.dedent("""
 
 
 def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp_path):
-    """The real case: in a copy of the package, the kernel's control (which calls controllers.mat_rows)
+    """The real case: in a copy of the package, the kernel's control (which calls control.linalg.mat_rows)
     and collision test (geometry._numba.seg_box_d2) compiled and cached, those two callees edited,
     then run again in a fresh process."""
     src, cache = tmp_path / "src", tmp_path / "cache"
@@ -105,7 +104,7 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
     second = _run(code, src, cache)
     assert first["control"] == [[-4.0, -6.0]] and first["collides"] is False and first["hits"] == 0
     assert second["hits"] == 2 and second["control"] == first["control"] and second["collides"] is False
-    _edit(src / "firmtool" / "control" / "controllers.py", "out[i, c] += a * B[l, c]", "out[i, c] += 2.0 * a * B[l, c]")
+    _edit(src / "firmtool" / "control" / "linalg.py", "out[i, c] += a * B[l, c]", "out[i, c] += 2.0 * a * B[l, c]")
     nearest_corner = "d = min(pbox_d2(ax, ay, hx, hy), pbox_d2(bx, by, hx, hy))"  # seg_box_d2: now always 0
     _edit(src / "firmtool" / "geometry" / "_numba.py", nearest_corner, nearest_corner.replace("= min", "= 0.0 * min"))
     edited = _run(code, src, cache)
@@ -114,5 +113,5 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
 
 def test_the_kernels_cache_key_covers_every_module_it_calls_into():
     assert set(_jit.dependency_files(kernels.run.py_func)) == {
-        "firmtool.estimation.compiled", "firmtool.control.controllers", "firmtool.geometry._numba"}
+        "firmtool.estimation.compiled", "firmtool.control.linalg", "firmtool.geometry._numba"}
     assert set(_jit.dependency_files(kernels.fill_normals.py_func)) == {"firmtool.estimation.compiled"}

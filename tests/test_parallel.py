@@ -26,6 +26,7 @@ import pytest
 from typer.testing import CliRunner
 
 import firmtool.estimation.executors
+import firmtool.estimation.tasks
 from firmtool.cli.commands import app
 from firmtool.estimation.edges import estimate_edge as real_estimate_edge
 from firmtool.pipeline import build, design_stage, estimate_stage, sample_stage, solve_stage
@@ -324,7 +325,7 @@ def test_failing_edge_is_retried_once_then_reported(designed, tmp_path, monkeypa
     copy = tmp_path / "f.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][3]), int(reference["target"][3]))
-    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, "always"))
+    monkeypatch.setattr(firmtool.estimation.tasks, "estimate_edge", _flaky(tmp_path, bad, "always"))
     report = estimate_stage(copy, workers=workers)
     (failure,) = report.failed_edges
     assert (failure.source, failure.target) == bad and failure.edge == 3
@@ -332,7 +333,7 @@ def test_failing_edge_is_retried_once_then_reported(designed, tmp_path, monkeypa
     e = _edges(copy)
     assert e["source"].size == reference["source"].size - 1 and bad not in set(zip(e["source"], e["target"]))
     # the others are exactly what a clean run gives; a re-run estimates only the missing edge
-    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", real_estimate_edge)
+    monkeypatch.setattr(firmtool.estimation.tasks, "estimate_edge", real_estimate_edge)
     again = estimate_stage(copy, workers=1)
     assert again.estimated_edges == 1 and again.failed_edges == ()
     _assert_same_tables(_edges(copy), reference)
@@ -344,7 +345,7 @@ def test_transient_failure_and_dead_worker_are_retried(designed, tmp_path, monke
     copy = tmp_path / "t.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][5]), int(reference["target"][5]))
-    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, mode))
+    monkeypatch.setattr(firmtool.estimation.tasks, "estimate_edge", _flaky(tmp_path, bad, mode))
     report = estimate_stage(copy, workers=workers)
     assert report.failed_edges == () and (tmp_path / f"failed-{bad[0]}-{bad[1]}").exists()
     _assert_same_tables(_edges(copy), reference)
@@ -355,7 +356,7 @@ def test_cli_failed_edges_exit_1_in_one_line(designed, tmp_path, monkeypatch):
     copy = tmp_path / "c.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][0]), int(reference["target"][0]))
-    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, "always"))
+    monkeypatch.setattr(firmtool.estimation.tasks, "estimate_edge", _flaky(tmp_path, bad, "always"))
     r = CliRunner().invoke(app, ["estimate", str(copy), "-w", "1"])
     assert r.exit_code == 1
     lines = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
@@ -372,7 +373,7 @@ def test_dask_failing_edge_is_retried_once_then_reported(designed, tmp_path, mon
     copy = tmp_path / "d.h5"
     shutil.copyfile(path, copy)
     bad = (int(reference["source"][4]), int(reference["target"][4]))
-    monkeypatch.setattr(firmtool.estimation.executors, "estimate_edge", _flaky(tmp_path, bad, mode))
+    monkeypatch.setattr(firmtool.estimation.tasks, "estimate_edge", _flaky(tmp_path, bad, mode))
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
         report = estimate_stage(copy, workers=2, executor="dask", scheduler=cluster.scheduler_address)
@@ -469,9 +470,9 @@ def test_dask_scheduler_and_two_worker_processes_joined_by_address(designed, tmp
 
             def worker_state():
                 import firmtool.estimation.compiled
-                import firmtool.estimation.executors
+                import firmtool.estimation.jobs
                 stats = firmtool.estimation.compiled.run.stats
-                return len(firmtool.estimation.executors._problems), sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
+                return len(firmtool.estimation.jobs._problems), sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
 
             states = list(client.run(worker_state).values())
         assert len(states) == 2 and all(problems == 1 for problems, _, _ in states)

@@ -19,10 +19,10 @@ import pytest
 
 from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
+from firmtool.io.schema import Field, describe
 from firmtool.problem import build_problem
 from firmtool.robots.point import PointRobot
 from firmtool.scenario import parse_scenario, sections
-from firmtool.io.schema import Field, describe
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = (ROOT / "scenarios" / "smoke.toml").read_text()
@@ -111,7 +111,7 @@ def test_a_robot_from_an_installed_packages_entry_point(tmp_path, monkeypatch):
     assert "test_rover" in robots.names()
     problem = build_problem(parse_scenario(SMOKE.replace('robot = "point"', 'robot = "test_rover"'), "r.toml"))
     assert type(problem.robot).__name__ == "Rover" and problem.robot.identity.startswith("fake_firmtool_robot.Rover:1")
-    assert robots.base.is_importable(type(problem.robot))  # workers find it by name
+    assert robots.registry.is_importable(type(problem.robot))  # workers find it by name
     sys.modules.pop("fake_firmtool_robot", None)
 
 
@@ -142,3 +142,36 @@ def test_every_key_is_declared_with_a_type_and_a_doc_line():
         for row in rows:
             assert row["doc"] and row["type"] and "\n" not in row["doc"], (group, row)
     assert any(r["key"] == "link_lengths" for r in describe(robots.get("arm").model_fields))
+
+
+def test_the_robot_interface_is_the_small_protocols_composed():
+    """Robot is the composition of one mixin per protocol: every public member of Robot belongs to
+    exactly one protocol (the compiled hook aside) and comes from that protocol's mixin, and the
+    built-in robots answer every protocol."""
+    from firmtool.robots import base, drawing, geometry, jumps, model, nominals, relocalisation, stabilisers, task
+    from firmtool.scenario import load_scenario
+
+    pairs = [(model.RobotModel, model.ModelDefaults), (geometry.RobotGeometry, geometry.GeometryDefaults),
+             (task.TaskSpace, task.TaskSpaceDefaults), (stabilisers.NodeStabilisers, stabilisers.StabiliserDefaults),
+             (nominals.Nominals, nominals.NominalDefaults), (jumps.JumpAnswers, jumps.JumpDefaults),
+             (relocalisation.Relocalising, relocalisation.RelocalisationDefaults),
+             (drawing.Drawable, drawing.DrawingDefaults)]
+    owner: dict[str, type] = {}
+    for protocol, mixin in pairs:
+        members = {k for k in vars(protocol) if not k.startswith("_")} | set(protocol.__annotations__)
+        for k in members:
+            assert k not in owner, f"{k} is in {owner.get(k)} and {protocol}"
+            owner[k] = protocol
+            assert k in vars(mixin) or k in getattr(mixin, "__annotations__", {}), f"{mixin.__name__} lacks {k}"
+        assert mixin in base.Robot.__mro__
+    public = {k for c in base.Robot.__mro__[:-1] for k in vars(c) if not k.startswith("_")}
+    # the compiled engine's hooks: compiled_kinematics, or what the mixin that defines it defines
+    hook_cls = next(c for c in base.Robot.__mro__ if "compiled_kinematics" in vars(c))
+    hooks = {k for k in vars(hook_cls) if not k.startswith("_")} if hook_cls is not base.Robot else \
+        {"compiled_kinematics"}
+    assert public - set(owner) == hooks
+    for name in ("smoke", "arm8_lightdark", "unicycle_lightdark"):
+        sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
+        robot = robots.get(sc.model.robot)(sc)
+        for protocol, _ in pairs:
+            assert isinstance(robot, protocol), (name, protocol)

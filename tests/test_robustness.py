@@ -32,8 +32,8 @@ from typer.testing import CliRunner
 
 from firmtool.cli.commands import app, to_json
 from firmtool.errors import ScenarioError
-from firmtool.problem import build_problem
 from firmtool.estimation.budgets import budget, check_budget
+from firmtool.problem import build_problem
 from firmtool.scenario import load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -863,16 +863,18 @@ def test_a_closed_loop_policy_gives_probability_0_without_warnings(recwarn):
 
 
 def test_riccati_failure_exit_1(roadmap_copy, monkeypatch):
-    """A Riccati equation without a stabilising solution (controllers.py) is a numerical fault, exit 1."""
-    import firmtool.control.controllers as controllers
+    """A Riccati equation without a stabilising solution (control/gains.py) is a numerical fault, exit 1."""
+    import firmtool.control.gains as controllers
     from firmtool.errors import NumericalError
 
     def fail(*a, **k):
         raise NumericalError("LQR Riccati equation has no stabilising solution")
 
     monkeypatch.setattr(controllers, "lqr_gain", fail)
-    import firmtool.robots.base as robot_base  # the node stabiliser's design calls it from there
-    monkeypatch.setattr(robot_base, "lqr_gain", fail)
+    import firmtool.roadmap.design as design
+    monkeypatch.setattr(design, "lqr_gain", fail, raising=False)
+    import firmtool.robots.stabilisers as robot_stabilisers  # the node design's call (module-level import)
+    monkeypatch.setattr(robot_stabilisers, "lqr_gain", fail)
     assert_clean_error(invoke("design", roadmap_copy), 1, "Riccati")
 
 

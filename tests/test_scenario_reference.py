@@ -54,7 +54,7 @@ def documented(table: str, when: str | None = "") -> set[str]:
 
 
 def test_sections_are_those_the_loader_knows():
-    data = base(robots.base.DEFAULT_ROBOT)
+    data = base(robots.registry.DEFAULT_ROBOT)
     data[PROBE] = {"x": 1}
     assert known_fields(data, "") == {s.table for s in reference() if "." not in s.table}
     required = {s.table for s in reference() if not s.when and s.required}
@@ -63,7 +63,7 @@ def test_sections_are_those_the_loader_knows():
 
 @pytest.mark.parametrize("table", ["scenario", "world", "roadmap", "controller", "estimation", "cost", "execution"])
 def test_every_key_of_a_section_is_documented_and_accepted(table):
-    data = base(robots.base.DEFAULT_ROBOT)
+    data = base(robots.registry.DEFAULT_ROBOT)
     data.setdefault(table, {})[PROBE] = 1
     assert known_fields(data, table) == documented(table)
 
@@ -77,21 +77,21 @@ def test_every_model_key_of_each_robot(robot):
 
 @pytest.mark.parametrize("form", builtin_noise_forms())
 def test_every_measurement_key_of_each_noise_form(form):
-    data = base(robots.base.DEFAULT_ROBOT)
+    data = base(robots.registry.DEFAULT_ROBOT)
     data["measurement"] = {"kind": "imperfect", "noise": form, PROBE: 1}
     expected = documented("measurement") | documented("measurement", f'kind = "imperfect", noise = "{form}"')
     assert known_fields(data, "measurement") == expected
 
 
 def test_perfect_measurements_take_only_the_kind():
-    data = base(robots.base.DEFAULT_ROBOT)
+    data = base(robots.registry.DEFAULT_ROBOT)
     data["measurement"] = {"kind": "perfect", PROBE: 1}
     assert known_fields(data, "measurement") == {"kind"} <= documented("measurement")
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_every_key_of_each_obstacle_kind(kind):
-    data = base(robots.base.DEFAULT_ROBOT)
+    data = base(robots.registry.DEFAULT_ROBOT)
     data["world"]["obstacles"] = [{"kind": kind, PROBE: 1}]
     assert known_fields(data, "world.obstacles[0]") == documented("world.obstacles", f'kind = "{kind}"')
 

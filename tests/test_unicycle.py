@@ -7,15 +7,16 @@ import pytest
 from typer.testing import CliRunner
 
 from firmtool.cli.commands import app
-from firmtool.control.controllers import kalman_update, plan_local_controller
-from firmtool.roadmap.design import design, local_controller, node_controller
+from firmtool.control.gains import kalman_update
+from firmtool.control.local import plan_local_controller
+from firmtool.control.stabilisers import OrbitSpec, design_periodic_node
 from firmtool.estimation.edges import GOAL_MISS, belief_step, estimate_edge, initial_ensemble
 from firmtool.models.linear import LightDarkNoise, LinearGaussianModel
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
-from firmtool.roadmap.nodes import GOAL, REGULAR, START
 from firmtool.problem import build_problem
+from firmtool.roadmap.design import design, local_controller, node_controller
+from firmtool.roadmap.nodes import GOAL, REGULAR, START
 from firmtool.scenario import parse_scenario
-from firmtool.control.stabilisers import OrbitSpec, design_periodic_node, figure_eight
 
 DT = 0.1
 TINY = """
@@ -121,7 +122,7 @@ def test_ekf_recursion_in_the_linear_limit_is_the_kalman_filter():
     A, B = m.dynamics_jacobians(center, np.zeros(2))
     lin = LinearGaussianModel(A=A, B=B, F=m.F, H=m.observation_jacobian(center), noise=m.noise,
                               sensing_x=m.sensing_x, dt=DT)
-    from firmtool.control.controllers import NodeController
+    from firmtool.control.stabilisers import NodeController
     nc = NodeController(center, np.zeros(2), np.zeros((2, 3)), np.eye(3), np.zeros((3, 2)), np.eye(3), np.eye(3))
     Wx, Wu = np.eye(3), np.eye(2)
     P0 = np.diag([0.01, 0.02, 0.1])

@@ -242,7 +242,7 @@ def init(name: str = typer.Argument(..., help="The scenario's name: writes NAME.
 
     Example: firmtool init my_room --robot point
     """
-    from firmtool.robots.base import DEFAULT_ROBOT
+    from firmtool.robots.registry import DEFAULT_ROBOT
     from firmtool.scenario.docs import write_template
     out = write_template(output or Path(f"{name}.toml"), name, robot or DEFAULT_ROBOT, force=force)
     console.next_step(str(out), f"firmtool check {out}")

@@ -1,4 +1,11 @@
-"""Periodic node stabilisers (PLQR / PLQG, paper Example 3.3) for robots that cannot be held still.
+"""Node stabilisers: the record a node's stabiliser fills (:class:`NodeController`), the stationary
+SLQR / SLQG of a node that can be held still (:func:`design_node`, paper Examples 3.1 and 3.2), and
+periodic ones (PLQR / PLQG, paper Example 3.3) for robots that cannot be held still.
+
+A stationary stabiliser regulates to the node's centre ``v`` with the stationary LQR gain ``K`` and,
+with imperfect measurements, the stationary Kalman filter whose measurement noise is evaluated at
+``v`` (gain ``L``, a-posteriori covariance ``P_s``); ``Sigma`` is the stationary covariance of the
+decision state around ``v`` under the two (a discrete Lyapunov equation), which sizes the node.
 
 A unicycle at rest is a poor node: its linearisation there is not controllable (it cannot be
 pushed sideways) and, with a position sensor, not observable (the heading is seen only through
@@ -36,12 +43,104 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from firmtool.control.controllers import NodeController, PeriodicStabiliser, kalman_update
+from firmtool.control.gains import kalman_update, lqr_gain, stationary_kalman
 from firmtool.errors import NumericalError
+from firmtool.models.linear import LinearGaussianModel
 
 MAX_PERIODS = 2000  # iterations of the periodic recursions before giving up
 PERIODIC_TOL = 1e-11  # relative change over one period that counts as converged
 _CACHE_SIZE = 512
+
+
+# ---------------------------------------------------------------------------------------------------
+# what every node stabiliser gives
+
+
+@dataclass(frozen=True)
+class NodeController:
+    """The stabiliser of one node and the node's region parameters."""
+
+    center: np.ndarray  # (n,)
+    u_eq: np.ndarray  # (m,)
+    K: np.ndarray  # (m, n) stationary LQR gain
+    S: np.ndarray  # (n, n) LQR Riccati solution (terminal cost of edge controllers)
+    L: np.ndarray  # (n, nz) stationary Kalman update gain (zeros with perfect measurements)
+    P: np.ndarray  # (n, n) stationary a-posteriori covariance P_s (zeros with perfect measurements)
+    Sigma: np.ndarray  # (n, n) stationary covariance of the decision state around the centre
+    # A periodic stabiliser (PLQG, paper Example 3.3; design_periodic_node below): the orbit and its
+    # gains. None for a stationary one. The fields above then hold the values at phase 0.
+    periodic: "PeriodicStabiliser | None" = None
+
+
+@dataclass(frozen=True)
+class PeriodicStabiliser:
+    """A T-periodic stabiliser: step ``k`` of the stabiliser phase uses index ``k mod T``.
+
+    ``x[p]``/``u[p]`` the orbit's state and input at phase ``p``, ``x[T] = x[0]`` the node centre;
+    ``K[p]`` the periodic LQR gain, ``S[p]`` its Riccati solution, ``L[p]`` the update gain of the
+    step from phase ``p`` (measurement at ``x[p + 1]``), ``P[p]`` the a-posteriori covariance at phase ``p``.
+    """
+
+    x: np.ndarray  # (T + 1, n)
+    u: np.ndarray  # (T, m)
+    K: np.ndarray  # (T, m, n)
+    S: np.ndarray  # (T, n, n)
+    L: np.ndarray  # (T, n, nz)
+    P: np.ndarray  # (T, n, n)
+
+    @property
+    def period(self) -> int:
+        return self.u.shape[0]
+
+
+# ---------------------------------------------------------------------------------------------------
+# stationary stabilisers (SLQR / SLQG)
+
+
+def equilibrium_input(A: np.ndarray, B: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The input ``u`` that holds state ``v`` still (``A v + B u = v``); NumericalError if none does."""
+    u, *_ = np.linalg.lstsq(B, v - A @ v, rcond=None)
+    if np.linalg.norm(A @ v + B @ u - v) > 1e-9 * max(1.0, np.linalg.norm(v)):
+        raise NumericalError(f"node state {np.array2string(v, precision=3)} is not an equilibrium of the model")
+    return u
+
+
+def estimate_spread(A: np.ndarray, B: np.ndarray, K: np.ndarray, Qd: np.ndarray,
+                    H: np.ndarray | None = None, L: np.ndarray | None = None,
+                    P_prior: np.ndarray | None = None, R: np.ndarray | None = None) -> np.ndarray:
+    """Stationary covariance of the decision state around the node under its stabiliser.
+
+    Perfect measurements: ``x - v`` follows ``(A - BK)`` driven by process noise, so
+    ``Sigma = (A-BK) Sigma (A-BK)' + Qd``. Imperfect: the estimate is driven by the innovations
+    (white, covariance ``S = H P- H' + R``) through ``L``: ``Sigma = (A-BK) Sigma (A-BK)' + L S L'``.
+    """
+    Acl = A - B @ K
+    drive = Qd if L is None else L @ (H @ P_prior @ H.T + R) @ L.T
+    Sigma = scipy.linalg.solve_discrete_lyapunov(Acl, drive)
+    return 0.5 * (Sigma + Sigma.T)
+
+
+def design_node(model: LinearGaussianModel, center: np.ndarray, Wx: np.ndarray, Wu: np.ndarray,
+                perfect: bool, lqr: tuple[np.ndarray, np.ndarray] | None = None) -> NodeController:
+    """SLQR (perfect) or SLQG (imperfect) stabiliser for ``center``; R evaluated at the centre.
+
+    ``lqr``: a precomputed ``(K, S)`` (for a linear model the LQR gain is the same at every node).
+    """
+    u_eq = equilibrium_input(model.A, model.B, center)
+    K, S = lqr if lqr is not None else lqr_gain(model.A, model.B, Wx, Wu)
+    Qd = model.process_cov
+    if perfect:
+        zeros_L = np.zeros((model.n, model.nz))
+        Sigma = estimate_spread(model.A, model.B, K, Qd)
+        return NodeController(center, u_eq, K, S, zeros_L, np.zeros((model.n, model.n)), Sigma)
+    R = model.R(center)
+    L, P, P_prior = stationary_kalman(model.A, Qd, model.H, R)
+    Sigma = estimate_spread(model.A, model.B, K, Qd, model.H, L, P_prior, R)
+    return NodeController(center, u_eq, K, S, L, P, Sigma)
+
+
+# ---------------------------------------------------------------------------------------------------
+# periodic stabilisers (PLQR / PLQG)
 
 
 @dataclass(frozen=True)
@@ -96,7 +195,8 @@ def periodic_lqr(A: np.ndarray, B: np.ndarray, Wx: np.ndarray, Wu: np.ndarray) -
     raise NumericalError("periodic LQR Riccati iteration did not converge (orbit not controllable?)")
 
 
-def periodic_kalman(A: np.ndarray, H: np.ndarray, Qd: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def periodic_kalman(A: np.ndarray, H: np.ndarray, Qd: np.ndarray,
+                    R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Periodic Kalman filter in update form, by forward iteration over periods.
 
     Step ``k`` predicts with ``A[k]`` and updates with ``H[k]``, ``R[k]`` (the measurement at the
@@ -144,7 +244,7 @@ def design_periodic_node(model, center: np.ndarray, spec: OrbitSpec, Wx: np.ndar
                          perfect: bool) -> NodeController:
     """PLQR (perfect) or PLQG (imperfect) stabiliser of the figure-eight orbit through ``center``.
 
-    The returned :class:`~firmtool.control.controllers.NodeController` holds the phase-0 values (what the
+    The returned :class:`NodeController` holds the phase-0 values (what the
     roadmap stores) and, in ``periodic``, the whole orbit with its gains.
     """
     x, u = figure_eight(model, np.asarray(center, dtype=float), spec)

@@ -371,7 +371,7 @@ PLANAR_POINT, PLANAR_CHAIN = ROBOT_POINT, ROBOT_ARM  # the kernel's two kinemati
 #              the landing's code; the goal nodes (N,) and the true state's spread at each node (N, n)
 #              (a goal state's landing is judged on the true state: NodeRegions.true_arrival)
 if numba is not None:
-    from firmtool.control.controllers import mat_rows
+    from firmtool.control.linalg import mat_rows
     from firmtool.geometry._numba import seg_box_d2, seg_seg_d2
     from firmtool.jit import cached_njit
     from firmtool.problem.goal import BASE_DIRECTIONS, MAX_LEVEL, MIN_STD_FRACTION

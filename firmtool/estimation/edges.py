@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.control.controllers import LocalController
+from firmtool.control.local import LocalController
 from firmtool.errors import NumericalError
 from firmtool.estimation import compiled as kernels
 from firmtool.estimation.outcomes import (  # noqa: F401

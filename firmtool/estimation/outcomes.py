@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.control.controllers import LocalController
+from firmtool.control.local import LocalController
 from firmtool.roadmap.design import Design
 from firmtool.roadmap.nodes import GOAL, GOAL_INDEX
 from firmtool.scenario import CostSpec

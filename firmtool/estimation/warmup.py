@@ -29,7 +29,7 @@ import threading
 from pathlib import Path
 from typing import Callable
 
-from firmtool.control import controllers
+from firmtool.control import recursions, trajectories
 from firmtool.estimation import compiled as kernels
 from firmtool.estimation.edges import estimate_edge
 from firmtool.estimation.executors import EstimationJob, job_extras, remember_problem, run_batch
@@ -100,8 +100,8 @@ class _Warmup:
 
 def engine_functions() -> list:
     """The numba dispatchers whose compile :func:`start` takes off the critical path."""
-    return [kernels.run, controllers._filter_recursion, controllers._filter_recursions,
-            controllers._spread_recursion, controllers._rollout, controllers._rollouts]
+    return [kernels.run, recursions.filter_recursion, recursions.filter_recursions,
+            recursions.spread_recursion, trajectories._rollout, trajectories._rollouts]
 
 
 def _disk_cached(dispatcher) -> bool:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from firmtool.control.controllers import LocalController
+from firmtool.control.local import LocalController
 
 
 class InnovationWindow:

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.control.controllers import kalman_update
+from firmtool.control.gains import kalman_update
 from firmtool.errors import NumericalError
 from firmtool.models.angles import on_turn_of, wrap
 

@@ -42,7 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from firmtool.control.controllers import LocalController, lqr_weights, plan_local_controller
+from firmtool.control.gains import lqr_weights
+from firmtool.control.local import LocalController, plan_local_controller
 from firmtool.errors import InputError, NumericalError
 from firmtool.estimation.edges import simulate
 from firmtool.graph import policy_path

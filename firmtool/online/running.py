@@ -3,7 +3,7 @@
 A :class:`RunningController` is what :class:`~firmtool.online.policy.Policy` executes between two
 nodes: a policy edge's controller (designed once per edge and kept) or a controller designed at run
 time from the current belief (initial controller, replan). It adds to the
-:class:`~firmtool.control.controllers.LocalController` the node-membership candidates of every step, the
+:class:`~firmtool.control.local.LocalController` the node-membership candidates of every step, the
 covariance trace of the cost, the scale of the deviation test and the inverse innovation covariances
 of the innovation test.
 """
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.control.controllers import LocalController
+from firmtool.control.local import LocalController
 from firmtool.roadmap.nodes import NodeRegions
 
 CANDIDATE_BLOCK = 16  # steps whose node covariance candidates are computed at once

@@ -11,13 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.control.controllers import (
-    LocalController,
-    NodeController,
-    lqr_weights,
-    plan_local_controller,
-    plan_local_controllers,
-)
+from firmtool.control.gains import lqr_weights
+from firmtool.control.local import LocalController, plan_local_controller, plan_local_controllers
+from firmtool.control.stabilisers import NodeController
 from firmtool.errors import NumericalError
 from firmtool.problem import Problem
 from firmtool.progress import DESIGN_EDGES, DESIGN_NODES, Counter, ProgressCallback
@@ -197,7 +193,7 @@ def local_controllers(problem: Problem, design_: Design, pairs: list[tuple[int, 
                       filter_steps_past_edge: int | None = None) -> list[LocalController]:
     """:func:`local_controller` of many edges ``(source, target)`` from their source nodes, designed
     together: the nominals of one length at once (:meth:`~firmtool.robots.Robot.nominal_trajectories`)
-    and the gains by :func:`~firmtool.control.controllers.plan_local_controllers`. Every array equals the
+    and the gains by :func:`~firmtool.control.local.plan_local_controllers`. Every array equals the
     single-edge function's bit for bit (tests/test_controllers.py), so an estimate does not depend on
     how its edges were batched.
 

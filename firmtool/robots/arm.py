@@ -21,8 +21,9 @@ import numpy as np
 from firmtool.errors import ScenarioError
 from firmtool.io.schema import Errors, Field, valid
 from firmtool.models import planar_arm
-from firmtool.robots.base import CompiledKinematics, register
+from firmtool.robots.base import CompiledKinematics
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
+from firmtool.robots.registry import register
 
 
 class ArmRobot(LinearRobot):

@@ -1,8 +1,66 @@
-"""A robot's default answer to a jump the online policy found (:meth:`firmtool.robots.Robot.after_jump`)."""
+"""A robot's answers to a jump the online policy found (a kidnap, a push, a collision).
+
+:class:`JumpAnswers` is what the online policy's jump tests (:class:`firmtool.online.innovation.JumpTests`),
+the simulated disturbances (:mod:`firmtool.sim.disturbances`) and the goal check ask of a robot;
+:class:`JumpDefaults` holds the defaults :class:`firmtool.robots.Robot` inherits: velocities kept
+or stopped, equally likely (:func:`mixed_velocity`), a jump anywhere in the configuration's range,
+no angle coordinates.
+"""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
+
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.problem import Problem
+
+
+@runtime_checkable
+class JumpAnswers(Protocol):
+    """What a robot says about jumps (the defaults: :class:`JumpDefaults`).
+
+    Attributes
+    ----------
+    angle_coordinates : state coordinates that are angles kept continuous along a run (not wrapped).
+    """
+
+    angle_coordinates: ClassVar[tuple[int, ...]]
+
+    def after_jump(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The belief ``(mean (n,), covariance (n, n))`` after a jump the jump test found."""
+        ...
+
+    def jump_prior(self, problem: "Problem") -> np.ndarray:
+        """(n,) prior variance of a sudden jump of each state coordinate."""
+        ...
+
+
+class JumpDefaults:
+    """The defaults of :class:`JumpAnswers` (see the module docs)."""
+
+    #: state coordinates that are angles kept continuous along a run (not wrapped): a kidnap draws
+    #: those past the configuration uniformly and puts them on the turn nearest their old value
+    #: (:mod:`firmtool.sim.disturbances`; configuration coordinates are drawn within their bounds), and
+    #: execution judges arrival at a goal node modulo a turn in them
+    angle_coordinates: ClassVar[tuple[int, ...]] = ()
+
+    def after_jump(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The belief ``(mean (n,), covariance (n, n))`` after a jump of the configuration that the
+        online policy's jump test found a step or two after it, widened for what the jump may have
+        done to the other coordinates, which so few measurements cannot tell. Default (the other
+        coordinates are velocities): kept (a push) or stopped (a kidnap, a collision), equally
+        likely, moment-matched (:func:`firmtool.robots.jumps.mixed_velocity`)."""
+        return mixed_velocity(mean, covariance, problem.config_dim)
+
+    def jump_prior(self, problem: "Problem") -> np.ndarray:
+        """(n,) prior variance of a sudden jump of each state coordinate (a kidnap), for the online
+        policy's estimate of one (:class:`firmtool.online.innovation.JumpTests`). Default: a
+        configuration coordinate anywhere in its range, a velocity within the speed limit."""
+        span = np.asarray(problem.config_hi, dtype=float) - np.asarray(problem.config_lo, dtype=float)
+        rest = problem.model.n - problem.config_dim
+        return np.concatenate([span ** 2, np.full(rest, problem.scenario.controller.max_speed ** 2)])
 
 
 def mixed_velocity(mean: np.ndarray, covariance: np.ndarray, config_dim: int) -> tuple[np.ndarray, np.ndarray]:

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.robots.base import CompiledKinematics, register
+from firmtool.robots.base import CompiledKinematics
 from firmtool.robots.linear import LinearRobot
+from firmtool.robots.registry import register
 
 
 class PointRobot(LinearRobot):

@@ -2,16 +2,22 @@
 relocalisation protocol, :meth:`firmtool.robots.Robot.relocalisation`): the hypotheses of a
 coordinate its sensor cannot see at rest, and a probe motion that tells them apart. The policy runs
 them as a Gaussian sum (:class:`firmtool.online.relocalise.GaussianSum`).
+
+:class:`Relocalising` is the optional protocol the online policy asks; :class:`RelocalisationDefaults`
+holds the default :class:`firmtool.robots.Robot` inherits (none: the belief stays one Gaussian).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
 from firmtool.models.angles import wrap
+
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.problem import Problem
 
 
 @dataclass(frozen=True)
@@ -54,6 +60,36 @@ class Relocalisation:
     def may_go_on(self, mean: np.ndarray, covariance: np.ndarray) -> bool:
         """Whether the probe may go on from the leading mode's belief (:attr:`allowed`)."""
         return True if self.allowed is None else bool(self.allowed(mean, covariance))
+
+
+@runtime_checkable
+class Relocalising(Protocol):
+    """What a robot says when the online policy asks how to re-localise after a jump (the default,
+    :class:`RelocalisationDefaults`: no re-localisation, the belief stays one Gaussian)."""
+
+    def relocalisation(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> Relocalisation | None:
+        """The hypotheses of a coordinate the sensor cannot see at rest and a probe, or None."""
+        ...
+
+
+class RelocalisationDefaults:
+    """The default of :class:`Relocalising`: none (the policy decides from the belief at once)."""
+
+    def relocalisation(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> Relocalisation | None:
+        """After a jump the online policy found, the hypotheses of a coordinate its sensor cannot see
+        at rest (a heading), and a probe motion that tells them apart.
+
+        Parameters
+        ----------
+        mean : (n,) the belief's mean after the jump's correction (and :meth:`after_jump`);
+        covariance : (n, n).
+
+        Returns
+        -------
+        :class:`firmtool.robots.relocalisation.Relocalisation` or None
+            None (default): the belief is one Gaussian and the policy decides from it at once.
+        """
+        return None
 
 
 def spread_coordinate(mean: np.ndarray, covariance: np.ndarray, coordinate: int, count: int,

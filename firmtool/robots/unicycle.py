@@ -24,12 +24,13 @@ from typing import ClassVar
 
 import numpy as np
 
-from firmtool.control.controllers import lqr_weights
+from firmtool.control.gains import lqr_weights
 from firmtool.control.stabilisers import OrbitSpec, cached_periodic_node
 from firmtool.errors import ScenarioError
 from firmtool.io.schema import Field
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
-from firmtool.robots.base import Robot, register
+from firmtool.robots.base import Robot
+from firmtool.robots.registry import register
 from firmtool.robots.relocalisation import Relocalisation, spread_coordinate
 
 

@@ -33,7 +33,7 @@ from firmtool.geometry.shapes import KIND_FIELD, KINDS
 from firmtool.io.atomic import check_target, write_bytes
 from firmtool.io.schema import Field
 from firmtool.models import noise
-from firmtool.robots.base import DEFAULT_ROBOT, _builtin, get, names
+from firmtool.robots.registry import DEFAULT_ROBOT, _builtin, get, names
 from firmtool.scenario.core import shipped_scenarios
 from firmtool.scenario.fields import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, _name_problem, sections
 

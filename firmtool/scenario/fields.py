@@ -12,8 +12,8 @@ import numpy as np
 from firmtool.geometry.registry import backend_names
 from firmtool.io.schema import Field
 from firmtool.models import noise
-from firmtool.robots.base import DEFAULT_ROBOT
 from firmtool.robots.linear import psd_problem
+from firmtool.robots.registry import DEFAULT_ROBOT
 from firmtool.scenario.specs import DEFAULT_START, DEFAULT_TARGET_HALFWIDTH, MEASUREMENT_KINDS, START_MODES
 
 # ---------------------------------------------------------------------------------------------------

@@ -1,0 +1,194 @@
+"""Writing the roadmap file: every write builds the new file in memory from the old one and hands
+the bytes to :func:`firmtool.io.atomic.write_bytes` (a temporary file in the same folder, then a
+rename), so a crash never leaves a half-written roadmap and a full disk is one clean error.
+
+A stage replaces its group and drops the later stages (they depend on it); the estimates of a
+dropped ``/edges`` move to ``/edge_cache``, where a later estimate stage finds them by key. The
+layout is :mod:`firmtool.io.roadmap_file`'s.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import h5py
+import numpy as np
+
+from firmtool import __version__
+from firmtool.errors import RoadmapError
+from firmtool.io.atomic import write_bytes
+from firmtool.io.roadmap_format import CACHE, ENCODING_TYPE, SCHEMA_VERSION, STAGES, read_table, short
+
+
+@contextmanager
+def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
+    """Open an in-memory copy of ``path`` (a new file if ``fresh``) for writing; on success, write it
+    atomically over ``path``.
+
+    HDF5 writes only to memory here (never to a file that can fill a disk): the finished image is
+    written by :func:`firmtool.io.atomic.write_bytes`, which turns a full disk into one clean error.
+    The copy is compacted (groups copied into a new file), so that space freed by replaced stages
+    does not accumulate over rewrites.
+    """
+    edited = io.BytesIO()
+    if path.exists() and not fresh:
+        try:
+            original = io.BytesIO(path.read_bytes())
+            src = h5py.File(original, "r")
+        except OSError as exc:
+            raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
+        with src, h5py.File(edited, "w") as f:
+            for k, v in src.attrs.items():
+                f.attrs[k] = v
+            for name in src:
+                src.copy(src[name], f, name=name)
+            yield f
+    else:
+        with h5py.File(edited, "w") as f:
+            yield f
+    write_bytes(path, edited.getbuffer())
+
+
+def create_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int) -> None:
+    """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over)."""
+    with _atomic_copy(Path(path), fresh=True) as f:
+        _write_root(f, scenario_text, scenario_sha256, seed)
+
+
+def write_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int,
+                  stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]) -> None:
+    """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
+
+    Parameters
+    ----------
+    stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
+        ``scenario_sha256`` stamp included; one without gets the stored scenario's).
+    """
+    with _atomic_copy(Path(path), fresh=True) as f:
+        _write_root(f, scenario_text, scenario_sha256, seed)
+        for name in STAGES:
+            if name in stages:
+                arrays, attrs = stages[name]
+                _write_table(f, name, arrays, {k: v for k, v in attrs.items()
+                                               if k not in ("encoding-type", "encoding-version")})
+
+
+def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
+    f.attrs["schema_version"] = SCHEMA_VERSION
+    f.attrs["encoding-type"] = ENCODING_TYPE
+    f.attrs["firmtool_version"] = __version__
+    f.attrs["scenario_toml"] = text
+    f.attrs["scenario_sha256"] = sha
+    f.attrs["seed"] = seed
+    f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
+                drop_later: bool = True, cache: Mapping[str, np.ndarray] | None = None) -> None:
+    """Replace one stage group atomically. Later stages are dropped: they depend on this one.
+
+    Parameters
+    ----------
+    stage : one of STAGES.
+    arrays : datasets of the group.
+    attrs : attributes of the group (must include ``inputs_sha256``).
+    drop_later : remove the groups of the stages after ``stage`` (they are stale now).
+    cache : with ``stage == "edges"``: the new ``/edge_cache`` (estimates kept for reuse that the new
+        table does not hold: the earlier particle blocks of edges that adaptive Monte Carlo refined);
+        without it the cache is removed.
+    """
+    if stage not in STAGES:
+        raise ValueError(f"unknown stage {stage!r}")
+    p = Path(path)
+    if not p.exists():
+        raise RoadmapError(f"{p}: no such roadmap file")
+    with _atomic_copy(p) as f:
+        later = STAGES[STAGES.index(stage):] if drop_later else (stage,)
+        if stage == "edges":
+            _delete(f, CACHE)  # its estimates are in the new table or no longer wanted
+            if cache:
+                _write_table(f, CACHE, cache, {"description": "edge estimates keyed by their inputs, for reuse"})
+        elif "edges" in later and "edges" in f:
+            _cache_edges(f)  # keep the estimates: edges whose inputs are unchanged are reused
+        for name in later:
+            _delete(f, name)
+        _write_table(f, stage, arrays, attrs)
+
+
+def _delete(f: h5py.File, name: str) -> None:
+    if name in f:
+        del f[name]
+
+
+def _write_table(f: h5py.File, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+    _delete(f, name)
+    g = f.create_group(name)
+    g.attrs["encoding-type"] = f"firmtool.{name}"
+    g.attrs["encoding-version"] = SCHEMA_VERSION
+    if name in STAGES:  # computed from the scenario stored now (see Roadmap.require)
+        g.attrs["scenario_sha256"] = str(f.attrs.get("scenario_sha256", ""))
+    for k, v in attrs.items():
+        g.attrs[k] = v
+    for k, v in arrays.items():
+        g.create_dataset(k, data=np.asarray(v))
+
+
+def concat_edge_tables(*tables: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """One edge table from several (per-edge arrays stacked, outcome rows re-indexed); only the
+    datasets every table has are kept. Tables without edge keys are skipped (they cannot be reused)."""
+    tables = tuple(t for t in tables if "key" in t and "source" in t)
+    if not tables:
+        return {}
+    names = set.intersection(*(set(t) for t in tables))
+    out: dict[str, list[np.ndarray]] = {k: [] for k in names}
+    offset = 0
+    for t in tables:
+        for k in names:
+            out[k].append(np.asarray(t[k]) + offset if k == "outcome_edge" else np.asarray(t[k]))
+        offset += int(np.asarray(t["source"]).size)
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def _cache_edges(f: h5py.File) -> None:
+    """Move the rows of ``/edges`` into ``/edge_cache`` (merged with what it holds)."""
+    cached = read_table(f[CACHE]) if CACHE in f and isinstance(f[CACHE], h5py.Group) else {}
+    merged = concat_edge_tables(cached, read_table(f["edges"]))
+    if merged:
+        _write_table(f, CACHE, merged, {"description": "edge estimates keyed by their inputs, for reuse"})
+
+
+def write_edge_cache(path: str | Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+    """Replace ``/edge_cache`` atomically (a checkpoint of the estimate stage); later stages stay."""
+    p = Path(path)
+    if not p.exists():
+        raise RoadmapError(f"{p}: no such roadmap file")
+    with _atomic_copy(p) as f:
+        _write_table(f, CACHE, arrays, attrs)
+
+
+def update_scenario(path: str | Path, scenario_text: str, scenario_sha256: str, keep: tuple[str, ...] = ()) -> None:
+    """Store a new scenario text (same seed) in an existing roadmap.
+
+    The caller checked which stages stay valid under the new text (``keep``: they are stamped with
+    its sha256); the others keep the stamp of the old text, so readers refuse them until they are
+    recomputed (each stage's ``inputs_sha256`` tells the build which ones to re-run).
+    """
+    with _atomic_copy(Path(path)) as f:
+        f.attrs["scenario_toml"] = scenario_text
+        f.attrs["scenario_sha256"] = scenario_sha256
+        for stage in keep:
+            if stage in f and isinstance(f[stage], h5py.Group):
+                f[stage].attrs["scenario_sha256"] = scenario_sha256
+
+
+def restamp(path: str | Path, stages: tuple[str, ...]) -> None:
+    """Mark ``stages`` as valid for the stored scenario (the caller checked their inputs' hashes)."""
+    with _atomic_copy(Path(path)) as f:
+        sha = str(f.attrs["scenario_sha256"])
+        for stage in stages:
+            if stage in f and isinstance(f[stage], h5py.Group):
+                f[stage].attrs["scenario_sha256"] = sha

@@ -1,0 +1,110 @@
+"""Where a robot is in its world: key points, collision shape, validity and where it senses.
+
+:class:`RobotGeometry` is what sampling, the nominals' checks, the Monte Carlo and execution ask
+of a robot (through :class:`firmtool.problem.Problem`'s ``points``, ``points_valid``,
+``sensing_from_points`` and ``is_valid``); :class:`GeometryDefaults` holds the defaults
+:class:`firmtool.robots.Robot` inherits. A robot defines :meth:`~RobotGeometry.points`; the rest
+has a default: balls of ``world.robot_radius`` at the key points, measurements sensed at the
+first one's x.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+from firmtool.errors import InputError, ScenarioError
+from firmtool.geometry.registry import backend_for_world
+
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.geometry.backends import CollisionBackend
+    from firmtool.models.base import Model
+    from firmtool.scenario import Scenario
+
+
+@runtime_checkable
+class RobotGeometry(Protocol):
+    """A robot's key points, collision shape, validity and sensing points (the defaults:
+    :class:`GeometryDefaults`).
+
+    Attributes
+    ----------
+    shape : ``"spheres"`` (a ball of ``world.robot_radius`` at each key point) or ``"chain"``
+        (capsules between consecutive ones, non-adjacent ones also tested against each other).
+    """
+
+    shape: ClassVar[str]
+
+    def points(self, X: np.ndarray) -> np.ndarray:
+        """Key points in the workspace: states (M, n) -> (M, P, D)."""
+        ...
+
+    def sensing_from_points(self, P: np.ndarray) -> np.ndarray:
+        """The sensing coordinate of each measurement: key points (M, P, D) -> (M, nz)."""
+        ...
+
+    def sensing_x(self, X: np.ndarray) -> np.ndarray:
+        """The sensing coordinate of each measurement: states (M, n) -> (M, nz)."""
+        ...
+
+    def collision(self) -> "CollisionBackend":
+        """The world's collision backend."""
+        ...
+
+    def points_valid(self, P: np.ndarray) -> np.ndarray:
+        """The scenario's geometry on key points (M, P, D) -> bool (M,)."""
+        ...
+
+    def is_valid(self, X: np.ndarray) -> np.ndarray:
+        """Validity of states (M, n) -> bool (M,) for sampling nodes and checking nominals."""
+        ...
+
+
+class GeometryDefaults:
+    """The defaults of :class:`RobotGeometry` (see the module docs); :meth:`points` has none."""
+
+    #: the collision shape over the key points: ``"spheres"`` (a ball of ``world.robot_radius`` at
+    #: each) or ``"chain"`` (capsules between consecutive ones, non-adjacent ones also tested
+    #: against each other)
+    shape: ClassVar[str] = "spheres"
+
+    scenario: "Scenario"
+    model: "Model"
+    _collision: "CollisionBackend | None"  # built on first use (Robot.__init__ sets None)
+
+    def points(self, X: np.ndarray) -> np.ndarray:
+        """Key points in the workspace: states (M, n) -> (M, P, D); the last one is the point a task
+        follows (the point robot itself, the arm's tip)."""
+        raise NotImplementedError
+
+    def sensing_from_points(self, P: np.ndarray) -> np.ndarray:
+        """The sensing coordinate of each measurement from the key points (M, P, D) -> (M, nz)
+        (default: the x-coordinate of the first key point, for every measurement)."""
+        return np.repeat(P[:, 0, :1], self.model.nz, axis=1)
+
+    def sensing_x(self, X: np.ndarray) -> np.ndarray:
+        """:meth:`sensing_from_points` of states (M, n) -> (M, nz) (the model's ``sensing_x``)."""
+        return self.sensing_from_points(self.points(X))
+
+    def collision(self) -> "CollisionBackend":
+        """The world's collision backend (built once)."""
+        if self._collision is None:
+            try:
+                self._collision = backend_for_world(self.scenario.world, self_collision=self.shape == "chain")
+            except InputError as exc:
+                raise ScenarioError(self.scenario.path, "world.collision_backend", str(exc)) from None
+        return self._collision
+
+    def points_valid(self, P: np.ndarray) -> np.ndarray:
+        """The scenario's geometry on key points (M, P, D) -> bool (M,): False where the robot's
+        shape meets an obstacle, leaves the world's bounds, or (chain) meets itself."""
+        r = self.scenario.world.robot_radius
+        if self.shape == "chain":
+            return ~self.collision().capsules_collide(P[:, :-1], P[:, 1:], r)
+        return ~self.collision().capsules_collide(P, P, r)
+
+    def is_valid(self, X: np.ndarray) -> np.ndarray:
+        """Validity of states (M, n) -> bool (M,) for sampling nodes and checking nominals (default:
+        :meth:`points_valid` of :meth:`points`; a robot may keep a margin, as the unicycle does)."""
+        return self.points_valid(self.points(X))
