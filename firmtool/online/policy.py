@@ -185,7 +185,7 @@ class Policy:
         window_test, jump_test = innovation_tests(s, problem)
         c = problem.scenario.cost
         self._parts = Prepared(problem=problem, kinds=design_.kinds, edge_per_node=self.edge_per_node, settings=s,
-                               max_steps=self.max_steps, weights=(c.alpha_covariance, c.alpha_time, c.alpha_control),
+                               weights=(c.alpha_covariance, c.alpha_time, c.alpha_control),
                                regions=regions, replanner=replanner, decisions=KeepOrReplan(problem, replanner, s),
                                arrival=Arrival(regions, design_.kinds), controllers=controllers,
                                jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test)
@@ -403,7 +403,7 @@ class Policy:
             node = parts.arrival.start_node(mean, covariance)
         if rng is not None:
             self._rng = rng
-        self._now = PolicyRun(parts, mean, covariance, self._rng, record)
+        self._now = PolicyRun(parts, mean, covariance, self._rng, record, self.max_steps)
         return self._now.start(node)
 
     # -- the control period ------------------------------------------------------------------------------

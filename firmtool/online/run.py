@@ -63,7 +63,7 @@ class Prepared:
     Attributes
     ----------
     problem : the roadmap's problem; kinds : (N,) its node kinds; edge_per_node : (N,) the policy.
-    settings : the :class:`~firmtool.online.replanning.ReplanSettings`; max_steps : the mission's budget.
+    settings : the :class:`~firmtool.online.replanning.ReplanSettings`.
     weights : ``(alpha_covariance, alpha_time, alpha_control)`` of the cost (eq. 16).
     regions, replanner, decisions, arrival, controllers : the roadmap's collaborators.
     jump_false_alarm : the jump test's per-step false-alarm probability.
@@ -74,7 +74,6 @@ class Prepared:
     kinds: np.ndarray
     edge_per_node: np.ndarray
     settings: ReplanSettings
-    max_steps: int
     weights: tuple[float, float, float]
     regions: NodeRegions
     replanner: Replanner
@@ -95,6 +94,7 @@ class PolicyRun:
     mean, covariance : the start belief; rng : the policy's own draws (replan Monte Carlo).
     record : keep the beliefs and controls (:meth:`BeliefFilter.history
         <firmtool.online.belief.BeliefFilter.history>`).
+    max_steps : the mission's step budget.
 
     Attributes
     ----------
@@ -106,9 +106,9 @@ class PolicyRun:
     """
 
     def __init__(self, parts: Prepared, mean: np.ndarray, covariance: np.ndarray, rng: np.random.Generator,
-                 record: bool) -> None:
+                 record: bool, max_steps: int) -> None:
         problem, s = parts.problem, parts.settings
-        self.parts, self.rng = parts, rng
+        self.parts, self.rng, self.max_steps = parts, rng, max_steps
         self.belief = BeliefFilter(problem.model, problem.perfect, mean, covariance, record)
         self.status = PolicyStatus.RUNNING
         self.total, self.cost, self.k = 0, 0.0, 0
@@ -173,7 +173,7 @@ class PolicyRun:
         tests, and what they lead to (:meth:`firmtool.online.Policy.observe`)."""
         t0 = time.perf_counter()
         out = self._observe_probe(z, decide, t0) if self.probe is not None else self._observe_filter(z, decide, t0)
-        if decide and self.status is PolicyStatus.RUNNING and self.total >= self.parts.max_steps:
+        if decide and self.status is PolicyStatus.RUNNING and self.total >= self.max_steps:
             self._timeout(out)  # the mission's step budget, whatever ran this step or runs next
         return out
 
@@ -234,7 +234,7 @@ class PolicyRun:
             self.pending = (new, wait - 1)
         elif (alarm or deviate) and self._replan(k, dev, alarm, jump, nu, out):
             return
-        if total >= self.parts.max_steps:  # before the controller's own end: the mission's budget is the reason
+        if total >= self.max_steps:  # before the controller's own end: the mission's budget is the reason
             self._timeout(out)
             return
         self.k = k + 1
@@ -384,7 +384,7 @@ class PolicyRun:
         why, ran_out = probe.over(lead, mean, covariance, failed)
         if why:  # over: without a decision (decide=False) the running controller resumes
             self._end_probe(out, why, lead)
-            go_on = decide and self.total < self.parts.max_steps
+            go_on = decide and self.total < self.max_steps
             then = probe.plan.then
             follow = then(mean, covariance) if ran_out and go_on and then is not None else None
             if follow is not None:  # the robot plans its next probe from what this one showed
