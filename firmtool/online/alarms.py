@@ -33,7 +33,7 @@ from firmtool.results import Event, EventKind
 from firmtool.robots.relocalisation import Relocalisation
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # it holds arrays: compared by identity, never elementwise
 class Correction:
     """The belief an alarm points to.
 

@@ -29,7 +29,7 @@ from firmtool.problem import Problem
 NO_VALID_STATE = "the estimate is in collision and no valid state is likely under the belief"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # it holds arrays: compared by identity, never elementwise
 class Choice:
     """What a decision chose.
 

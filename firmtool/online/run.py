@@ -56,7 +56,7 @@ class PolicyStatus(enum.StrEnum):
     TIMEOUT = "timeout"  # a controller ran out of steps without reaching a node, or max_steps passed
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # it holds arrays: compared by identity, never elementwise
 class Prepared:
     """What every run of a policy shares, built once by :meth:`firmtool.online.Policy.prepare`.
 
