@@ -49,7 +49,7 @@ Each step (but a re-localisation's probe, which is open loop) is the same math a
 that estimated the edges (:func:`firmtool.estimation.edges.simulate`):
 ``u = u_ref[k] - K[k] (xhat - x_ref[k])`` and the filter update
 ``xhat = f(xhat, u) + L[k] (z - h(f(xhat, u)))`` with the edge's precomputed gains, so executed
-frequencies are comparable with the estimated probabilities (``tests/test_online.py`` checks
+frequencies are comparable with the estimated probabilities (``tests/test_execute.py`` checks
 identical states for the same noise draws).
 
 :class:`Policy` stores what it is given; :meth:`Policy.prepare` builds what every run shares (node
