@@ -39,6 +39,7 @@ from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 from firmtool.sim.disturbances import as_disturbances
+from firmtool.sim.environment import SimulatedSystem
 from firmtool.sim.episodes import run_episodes
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -615,10 +616,11 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     dists = as_disturbances(disturbances)
     agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
+    system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals
     at_start_node = start is None
     return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
                         predicted=float(probabilities[START_INDEX]) if at_start_node else None,
                         predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
-                        edge_counts=rm.edge_counts, progress=progress)
+                        edge_counts=rm.edge_counts, system=system, progress=progress)
 
 

@@ -14,11 +14,11 @@ matplotlib.use("Agg")  # the test process draws no window (the library itself se
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from conftest import ROOT  # noqa: E402
 
 import firmtool as ft  # noqa: E402
 import firmtool.estimation.tasks  # noqa: E402
 from firmtool.estimation.edges import estimate_edge as real_estimate_edge  # noqa: E402
-from conftest import ROOT  # noqa: E402
 
 
 def cli(*args, cwd=None) -> dict:
@@ -247,8 +247,8 @@ def test_a_failed_edge_does_not_shift_the_policy_onto_other_controllers(monkeypa
     sol = ft.solve(rm)
     used = np.flatnonzero(sol.policy >= 0)
     designed = Policy.from_design(rm.problem, rm.design, sol.policy)  # the design's rows: shifted by one
-    assert any(designed._controller(int(sol.policy[i])).target != rm.edges[sol.policy[i], 1] for i in used)
+    assert any(designed._prepared().controllers[int(sol.policy[i])].target != rm.edges[sol.policy[i], 1] for i in used)
     runner = Policy.from_design(rm.problem, rm.execution_design, sol.policy)
-    assert all(runner._controller(int(sol.policy[i])).target == rm.edges[sol.policy[i], 1] for i in used)
+    assert all(runner._prepared().controllers[int(sol.policy[i])].target == rm.edges[sol.policy[i], 1] for i in used)
     res = ft.simulate(sol, episodes=30, seed=0)
     assert res.calibration.ok and res.successes >= 25

@@ -9,20 +9,19 @@ import pytest
 from typer.testing import CliRunner
 
 from firmtool.cli.commands import app
-from firmtool.roadmap.design import local_controller
-from firmtool.sim.disturbances import Disturbance, parse_disturbance, parse_disturbances
-from firmtool.estimation.edges import initial_ensemble, simulate
-from firmtool.io.episodes import load_episodes
 from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_counts_of, predicted_interval
-from firmtool.results import wilson_interval
-from firmtool.roadmap.nodes import GOAL, START_INDEX
+from firmtool.estimation.edges import initial_ensemble, simulate
+from firmtool.io.episodes import load_episodes
+from firmtool.io.roadmap_file import Roadmap
 from firmtool.online import Policy, ReplanSettings
 from firmtool.online.innovation import reset_belief
-from firmtool.results import EventKind
-from firmtool.sim import SimulatedSystem, run_episodes
 from firmtool.pipeline import design_of, problem_of
-from firmtool.io.roadmap_file import Roadmap
+from firmtool.results import EventKind, wilson_interval
+from firmtool.roadmap.design import local_controller
+from firmtool.roadmap.nodes import GOAL, START_INDEX
+from firmtool.sim import SimulatedSystem, run_episodes
+from firmtool.sim.disturbances import Disturbance, parse_disturbance, parse_disturbances
 
 runner = CliRunner()
 EV_DISTURBANCE, EV_REPLAN = EventKind.DISTURBANCE, EventKind.REPLAN
@@ -131,7 +130,7 @@ def test_executor_membership_is_the_node_regions_one(smoke):
         xhat = design.centers[j] + rng.normal(size=n) * design.scale[j] * rng.uniform(0.2, 2.5)
         mask = rng.random(N) < rng.choice([0.3, 1.0])
         want = int(ex.regions.locate(xhat[None], mask)[0])
-        assert ex._locate(xhat[None], mask) == want
+        assert ex._prepared().arrival.locate(xhat[None], mask) == want
         landed += want >= 0
     assert 300 < landed < 2700  # both decisions were exercised
 
@@ -300,7 +299,7 @@ def test_reset_belief_is_the_update_redone_from_the_inflated_prior(smoke):
     covariance stays symmetric positive definite and grows along the jump."""
     _, _, problem, design, pol = smoke
     ex = agent(smoke)
-    run_ = ex._controller(int(pol["edge"][START_INDEX]))
+    run_ = ex._prepared().controllers[int(pol["edge"][START_INDEX])]
     lc, k, model = run_.lc, 5, problem.model
     xprev, u = lc.x_ref[k], lc.u_ref[k]
     nu = np.array([0.8, -0.5])  # ~1 unit jump, far beyond the filter's spread
@@ -384,8 +383,8 @@ def test_replan_after_an_alarm_starts_near_the_true_state(smoke):
     below what a consistent belief (distances chi2_2) exceeds in only 1% of samples of this size
     (an order-statistic bound: the median is below chi2_2's p-quantile whenever more than half the
     draws are, which, with p chosen below, a consistent belief gives with probability 0.99)."""
-    from scipy.stats import binom, chi2
     from scipy.optimize import brentq
+    from scipy.stats import binom, chi2
 
     rep = run(smoke, episodes=20, disturbances=parse_disturbances(["push:30:1.5"]), record=True)
     errors, mahalanobis = [], []

@@ -27,35 +27,18 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   node radius), a decision is taken: keep the running controller, or a controller designed in real
   time from the current belief to a nearby node (:class:`~firmtool.online.replanning.Replanner`,
   with a deadline); the stored policy resumes once a node is reached.
-- **Innovation tests.** A push the filter is not told of shows first in the measurements
-  (:mod:`firmtool.online.innovation`): a generalised likelihood ratio test for a jump of the
-  configuration or of the whole state (Willsky and Jones 1976) over the last
-  :attr:`ReplanSettings.jump_window` onsets, and the chi-square test of the normalised innovation
-  squares over a moving window (also while the window fills, after a start or a decision). On an
-  alarm the belief is corrected before the decision: by the estimated jump (mean and covariance) of
-  the family and onset with the largest evidence
-  (:meth:`~firmtool.online.innovation.JumpTest.log_evidence`), or, when only the window test fired,
-  by the step's update redone from a prior the innovations inflated, so that the decision starts
-  from an estimate that has taken the measurements in. After a jump of the configuration the
-  velocities are either kept (a push) or stopped (a kidnap), which a step later nothing tells
-  apart: the belief covers both (:attr:`ReplanSettings.jump_velocity`,
-  :meth:`firmtool.robots.Robot.after_jump`).
+- **Innovation tests.** A push the filter is not told of shows first in the measurements: a jump
+  test and a windowed chi-square test of the innovations, and on an alarm the belief is corrected
+  before the decision (:mod:`firmtool.online.alarms`, :mod:`firmtool.online.innovation`).
 - **Re-localising an unseen coordinate.** A robot whose sensor cannot see a coordinate at rest (a
-  unicycle's heading: a kidnapped robot may face anywhere) holds hypotheses of it after a jump
-  and runs a probe motion until one mode leads (or a further probe the robot plans from what the
-  first showed, :attr:`Relocalisation.then <firmtool.robots.relocalisation.Relocalisation>`), then
-  decides from that mode (:meth:`firmtool.robots.Robot.relocalisation`, :mod:`firmtool.online.relocalise`,
-  :attr:`ReplanSettings.relocalise`). Events: ``relocalising``, then ``relocalised``.
-- **Re-filtered keep.** After such a correction, keeping the running controller keeps its reference
-  and feedback but re-plans its Kalman gains from the corrected belief (its designed gains assume
-  the covariance it was designed with, and learnt the push far too slowly in the dark).
+  unicycle's heading) holds hypotheses of it after a jump and runs a probe motion until one mode
+  leads, then decides from that mode (:mod:`firmtool.online.probe`). Events: ``relocalising``, then
+  ``relocalised``.
 - **Re-localisation.** :meth:`Policy.relocalise` replaces the belief mid-run by one from outside (a
   marker, a satellite fix) and decides from it.
-- **Valid estimate.** An estimate in collision (a noisy reset near an obstacle) is replaced by the
-  most likely valid state under the belief before planning (the robot is alive, so its state is valid).
-- **Keep or replan.** When keeping scores best (event ``kept_controller``), no decision is taken for
-  :attr:`ReplanSettings.window` steps. Where the stored controller recovers on its own (arm pushed
-  in the open at step 60: 0.555 without replanning), replanning anyway cost 0.11 (0.445).
+- **Decisions.** A valid estimate to plan from, the re-filtered keep, keep or replan
+  (:mod:`firmtool.online.decision`); a goal declaration waits while the jump test questions it
+  (:mod:`firmtool.online.arrival`).
 
 The policy ends when it declares the goal (its belief entered a goal node), when it is stuck (no
 controller from the start belief, a node without an edge), or on a timeout (its controller ran out
@@ -66,66 +49,51 @@ Each step (but a re-localisation's probe, which is open loop) is the same math a
 that estimated the edges (:func:`firmtool.estimation.edges.simulate`):
 ``u = u_ref[k] - K[k] (xhat - x_ref[k])`` and the filter update
 ``xhat = f(xhat, u) + L[k] (z - h(f(xhat, u)))`` with the edge's precomputed gains, so executed
-frequencies are comparable with the estimated probabilities (``tests/test_online.py`` checks
+frequencies are comparable with the estimated probabilities (``tests/test_execute.py`` checks
 identical states for the same noise draws).
+
+:class:`Policy` stores what it is given; :meth:`Policy.prepare` builds what every run shares (node
+regions, replanner, the policy edges' controllers, the compiled engine); each :meth:`Policy.reset`
+starts a :class:`~firmtool.online.run.PolicyRun`, which coordinates the collaborators of one run
+(belief filter, innovation alarms, arrival and goal check, decisions, probes, record, timing: see
+:mod:`firmtool.online.run`). The policy checks what a robot hands it and reports what the run did.
 """
 
 from __future__ import annotations
 
-import enum
-import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmtool.errors import InputError, NumericalError
-from firmtool.estimation import compiled as kernels
-from firmtool.estimation.edges import TIMEOUT as EDGE_TIMEOUT
-from firmtool.estimation.edges import simulate
-from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
-from firmtool.online.relocalise import GaussianSum
-from firmtool.online.replanning import GOAL_CHECK_OLDER, Replanner, ReplanSettings, latency_steps, mission_false_alarm
-from firmtool.online.running import RunningController, remainder, running_controller
+from firmtool.errors import InputError
+from firmtool.online.arrival import Arrival
+from firmtool.online.decision import KeepOrReplan
+from firmtool.online.record import Traversal
+from firmtool.online.replanning import Replanner, ReplanSettings, mission_false_alarm
+from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
+from firmtool.online.running import EdgeControllers
 from firmtool.problem import Problem
-from firmtool.results import Event, EventKind
-from firmtool.roadmap.design import Design, local_controller
-from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, START_INDEX
-from firmtool.robots.relocalisation import Relocalisation
+from firmtool.results import Event
+from firmtool.roadmap.design import Design
+from firmtool.roadmap.nodes import START_INDEX, NodeRegions
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api import Solution
 
 
-class PolicyStatus(enum.StrEnum):
-    """Where the policy stands."""
-
-    IDLE = "idle"  # not reset yet
-    RUNNING = "running"  # a controller runs: call act() and observe()
-    GOAL = "goal"  # the belief entered a goal node: goal declared
-    STUCK = "stuck"  # no controller from the start belief, or a node without a policy edge
-    TIMEOUT = "timeout"  # a controller ran out of steps without reaching a node, or max_steps passed
-
-
-class Traversal(tuple):
-    """``(edge, outcome, first_step, last_step)`` of a policy edge run from its node to its end without
-    a belief reset; outcome a node id or ``firmtool.estimation.edges.TIMEOUT`` (a simulation adds the collisions,
-    ``FAILURE``, and drops the traversals a disturbance hit: :mod:`firmtool.sim.episodes`)."""
-
-    __slots__ = ()
-
-
-class _Probe:
-    """A re-localisation in progress: the hypotheses, the robot's plan, the probe's next step, and the
-    step of the suspended controller a keep would resume from."""
-
-    __slots__ = ("bank", "plan", "step", "s_next")
-
-    def __init__(self, bank: GaussianSum, plan: Relocalisation, step: int, s_next: int) -> None:
-        self.bank, self.plan, self.step, self.s_next = bank, plan, step, s_next
+def innovation_tests(settings: ReplanSettings, problem: Problem) -> tuple[bool, bool]:
+    """Which innovation tests a policy runs, ``(window test, jump test)``: none with replanning or the
+    tests off, nor with perfect measurements (no innovations)."""
+    window = settings.enabled and settings.innovation_test and not problem.perfect
+    return window, window and settings.jump_test
 
 
 class Policy:
     """The FIRM policy of a solved roadmap as an online agent (see the module notes).
+
+    The constructor stores its inputs; :meth:`prepare` (called by the first :meth:`reset`, or ahead
+    of a robot's first control period) builds the node regions and the replanner and compiles the
+    Monte Carlo engine.
 
     Parameters
     ----------
@@ -147,6 +115,8 @@ class Policy:
     problem, design : the roadmap's problem (model, validity, bounds) and design.
     edge_per_node : (N,) int64, the policy's edge at each node (-1: none).
     settings : the :class:`ReplanSettings`.
+    regions, replanner : the node regions and the :class:`~firmtool.online.replanning.Replanner`
+        (built by :meth:`prepare`).
 
     Examples
     --------
@@ -187,46 +157,75 @@ class Policy:
 
     def _setup(self, problem: Problem, design_: Design, policy: np.ndarray, cost_to_go: np.ndarray | None,
                failure_cost: float | None, replan: ReplanSettings | None, rng, max_steps: int | None) -> None:
+        """Store the inputs; the work is :meth:`prepare`'s."""
         self.problem, self.design = problem, design_
         self.edge_per_node = np.asarray(policy, dtype=np.int64)
         self.failure_cost = float(problem.scenario.cost.failure_cost if failure_cost is None else failure_cost)
-        self.regions = design_.regions(problem)
         self.settings = replan or ReplanSettings()
-        N = design_.centers.shape[0]
-        J = np.zeros(N) if cost_to_go is None else np.asarray(cost_to_go, dtype=float)
-        self.replanner = Replanner(problem, design_, self.regions, self.edge_per_node, J, self.failure_cost,
-                                   self.settings)
+        self._cost_to_go = (np.zeros(design_.centers.shape[0]) if cost_to_go is None
+                            else np.asarray(cost_to_go, dtype=float))
         self.max_steps = problem.scenario.execution.max_steps if max_steps is None else int(max_steps)
-        self._cache: dict[int, RunningController] = {}
-        s = self.settings
-        #: the jump test's per-step false-alarm probability (the settings', or the mission's budget)
-        self.jump_false_alarm = (s.jump_false_alarm if s.jump_false_alarm is not None
-                                 else mission_false_alarm(design_, self.edge_per_node, START_INDEX))
-        self._innovation = s.enabled and s.innovation_test and not problem.perfect
-        self._jump_test = self._innovation and s.jump_test  # reset() builds it; jump_levels reports it
         self._rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        self._parts: Prepared | None = None
+        self._now: PolicyRun | None = None  # the run since the last reset
+
+    def prepare(self) -> None:
+        """Build what every run shares, once: the node regions, the replanner, the jump test's
+        per-step false-alarm probability, and (with replan Monte Carlo) the compiled engine, so that
+        no replan pays its compilation. :meth:`reset` calls it; call it ahead to pay it before a
+        robot's first control period."""
+        if self._parts is not None:
+            return
+        problem, design_, s = self.problem, self.design, self.settings
+        regions = design_.regions(problem)
+        replanner = Replanner(problem, design_, regions, self.edge_per_node, self._cost_to_go, self.failure_cost, s)
+        jump_false_alarm = (s.jump_false_alarm if s.jump_false_alarm is not None
+                            else mission_false_alarm(design_, self.edge_per_node, START_INDEX))
+        controllers = EdgeControllers(problem, design_, regions)
+        window_test, jump_test = innovation_tests(s, problem)
         c = problem.scenario.cost
-        self._weights = (c.alpha_covariance, c.alpha_time, c.alpha_control)
-        self._status = PolicyStatus.IDLE
-        self._record = False
+        self._parts = Prepared(problem=problem, kinds=design_.kinds, edge_per_node=self.edge_per_node, settings=s,
+                               weights=(c.alpha_covariance, c.alpha_time, c.alpha_control),
+                               regions=regions, replanner=replanner, decisions=KeepOrReplan(problem, replanner, s),
+                               arrival=Arrival(regions, design_.kinds), controllers=controllers,
+                               jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test)
         if s.enabled and s.risk_particles > 0:  # compile (or load) the Monte Carlo engine now, not in a replan
-            self._warm_up()
+            controllers.warm_up(self.edge_per_node)
+
+    def _prepared(self) -> Prepared:
+        self.prepare()
+        return self._parts
 
     def __repr__(self) -> str:
-        where = f"at node {self.node}" if self._status is not PolicyStatus.RUNNING else self.controller
-        return f"<firmtool.Policy {self.name or 'policy'}: {self._status.value}, step {getattr(self, '_total', 0)}, {where}>"
+        where = f"at node {self.node}" if self.status is not PolicyStatus.RUNNING else self.controller
+        return f"<firmtool.Policy {self.name or 'policy'}: {self.status.value}, step {self.steps}, {where}>"
 
     # -- what it is doing ------------------------------------------------------------------------------
 
     @property
+    def regions(self) -> NodeRegions:
+        """The roadmap's node regions (the stopping regions of the local controllers)."""
+        return self._prepared().regions
+
+    @property
+    def replanner(self) -> Replanner:
+        """The :class:`~firmtool.online.replanning.Replanner` of its decisions."""
+        return self._prepared().replanner
+
+    @property
+    def jump_false_alarm(self) -> float:
+        """The jump test's per-step false-alarm probability (the settings', or the mission's budget)."""
+        return self._prepared().jump_false_alarm
+
+    @property
     def status(self) -> PolicyStatus:
         """:class:`PolicyStatus`."""
-        return self._status
+        return PolicyStatus.IDLE if self._now is None else self._now.status
 
     @property
     def done(self) -> bool:
         """True once the policy has declared the goal, is stuck or timed out (act() then refuses)."""
-        return self._status is not PolicyStatus.RUNNING
+        return self.status is not PolicyStatus.RUNNING
 
     @property
     def jump_levels(self) -> tuple[float, float, int, int] | None:
@@ -235,91 +234,93 @@ class Policy:
         ``jump_false_alarm`` as resolved, ``goal_check``, ``jump_window``, and
         :attr:`ReplanSettings.goal_onsets`), or None when no jump test runs (replanning off, the
         innovation tests off, perfect measurements)."""
-        if not self._jump_test:
-            return None
         s = self.settings
+        if not innovation_tests(s, self.problem)[1]:
+            return None
         return float(self.jump_false_alarm), float(s.goal_check), int(s.jump_window), int(s.goal_onsets)
 
     @property
     def steps(self) -> int:
         """Control periods since :meth:`reset` (the number of act() calls)."""
-        return self._total
+        return 0 if self._now is None else self._now.total
 
     @property
     def mean(self) -> np.ndarray:
         """(n,) the belief's mean, the estimate ``xhat`` (a copy)."""
-        return self._xhat[0].copy()
+        return self._now.belief.xhat[0].copy()
 
     @property
     def covariance(self) -> np.ndarray:
         """(n, n) the belief's covariance ``P`` (a copy)."""
-        return np.array(self._P, dtype=float)
+        return np.array(self._now.belief.P, dtype=float)
 
     @property
     def node(self) -> int:
         """The last node the belief entered (the start node after a reset there), or -1."""
-        return self._nodes[-1] if self._nodes else -1
+        nodes = [] if self._now is None else self._now.record.nodes
+        return nodes[-1] if nodes else -1
 
     @property
     def target(self) -> int:
         """The node the running controller drives to, or -1."""
-        return self._run.target if self._run is not None else -1
+        run = None if self._now is None else self._now.run
+        return run.target if run is not None else -1
 
     @property
     def edge(self) -> int:
         """The policy edge being run (an index into the roadmap's edges), or -1 (a run-time controller, or none)."""
-        return self._run.edge if self._run is not None else -1
+        run = None if self._now is None else self._now.run
+        return run.edge if run is not None else -1
 
     @property
     def controller(self) -> str:
         """The running controller in words (``policy edge 3->7``, ``run-time controller to node 12``), or ""."""
-        return self._run.describe() if self._run is not None else ""
+        run = None if self._now is None else self._now.run
+        return run.describe() if run is not None else ""
 
     @property
     def controller_step(self) -> int:
         """The running controller's step (0 at its start)."""
-        return self._k
+        return self._now.k
 
     @property
     def cost(self) -> float:
         """The cost incurred so far (eq. 16: ``alpha1 sum tr P_k + alpha2 T``, plus the control effort if weighted)."""
-        return self._cost
+        return self._now.cost
 
     @property
     def events(self) -> list[Event]:
         """Every event since :meth:`reset`, in order."""
-        return list(self._events)
+        return list(self._now.record.events)
 
     @property
     def nodes(self) -> list[int]:
         """The nodes the belief entered, in order (the start node first, when it started in one)."""
-        return list(self._nodes)
+        return list(self._now.record.nodes)
 
     @property
     def edges(self) -> list[int]:
         """The policy edges taken, in order."""
-        return list(self._edges)
+        return list(self._now.record.edges)
 
     @property
     def replans(self) -> int:
-        return self._replans
+        return self._now.record.replans
 
     @property
     def replan_failures(self) -> int:
-        return self._replan_failures
+        return self._now.record.replan_failures
 
     @property
     def traversals(self) -> list[Traversal]:
         """Policy edges run from their node to their end without a belief reset (:class:`Traversal`)."""
-        return list(self._traversals)
+        return list(self._now.record.traversals)
 
     @property
     def running_traversal(self) -> tuple[int, int] | None:
         """``(edge, first_step)`` of the policy edge running now if it still counts as a clean
         traversal (run from its node, no belief reset), else None."""
-        if self._run is None or not self._clean:
-            return None
-        return self._run.edge, self._run_start
+        return self._now.record.running(self._now.run)
 
     @property
     def timing(self) -> dict[str, np.ndarray]:
@@ -328,21 +329,13 @@ class Policy:
         ``decision_work`` (its time on the deadline's clock), ``decision_scored`` (candidates scored
         by Monte Carlo, the running controller included), ``deadline_hit`` (bool per decision: the
         deadline cut the search)."""
-        return {"act": np.asarray(self._act_s), "observe": np.asarray(self._observe_s),
-                "decision": np.asarray(self._decision_s), "decision_cpu": np.asarray(self._decision_cpu),
-                "decision_work": np.asarray(self._decision_work),
-                "decision_scored": np.asarray(self._decision_scored, dtype=np.int64),
-                "deadline_hit": np.asarray(self._deadline_hit, dtype=bool)}
+        return self._now.timing.as_dict()
 
     @property
     def history(self) -> dict[str, np.ndarray] | None:
         """With ``reset(..., record=True)``: ``estimates`` (T + 1, n), ``covariances`` (T + 1, n, n)
         (row 0 the reset belief) and ``controls`` (T, m); else None."""
-        if not self._record:
-            return None
-        m = self.problem.model.m
-        return {"estimates": np.array(self._hist_x), "covariances": np.array(self._hist_P),
-                "controls": np.array(self._hist_u).reshape(-1, m)}
+        return None if self._now is None else self._now.belief.history()
 
     # -- start ---------------------------------------------------------------------------------------------
 
@@ -390,6 +383,7 @@ class Policy:
             ``start`` (its node, or -1 when the belief lies in no node), then ``initial_controller``
             or ``stuck``, or ``goal`` when the start is a goal node.
         """
+        parts = self._prepared()
         n = self.problem.model.n
         if mean is None:
             if covariance is not None:
@@ -406,62 +400,11 @@ class Policy:
             if covariance.shape != (n, n) or not np.all(np.isfinite(covariance)):
                 raise InputError(f"Policy.reset: covariance: expected ({n}, {n}) finite values, found shape "
                                  f"{covariance.shape}")
-            node = self._locate(mean[None], self.regions.covariance_candidates(covariance[None])[0])
+            node = parts.arrival.start_node(mean, covariance)
         if rng is not None:
             self._rng = rng
-        self._xhat, self._P = mean[None].copy(), covariance
-        self._xhat_prev = self._u = None
-        self._total, self._cost, self._k = 0, 0.0, 0
-        self._events: list[Event] = []
-        self._nodes: list[int] = []
-        self._edges: list[int] = []
-        self._traversals: list[Traversal] = []
-        self._replans = self._replan_failures = 0
-        self._act_s: list[float] = []
-        self._observe_s: list[float] = []
-        self._decision_s: list[float] = []
-        self._decision_cpu: list[float] = []
-        self._decision_work: list[float] = []
-        self._decision_scored: list[int] = []
-        self._deadline_hit: list[bool] = []
-        s = self.settings
-        problem = self.problem
-        self._window = (InnovationWindow(s.window, problem.model.nz, s.false_alarm, s.partial_window)
-                        if self._innovation else None)
-        # a push moves the configuration; a kidnap also stops the robot (the whole state jumps)
-        bases = {"configuration": np.eye(n)[:, :problem.config_dim], "state": np.eye(n)}
-        if problem.config_dim == n:
-            bases.pop("state")
-        self._jump = (JumpTests(bases, s.jump_window, self.jump_false_alarm, problem.robot.jump_prior(problem),
-                                kept=s.goal_onsets)
-                      if self._jump_test else None)
-        self._cooldown = 0  # no decision before this step (after keeping the running controller)
-        self._goal_waited, self._goal_wait_last = 0, -2  # steps a goal declaration waited; the last one
-        self._run: RunningController | None = None
-        self._clean, self._run_start = False, 0
-        self._pending: tuple[RunningController, int] | None = None  # a decided controller waiting out its latency
-        self._probe: _Probe | None = None  # a re-localisation running (hypotheses, probe, step)
-        self._awaiting = False
-        self._record = bool(record)
-        self._hist_x, self._hist_P, self._hist_u = [mean.copy()], [covariance], []
-        self._status = PolicyStatus.RUNNING
-        out: list[Event] = []
-        self._emit(out, Event(0, EventKind.START, node))
-        if node >= 0:
-            self._nodes.append(node)
-            self._at_node(node, out)
-        else:
-            t0, c0 = time.perf_counter(), time.thread_time()
-            decision = self.replanner.decide(mean, covariance, self._rng)
-            self._decided(time.perf_counter() - t0, time.thread_time() - c0, decision)
-            if decision.controller is None:
-                self._status = PolicyStatus.STUCK
-                self._emit(out, Event(0, EventKind.STUCK, -1, detail=f"no initial controller: {decision.reason}"))
-            else:
-                self._emit(out, Event(0, EventKind.INITIAL_CONTROLLER, decision.controller.target,
-                                      detail=decision.reason))
-                self._begin(decision.controller)
-        return out
+        self._now = PolicyRun(parts, mean, covariance, self._rng, record, self.max_steps)
+        return self._now.start(node)
 
     # -- the control period ------------------------------------------------------------------------------
 
@@ -478,32 +421,9 @@ class Policy:
         InputError
             If the policy is done (or not reset), or the previous control's measurement was not observed.
         """
-        if self._status is not PolicyStatus.RUNNING:
-            raise InputError(f"Policy.act: the policy is {self._status.value}; call reset() to start again")
-        if self._awaiting:
-            raise InputError("Policy.act: observe() the measurement of the previous control first")
-        t0 = time.perf_counter()
-        run, k = self._run, self._k
-        lc = run.lc
-        xhat = self._xhat
-        probe = self._probe
-        if probe is None:
-            u = lc.u_ref[k] - (xhat - lc.x_ref[k]) @ lc.K[k].T  # as firmtool.estimation.edges.control_and_move
-            trP = run.trP[k]
-        else:  # re-localising: the probe's next control, open loop
-            u = probe.plan.controls[probe.step][None].copy()
-            trP = float(np.trace(self._P))
-        self._u, self._xhat_prev = u, xhat
-        self._total += 1
-        a_cov, a_time, a_u = self._weights
-        self._cost += a_cov * trP + a_time
-        if a_u:
-            self._cost += a_u * float(u[0] @ u[0])
-        if self._record:
-            self._hist_u.append(u[0])
-        self._awaiting = True
-        self._act_s.append(time.perf_counter() - t0)
-        return u[0].copy()
+        if self.status is not PolicyStatus.RUNNING:
+            raise InputError(f"Policy.act: the policy is {self.status.value}; call reset() to start again")
+        return self._now.act()
 
     def observe(self, z: np.ndarray, *, decide: bool = True) -> list[Event]:
         """Take in the measurement after the control of :meth:`act`, and decide what comes next.
@@ -529,101 +449,14 @@ class Policy:
             edge), ``innovation_alarm``, ``relocalising`` / ``relocalised``, ``replan`` /
             ``kept_controller`` / ``replan_failed``, ``timeout``.
         """
-        if not self._awaiting:
+        if self._now is None or not self._now.awaiting:
             raise InputError("Policy.observe: call act() first (one measurement per control)")
         problem, model = self.problem, self.problem.model
         z = np.asarray(z, dtype=float).reshape(-1)
         want = model.n if problem.perfect else model.nz
         if z.shape != (want,):
             raise InputError(f"Policy.observe: z: expected {want} values, found {z.shape[0]}")
-        t0 = time.perf_counter()
-        out = self._observe_probe(z, decide, t0) if self._probe is not None else self._observe_filter(z, decide, t0)
-        if decide and self._status is PolicyStatus.RUNNING and self._total >= self.max_steps:
-            self._timeout(out)  # the mission's step budget, whatever ran this step or runs next
-        return out
-
-    def _observe_filter(self, z: np.ndarray, decide: bool, t0: float) -> list[Event]:
-        """:meth:`observe` while a controller runs (no probe)."""
-        problem, model = self.problem, self.problem.model
-        run, k = self._run, self._k
-        lc = run.lc
-        u, xhat_prev = self._u, self._xhat_prev
-        nu = None
-        if problem.perfect:
-            xhat = z[None].copy()
-        else:  # as firmtool.estimation.edges.filter_update, on the measurement given
-            pred = model.f(xhat_prev, u)
-            innovation = z[None] - model.h(pred)
-            xhat = pred + innovation @ lc.L[k].T
-            nu = innovation[0]
-        self._xhat, self._P = xhat, lc.P[k + 1]
-        self._awaiting = False
-        if self._record:
-            self._hist_x.append(xhat[0])
-            self._hist_P.append(lc.P[k + 1])
-        out: list[Event] = []
-        if not decide:
-            self._observe_s.append(time.perf_counter() - t0)
-            return out
-        total, s = self._total, self.settings
-        jump = False
-        if self._jump is not None:  # its recursion follows the filter every step
-            A, H = self._jacobians(lc, k)
-            jump = self._jump.add(total, A, H, lc.L[k], run.S_inv[k], nu)
-        landed = -1
-        goal = self.regions.goal  # a goal ball's region of beliefs: tested at every step
-        in_ball = goal is not None and bool(goal.contains(xhat, lc.P[k + 1])[0])
-        if in_ball:
-            landed = run.target if self.design.kinds[run.target] == GOAL else GOAL_INDEX
-        elif k + 1 >= run.land_from and run.cand[k].any():
-            landed = self._locate(xhat, run.cand[k])
-        if landed >= 0 and self._goal_waits(landed, in_ball, k, lc, out):
-            landed = -1  # the declaration waits; the running controller and its tests go on
-        deviate = alarm = False
-        dev = 0.0
-        if (landed < 0 and s.enabled and self._pending is None and self._replans < s.max_per_episode
-                and total >= self._cooldown):
-            kk = min(k + 1, lc.steps - 1)
-            dz = (xhat[0] - lc.x_ref[kk]) * run.inv_scale[kk]
-            dev = float(np.sqrt(np.mean(dz * dz)))
-            deviate = dev > s.threshold
-            if self._window is not None:
-                alarm = self._window.add(nu, run.S_inv[k])
-            alarm = alarm or jump
-        else:
-            jump = False
-        self._observe_s.append(time.perf_counter() - t0)
-
-        if landed >= 0:
-            self._pending = None  # a decision still computing is moot: the stored policy resumes here
-            if self._clean:
-                self._traversals.append(Traversal((run.edge, landed, self._run_start, total)))
-            self._nodes.append(landed)
-            self._emit(out, Event(total, EventKind.NODE, landed,
-                                  detail="" if run.edge >= 0 else "recovered: " + run.describe()))
-            self._at_node(landed, out)
-            return out
-        if self._pending is not None:  # the decided controller takes over once its decision is done
-            new, wait = self._pending
-            if wait <= 1 or k + 1 >= lc.steps:
-                self._pending = None
-                self._begin(new)
-                return out
-            self._pending = (new, wait - 1)
-        elif alarm or deviate:
-            if self._replan(k, dev, alarm, jump, nu, out):
-                return out
-        if total >= self.max_steps:  # before the controller's own end: the mission's budget is the reason
-            self._timeout(out)
-            return out
-        self._k = k + 1
-        if self._k >= lc.steps:  # the controller ran out of steps without reaching a node
-            if self._clean:
-                self._traversals.append(Traversal((run.edge, EDGE_TIMEOUT, self._run_start, total)))
-            self._status = PolicyStatus.TIMEOUT
-            self._emit(out, Event(total, EventKind.TIMEOUT, run.target, detail="controller timed out: "
-                                  + run.describe()))
-        return out
+        return self._now.observe(z, decide)
 
     def step(self, z: np.ndarray | None) -> np.ndarray | None:
         """:meth:`observe` the measurement of the last control (None on the first call after a reset),
@@ -631,204 +464,6 @@ class Policy:
         if z is not None:
             self.observe(z)
         return None if self.done else self.act()
-
-    # -- internals ---------------------------------------------------------------------------------------
-
-    def _emit(self, out: list[Event], event: Event) -> None:
-        out.append(event)
-        self._events.append(event)
-
-    def _begin(self, run: RunningController) -> None:
-        self._run, self._k = run, 0
-        self._clean = run.edge >= 0  # a policy edge from its node, so far undisturbed
-        self._run_start = self._total
-
-    def _at_node(self, node: int, out: list[Event]) -> None:
-        """At a node: the goal, or the policy's edge from it."""
-        total = self._total
-        self._run = None
-        if self.design.kinds[node] == GOAL:
-            self._status = PolicyStatus.GOAL
-            self._emit(out, Event(total, EventKind.GOAL, node))
-            return
-        edge = int(self.edge_per_node[node])
-        if edge < 0:
-            self._status = PolicyStatus.STUCK
-            self._emit(out, Event(total, EventKind.STUCK, node, detail="no policy edge"))
-            return
-        self._edges.append(edge)
-        self._begin(self._controller(edge))
-
-    def _goal_waits(self, landed: int, in_ball: bool, k: int, lc, out: list[Event]) -> bool:
-        """Whether the belief's arrival at ``landed`` (``in_ball``: by the goal ball's test, else by a
-        node's) waits before the goal is declared (:attr:`ReplanSettings.goal_check`): the jump test
-        questions it (on the window's onsets, or on those kept before it,
-        :attr:`ReplanSettings.goal_lookback`), the jump it suspects (the questioning family's
-        estimate, in full) would move the estimate out of that arrival, and neither the waiting
-        steps since the last decision (``jump_window``) nor the running controller's are spent."""
-        s, total = self.settings, self._total
-        if (s.goal_check <= 0 or self._jump is None or self._goal_waited >= s.jump_window or k + 1 >= lc.steps
-                or not (landed == GOAL_INDEX or self.design.kinds[landed] == GOAL)):
-            return False
-        # the window's onsets at the goal check's level; then the older ones kept (goal_lookback) at a
-        # tenth of it, each question on its own onsets, so that an older one never hides the window's
-        for level, older in ((s.goal_check, False), (s.goal_check * GOAL_CHECK_OLDER, True)):
-            family = self._jump.questioning(level, older=older)
-            if family is None:
-                continue
-            # a question matters only if the jump it suspects would move the estimate out of the
-            # arrival: a tight goal questioned on noise lost more to the wait (the true state drifting
-            # out while the belief waits in it) than it found (arm, 200 episodes, seed 1: 0.330 at
-            # once, 0.295 waiting on every question, 0.350 on these)
-            asked = level if older else None
-            shift, _, _ = self._jump.correction(shrink=False, family=family, older_level=asked)
-            moved = self._xhat + shift[None]
-            if in_ball:  # the same test the arrival passed, on the moved estimate
-                still = bool(self.regions.goal.contains(moved, self._P)[0])
-            else:
-                still = self._locate(moved, self._run.cand[k]) == landed
-            if not still:
-                break  # this question (its level, family, onsets) makes the declaration wait
-        else:
-            return False
-        test = self._jump.tests[family]
-        statistic = float(np.max(test.statistics[:test.older])) if older else test.statistic
-        if self._goal_wait_last != total - 1:
-            left = s.jump_window - self._goal_waited
-            self._emit(out, Event(total, EventKind.GOAL_QUESTIONED, landed, statistic,
-                                  f"the jump test questions the arrival (at {level:g} per onset"
-                                  f"{f' before the last {s.jump_window} steps' if older else ''}): "
-                                  f"waiting up to {left} step{'s' if left != 1 else ''}"))
-        if self._clean:  # the edge's traversal ends here as its Monte Carlo counts it; what follows is not it
-            self._traversals.append(Traversal((self._run.edge, landed, self._run_start, total)))
-            self._clean = False
-        self._goal_waited += 1
-        self._goal_wait_last = total
-        return True
-
-    def _decided(self, seconds: float, cpu: float, decision) -> None:
-        self._decision_s.append(seconds)
-        self._decision_cpu.append(cpu)
-        self._decision_work.append(decision.work_seconds if self.settings.clock == "work" else seconds)
-        self._decision_scored.append(decision.scored)
-        self._deadline_hit.append(decision.deadline_hit)
-
-    def _replan(self, k: int, dev: float, alarm: bool, jump: bool, nu: np.ndarray | None, out: list[Event]) -> bool:
-        """A replan decision at step ``k`` of the running controller; True if a new controller took over."""
-        t0, c0 = time.perf_counter(), time.thread_time()
-        run, total, problem = self._run, self._total, self.problem
-        lc = run.lc
-        window = self._window
-        if alarm:
-            # The measurements contradict the belief (an unseen push or kidnap): correct this step's
-            # belief first, so that the decision starts from an estimate that has taken the
-            # measurements in, not the one they refute.
-            if jump:  # by the estimated jump (Willsky-Jones): mean and covariance
-                shift, cov, onset = self._jump.correction(shrink=self.settings.jump_shrink)
-                dev = self._jump.statistic  # the rejecting test's; the fired family explains the data best
-                which = self._jump.fired
-                if self._jump.rejecting != which:
-                    which += f" (the {self._jump.rejecting} test rejected)"
-                self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev,
-                                      f"jump test: a jump of the {which} before step {onset} "
-                                      f"(estimate moved {np.linalg.norm(shift[:problem.config_dim]):.2f})"))
-                xh, P_now = self._xhat[0] + shift, lc.P[k + 1] + cov
-                if self._jump.fired != "state" and self.settings.jump_velocity == "mixture":
-                    # a push keeps the velocities, a kidnap stops them: a step after, nobody can tell
-                    # (the robot says what a jump may do to its other coordinates)
-                    xh, P_now = problem.robot.after_jump(problem, xh, P_now)
-                plan = problem.robot.relocalisation(problem, xh, P_now) if self.settings.relocalise else None
-                if plan is not None:  # what the sensor cannot see at rest: hypotheses and a probe first
-                    return self._start_probe(plan, k + 1, out)
-            else:  # by the update redone from a prior the innovations inflated
-                dev = window.statistic
-                self._emit(out, Event(total, EventKind.INNOVATION_ALARM, run.target, dev))
-                xh, P_now = reset_belief(problem.model, lc, k, self._xhat_prev[0], self._u[0], nu, window.innovations)
-            self._xhat, self._P = xh[None], P_now
-            self._clean = False  # the filter was reset: no longer the edge the Monte Carlo ran
-            if self._record:
-                self._hist_x[-1], self._hist_P[-1] = xh, P_now
-        else:
-            P_now = lc.P[k + 1]
-        return self._decide(k + 1, P_now, dev, alarm, out, t0, c0)
-
-    def _start_probe(self, plan: Relocalisation, s_next: int, out: list[Event]) -> bool:
-        """Hold the belief as the robot's hypotheses and run its probe before deciding (True: the
-        running controller is suspended)."""
-        try:
-            if np.ndim(plan.controls) != 2 or np.shape(plan.controls)[0] == 0:
-                raise ValueError("a probe of at least one step (controls (T, m), T >= 1) expected")
-            bank = GaussianSum(self.problem.model, plan.means, plan.covariances, plan.weights, plan.angle)
-        except ValueError as exc:
-            raise NumericalError(f"{type(self.problem.robot).__name__}.relocalisation: {exc}") from None
-        self._probe = _Probe(bank, plan, 0, s_next)
-        self._clean = False  # the filter was reset: no longer the edge the Monte Carlo ran
-        for test in (self._window, self._jump):
-            if test is not None:
-                test.clear()
-        _, xh, P = bank.mode()
-        self._xhat, self._P = xh[None], P
-        if self._record:
-            self._hist_x[-1], self._hist_P[-1] = xh, P
-        self._emit(out, Event(self._total, EventKind.RELOCALISING, self._run.target, float(plan.controls.shape[0]),
-                              f"{plan.means.shape[0]} hypotheses, a probe of up to {plan.controls.shape[0]} steps"))
-        return True
-
-    def _observe_probe(self, z: np.ndarray, decide: bool, t0: float) -> list[Event]:
-        """A control period of the probe: every hypothesis updated; at its end (or once one mode
-        leads, :meth:`Relocalisation.settled`) the belief is the leading mode and a decision is taken
-        from it."""
-        probe = self._probe
-        self._awaiting = False
-        out: list[Event] = []
-        failed = ""
-        try:
-            probe.bank.update(self._u[0], z)
-        except NumericalError as exc:
-            failed = f" ({exc})"
-        lead, xh, P = probe.bank.mode()
-        self._xhat, self._P = xh[None], P
-        probe.step += 1
-        if self._record:
-            self._hist_x.append(xh)
-            self._hist_P.append(P)
-        self._observe_s.append(time.perf_counter() - t0)
-        plan = probe.plan
-        ran_out = not failed and probe.step >= plan.controls.shape[0]
-        why = ("an update failed" + failed if failed else
-               "its steps ran out" if ran_out else
-               "the belief left the probe's free region" if not plan.may_go_on(xh, P) else
-               "settled" if plan.settled(lead, P) else "")
-        if why:  # over: without a decision (decide=False) the running controller resumes
-            self._end_probe(out, why, lead)
-            go_on = decide and self._total < self.max_steps
-            follow = plan.then(xh, P) if ran_out and go_on and plan.then is not None else None
-            if follow is not None:  # the robot plans its next probe from what this one showed
-                self._start_probe(follow, probe.s_next, out)
-                return out
-            if go_on:
-                t1, c1 = time.perf_counter(), time.thread_time()
-                self._decide(probe.s_next, P, 0.0, True, out, t1, c1)
-        return out
-
-    def _timeout(self, out: list[Event]) -> None:
-        """The mission's step budget is spent (a probe running ends with it)."""
-        if self._probe is not None:
-            self._end_probe(out, "the mission's step budget is spent")
-        self._status = PolicyStatus.TIMEOUT
-        self._emit(out, Event(self._total, EventKind.TIMEOUT, self._run.target, detail="episode step limit"))
-
-    def _end_probe(self, out: list[Event], why: str, lead: float | None = None) -> None:
-        """End a re-localisation: the belief stays its leading mode (``lead`` its weight, when this
-        step already computed it); the suspended controller would resume where it was left (a
-        decision may replace it)."""
-        probe = self._probe
-        if lead is None:
-            lead = float(probe.bank.mode()[0])
-        self._probe = None
-        self._k = min(probe.s_next, self._run.lc.steps - 1)
-        self._emit(out, Event(self._total, EventKind.RELOCALISED, self._run.target, lead,
-                              f"after {probe.step} probe steps ({why}) the leading mode holds {lead:.2f}"))
 
     def relocalise(self, mean: np.ndarray, covariance: np.ndarray) -> list[Event]:
         """Replace the belief mid-run by one from outside (a re-localisation: a marker, a satellite fix,
@@ -847,123 +482,14 @@ class Policy:
             ``relocalised`` if it ended a re-localisation's probe, then the decision's: ``replan``,
             ``kept_controller`` or ``replan_failed``.
         """
-        if self._status is not PolicyStatus.RUNNING or self._awaiting:
+        if self.status is not PolicyStatus.RUNNING or self._now.awaiting:
             raise InputError("Policy.relocalise: only while running, between observe() and act()")
         n = self.problem.model.n
         mean, covariance = np.asarray(mean, dtype=float), np.asarray(covariance, dtype=float)
         if mean.shape != (n,) or covariance.shape != (n, n) or not (np.all(np.isfinite(mean))
                                                                     and np.all(np.isfinite(covariance))):
             raise InputError(f"Policy.relocalise: expected a finite mean ({n},) and covariance ({n}, {n})")
-        t0, c0 = time.perf_counter(), time.thread_time()
-        out: list[Event] = []
-        if self._probe is not None:  # a belief from outside ends a re-localisation of its own
-            self._end_probe(out, "a belief from outside")
-        self._xhat, self._P = mean[None].copy(), covariance
-        self._clean = False
-        if self._record:
-            self._hist_x[-1], self._hist_P[-1] = mean.copy(), covariance
-        self._decide(self._k, covariance, 0.0, True, out, t0, c0)
-        return out
-
-    def _decide(self, s_next: int, P_now: np.ndarray, dev: float, reset: bool, out: list[Event], t0: float,
-                c0: float) -> bool:
-        """Keep the running controller from its step ``s_next`` or take a new one, from the belief
-        (``self._xhat``, ``P_now``; ``reset``: a belief that is not the running filter's). True if a
-        controller other than the running one (at its step) runs next."""
-        run, total, problem, s = self._run, self._total, self.problem, self.settings
-        lc = run.lc
-        if self._window is not None:
-            self._window.clear()
-        if self._jump is not None:
-            self._jump.clear()
-        self._goal_waited = 0  # a new belief: a goal arrival from it may wait again
-        # the robot is alive, so its state is valid: never plan from an estimate in collision
-        x0 = self._xhat[0]
-        xv = x0 if problem.perfect else self.replanner.valid_estimate(x0, P_now, self._rng)
-        keep = np.inf
-        kept: RunningController | None = None  # keeping, re-filtered from the reset belief
-        if xv is None:
-            new, why = None, "the estimate is in collision and no valid state is likely under the belief"
-            decision = None
-        else:
-            offer = None
-            if s.risk_particles and s_next < lc.steps - 1:
-                offer = remainder(lc, s_next)
-                if reset and s.refilter:
-                    try:
-                        kept = self.replanner.refiltered(run, s_next, xv, P_now)
-                        offer = kept.lc
-                    except NumericalError:
-                        kept = None
-            decision = self.replanner.decide(xv, P_now, self._rng, keep=offer)
-            new, why, keep = decision.controller, decision.reason, decision.keep_score
-            if (new is not None or np.isfinite(keep)) and xv is not x0:
-                self._xhat = xv[None].copy()
-        seconds, cpu = time.perf_counter() - t0, time.thread_time() - c0
-        if decision is not None:
-            self._decided(seconds, cpu, decision)
-        else:
-            self._decision_s.append(seconds)
-            self._decision_cpu.append(cpu)
-            self._decision_work.append(0.0)
-            self._decision_scored.append(0)
-            self._deadline_hit.append(False)
-        if new is None and xv is not None and np.isfinite(keep):
-            self._emit(out, Event(total, EventKind.KEPT_CONTROLLER, run.target, keep, why))
-            self._cooldown = total + s.window
-            if kept is not None:  # the same reference and feedback, the filter from the reset belief
-                self._begin(kept)
-                return True
-            return False
-        if new is None:
-            self._replan_failures += 1
-            self._emit(out, Event(total, EventKind.REPLAN_FAILED, run.target, dev, why))
-            return False
-        self._replans += 1
-        self._emit(out, Event(total, EventKind.REPLAN, new.target, dev, why))
-        wait = 0
-        if s.latency == "measured":
-            wait = latency_steps(self._decision_work[-1], problem.model.dt)
-        if wait > 0 and s_next < lc.steps:
-            self._pending = (new, wait)  # the running controller goes on while the decision "computes"
-            return False
-        self._begin(new)
-        return True
-
-    def _jacobians(self, lc, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The step's linearisation as the filter was designed: ``A_k`` at the reference and ``H`` at
-        the state the step lands on (a linear model's constant matrices)."""
-        model = self.problem.model
-        A, H = getattr(model, "A", None), getattr(model, "H", None)
-        if A is None:
-            A = model.dynamics_jacobians(lc.x_ref[k], lc.u_ref[k])[0]
-        if H is None:
-            H = model.observation_jacobian(lc.x_ref[min(k + 1, lc.steps - 1)])
-        return A, H
-
-    def _controller(self, edge: int) -> RunningController:
-        if edge not in self._cache:  # designed once per edge, reused by every episode
-            d = self.design
-            i, j = int(d.edge_source[edge]), int(d.edge_target[edge])
-            lc = local_controller(self.problem, d, i, j)
-            self._cache[edge] = running_controller(self.regions, lc, j, edge, i, np.maximum(d.scale[i], d.scale[j]),
-                                                   lc.edge_steps, self.problem.perfect)
-        return self._cache[edge]
-
-    def _locate(self, xhat: np.ndarray, candidates: np.ndarray) -> int:
-        """The node whose region holds the estimate ``xhat`` (1, n), or -1: the Monte Carlo kernel's
-        membership test when numba is there (the same decision as :meth:`NodeRegions.locate`)."""
-        if kernels.numba is None:  # pragma: no cover
-            return int(self.regions.locate(xhat, candidates)[0])
-        return kernels.locate_one(self.regions, xhat[0], candidates)
-
-    def _warm_up(self) -> None:
-        edges = self.edge_per_node[self.edge_per_node >= 0]
-        if edges.size == 0:
-            return
-        run = self._controller(int(edges[0]))
-        x = self.design.centers[int(self.design.edge_source[edges[0]])][None].copy()
-        simulate(self.problem, run.lc, self.regions, x, x.copy(), np.random.default_rng(0))
+        return self._now.relocalise(mean, covariance)
 
 
 __all__ = ["Policy", "PolicyStatus", "ReplanSettings", "Traversal"]

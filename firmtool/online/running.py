@@ -1,8 +1,8 @@
 """A local controller as the online policy runs it: the per-step arrays it needs, computed once.
 
 A :class:`RunningController` is what :class:`~firmtool.online.policy.Policy` executes between two
-nodes: a policy edge's controller (designed once per edge and kept) or a controller designed at run
-time from the current belief (initial controller, replan). It adds to the
+nodes: a policy edge's controller (designed once per edge and kept, :class:`EdgeControllers`) or a
+controller designed at run time from the current belief (initial controller, replan). It adds to the
 :class:`~firmtool.control.local.LocalController` the node-membership candidates of every step, the
 covariance trace of the cost, the scale of the deviation test and the inverse innovation covariances
 of the innovation test.
@@ -15,6 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmtool.control.local import LocalController
+from firmtool.estimation.edges import simulate
+from firmtool.problem import Problem
+from firmtool.roadmap.design import Design, local_controller
 from firmtool.roadmap.nodes import NodeRegions
 
 CANDIDATE_BLOCK = 16  # steps whose node covariance candidates are computed at once
@@ -77,6 +80,13 @@ class RunningController:
             return f"policy edge {self.source}->{self.target}"
         return f"run-time controller to node {self.target}"
 
+    def deviation(self, xhat: np.ndarray, k: int) -> float:
+        """The estimate's deviation after step ``k`` from the nominal, ``rms((xhat - x_ref) / s)``, ``xhat``
+        (n,), in the rms-scaled norm of the node regions (``s``: :attr:`inv_scale`'s spread)."""
+        kk = min(k + 1, self.lc.steps - 1)
+        dz = (xhat - self.lc.x_ref[kk]) * self.inv_scale[kk]
+        return float(np.sqrt(np.mean(dz * dz)))
+
 
 def running_controller(regions: NodeRegions, lc: LocalController, target: int, edge: int, source: int,
                        scale: np.ndarray, land_from: int, perfect: bool) -> RunningController:
@@ -110,3 +120,37 @@ def remainder(lc: LocalController, s: int) -> LocalController:
                            edge_steps=max(1, lc.edge_steps - s),
                            innovation_cov=None if lc.innovation_cov is None else lc.innovation_cov[s:],
                            spread=None if lc.spread is None else lc.spread[s:])
+
+
+class EdgeControllers:
+    """The running controller of each policy edge: designed when the edge is first taken, then kept for
+    every episode of the policy.
+
+    Parameters
+    ----------
+    problem, design_ : the roadmap's problem and design (its edge rows the policy's edge indices).
+    regions : the node regions of the design.
+    """
+
+    def __init__(self, problem: Problem, design_: Design, regions: NodeRegions) -> None:
+        self.problem, self.design, self.regions = problem, design_, regions
+        self._cache: dict[int, RunningController] = {}
+
+    def __getitem__(self, edge: int) -> RunningController:
+        if edge not in self._cache:  # designed once per edge, reused by every episode
+            d = self.design
+            i, j = int(d.edge_source[edge]), int(d.edge_target[edge])
+            lc = local_controller(self.problem, d, i, j)
+            self._cache[edge] = running_controller(self.regions, lc, j, edge, i, np.maximum(d.scale[i], d.scale[j]),
+                                                   lc.edge_steps, self.problem.perfect)
+        return self._cache[edge]
+
+    def warm_up(self, edge_per_node: np.ndarray) -> None:
+        """Compile (or load) the Monte Carlo engine now, not in a replan: one particle along the first
+        policy edge of ``edge_per_node`` (N,) (nothing without an edge)."""
+        edges = edge_per_node[edge_per_node >= 0]
+        if edges.size == 0:
+            return
+        run = self[int(edges[0])]
+        x = self.design.centers[int(self.design.edge_source[edges[0]])][None].copy()
+        simulate(self.problem, run.lc, self.regions, x, x.copy(), np.random.default_rng(0))

@@ -9,7 +9,9 @@ never told of. Each step is the Monte Carlo's (:func:`firmtool.estimation.edges.
 noise first.
 
 The policy (:class:`firmtool.online.Policy`) sees only ``z``; a real robot replaces this class.
-Collisions are decided here, not by the policy.
+Collisions are decided here, not by the policy, and so is whether the robot truly is in a goal the
+policy declared it reached (:meth:`SimulatedSystem.arrived`: the node regions of the roadmap's
+design, at the true state).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.problem import Problem
+from firmtool.roadmap.design import Design
+from firmtool.roadmap.nodes import NodeRegions
 from firmtool.sim import disturbances as dist_mod
 
 
@@ -27,22 +31,26 @@ class SimulatedSystem:
     Parameters
     ----------
     problem : the roadmap's problem (model, validity, bounds).
+    design : the roadmap's design, whose node regions say where its goal nodes are
+        (:meth:`arrived`); None: give one to :meth:`arrived` (an episode gives the design of the
+        roadmap its policy runs, :func:`firmtool.sim.episodes.run_episode`).
 
     Examples
     --------
-    >>> system = SimulatedSystem(rm.problem)                       # doctest: +SKIP
+    >>> system = SimulatedSystem(rm.problem, rm.execution_design)  # doctest: +SKIP
     >>> system.reset(mean, covariance, np.random.default_rng(0))   # doctest: +SKIP
     >>> z, valid = system.step(u)                                  # doctest: +SKIP
     """
 
-    def __init__(self, problem: Problem) -> None:
-        self.problem = problem
+    def __init__(self, problem: Problem, design: Design | None = None) -> None:
+        self.problem, self.design = problem, design
         model = problem.model
         self._r = model.F.shape[1]
         self._width = self._r + (0 if problem.perfect else model.nz)
         self._x: np.ndarray | None = None
         self._rng: np.random.Generator | None = None
         self._steps = 0
+        self._regions: tuple[Design, NodeRegions] | None = None  # the node regions of the design last asked
 
     @property
     def state(self) -> np.ndarray:
@@ -111,6 +119,28 @@ class SimulatedSystem:
         x, moved = dist_mod.apply(self.problem, disturbance, self.state, rng)
         self._x = x[None]
         return moved
+
+    def arrived(self, node: int, design: Design | None = None) -> bool:
+        """Whether the TRUE state is where the goal node ``node`` is: the world's judgement of an arrival
+        the policy declared on its belief, as the edge Monte Carlo judges a landing
+        (:meth:`NodeRegions.true_arrival <firmtool.roadmap.nodes.NodeRegions.true_arrival>`: in a goal
+        ball the true task point in the ball, else the true state in the node's region; angles modulo
+        a turn).
+
+        Parameters
+        ----------
+        node : a goal node.
+        design : the roadmap's design whose node regions judge (default: the system's own,
+            :attr:`design`); its regions are built once and kept while it is the design asked.
+        """
+        design = self.design if design is None else design
+        if design is None:
+            raise InputError("SimulatedSystem.arrived: no design to judge by: make the system with the roadmap's "
+                             "design, SimulatedSystem(problem, design), or pass one")
+        if self._regions is None or self._regions[0] is not design:
+            self._regions = (design, design.regions(self.problem))
+        regions = self._regions[1]
+        return bool(regions.true_arrival(np.array([node]), self.state, angles=self.problem.robot.angle_coordinates)[0])
 
     def set_state(self, state: np.ndarray) -> float:
         """Put the true state at ``state`` (n,) (a user's disturbance); returns how far the configuration moved."""

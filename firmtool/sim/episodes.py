@@ -11,6 +11,10 @@ An episode is a short loop over the two::
         if not valid: collision, the episode ends
         events += policy.observe(z)
 
+The policy declares the goal on its belief; whether the robot is there is the system's to say, on
+the true state (:meth:`SimulatedSystem.arrived <firmtool.sim.environment.SimulatedSystem.arrived>`,
+by the node regions of the roadmap's design): otherwise the episode is a goal miss.
+
 :func:`run_episodes` runs many and summarises them (:class:`firmtool.results.Results`), which is what
 :func:`firmtool.simulate` and ``firmtool execute`` do.
 
@@ -33,8 +37,10 @@ from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_calibration
 from firmtool.estimation.edges import FAILURE, GOAL_MISS
 from firmtool.online.policy import Policy, PolicyStatus
+from firmtool.problem import Problem
 from firmtool.progress import EXECUTE, Counter
 from firmtool.results import Episode, Event, EventKind, Outcome, Results, wilson_interval
+from firmtool.roadmap.design import Design
 from firmtool.sim import disturbances as dist_mod
 from firmtool.sim.environment import SimulatedSystem
 
@@ -43,7 +49,8 @@ if TYPE_CHECKING:
 
 EPISODE_KEY = 0xE7EC  # stable key of the episode streams
 
-_OUTCOME = {PolicyStatus.GOAL: Outcome.SUCCESS, PolicyStatus.STUCK: Outcome.STUCK, PolicyStatus.TIMEOUT: Outcome.TIMEOUT}
+_OUTCOME = {PolicyStatus.GOAL: Outcome.SUCCESS, PolicyStatus.STUCK: Outcome.STUCK,
+            PolicyStatus.TIMEOUT: Outcome.TIMEOUT}
 
 
 @dataclass(frozen=True)
@@ -75,11 +82,10 @@ def episode_seeds(seed: int, episode: int) -> EpisodeSeeds:
                         disturbances=(seed, dist_mod.DISTURBANCE_KEY, episode))
 
 
-def start_state(policy: Policy, start: np.ndarray | None) -> np.ndarray | None:
+def start_state(problem: Problem, start: np.ndarray | None) -> np.ndarray | None:
     """A start configuration (config_dim,) or state (n,) checked and made a state (n,); None stays None."""
     if start is None:
         return None
-    problem = policy.problem
     start = np.asarray(start, dtype=float)
     if start.ndim != 1:
         raise InputError(f"start: expected a 1-d array, found shape {start.shape}")
@@ -93,13 +99,49 @@ def start_state(policy: Policy, start: np.ndarray | None) -> np.ndarray | None:
     return start
 
 
+class _Disturber:
+    """An episode's disturbances, due before each step: the scheduled pushes and kidnaps (their times
+    drawn at the start) and the user's callables, each with its own stream (module notes)."""
+
+    def __init__(self, disturbances: tuple, key: tuple[int, ...], max_steps: int) -> None:
+        self.key = key
+        scheduled = tuple(d for d in disturbances if isinstance(d, dist_mod.Disturbance))
+        self.users = [(d, np.random.default_rng(np.random.SeedSequence([*key, 0, j])))
+                      for j, d in enumerate(x for x in disturbances if isinstance(x, dist_mod.UserDisturbance))]
+        self.schedule = (dist_mod.schedule(scheduled, max_steps, np.random.default_rng(np.random.SeedSequence([*key])))
+                         if scheduled else [])
+        self.applied = 0
+        self.steps: list[int] = []  # steps at which a disturbance hit
+
+    def before(self, now: int, system: SimulatedSystem, events: list[Event]) -> None:
+        """Move the true state by the disturbances due before step ``now`` (the policy is not told)."""
+        while self.schedule and self.schedule[0][0] <= now:
+            _, dist = self.schedule.pop(0)
+            moved = system.disturb(dist, np.random.default_rng(np.random.SeedSequence([*self.key, self.applied + 1])))
+            self.applied += 1
+            self.steps.append(now)
+            events.append(Event(now, EventKind.DISTURBANCE, -1, moved, str(dist)))
+        for dist, user_rng in self.users:
+            new = dist.fn(now, system.state, user_rng)
+            if new is not None:
+                moved = system.set_state(new)
+                self.steps.append(now)
+                events.append(Event(now, EventKind.DISTURBANCE, -1, moved, str(dist)))
+
+    def hit(self, first: int, last: int) -> bool:
+        """Whether a disturbance hit a step in ``[first, last)``."""
+        return any(first <= s < last for s in self.steps)
+
+
 def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *, start: np.ndarray | None = None,
                 disturbances: tuple = (), record: bool = False, after_disturbance=None) -> Episode:
     """One episode from the start node (or from the state ``start``, by an initial controller).
 
     Parameters
     ----------
-    policy, system : the agent and the environment.
+    policy, system : the agent and the environment. The system judges the policy's declared arrivals
+        by its roadmap's design (:meth:`SimulatedSystem.arrived`); one made from the problem alone
+        by the design of the roadmap the policy runs.
     seeds : the episode's random streams (:func:`episode_seeds`).
     start : (n,) start state instead of the start node (:func:`start_state` checks one).
     disturbances : parsed disturbances (:func:`firmtool.sim.disturbances.as_disturbances`).
@@ -109,15 +151,11 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
         :func:`firmtool.sim.sweep.oracle`); None in a plain simulation.
     """
     rng = np.random.default_rng(seeds.system)
-    key = tuple(seeds.disturbances)
-    scheduled = tuple(d for d in disturbances if isinstance(d, dist_mod.Disturbance))
-    users = [(d, np.random.default_rng(np.random.SeedSequence([*key, 0, j])))
-             for j, d in enumerate(x for x in disturbances if isinstance(x, dist_mod.UserDisturbance))]
-    schedule = (dist_mod.schedule(scheduled, policy.max_steps, np.random.default_rng(np.random.SeedSequence([*key])))
-                if scheduled else [])
+    world = system.design if system.design is not None else policy.design  # whose goal regions judge
+    disturber = _Disturber(disturbances, tuple(seeds.disturbances), policy.max_steps)
     mean, covariance = policy.start_belief(start)
     x0 = system.reset(mean, covariance, rng)  # drawn from the start belief (drawn either way: the same streams)
-    true_start = policy.problem.true_start
+    true_start = system.problem.true_start
     if start is None and true_start is not None:  # the task's true start (simulation only)
         system.set_state(true_start)
         x0 = system.state
@@ -127,73 +165,82 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     else:
         ep.events.extend(policy.reset(mean, covariance, rng=np.random.default_rng(seeds.policy), record=record))
     states = [x0] if record else []
-    disturbed: list[int] = []  # steps at which a disturbance hit
-    applied = 0
-    collided, running = False, None
+    running = None  # the clean traversal a collision ended
     judged: dict[int, bool] = {}  # traversal -> its goal arrival held the true state (arrivals questioned)
     while not policy.done:
         u = policy.act()
         now = policy.steps - 1  # steps completed before this one
-        # disturbances due now move the true state before this step; the policy is not told
-        while schedule and schedule[0][0] <= now:
-            _, dist = schedule.pop(0)
-            moved = system.disturb(dist, np.random.default_rng(np.random.SeedSequence([*key, applied + 1])))
-            applied += 1
-            disturbed.append(now)
-            ep.events.append(Event(now, EventKind.DISTURBANCE, -1, moved, str(dist)))
-        for dist, user_rng in users:
-            new = dist.fn(now, system.state, user_rng)
-            if new is not None:
-                moved = system.set_state(new)
-                disturbed.append(now)
-                ep.events.append(Event(now, EventKind.DISTURBANCE, -1, moved, str(dist)))
+        disturber.before(now, system, ep.events)  # due now: they move the true state before this step
         z, valid = system.step(u)
         if record:
             states.append(system.state)
         if not valid:  # the true state violated a constraint: the system stops the run
             running = policy.running_traversal
             policy.observe(z, decide=False)  # the belief of the last step, for the record
-            ep.outcome, collided = Outcome.COLLISION, True
+            ep.outcome = Outcome.COLLISION
             ep.events.append(Event(policy.steps, EventKind.COLLISION, policy.target, detail=policy.controller))
             break
         events = policy.observe(z)
         ep.events.extend(events)
-        questioned = [ev.step for ev in events if ev.kind == EventKind.GOAL_QUESTIONED]
-        if questioned:
-            done = policy.traversals
-            ended = len(done) - 1
-            if ended >= 0 and ended not in judged and done[ended][3] == questioned[0]:
-                # the policy ended the edge's traversal at an arrival it then questioned: judged as
-                # the Monte Carlo judges it, on the true state now
-                judged[ended] = bool(policy.regions.true_arrival(np.array([done[ended][1]]), system.state,
-                                                                angles=policy.problem.robot.angle_coordinates)[0])
-        if after_disturbance is not None and disturbed and disturbed[-1] == now and not policy.done:
+        _judge_questioned(policy, system, world, events, judged)
+        if after_disturbance is not None and disturber.steps and disturber.steps[-1] == now and not policy.done:
             ep.events.extend(after_disturbance(policy, system))
+    traversals = _judged_traversals(policy, system, world, ep, judged, running)
+    # a traversal counts for the calibration check only if no disturbance hit it
+    ep.traversals = [(e, o) for e, o, first, last in traversals if not disturber.hit(first, last)]
+    ep.disturbances = len(disturber.steps)
+    _fill(ep, policy)
+    if record:
+        history = policy.history
+        ep.states = np.array(states)
+        ep.estimates, ep.covariances, ep.controls = history["estimates"], history["covariances"], history["controls"]
+    return ep
+
+
+def _judge_questioned(policy: Policy, system: SimulatedSystem, world: Design, events: list[Event],
+                      judged: dict[int, bool]) -> None:
+    """When the policy ended an edge's traversal at a goal arrival it then questioned (``goal_questioned``
+    in this step's ``events``), judge it as the Monte Carlo judges it, on the true state now."""
+    questioned = [ev.step for ev in events if ev.kind == EventKind.GOAL_QUESTIONED]
+    if not questioned:
+        return
+    done = policy.traversals
+    ended = len(done) - 1
+    if ended >= 0 and ended not in judged and done[ended][3] == questioned[0]:
+        judged[ended] = system.arrived(done[ended][1], world)
+
+
+def _judged_traversals(policy: Policy, system: SimulatedSystem, world: Design, ep: Episode, judged: dict[int, bool],
+                       running: tuple[int, int] | None) -> list[tuple[int, int, int, int]]:
+    """The episode's outcome and its traversals ``(edge, outcome, first, last)`` as the world judges them:
+    a declared goal the true state is not in is a goal miss (the policy's goal event becomes
+    ``goal_miss``, its own log keeps it), and so is a questioned arrival judged outside; a collision ends
+    the traversal running (``running``) in a failure."""
     traversals = [(t[0], t[1], t[2], t[3]) for t in policy.traversals]
-    if not collided:
+    if ep.outcome != Outcome.COLLISION:
         ep.outcome = _OUTCOME[policy.status]
-        if policy.status == PolicyStatus.GOAL:  # the policy declared arrival; the true state decides
-            node = policy.node
-            if not policy.regions.true_arrival(np.array([node]), system.state,
-                                               angles=policy.problem.robot.angle_coordinates)[0]:
-                ep.outcome = Outcome.GOAL_MISS
-                # the policy's goal event, as the environment judges it (the policy's own log keeps it)
-                i = max(j for j, ev in enumerate(ep.events) if ev.kind == EventKind.GOAL)
-                ep.events[i] = Event(ep.events[i].step, EventKind.GOAL_MISS, node,
-                                     detail="arrival declared; the true state is not in the goal")
-                if traversals and traversals[-1][1] == node and len(traversals) - 1 not in judged:
-                    # as the Monte Carlo counts it (a questioned arrival was judged when it came)
-                    e, _, first, last = traversals[-1]
-                    traversals[-1] = (e, GOAL_MISS, first, last)
+        node = policy.node
+        if policy.status == PolicyStatus.GOAL and not system.arrived(node, world):
+            ep.outcome = Outcome.GOAL_MISS
+            i = max(j for j, ev in enumerate(ep.events) if ev.kind == EventKind.GOAL)
+            ep.events[i] = Event(ep.events[i].step, EventKind.GOAL_MISS, node,
+                                 detail="arrival declared; the true state is not in the goal")
+            if traversals and traversals[-1][1] == node and len(traversals) - 1 not in judged:
+                # as the Monte Carlo counts it (a questioned arrival was judged when it came)
+                e, _, first, last = traversals[-1]
+                traversals[-1] = (e, GOAL_MISS, first, last)
     for i, inside in judged.items():
         if not inside:
             e, _, first, last = traversals[i]
             traversals[i] = (e, GOAL_MISS, first, last)
-    if collided and running is not None:
+    if ep.outcome == Outcome.COLLISION and running is not None:
         traversals.append((running[0], FAILURE, running[1], policy.steps))
-    # a traversal counts for the calibration check only if no disturbance hit it
-    ep.traversals = [(e, o) for e, o, first, last in traversals if not any(first <= s < last for s in disturbed)]
-    ep.steps, ep.cost, ep.disturbances = policy.steps, policy.cost, len(disturbed)
+    return traversals
+
+
+def _fill(ep: Episode, policy: Policy) -> None:
+    """The episode's counts, cost and compute from the policy's report of its run."""
+    ep.steps, ep.cost = policy.steps, policy.cost
     ep.nodes, ep.edges = policy.nodes, policy.edges
     ep.replans, ep.replan_failures = policy.replans, policy.replan_failures
     timing = policy.timing
@@ -204,11 +251,6 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     ep.replan_work_times = timing["decision_work"].tolist()
     ep.replan_scored = timing["decision_scored"].tolist()
     ep.deadline_hits = int(timing["deadline_hit"].sum())
-    if record:
-        history = policy.history
-        ep.states = np.array(states)
-        ep.estimates, ep.covariances, ep.controls = history["estimates"], history["covariances"], history["controls"]
-    return ep
 
 
 def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray | None = None,
@@ -229,7 +271,8 @@ def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray 
         (reported next to the executed rate).
     edge_counts : the roadmap's outcome counts (:class:`firmtool.estimation.calibration.EdgeCounts`): with them, the
         calibration check of the edges taken.
-    system : the environment (default: a :class:`SimulatedSystem` of the policy's problem).
+    system : the environment (default: a :class:`SimulatedSystem` of the roadmap the policy runs, its
+        problem and design).
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the episodes run.
 
     Returns
@@ -237,8 +280,8 @@ def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray 
     Results
     """
     dists = dist_mod.as_disturbances(disturbances)
-    start = start_state(policy, start)
-    system = system or SimulatedSystem(policy.problem)
+    system = system or SimulatedSystem(policy.problem, policy.design)
+    start = start_state(system.problem, start)
     t0 = time.perf_counter()
     counter = Counter(progress, EXECUTE, episodes).start()
     eps = []

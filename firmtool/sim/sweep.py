@@ -37,6 +37,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from firmtool.errors import InputError
 from firmtool.online.policy import Policy
@@ -150,7 +151,7 @@ def informed(size: float):
     ``size^2 / d I``) and decides from it (:meth:`~firmtool.online.Policy.relocalise`)."""
 
     def tell(policy: Policy, system: SimulatedSystem) -> list:
-        d = policy.problem.config_dim
+        d = system.problem.config_dim
         covariance = policy.covariance
         covariance[:d, :d] += (size * size / d) * np.eye(d)
         return policy.relocalise(policy.mean, covariance)
@@ -216,19 +217,11 @@ def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list
     conditions += [Condition("push", int(t), float(s)) for s in sizes for t in times]
     if kidnap:
         conditions += [Condition("kidnap", int(t)) for t in times]
-    base_n = baseline_episodes or 2 * episodes
-    # interleaved: each condition with replanning on then off, chunk by chunk
-    tasks = []
-    for c, cond in enumerate(conditions):
-        n = base_n if cond.kind == "none" else episodes
-        for i0 in range(0, n, CHUNK):
-            for mode in policies:
-                if mode == "informed" and cond.kind == "kidnap":
-                    continue  # no "told when" belief for a kidnap (module notes)
-                tasks.append((c, mode, i0, min(n, i0 + CHUNK)))
+    tasks = _tasks(conditions, policies, episodes, baseline_episodes or 2 * episodes)
     any_policy = next(iter(policies.values()))
-    _JOB.update(conditions=conditions, policies=policies, system=SimulatedSystem(any_policy.problem), seed=seed,
-                immediate=immediate)
+    # the policies' roadmap is the world: its problem, and its design for the goals the policies declare
+    _JOB.update(conditions=conditions, policies=policies, system=SimulatedSystem(any_policy.problem, any_policy.design),
+                seed=seed, immediate=immediate)
     try:
         if workers > 1:
             ctx = multiprocessing.get_context("fork")
@@ -238,7 +231,31 @@ def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list
             chunks = [_run_chunk(t) for t in tasks]
     finally:
         _JOB.clear()
+    points = _points(conditions, tasks, chunks)
+    order = {m: i for i, m in enumerate(policies)}
+    ordered = [points[k] for k in sorted(points, key=lambda k: (k[0], order[k[1]]))]
+    return Sweep(seed=seed, episodes=episodes, typical_steps=typical_steps, times=[int(t) for t in times],
+                 sizes=[float(s) for s in sizes], immediate=immediate, points=ordered)
 
+
+def _tasks(conditions: list[Condition], policies: dict[str, Policy], episodes: int,
+           baseline_episodes: int) -> list[tuple[int, str, int, int]]:
+    """The sweep's chunks ``(condition, mode, first episode, end)``, interleaved: each condition in
+    every mode, chunk by chunk (``baseline_episodes`` for the undisturbed condition)."""
+    tasks = []
+    for c, cond in enumerate(conditions):
+        n = baseline_episodes if cond.kind == "none" else episodes
+        for i0 in range(0, n, CHUNK):
+            for mode in policies:
+                if mode == "informed" and cond.kind == "kidnap":
+                    continue  # no "told when" belief for a kidnap (module notes)
+                tasks.append((c, mode, i0, min(n, i0 + CHUNK)))
+    return tasks
+
+
+def _points(conditions: list[Condition], tasks: list[tuple[int, str, int, int]],
+            chunks: list[list[tuple]]) -> dict[tuple[int, str], SweepPoint]:
+    """The chunks' episode rows (:func:`_run_chunk`) summed into one point per condition and mode."""
     points: dict[tuple[int, str], SweepPoint] = {}
     for (c, mode, _, _), rows in zip(tasks, chunks):
         cond = conditions[c]
@@ -266,21 +283,18 @@ def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list
         lo, hi = wilson_interval(p.successes, p.episodes)
         p.ci95 = (float(lo), float(hi))
         p.replans_per_episode = p.replans / p.episodes
-    order = {m: i for i, m in enumerate(policies)}
-    ordered = [points[k] for k in sorted(points, key=lambda k: (k[0], order[k[1]]))]
-    return Sweep(seed=seed, episodes=episodes, typical_steps=typical_steps, times=[int(t) for t in times],
-                 sizes=[float(s) for s in sizes], immediate=immediate, points=ordered)
+    return points
 
 
 def _one_thread() -> None:
-    from threadpoolctl import threadpool_limits
+    """A worker's BLAS and OpenMP on one thread (the sweep runs in parallel across episodes)."""
     threadpool_limits(1)
     os.environ["OMP_NUM_THREADS"] = "1"
 
 
 def typical_steps(policy: Policy, episodes: int, seed: int) -> float:
     """Median length of the successful undisturbed episodes (nan when none succeeds)."""
-    system = SimulatedSystem(policy.problem)
+    system = SimulatedSystem(policy.problem, policy.design)
     steps = [ep.steps for ep in (run_episode(policy, system, episode_seeds(seed, i)) for i in range(episodes))
              if ep.outcome == Outcome.SUCCESS]
     return float(np.median(steps)) if steps else math.nan

@@ -1,0 +1,71 @@
+"""The online policy's timing record: seconds of compute per control period and per decision.
+
+A run's :attr:`firmtool.online.Policy.timing` reads it. ``act`` and ``observe`` are wall seconds per
+control period with the decisions apart; each decision (an initial controller, a replan) records its
+wall and thread CPU seconds, its time on the deadline's clock (:attr:`ReplanSettings.clock
+<firmtool.online.replanning.ReplanSettings>`: on the work clock ``scored x candidate_seconds``, so
+deterministic; on the wall clock the wall seconds), the candidates it scored and whether the
+deadline cut its search.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmtool.online.replanning import Decision
+
+
+class Timing:
+    """Seconds of compute of one run of the policy (from one :meth:`~firmtool.online.Policy.reset`).
+
+    Parameters
+    ----------
+    clock : ``"work"`` or ``"wall"``, the deadline's clock (:class:`~firmtool.online.replanning.ReplanSettings`).
+
+    Attributes
+    ----------
+    act, observe : list of float, wall seconds of each :meth:`~firmtool.online.Policy.act` and
+        :meth:`~firmtool.online.Policy.observe` (decisions apart).
+    """
+
+    def __init__(self, clock: str) -> None:
+        self.clock = clock
+        self.act: list[float] = []
+        self.observe: list[float] = []
+        self._seconds: list[float] = []
+        self._cpu: list[float] = []
+        self._work: list[float] = []
+        self._scored: list[int] = []
+        self._deadline_hit: list[bool] = []
+
+    def decided(self, seconds: float, cpu: float, decision: Decision | None) -> float:
+        """Record one decision: its wall ``seconds``, thread ``cpu`` seconds and the replanner's
+        :class:`~firmtool.online.replanning.Decision` (None: none was asked, as for an estimate in
+        collision with no valid state likely: nothing scored, no work).
+
+        Returns
+        -------
+        float
+            The decision's time on the deadline's clock (what a measured latency waits out).
+        """
+        if decision is None:
+            work, scored, hit = 0.0, 0, False
+        else:
+            work = decision.work_seconds if self.clock == "work" else seconds
+            scored, hit = decision.scored, decision.deadline_hit
+        self._seconds.append(seconds)
+        self._cpu.append(cpu)
+        self._work.append(work)
+        self._scored.append(scored)
+        self._deadline_hit.append(hit)
+        return work
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """The record as arrays: ``act`` and ``observe`` (T,), and per decision ``decision`` (wall),
+        ``decision_cpu``, ``decision_work`` (its clock's), ``decision_scored`` (int) and
+        ``deadline_hit`` (bool)."""
+        return {"act": np.asarray(self.act), "observe": np.asarray(self.observe),
+                "decision": np.asarray(self._seconds), "decision_cpu": np.asarray(self._cpu),
+                "decision_work": np.asarray(self._work),
+                "decision_scored": np.asarray(self._scored, dtype=np.int64),
+                "deadline_hit": np.asarray(self._deadline_hit, dtype=bool)}
