@@ -105,7 +105,7 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
     second = _run(code, src, cache)
     assert first["control"] == [[-4.0, -6.0]] and first["collides"] is False and first["hits"] == 0
     assert second["hits"] == 2 and second["control"] == first["control"] and second["collides"] is False
-    _edit(src / "firmtool" / "controllers.py", "out[i, c] += a * B[l, c]", "out[i, c] += 2.0 * a * B[l, c]")
+    _edit(src / "firmtool" / "control" / "controllers.py", "out[i, c] += a * B[l, c]", "out[i, c] += 2.0 * a * B[l, c]")
     nearest_corner = "d = min(pbox_d2(ax, ay, hx, hy), pbox_d2(bx, by, hx, hy))"  # seg_box_d2: now always 0
     _edit(src / "firmtool" / "geometry" / "_numba.py", nearest_corner, nearest_corner.replace("= min", "= 0.0 * min"))
     edited = _run(code, src, cache)
@@ -116,3 +116,65 @@ def test_the_kernels_cache_key_covers_every_module_it_calls_into():
     assert set(_jit.dependency_files(kernels.run.py_func)) == {
         "firmtool.estimation.compiled", "firmtool.control.controllers", "firmtool.geometry._numba"}
     assert set(_jit.dependency_files(kernels.fill_normals.py_func)) == {"firmtool.estimation.compiled"}
+
+
+# Two specialisations of one function (the kernel against two robots' hooks): one index file, two keys.
+HOOKED = {
+    "__init__.py": "",
+    "hooks.py": ("from firmtool.jit import cached_njit\njit = cached_njit()\n\n"
+                 "@jit\ndef plus_one(x):\n    return x + 1.0\n\n@jit\ndef times_three(x):\n    return x * 3.0\n"),
+    "kern.py": ("hook = None  # bound per specialisation\n\n"
+                "def total(x):\n    s = 0.0\n    for i in range(x.shape[0]):\n        s += hook(x[i])\n    return s\n"),
+}
+HOOKED_CALL = """
+import json
+import numpy as np
+from firmtool.jit import specialise
+from pkg import hooks, kern
+out = {}
+for name in ("plus_one", "times_three"):
+    f = specialise(kern.total, {"hook": getattr(hooks, name)}, {})
+    out[name] = [f(np.arange(3.0)), sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
+print(json.dumps(out))
+"""
+
+
+def test_two_specialisations_share_one_index_file_under_two_keys(tmp_path):
+    """firmtool.jit.specialise: the second process loads both specialisations from the cache (hits, no
+    misses), each its own code (with numba's key alone the second would load the first's: 6.0)."""
+    pkg = tmp_path / "src" / "pkg"
+    pkg.mkdir(parents=True)
+    for name, text in HOOKED.items():
+        (pkg / name).write_text(text)
+    src, cache = tmp_path / "src", tmp_path / "cache"
+    first = _run(HOOKED_CALL, src, cache)
+    second = _run(HOOKED_CALL, src, cache)
+    assert first == {"plus_one": [6.0, 0, 1], "times_three": [9.0, 0, 1]}
+    assert second == {"plus_one": [6.0, 1, 0], "times_three": [9.0, 1, 0]}
+    assert len(list(cache.rglob("kern.total-*.nbi"))) == 1 and len(list(cache.rglob("kern.total-*.nbc"))) == 2
+
+
+# A constant imported from another module (as the kernel imports its outcome codes): numba freezes its value.
+CONSTANT = {
+    "__init__.py": "",
+    "codes.py": "FAILURE = -1\n",
+    "caller.py": "DECORATOR\nfrom pkg.codes import FAILURE\n\n@jit\ndef caller(x):\n    return x + FAILURE\n",
+}
+
+
+@pytest.mark.parametrize("decorator", ["firmtool", "numba"])
+def test_an_edit_of_an_imported_constant_is_compiled_not_loaded_stale(tmp_path, decorator):
+    pkg = tmp_path / "src" / "pkg"
+    pkg.mkdir(parents=True)
+    for name, text in CONSTANT.items():
+        (pkg / name).write_text(text.replace("DECORATOR", DECORATORS[decorator]))
+    src, cache = tmp_path / "src", tmp_path / "cache"
+    first = _run(CALL, src, cache)
+    second = _run(CALL, src, cache)
+    assert first == {"value": 0.0, "hits": 0} and second == {"value": 0.0, "hits": 1}  # compiled, then loaded
+    _edit(pkg / "codes.py", "FAILURE = -1", "FAILURE = -5")
+    edited = _run(CALL, src, cache)["value"]
+    if decorator == "firmtool":
+        assert edited == -4.0
+    else:  # numba's own key holds neither the value nor the file that defines it
+        assert edited == 0.0, "numba's cache noticed the constant's edit: firmtool.jit may cover it twice"
