@@ -79,7 +79,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from firmtool.errors import InputError, NumericalError
-from firmtool.estimation import compiled as kernels
 from firmtool.estimation.edges import TIMEOUT as EDGE_TIMEOUT
 from firmtool.estimation.edges import simulate
 from firmtool.online.innovation import InnovationWindow, JumpTests, reset_belief
@@ -953,9 +952,7 @@ class Policy:
     def _locate(self, xhat: np.ndarray, candidates: np.ndarray) -> int:
         """The node whose region holds the estimate ``xhat`` (1, n), or -1: the Monte Carlo kernel's
         membership test when numba is there (the same decision as :meth:`NodeRegions.locate`)."""
-        if kernels.numba is None:  # pragma: no cover
-            return int(self.regions.locate(xhat, candidates)[0])
-        return kernels.locate_one(self.regions, xhat[0], candidates)
+        return self.regions.locate_one(xhat[0], candidates)
 
     def _warm_up(self) -> None:
         edges = self.edge_per_node[self.edge_per_node >= 0]
