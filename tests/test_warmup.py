@@ -68,7 +68,7 @@ def _run(args, cache: Path, cwd: Path) -> subprocess.CompletedProcess:
 
 def test_a_cold_cache_is_compiled_once_announced_and_reused(tmp_path):
     cache = tmp_path / "numba-cache"
-    cached = [sys.executable, "-c", "from firmtool import warmup; print(warmup.engine_is_cached())"][1:]
+    cached = [sys.executable, "-c", "from firmtool.estimation import warmup; print(warmup.engine_is_cached())"][1:]
     assert _run(cached, cache, tmp_path).stdout.strip() == "False"
 
     # the console script from the repository root, as the README says (a source tree in the working

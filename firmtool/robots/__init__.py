@@ -8,7 +8,8 @@ package through the entry-point group ``firmtool.robots``; scenario files name i
 """
 
 from firmtool.io.schema import Field  # a robot declares its [model] keys with it
-from firmtool.robots.base import ENTRY_POINT_GROUP, CompiledKinematics, Robot, get, names, register
+from firmtool.robots.base import ENTRY_POINT_GROUP, Robot, get, names, register
+from firmtool.robots.compiled import CompiledKinematics
 from firmtool.robots.linear import LinearRobot
 
 __all__ = ["ENTRY_POINT_GROUP", "CompiledKinematics", "Field", "LinearRobot", "Robot", "get", "names", "register"]

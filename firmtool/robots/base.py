@@ -33,7 +33,6 @@ firmtool/robots (a new built-in robot is one new module there); :func:`get` look
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
 from importlib import metadata
 from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
@@ -51,6 +50,7 @@ from firmtool.geometry.registry import backend_for_world
 from firmtool.io.fingerprint import _by_reference, fingerprint
 from firmtool.io.schema import Errors, Field
 from firmtool.models import noise as noise_models
+from firmtool.robots.compiled import CompiledHooks
 from firmtool.robots.jumps import mixed_velocity
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -63,33 +63,7 @@ ENTRY_POINT_GROUP = "firmtool.robots"
 DEFAULT_ROBOT = "point"  # the robot of a scenario whose [model] names none
 
 
-@dataclass(frozen=True)
-class CompiledKinematics:
-    """What the compiled Monte Carlo engine (:mod:`firmtool.estimation.compiled`) needs of a robot's kinematics.
-
-    The engine knows two planar kinds, and a robot that returns one promises that its key points,
-    sensing coordinates and collision shape are exactly the kind's:
-
-    - ``"planar_point"``: one key point, the state's first two coordinates; every measurement is
-      sensed at its x; a disc of ``world.robot_radius``;
-    - ``"planar_chain"``: a chain of links of ``link_lengths`` from the origin, the joint angles
-      (relative) the state's first ``L`` coordinates; measurement ``j`` sensed at the x of key point
-      ``j + 1``; capsules of ``world.robot_radius`` between consecutive key points, non-adjacent
-      ones tested against each other when ``self_collision``.
-    """
-
-    kind: str
-    link_lengths: np.ndarray
-    self_collision: bool
-
-    KINDS: ClassVar[tuple[str, ...]] = ("planar_point", "planar_chain")
-
-    def __post_init__(self) -> None:
-        if self.kind not in self.KINDS:
-            raise InputError(f"compiled kinematics: expected one of {self.KINDS}, found {self.kind!r}")
-
-
-class Robot:
+class Robot(CompiledHooks):
     """Base class of robots (see the module docs for what a subclass says).
 
     A subclass sets, in ``__init__`` after ``super().__init__(scenario)``: :attr:`model`,
@@ -462,12 +436,6 @@ class Robot:
         return x, u
 
     # -- engines and drawing -------------------------------------------------------------------------
-
-    def compiled_kinematics(self) -> CompiledKinematics | None:
-        """The compiled engine's kinematics for this robot, or None (the numpy engine runs). A robot
-        returns one only if its :meth:`points`, :meth:`sensing_from_points` and :attr:`shape` are
-        exactly that kind's (:class:`CompiledKinematics`)."""
-        return None
 
     def heading(self, X: np.ndarray) -> np.ndarray | None:
         """The robot's heading in the workspace's x-y plane (radians) at states (M, n) -> (M,), for
