@@ -6,7 +6,8 @@ timeout) at the same step, with the same cost. Summation order differs (BLAS vs 
 obstacle boundary could in principle differ; the cases here have none, and a tolerance of one
 particle in a thousand would still flag any real disagreement. The kernel's own noise (the
 default) is checked against the normal law, and the engines' probabilities with independent noise
-agree within their confidence intervals.
+agree within their confidence intervals. A robot defined in this file, with compiled hooks of its
+own, gets the compiled engine without a change to firmtool and passes the same checks.
 """
 
 import re
@@ -464,3 +465,30 @@ def test_a_robot_of_ones_own_has_the_numpy_engines_probabilities_with_independen
             pb = b.counts[b.outcomes == code].sum() / N
             se = np.sqrt((pa * (1 - pa) + pb * (1 - pb)) / N) + 1.0 / N
             assert abs(pa - pb) <= 4 * se, (e, code, pa, pb)
+
+
+def test_hooks_another_process_cannot_import_are_compiled_without_the_disk_cache(monkeypatch):
+    """Hooks nested in a function (or defined in a script's or notebook's __main__) have no name another
+    process finds: the compiled engine still runs them, compiled in every process instead of cached on
+    disk, and the engine's notice says so in one line."""
+    import dataclasses
+
+    from firmtool.estimation.compiled.run import disk_cached
+
+    @numba.njit
+    def nested_key_points(X, params, PX, PY, lane, na):
+        dumbbell_key_points(X, params, PX, PY, lane, na)
+
+    class NestedDumbbell(Dumbbell):
+        def compiled_kinematics(self):
+            return dataclasses.replace(super().compiled_kinematics(), key_points=nested_key_points)
+
+    register("test_nested_dumbbell", NestedDumbbell, replace=True)
+    text = (ROOT / "scenarios" / "smoke.toml").read_text().replace('robot = "point"', 'robot = "test_nested_dumbbell"')
+    problem = build_problem(parse_scenario(text, "nested.toml"))
+    monkeypatch.delenv(kernels.ENGINE_ENV, raising=False)
+    engine, notice = kernels.engine_choice(problem)
+    assert engine == "numba" and "not cached on disk" in notice and "\n" not in notice
+    hooks = problem.robot.compiled_kinematics()
+    assert not disk_cached(hooks) and disk_cached(Dumbbell.compiled_kinematics(problem.robot))
+    assert kernels.kernel(hooks).stats.cache_path is None  # no disk cache (nothing compiled yet)
