@@ -10,6 +10,7 @@ agree within their confidence intervals. A robot defined in this file, with comp
 own, gets the compiled engine without a change to firmtool and passes the same checks.
 """
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from conftest import PERFECT, open_world
 from firmtool.errors import InputError
 from firmtool.estimation import compiled as kernels
 from firmtool.estimation.compiled import collide, driver, rng, step
+from firmtool.estimation.compiled.run import disk_cached
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble, simulate
 from firmtool.problem import build_problem
 from firmtool.roadmap.design import design, local_controller
@@ -471,10 +473,6 @@ def test_hooks_another_process_cannot_import_are_compiled_without_the_disk_cache
     """Hooks nested in a function (or defined in a script's or notebook's __main__) have no name another
     process finds: the compiled engine still runs them, compiled in every process instead of cached on
     disk, and the engine's notice says so in one line."""
-    import dataclasses
-
-    from firmtool.estimation.compiled.run import disk_cached
-
     @numba.njit
     def nested_key_points(X, params, PX, PY, lane, na):
         dumbbell_key_points(X, params, PX, PY, lane, na)

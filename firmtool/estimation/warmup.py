@@ -40,7 +40,7 @@ from firmtool.estimation import compiled as kernels
 from firmtool.estimation.compiled.run import HOOK_NAMES, disk_cached
 from firmtool.estimation.edges import estimate_edge
 from firmtool.estimation.executors import EstimationJob, job_extras, remember_problem, run_batch
-from firmtool.problem import build_problem
+from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import design, local_controller
 from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.scenario import load_scenario, parse_scenario
@@ -106,10 +106,10 @@ class _Warmup:
             self.process.wait()
 
 
-_warmup_problem = None
+_warmup_problem: Problem | None = None
 
 
-def _kernel_hooks(problem=None):
+def _kernel_hooks(problem: Problem | None = None):
     """The compiled hooks whose kernel :func:`engine_functions` lists: ``problem``'s robot's if it has
     hooks a disk cache can key (:func:`firmtool.estimation.compiled.run.disk_cached`), else the
     warm-up scenario's (built once)."""
@@ -122,14 +122,14 @@ def _kernel_hooks(problem=None):
     return _warmup_problem.robot.compiled_kinematics()
 
 
-def engine_functions(problem=None) -> list:
+def engine_functions(problem: Problem | None = None) -> list:
     """The numba dispatchers whose compile :func:`start` takes off the critical path: the design's
     and the estimation workers' recursions, and the kernel of ``problem``'s robot (:func:`_kernel_hooks`)."""
     return [kernels.kernel(_kernel_hooks(problem)), controllers._filter_recursion, controllers._filter_recursions,
             controllers._spread_recursion, controllers._rollout, controllers._rollouts]
 
 
-def hook_names(problem) -> list[str]:
+def hook_names(problem: Problem | None) -> list[str]:
     """``NAME=MODULE:QUALNAME`` of each compiled hook of ``problem``'s robot (what the background process
     imports to compile its kernel); empty without hooks a disk cache can key."""
     hooks = None if problem is None or problem.robot is None else problem.robot.compiled_kinematics()
@@ -167,7 +167,7 @@ def _disk_cached(dispatcher) -> bool:
         return False
 
 
-def engine_is_cached(problem=None) -> bool:
+def engine_is_cached(problem: Problem | None = None) -> bool:
     """Whether every function of :func:`engine_functions` is in numba's disk cache."""
     try:
         return all(_disk_cached(d) for d in engine_functions(problem))
@@ -175,7 +175,7 @@ def engine_is_cached(problem=None) -> bool:
         return True
 
 
-def start(engine: str | None, problem=None) -> None:
+def start(engine: str | None, problem: Problem | None = None) -> None:
     """Start compiling the engine in the background if ``engine`` is the compiled one and numba's
     cache does not hold it yet (and no compile is under way); with ``problem``, its robot's kernel too."""
     global _running
@@ -233,7 +233,7 @@ def compile_engine(on_design: Callable[[], None] | None = None, hooks: tuple[str
     compile_kernels(kernels.kernel(problem.robot.compiled_kinematics()), hooks)
 
 
-def compile_kernels(reference, hooks: tuple[str, ...] = ()) -> None:
+def compile_kernels(reference: Callable, hooks: tuple[str, ...] = ()) -> None:
     """Compile (or load) the kernel of every robot with a scenario template and of ``hooks`` (a
     :func:`hook_names` list) for the argument types ``reference`` (a kernel that ran) was compiled
     for: the kernel's arguments have the same types whatever the robot."""
