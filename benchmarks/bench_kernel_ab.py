@@ -1,14 +1,19 @@
-"""A/B of versions of firmtool/estimation/compiled.py in one process: does every particle end identically, and
-how long does the step kernel take per particle-step?
+"""A/B of versions of the compiled Monte Carlo engine in one process: does every particle end identically,
+and how long does the step kernel take per particle-step?
 
-    git show main:firmtool/estimation/compiled.py > /tmp/k_main.py
-    ROUNDS=15 python benchmarks/bench_kernel_ab.py /tmp/k_main.py firmtool/estimation/compiled.py
+    git show house:firmtool/estimation/compiled.py > /tmp/k_house.py
+    ROUNDS=15 python benchmarks/bench_kernel_ab.py /tmp/k_house.py firmtool/estimation/compiled
 
-Each file is copied into a fresh temporary directory and loaded as its own module (so each compiles
-its kernel once, here, with no disk cache that could be stale); both use this checkout's package for
-everything else. Cases: the shipped point and arm scenarios (``point_lightdark``, ``arm8_lightdark``),
-each with its own imperfect measurements and with ``kind = "perfect"``, ``--edges`` of the roadmap's
-edges x ``--particles`` particles (gains designed and their filter recursion run beforehand).
+A version is either a single-file engine of before the split (``compiled.py``, with the robot kinds
+``planar_point`` and ``planar_chain``), copied into a fresh temporary directory and loaded as its own
+module (so that it compiles its kernel once, here, with no disk cache that could be stale), or this
+checkout's package ``firmtool/estimation/compiled`` (a directory), imported as installed (its kernels
+compiled per robot's hooks, or loaded from numba's disk cache, whose key covers every callee). A
+single-file version reads a robot's hooks as the kind they are (a point's or a chain's: the shipped
+robots). Both use this checkout's package for everything else. Cases: the shipped point and arm
+scenarios (``point_lightdark``, ``arm8_lightdark``), each with its own imperfect measurements and with
+``kind = "perfect"``, ``--edges`` of the roadmap's edges x ``--particles`` particles (gains designed and
+their filter recursion run beforehand).
 
 Identity: per case and noise mode (the kernel's own noise, as in builds, and numpy's stream,
 ``numpy_noise=True``), every version runs every edge from the same start and generator seed, and
@@ -16,7 +21,7 @@ each particle's outcome, stopping step and cost terms and the final true states 
 compared with the first version's, bit for bit.
 
 Speed: rounds alternate the versions' order; per round and version, the kernel's thread CPU time
-(less sensitive to other jobs on the cores than wall time) and ``kernels.simulate``'s wall time per
+(less sensitive to other jobs on the cores than wall time) and ``simulate``'s wall time per
 particle-step. Reported: medians with the range over rounds, and the median and range of the
 per-round ratio to the first version (each ratio from the same round, i.e. the same machine state).
 """
@@ -33,6 +38,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -44,10 +50,10 @@ CASES = [(name, kind) for name in ("arm", "point") for kind in ("imperfect", "pe
 
 def _case(name: str, kind: str, edges_count: int, particles: int, tmp: Path) -> dict:
     """The designed roadmap of one scenario (perfect: its [measurement] replaced), edges, controllers, starts."""
-    from firmtool.roadmap.design import local_controller
     from firmtool.estimation.edges import initial_ensemble
-    from firmtool.pipeline import design_of, design_stage, problem_of, sample_stage
     from firmtool.io.roadmap_file import Roadmap
+    from firmtool.pipeline import design_of, design_stage, problem_of, sample_stage
+    from firmtool.roadmap.design import local_controller
 
     text = SCENARIOS[name].read_text()
     if kind == "perfect":
@@ -71,24 +77,58 @@ def _case(name: str, kind: str, edges_count: int, particles: int, tmp: Path) -> 
     return dict(name=f"{name} {kind}", problem=problem, regions=regions, edges=edges, lcs=lcs, starts=starts)
 
 
+def _legacy_kinematics(hooks) -> SimpleNamespace:
+    """What a single-file engine of before the split reads of a robot: its kinematics kind."""
+    if hooks.n_points == 1:
+        return SimpleNamespace(kind="planar_point", link_lengths=np.zeros(0), self_collision=False)
+    return SimpleNamespace(kind="planar_chain", link_lengths=hooks.params, self_collision=hooks.self_collision)
+
+
 def _load(path: str, i: int, tmp: Path):
-    """Module ``kvar{i}`` from a copy of ``path``; its kernel timed (thread CPU time) into ``acc[0]``."""
+    """The engine at ``path`` (a single file: module ``kvar{i}`` from a copy; a directory: this checkout's
+    package) with its kernel timed (thread CPU time) into ``acc[0]``."""
+    acc = [0.0]
+
+    def timed(inner):
+        def wrapped(*a, inner=inner, acc=acc):
+            t = time.thread_time()
+            r = inner(*a)
+            acc[0] += time.thread_time() - t
+            return r
+        return wrapped
+
+    if Path(path).is_dir():
+        m = importlib.import_module("firmtool.estimation.compiled")
+        driver = importlib.import_module("firmtool.estimation.compiled.driver")
+        real, wrappers = driver.kernel, {}
+
+        def kernel(hooks):
+            inner = real(hooks)
+            if inner not in wrappers:
+                wrappers[inner] = timed(inner)
+            return wrappers[inner]
+
+        driver.kernel = kernel
+        return m, acc
     copy = tmp / f"kvar{i}" / "kernels.py"
     copy.parent.mkdir()
     shutil.copy(path, copy)
     spec = importlib.util.spec_from_file_location(f"kvar{i}", copy)
     m = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(m)
-    inner = m.kernel()
-    acc = [0.0]
+    m._kernel = timed(m.kernel())
+    legacy_init = m._ProblemData.__init__
 
-    def wrapped(*a, inner=inner, acc=acc):
-        t = time.thread_time()
-        r = inner(*a)
-        acc[0] += time.thread_time() - t
-        return r
+    def init(self, problem, legacy_init=legacy_init):  # the robot's hooks as the old engine's kinematics kind
+        robot = problem.robot
+        kinematics = _legacy_kinematics(robot.compiled_kinematics())
+        robot.compiled_kinematics = lambda: kinematics
+        try:
+            legacy_init(self, problem)
+        finally:
+            del robot.compiled_kinematics
 
-    m._kernel = wrapped
+    m._ProblemData.__init__ = init
     return m, acc
 
 
@@ -116,7 +156,7 @@ def _differences(ref, outs) -> tuple[int, int]:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("kernels", nargs="+", help="kernels.py files; the first is the reference")
+    ap.add_argument("kernels", nargs="+", help="engine files or the package directory; the first is the reference")
     ap.add_argument("--rounds", type=int, default=int(os.environ.get("ROUNDS", "7")))
     ap.add_argument("--edges", type=int, default=60)
     ap.add_argument("--particles", type=int, default=200)

@@ -378,7 +378,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
     todo = [e for e in range(E) if est[e] is None]
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
     if todo and engine == "numba":  # on a cold cache: compiled once (or by build's start), before the workers
-        warmup.start(engine)
+        warmup.start(engine, problem)
         warmup.wait()
     else:
         warmup.stop()
@@ -785,7 +785,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
         # a fresh install: compile the engine while sampling and designing (a user's validity checker
         # runs the numpy engine: nothing to compile)
         if validity is None and not warmup.engine_is_cached():
-            warmup.start(engine_choice(build_problem(scenario))[0])
+            problem = build_problem(scenario)
+            warmup.start(engine_choice(problem)[0], problem)  # with the kernel of the problem's robot
         return _build(scenario, out, workers=workers, executor=executor, scheduler=scheduler,
                       progress=progress, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
                       add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds,

@@ -15,17 +15,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import open_world
 from scipy.integrate import dblquad
 from scipy.stats import multivariate_normal, ncx2
 
 from firmtool.estimation import compiled as kernels
-from firmtool.roadmap.design import design, local_controller
+from firmtool.estimation.compiled import goal as compiled_goal
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble, simulate
-from firmtool.problem.goal import GoalRegion, ball_probability, confidence_bounds, meets_confidence
-from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, roadmap_nodes
 from firmtool.problem import build_problem
+from firmtool.problem.goal import GoalRegion, ball_probability, confidence_bounds, meets_confidence
+from firmtool.roadmap.design import design, local_controller
+from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, roadmap_nodes
 from firmtool.scenario import parse_scenario
-from conftest import open_world
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = (ROOT / "scenarios" / "smoke.toml").read_text()
@@ -118,7 +119,7 @@ def test_compiled_decision_is_the_numpy_one():
         cases.append((m, np.diag([s * s, (s * rng.uniform(0.2, 5)) ** 2]), rng.uniform(0.3, 0.99)))
     for m, C, conf in cases:
         want = bool(meets_confidence(m[None], C, 1.0, conf)[0])
-        got = kernels.ball_decision(m[0], m[1], C[0, 0], C[0, 1], C[1, 1], 1.0, conf, float(chi2.ppf(conf, 2)))
+        got = compiled_goal.ball_decision(m[0], m[1], C[0, 0], C[0, 1], C[1, 1], 1.0, conf, float(chi2.ppf(conf, 2)))
         if got != want:
             p = ball_probability(m[None], C, 1.0)[0]
             assert abs(p - conf) < 1e-9, (m, C, conf, p)  # only on a knife edge

@@ -21,6 +21,8 @@ numba = pytest.importorskip("numba")
 
 from firmtool import jit as _jit  # noqa: E402
 from firmtool.estimation import compiled as kernels
+from firmtool.estimation.compiled import rng
+from firmtool.robots import planar
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -78,17 +80,17 @@ KERNEL_CALLS = textwrap.dedent("""
     import json
     import numpy as np
     import firmtool
-    from firmtool.estimation import compiled as kernels
+    from firmtool.estimation.compiled import collide, step
     assert firmtool.__file__.startswith({root!r}), firmtool.__file__
     # the control through linalg.mat_rows: U = u_ref - K (XH - x_ref)
     XH, DX, U = np.array([[1.0, 2.0], [3.0, 4.0]]), np.empty((2, 2)), np.empty((1, 2))
-    kernels.control(XH, np.zeros(2), np.zeros(1), np.array([[1.0, 1.0]]), DX, U, 2)
+    step.control(XH, np.zeros(2), np.zeros(1), np.array([[1.0, 1.0]]), DX, U, 2)
     # a disc of radius 0.1 at (0.38, 0.38), 0.113 from the corner of the box [-0.3, 0.3]^2: its
     # bounding box overlaps the box's, so geometry._numba.seg_box_d2 decides (clear)
     C, Hs = np.zeros((1, 2)), np.full((1, 2), 0.3)
     world = (np.array([-2.0, -2.0]), np.array([2.0, 2.0]), C, Hs, np.ones(1), np.zeros(1), C - Hs, C + Hs, 0.1)
-    hit = kernels.collides(np.array([0.38]), np.array([0.38]), 1, 0, world, False, np.zeros(0))
-    hits = sum(sum(f.stats.cache_hits.values()) for f in (kernels.control, kernels.collides))
+    hit = collide.collides(np.array([0.38]), np.array([0.38]), 1, 0, world, False, np.zeros(0))
+    hits = sum(sum(f.stats.cache_hits.values()) for f in (step.control, collide.collides))
     print(json.dumps({{"control": U.tolist(), "collides": bool(hit), "hits": hits}}))
 """)
 
@@ -112,6 +114,83 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
 
 
 def test_the_kernels_cache_key_covers_every_module_it_calls_into():
-    assert set(_jit.dependency_files(kernels.run.py_func)) == {
-        "firmtool.estimation.compiled", "firmtool.control.linalg", "firmtool.geometry._numba"}
-    assert set(_jit.dependency_files(kernels.fill_normals.py_func)) == {"firmtool.estimation.compiled"}
+    run = kernels.kernel(planar.point_kinematics(1))  # the point robot's kernel: its hooks are callees too
+    engine = {f"firmtool.estimation.compiled.{m}" for m in ("run", "step", "rng", "collide", "goal")}
+    others = {"firmtool.roadmap.membership", "firmtool.control.linalg", "firmtool.geometry._numba",
+              "firmtool.robots.planar"}
+    assert set(_jit.dependency_files(run.py_func)) == engine | others
+    assert set(_jit.dependency_files(rng.fill_normals.py_func)) == {"firmtool.estimation.compiled.rng"}
+
+
+# Two specialisations of one function (the kernel against two robots' hooks): one index file, two keys.
+HOOKED = {
+    "__init__.py": "",
+    "hooks.py": ("from firmtool.jit import cached_njit\njit = cached_njit()\n\n"
+                 "@jit\ndef plus_one(x):\n    return x + 1.0\n\n@jit\ndef times_three(x):\n    return x * 3.0\n"),
+    "kern.py": ("hook = None  # bound per specialisation\n\n"
+                "def total(x):\n    s = 0.0\n    for i in range(x.shape[0]):\n        s += hook(x[i])\n    return s\n"),
+}
+HOOKED_CALL = """
+import json
+import numpy as np
+from firmtool.jit import specialise
+from pkg import hooks, kern
+out = {}
+for name in ("plus_one", "times_three"):
+    f = specialise(kern.total, {"hook": getattr(hooks, name)}, {})
+    out[name] = [f(np.arange(3.0)), sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
+print(json.dumps(out))
+"""
+
+
+def test_two_specialisations_share_one_index_file_under_two_keys(tmp_path):
+    """firmtool.jit.specialise: the second process loads both specialisations from the cache (hits, no
+    misses), each its own code (with numba's key alone the second would load the first's: 6.0)."""
+    pkg = tmp_path / "src" / "pkg"
+    pkg.mkdir(parents=True)
+    for name, text in HOOKED.items():
+        (pkg / name).write_text(text)
+    src, cache = tmp_path / "src", tmp_path / "cache"
+    first = _run(HOOKED_CALL, src, cache)
+    second = _run(HOOKED_CALL, src, cache)
+    assert first == {"plus_one": [6.0, 0, 1], "times_three": [9.0, 0, 1]}
+    assert second == {"plus_one": [6.0, 1, 0], "times_three": [9.0, 1, 0]}
+    assert len(list(cache.rglob("kern.total-*.nbi"))) == 1 and len(list(cache.rglob("kern.total-*.nbc"))) == 2
+
+
+# A constant imported from another module (as the kernel imports its outcome codes): numba freezes its value.
+CONSTANT = {
+    "__init__.py": "",
+    "codes.py": "FAILURE = -1\n",
+    "caller.py": "DECORATOR\nfrom pkg.codes import FAILURE\n\n@jit\ndef caller(x):\n    return x + FAILURE\n",
+}
+
+
+@pytest.mark.parametrize("decorator", ["firmtool", "numba"])
+def test_an_edit_of_an_imported_constant_is_compiled_not_loaded_stale(tmp_path, decorator):
+    pkg = tmp_path / "src" / "pkg"
+    pkg.mkdir(parents=True)
+    for name, text in CONSTANT.items():
+        (pkg / name).write_text(text.replace("DECORATOR", DECORATORS[decorator]))
+    src, cache = tmp_path / "src", tmp_path / "cache"
+    first = _run(CALL, src, cache)
+    second = _run(CALL, src, cache)
+    assert first == {"value": 0.0, "hits": 0} and second == {"value": 0.0, "hits": 1}  # compiled, then loaded
+    _edit(pkg / "codes.py", "FAILURE = -1", "FAILURE = -5")
+    edited = _run(CALL, src, cache)["value"]
+    if decorator == "firmtool":
+        assert edited == -4.0
+    else:  # numba's own key holds neither the value nor the file that defines it
+        assert edited == 0.0, "numba's cache noticed the constant's edit: firmtool.jit may cover it twice"
+
+
+def test_the_kernels_key_holds_the_outcome_codes_it_reads():
+    """The kernel's key changes with the value of a constant it imports (FAILURE, from
+    firmtool.estimation.outcomes), here rebound as specialise binds names; the same value, the same key."""
+    from firmtool.estimation.compiled import run as run_module
+
+    run = kernels.kernel(planar.point_kinematics(1))
+    rebound = _jit.specialise(run.py_func, {"FAILURE": run_module.FAILURE - 10}, run.targetoptions)
+    assert _jit.dependency_digest(run.py_func) != _jit.dependency_digest(rebound.py_func)
+    same = _jit.specialise(run.py_func, {"FAILURE": run_module.FAILURE}, run.targetoptions)
+    assert _jit.dependency_digest(run.py_func) == _jit.dependency_digest(same.py_func)

@@ -6,23 +6,29 @@ timeout) at the same step, with the same cost. Summation order differs (BLAS vs 
 obstacle boundary could in principle differ; the cases here have none, and a tolerance of one
 particle in a thousand would still flag any real disagreement. The kernel's own noise (the
 default) is checked against the normal law, and the engines' probabilities with independent noise
-agree within their confidence intervals.
+agree within their confidence intervals. A robot defined in this file, with compiled hooks of its
+own, gets the compiled engine without a change to firmtool and passes the same checks.
 """
 
+import dataclasses
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from firmtool.estimation import compiled as kernels
-from firmtool.roadmap.design import design, local_controller
-from firmtool.estimation.edges import FAILURE, estimate_edge, initial_ensemble, simulate
-from firmtool.errors import InputError
-from firmtool.roadmap.nodes import roadmap_nodes
-from firmtool.problem import build_problem
-from firmtool.scenario import parse_scenario
 from conftest import PERFECT, open_world
+
+from firmtool.errors import InputError
+from firmtool.estimation import compiled as kernels
+from firmtool.estimation.compiled import collide, driver, rng, step
+from firmtool.estimation.compiled.run import disk_cached
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble, simulate
+from firmtool.problem import build_problem
+from firmtool.roadmap.design import design, local_controller
+from firmtool.roadmap.nodes import GOAL_INDEX, roadmap_nodes
+from firmtool.robots import CompiledKinematics, planar, register
+from firmtool.robots.point import PointRobot
+from firmtool.scenario import parse_scenario
 
 pytestmark = pytest.mark.skipif(kernels.numba is None, reason="numba not installed")
 
@@ -132,21 +138,21 @@ def test_kernel_normals_are_standard_normal():
 
     N = 4_000_000
     z = np.empty(N)
-    kernels.fill_normals(np.array([1, 2, 3, 4], dtype=np.uint64), z, N)
+    rng.fill_normals(np.array([1, 2, 3, 4], dtype=np.uint64), z, N)
     se = 1.0 / np.sqrt(N)
     assert abs(z.mean()) < 5 * se and abs(z.var() - 1.0) < 5 * np.sqrt(2.0) * se
     assert abs(stats.skew(z)) < 5 * np.sqrt(6.0) * se and abs(stats.kurtosis(z)) < 5 * np.sqrt(24.0) * se
     assert stats.kstest(z[:500_000], "norm").pvalue > 1e-3
-    for lo, hi in ((kernels.ZIG_R, np.inf), (1.0, 1.05), (-0.3, -0.29)):
+    for lo, hi in ((rng.ZIG_R, np.inf), (1.0, 1.05), (-0.3, -0.29)):
         p = stats.norm.cdf(hi) - stats.norm.cdf(lo)
         f = ((z > lo) & (z < hi)).mean()
         assert abs(f - p) < 5 * np.sqrt(p * (1 - p) / N), (lo, hi, f, p)
     # the state advances (a second fill continues the stream) and is a function of the seed only
     s1, s2 = np.array([5, 6, 7, 8], dtype=np.uint64), np.array([5, 6, 7, 8], dtype=np.uint64)
     a, b, c = np.empty(1000), np.empty(500), np.empty(500)
-    kernels.fill_normals(s1, a, 1000)
-    kernels.fill_normals(s2, b, 500)
-    kernels.fill_normals(s2, c, 500)
+    rng.fill_normals(s1, a, 1000)
+    rng.fill_normals(s2, b, 500)
+    rng.fill_normals(s2, c, 500)
     assert np.array_equal(a, np.concatenate([b, c]))
 
 
@@ -235,7 +241,7 @@ def _local_controller_step(problem, rng):
 
 @pytest.mark.parametrize("robot", ["point", "arm"])
 def test_control_and_true_step_are_the_numpy_step(robot, arm_problem):
-    """kernels.control and kernels.true_step against edges.control_and_move (u, then f(x, u) + F w)."""
+    """step.control and step.true_step against edges.control_and_move (u, then f(x, u) + F w)."""
     from firmtool.estimation.edges import control_and_move
 
     problem = arm_problem if robot == "arm" else _point_problem()
@@ -245,12 +251,12 @@ def test_control_and_true_step_are_the_numpy_step(robot, arm_problem):
     x, xhat = _random_states(problem, M, rng), _random_states(problem, M, rng)
     w = rng.normal(size=(M, model.F.shape[1]))
     x_new, u = control_and_move(model, lc, 0, x[:na], xhat[:na], w[:na])
-    A, B, F, H = kernels._problem_data(problem).mats
+    A, B, F, H = driver._problem_data(problem).mats
     XH, X, W = _columns(xhat), _columns(x), _columns(w)
     DX, U = np.zeros((model.n, M)), np.full((model.m, M), 7.0)
     XN, TMP = np.full((model.n, M), 7.0), np.zeros((model.n, M))
-    kernels.control(XH, lc.x_ref[0], lc.u_ref[0], np.ascontiguousarray(lc.K[0]), DX, U, na)
-    kernels.true_step(A, B, F, X, U, W, XN, TMP, na)
+    step.control(XH, lc.x_ref[0], lc.u_ref[0], np.ascontiguousarray(lc.K[0]), DX, U, na)
+    step.true_step(A, B, F, X, U, W, XN, TMP, na)
     np.testing.assert_allclose(U[:, :na].T, u, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(XN[:, :na].T, x_new, rtol=1e-12, atol=1e-12)
     assert (U[:, na:] == 7.0).all() and (XN[:, na:] == 7.0).all()  # the dead columns are left alone
@@ -258,36 +264,36 @@ def test_control_and_true_step_are_the_numpy_step(robot, arm_problem):
 
 @pytest.mark.parametrize("robot", ["point", "arm"])
 def test_kinematics_are_the_robots_points(robot, arm_problem):
-    """kernels.kinematics (planar point / planar chain, with the kernel's sincos) against Problem.points."""
+    """The robot's compiled key points (planar point / planar chain, with the hooks' sincos) against Problem.points."""
     problem = arm_problem if robot == "arm" else _point_problem()
     rng = np.random.default_rng(4)
     X = _random_states(problem, 500, rng, spread=3.0)
-    group = kernels._robot_group(kernels._problem_data(problem))
+    hooks = driver._problem_data(problem).hooks
     P = problem.points(X)
     PX, PY, PHI = np.empty((P.shape[1], 500)), np.empty((P.shape[1], 500)), np.empty(500)
-    kernels.kinematics(group, _columns(X), PX, PY, PHI, 500)
+    hooks.key_points(_columns(X), hooks.params, PX, PY, PHI, 500)
     np.testing.assert_allclose(PX.T, P[:, :, 0], rtol=0, atol=1e-14)
     np.testing.assert_allclose(PY.T, P[:, :, 1], rtol=0, atol=1e-14)
     a = np.concatenate([np.linspace(-60.0, 60.0, 20001), rng.normal(scale=1e3, size=2000)])
-    sc = np.array([kernels.sincos(v) for v in a])
+    sc = np.array([planar.sincos(v) for v in a])
     np.testing.assert_allclose(sc[:, 0], np.sin(a), rtol=0, atol=2.3e-16)  # within 2 ulps of libm (1 seen)
     np.testing.assert_allclose(sc[:, 1], np.cos(a), rtol=0, atol=2.3e-16)
 
 
 @pytest.mark.parametrize("measurement", [None, LIGHTDARK_STD, LIGHTDARK_VARIANCE])
 def test_measurement_variance_is_the_noise_models(measurement):
-    """kernels.measurement_variance, for every compiled noise form, against LightDarkNoise.variance."""
+    """step.measurement_variance, for every compiled noise form, against LightDarkNoise.variance."""
     problem = _point_problem(measurement)
-    sensor = kernels._problem_data(problem).noise
-    assert sensor[0] == kernels.NOISE_FORMS[problem.model.noise.form]
+    sensor = driver._problem_data(problem).noise
+    assert sensor[0] == step.NOISE_FORMS[problem.model.noise.form]
     xs = np.random.default_rng(5).uniform(-5.0, 15.0, size=300)
-    got = np.array([kernels.measurement_variance(sensor, v) for v in xs])
+    got = np.array([step.measurement_variance(sensor, v) for v in xs])
     np.testing.assert_allclose(got, problem.model.noise.variance(xs), rtol=1e-15, atol=0)
 
 
 @pytest.mark.parametrize("robot", ["point", "arm"])
 def test_filter_update_is_the_numpy_update(robot, arm_problem):
-    """kernels.filter_update against edges.filter_update with the variance at the TRUE state's
+    """step.filter_update against edges.filter_update with the variance at the TRUE state's
     sensing points (model.noise.variance(problem.sensing_from_points(problem.points(x))))."""
     from firmtool.estimation.edges import control_and_move, filter_update
 
@@ -301,15 +307,15 @@ def test_filter_update_is_the_numpy_update(robot, arm_problem):
     x, u = control_and_move(model, lc, 0, x0, xhat, noise[:, :r])
     variance = model.noise.variance(problem.sensing_from_points(problem.points(x)))
     want = filter_update(model, lc, 0, x, xhat, u, noise[:, r:], variance)[:na]
-    pd = kernels._problem_data(problem)
-    robot_group = kernels._robot_group(pd)
+    pd = driver._problem_data(problem)
+    hooks = pd.hooks
     A, B, F, H = pd.mats
     n_pts = problem.points(x[:1]).shape[1]
     PX, PY, PHI = np.empty((n_pts, M)), np.empty((n_pts, M)), np.empty(M)
     X, XH, U, W = _columns(x), _columns(xhat), _columns(u), _columns(noise)
-    kernels.kinematics(robot_group, X, PX, PY, PHI, na)
+    hooks.key_points(X, hooks.params, PX, PY, PHI, na)
     work = [np.zeros((model.n, M)), np.zeros((nz, M)), np.zeros((nz, M)), np.zeros((model.n, M))]
-    kernels.filter_update(A, B, H, np.ascontiguousarray(lc.L[0]), X, XH, U, W, PX, pd.noise, robot_group[2], *work, na)
+    step.filter_update(A, B, H, np.ascontiguousarray(lc.L[0]), X, XH, U, W, PX, pd.noise, hooks.sensing, *work, na)
     np.testing.assert_allclose(XH[:, :na].T, want, rtol=1e-11, atol=1e-12)
     np.testing.assert_array_equal(XH[:, na:], _columns(xhat)[:, na:])
 
@@ -329,7 +335,7 @@ def _rotated(problem, angles):
 @pytest.mark.parametrize("robot", ["point", "arm"])
 @pytest.mark.parametrize("rotated", [False, True])
 def test_collision_test_is_the_numpy_backends(robot, rotated, arm_problem):
-    """kernels.collides (and its gate: wherever it collides, the gate passed) against the numpy
+    """collide.collides (and its gate: wherever it collides, the gate passed) against the numpy
     collision backend, on random configurations of the robot: links (capsules, self-collision) or
     discs, axis-aligned or rotated boxes, and the world's bounds."""
     from firmtool.geometry.backends import make_backend
@@ -338,25 +344,25 @@ def test_collision_test_is_the_numpy_backends(robot, rotated, arm_problem):
     rng = np.random.default_rng(7)
     w = problem.scenario.world
     angles = rng.uniform(-np.pi, np.pi, len(w.obstacles)) if rotated else np.zeros(len(w.obstacles))
-    pd = kernels._ProblemData(_rotated(problem, angles) if rotated else problem)
-    group = kernels._robot_group(pd)
+    pd = driver._ProblemData(_rotated(problem, angles) if rotated else problem)
+    hooks = pd.hooks
     M = 6000
     X = _random_states(problem, M, rng, spread=2.0 if robot == "arm" else 1.0)
     P = problem.points(X)
     centers, halves = np.array([o.center for o in w.obstacles]), np.array([o.half_size for o in w.obstacles])
-    backend = make_backend("numpy", centers, halves, np.array(w.lo), np.array(w.hi), self_collision=pd.self_collision,
-                           obstacle_angles=angles)
+    backend = make_backend("numpy", centers, halves, np.array(w.lo), np.array(w.hi),
+                           self_collision=hooks.self_collision, obstacle_angles=angles)
     if robot == "arm":
         want = backend.capsules_collide(P[:, :-1], P[:, 1:], w.robot_radius)
     else:
         want = backend.capsules_collide(P, P, w.robot_radius)
     PX, PY = np.ascontiguousarray(P[:, :, 0].T), np.ascontiguousarray(P[:, :, 1].T)
-    n_seg, seg_offset = kernels.robot_segments(group)
-    half = 0.5 * pd.lengths * (1.0 + 1e-12)
+    n_seg, seg_offset = hooks.segments
+    half = hooks.half_lengths
     gate = np.empty(M, dtype=np.uint8)
-    kernels.collision_gate(PX, PY, M, n_seg, seg_offset, pd.world, pd.self_collision, half, gate)
-    got = np.array([kernels.collides(np.ascontiguousarray(PX[:, a]), np.ascontiguousarray(PY[:, a]), n_seg, seg_offset,
-                                     pd.world, pd.self_collision, half) for a in range(M)])
+    collide.collision_gate(PX, PY, M, n_seg, seg_offset, pd.world, hooks.self_collision, half, gate)
+    got = np.array([collide.collides(np.ascontiguousarray(PX[:, a]), np.ascontiguousarray(PY[:, a]), n_seg, seg_offset,
+                                     pd.world, hooks.self_collision, half) for a in range(M)])
     assert np.array_equal(got, want)
     assert not (got & (gate == 0)).any()
     assert 0.1 < want.mean() < 0.9 and (gate == 0).any()  # both answers, and the gate spares some particles
@@ -364,3 +370,123 @@ def test_collision_test_is_the_numpy_backends(robot, rotated, arm_problem):
         obstacle_free = make_backend("numpy", np.zeros((0, 2)), np.zeros((0, 2)), np.array(w.lo), np.array(w.hi),
                                      self_collision=False)
         assert (want & ~obstacle_free.capsules_collide(P[:, :-1], P[:, 1:], w.robot_radius)).any()
+
+
+# -- a robot of this file's own, with compiled hooks: the engine knows no robot ------------------------
+
+OFFSET = 0.3  # the dumbbell's second disc, to the right of its body
+
+if kernels.numba is not None:
+    import numba
+
+    @numba.njit
+    def dumbbell_key_points(X, params, PX, PY, lane, na):
+        for a in range(na):
+            PX[0, a], PY[0, a] = X[0, a], X[1, a]
+            PX[1, a], PY[1, a] = X[0, a] + params[0], X[1, a] + 0.0
+
+    @numba.njit
+    def dumbbell_task_point(xh, params, work):
+        return xh[0] + params[0], xh[1] + 0.0
+
+    @numba.njit
+    def dumbbell_task_covariance(P, params, work):
+        return P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1]
+
+
+class Dumbbell(PointRobot):
+    """A point robot carrying a second disc at OFFSET to the right: two key points (discs), every
+    measurement sensed at the second disc's x, the task point the second disc. firmtool knows none
+    of this; its compiled hooks (above) tell the engine, with no goal gate of their own."""
+
+    def points(self, X):
+        body = np.asarray(X, dtype=float)[:, None, :2]
+        return np.concatenate([body, body + np.array([OFFSET, 0.0])], axis=1)
+
+    def sensing_from_points(self, P):
+        return np.repeat(P[:, 1, :1], self.model.nz, axis=1)
+
+    def task_jacobian(self, X):
+        X = np.atleast_2d(X)
+        J = np.zeros((X.shape[0], 2, X.shape[1]))
+        J[:, 0, 0] = J[:, 1, 1] = 1.0
+        return J
+
+    def goal_state(self, center, start, is_valid):
+        return self._task_state("task.goal", np.asarray(center, dtype=float) - np.array([OFFSET, 0.0]))
+
+    def compiled_kinematics(self):
+        return CompiledKinematics(key_points=dumbbell_key_points, task_point=dumbbell_task_point,
+                                  task_covariance=dumbbell_task_covariance, params=np.array([OFFSET]), n_points=2,
+                                  sensing=np.ones(self.model.nz, dtype=np.int64), segments=(2, 0), self_collision=False,
+                                  task_block=2)
+
+
+def _dumbbell_problem():
+    register("test_dumbbell", Dumbbell, replace=True)
+    text = (ROOT / "scenarios" / "smoke.toml").read_text().replace('robot = "point"', 'robot = "test_dumbbell"')
+    text = text.replace("goal = [3.5, 0.6]", "goal = [3.5, 0.6]\ngoal_radius = 0.3\ngoal_confidence = 0.8")
+    return _setup(text)
+
+
+def test_a_robot_of_ones_own_with_hooks_runs_the_compiled_engine_as_the_numpy_one(monkeypatch):
+    """The dumbbell (defined in this file) gets the compiled engine through its hooks, a kernel of its
+    own, and both engines end every particle the same way given the same noise: collisions of either
+    disc, sensing at the second, goal landings and misses of the second disc in the goal ball."""
+    problem, d, regions = _dumbbell_problem()
+    monkeypatch.delenv(kernels.ENGINE_ENV, raising=False)
+    assert kernels.engine_choice(problem) == ("numba", None)  # importable hooks: cached on disk, no notice
+    hooks = problem.robot.compiled_kinematics()
+    assert kernels.kernel(hooks) is not kernels.kernel(planar.point_kinematics(problem.model.nz))
+    edges = np.arange(d.edge_source.size)
+    checked, failures, landed = _same_particles(problem, d, regions, edges, 200)
+    assert failures > 0 and landed > 0
+    into = np.flatnonzero(d.edge_target == GOAL_INDEX)
+    goal = miss = 0
+    for e in into:
+        s = int(d.edge_source[e])
+        lc = local_controller(problem, d, s, GOAL_INDEX)
+        x, xhat = initial_ensemble(problem, d, s, 300, np.random.default_rng([3, int(e)]))
+        out = simulate(problem, lc, regions, x, xhat, np.random.default_rng([4, int(e)]), "numba", goal_node=GOAL_INDEX)
+        goal += int((out.outcome == GOAL_INDEX).sum())
+        miss += int((out.outcome == GOAL_MISS).sum())
+    assert goal > 0 and miss > 0, (goal, miss)  # both outcomes of the goal test were exercised
+
+
+def test_a_robot_of_ones_own_has_the_numpy_engines_probabilities_with_independent_noise():
+    """The dumbbell's outcome frequencies from the kernel's own noise agree with the numpy engine's
+    within their binomial confidence intervals (4 standard errors of the difference)."""
+    problem, d, regions = _dumbbell_problem()
+    N = 1500
+    for e in range(min(6, d.edge_source.size)):
+        s, t = int(d.edge_source[e]), int(d.edge_target[e])
+        a = estimate_edge(problem, d, regions, s, t, N, 1, 500, engine="numpy")
+        b = estimate_edge(problem, d, regions, s, t, N, 2, 500, engine="numba")
+        for code in set(a.outcomes.tolist()) | set(b.outcomes.tolist()):
+            pa = a.counts[a.outcomes == code].sum() / N
+            pb = b.counts[b.outcomes == code].sum() / N
+            se = np.sqrt((pa * (1 - pa) + pb * (1 - pb)) / N) + 1.0 / N
+            assert abs(pa - pb) <= 4 * se, (e, code, pa, pb)
+
+
+def test_hooks_another_process_cannot_import_are_compiled_without_the_disk_cache(monkeypatch):
+    """Hooks nested in a function (or defined in a script's or notebook's __main__) have no name another
+    process finds: the compiled engine still runs them, compiled in every process instead of cached on
+    disk, and the engine's notice says so in one line."""
+    @numba.njit
+    def nested_key_points(X, params, PX, PY, lane, na):
+        dumbbell_key_points(X, params, PX, PY, lane, na)
+
+    class NestedDumbbell(Dumbbell):
+        def compiled_kinematics(self):
+            return dataclasses.replace(super().compiled_kinematics(), key_points=nested_key_points)
+
+    register("test_nested_dumbbell", NestedDumbbell, replace=True)
+    text = (ROOT / "scenarios" / "smoke.toml").read_text().replace('robot = "point"', 'robot = "test_nested_dumbbell"')
+    problem = build_problem(parse_scenario(text, "nested.toml"))
+    monkeypatch.delenv(kernels.ENGINE_ENV, raising=False)
+    engine, notice = kernels.engine_choice(problem)
+    assert engine == "numba" and "not cached on disk" in notice and "\n" not in notice
+    hooks = problem.robot.compiled_kinematics()
+    assert not disk_cached(hooks) and disk_cached(Dumbbell.compiled_kinematics(problem.robot))
+    assert kernels.kernel(hooks).stats.cache_path is None  # no disk cache (nothing compiled yet)

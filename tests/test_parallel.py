@@ -461,9 +461,10 @@ def test_dask_scheduler_and_two_worker_processes_joined_by_address(designed, tmp
             copy = tmp_path / "cluster.h5"
             shutil.copyfile(path, copy)
             # the test process ran the kernel (the one-worker table), so its disk cache is warm if writable
-            cache = kernels.run.stats.cache_path
-            warm = cache is not None and os.access(cache, os.W_OK) and kernels.run.stats.cache_hits + \
-                kernels.run.stats.cache_misses
+            run = kernels.kernels()[0]  # the one kernel of this test's robot (the smoke scenario's point)
+            cache = run.stats.cache_path
+            warm = cache is not None and os.access(cache, os.W_OK) and run.stats.cache_hits + \
+                run.stats.cache_misses
             report = estimate_stage(copy, executor="dask", scheduler=address)
             assert report.failed_edges == () and report.estimated_edges == reference["source"].size
             _assert_same_tables(_edges(copy), reference)
@@ -471,8 +472,9 @@ def test_dask_scheduler_and_two_worker_processes_joined_by_address(designed, tmp
             def worker_state():
                 import firmtool.estimation.compiled
                 import firmtool.estimation.jobs
-                stats = firmtool.estimation.compiled.run.stats
-                return len(firmtool.estimation.jobs._problems), sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
+                runs = firmtool.estimation.compiled.kernels()
+                return (len(firmtool.estimation.jobs._problems), sum(sum(r.stats.cache_hits.values()) for r in runs),
+                        sum(sum(r.stats.cache_misses.values()) for r in runs))
 
             states = list(client.run(worker_state).values())
         assert len(states) == 2 and all(problems == 1 for problems, _, _ in states)

@@ -10,6 +10,11 @@ them in one background process (``python -m firmtool.estimation.warmup``: the fi
 caller goes on; :func:`wait` blocks until it is done, before the workers start, and the workers
 then load the cache. With a warm cache nothing is started.
 
+The kernel is compiled once per robot's set of compiled hooks (:mod:`firmtool.estimation.compiled.run`):
+the process compiles it, with the smoke edge's argument types, for the hooks of every robot with a
+scenario template (the built-in ones: ``firmtool init --robot``) and for the problem's robot that
+:func:`start` was given, if its hooks are importable by name.
+
 It compiles in the order a build needs: the design's functions first (the nominals' rollouts), then
 reports ``design`` so that a build's design stage, which runs on several worker processes, waits for
 that instead of letting every worker compile the same functions at once (:func:`wait_design`); then
@@ -22,6 +27,7 @@ starts compiling (the CLI prints one line on stderr). The library itself never p
 from __future__ import annotations
 
 import atexit
+import importlib
 import os
 import subprocess
 import sys
@@ -31,12 +37,14 @@ from typing import Callable
 
 from firmtool.control import recursions, trajectories
 from firmtool.estimation import compiled as kernels
+from firmtool.estimation.compiled.run import HOOK_NAMES, disk_cached
 from firmtool.estimation.edges import estimate_edge
 from firmtool.estimation.executors import EstimationJob, job_extras, remember_problem, run_batch
-from firmtool.problem import build_problem
+from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import design, local_controller
 from firmtool.roadmap.nodes import roadmap_nodes
-from firmtool.scenario import load_scenario
+from firmtool.scenario import load_scenario, parse_scenario
+from firmtool.scenario.docs import template, template_robots
 
 # The background process's reports (one line each on its stdout).
 COMPILING, DESIGN, DONE = "compiling", "design", "done"
@@ -58,12 +66,12 @@ def set_notifier(callback: Callable[[], None] | None) -> None:
 class _Warmup:
     """The background compile process and the thread that reads its reports."""
 
-    def __init__(self) -> None:
+    def __init__(self, hooks: list[str]) -> None:
         debug = bool(os.environ.get("FIRMTOOL_DEBUG"))
         # -m puts the working folder first on sys.path: the folder holding this firmtool, so that the
         # process compiles (and caches) this one, not a source tree in the caller's folder
-        home = Path(__file__).resolve().parents[1]
-        self.process = subprocess.Popen([sys.executable, "-m", "firmtool.estimation.warmup"], cwd=home,
+        home = Path(__file__).resolve().parents[2]
+        self.process = subprocess.Popen([sys.executable, "-m", "firmtool.estimation.warmup", *hooks], cwd=home,
                                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                         stderr=None if debug else subprocess.DEVNULL, text=True)
         self.design_ready = threading.Event()  # the design's functions are in the cache (or the process ended)
@@ -98,10 +106,47 @@ class _Warmup:
             self.process.wait()
 
 
-def engine_functions() -> list:
-    """The numba dispatchers whose compile :func:`start` takes off the critical path."""
-    return [kernels.run, recursions.filter_recursion, recursions.filter_recursions,
+_warmup_problem: Problem | None = None
+
+
+def _kernel_hooks(problem: Problem | None = None):
+    """The compiled hooks whose kernel :func:`engine_functions` lists: ``problem``'s robot's if it has
+    hooks a disk cache can key (:func:`firmtool.estimation.compiled.run.disk_cached`), else the
+    warm-up scenario's (built once)."""
+    global _warmup_problem
+    hooks = None if problem is None or problem.robot is None else problem.robot.compiled_kinematics()
+    if hooks is not None and disk_cached(hooks):
+        return hooks
+    if _warmup_problem is None:
+        _warmup_problem = build_problem(load_scenario(WARMUP_SCENARIO))
+    return _warmup_problem.robot.compiled_kinematics()
+
+
+def engine_functions(problem: Problem | None = None) -> list:
+    """The numba dispatchers whose compile :func:`start` takes off the critical path: the design's
+    and the estimation workers' recursions, and the kernel of ``problem``'s robot (:func:`_kernel_hooks`)."""
+    return [kernels.kernel(_kernel_hooks(problem)), recursions.filter_recursion, recursions.filter_recursions,
             recursions.spread_recursion, trajectories._rollout, trajectories._rollouts]
+
+
+def hook_names(problem: Problem | None) -> list[str]:
+    """``NAME=MODULE:QUALNAME`` of each compiled hook of ``problem``'s robot (what the background process
+    imports to compile its kernel); empty without hooks a disk cache can key."""
+    hooks = None if problem is None or problem.robot is None else problem.robot.compiled_kinematics()
+    if hooks is None or not disk_cached(hooks):
+        return []
+    python = {name: getattr(fn, "py_func", fn) for name, fn in hooks.functions().items() if fn is not None}
+    return [f"{name}={py.__module__}:{py.__qualname__}" for name, py in python.items()]
+
+
+def _resolve(spec: str) -> tuple[str, Callable]:
+    """(hook name, compiled function) of a :func:`hook_names` entry."""
+    name, _, where = spec.partition("=")
+    module, _, qualname = where.partition(":")
+    obj = importlib.import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return name, obj
 
 
 def _disk_cached(dispatcher) -> bool:
@@ -122,21 +167,21 @@ def _disk_cached(dispatcher) -> bool:
         return False
 
 
-def engine_is_cached() -> bool:
+def engine_is_cached(problem: Problem | None = None) -> bool:
     """Whether every function of :func:`engine_functions` is in numba's disk cache."""
     try:
-        return all(_disk_cached(d) for d in engine_functions())
+        return all(_disk_cached(d) for d in engine_functions(problem))
     except ImportError:  # pragma: no cover - no numba: the numpy engine runs, nothing to compile
         return True
 
 
-def start(engine: str | None) -> None:
+def start(engine: str | None, problem: Problem | None = None) -> None:
     """Start compiling the engine in the background if ``engine`` is the compiled one and numba's
-    cache does not hold it yet (and no compile is under way)."""
+    cache does not hold it yet (and no compile is under way); with ``problem``, its robot's kernel too."""
     global _running
-    if engine != "numba" or _running is not None or engine_is_cached():
+    if engine != "numba" or _running is not None or engine_is_cached(problem):
         return
-    _running = _Warmup()
+    _running = _Warmup(hook_names(problem))
     atexit.register(_running.stop)  # an interrupted caller leaves no compiler behind
 
 
@@ -164,11 +209,12 @@ def stop() -> None:
         _running = None
 
 
-def compile_engine(on_design: Callable[[], None] | None = None) -> None:
+def compile_engine(on_design: Callable[[], None] | None = None, hooks: tuple[str, ...] = ()) -> None:
     """Compile (or load from the disk cache) the engine's functions on the shipped ``smoke``
     scenario: its sampling and design (then ``on_design()``), a batch of edges as an estimation
     worker runs them (batched controllers, the kernel) with a few particles, one edge alone, and its
-    controller's spread recursion (which execution reads)."""
+    controller's spread recursion (which execution reads); then the kernels of the other robots
+    (:func:`compile_kernels`) and of ``hooks`` (:func:`hook_names`)."""
     import numpy as np
 
     scenario = load_scenario(WARMUP_SCENARIO)
@@ -184,10 +230,33 @@ def compile_engine(on_design: Callable[[], None] | None = None) -> None:
     source, target = int(d.edge_source[0]), int(d.edge_target[0])
     estimate_edge(problem, d, d.regions(problem), source, target, 16, 0, 16, "numba")
     local_controller(problem, d, source, target).spread  # noqa: B018 - runs the spread recursion
+    compile_kernels(kernels.kernel(problem.robot.compiled_kinematics()), hooks)
+
+
+def compile_kernels(reference: Callable, hooks: tuple[str, ...] = ()) -> None:
+    """Compile (or load) the kernel of every robot with a scenario template and of ``hooks`` (a
+    :func:`hook_names` list) for the argument types ``reference`` (a kernel that ran) was compiled
+    for: the kernel's arguments have the same types whatever the robot."""
+    targets = []
+    for robot in template_robots():
+        try:
+            problem = build_problem(parse_scenario(template("warmup", robot), "warmup.toml"))
+        except Exception:  # noqa: BLE001 - a robot whose template does not build is not warmed: it compiles when used
+            continue
+        found = problem.robot.compiled_kinematics()
+        if found is not None and disk_cached(found):
+            targets.append(found.functions())
+    if hooks:
+        targets.append(dict(_resolve(spec) for spec in hooks))
+    for functions in targets:
+        compiled = kernels.kernel_for({name: functions.get(name) for name in HOOK_NAMES})
+        for signature in reference.signatures:
+            compiled.compile(signature)
 
 
 def _main() -> int:
-    """``python -m firmtool.estimation.warmup``: compile, reporting on stdout when compiling starts and ends."""
+    """``python -m firmtool.estimation.warmup [NAME=MODULE:QUALNAME ...]``: compile (with the kernel of
+    those hooks), reporting on stdout when compiling starts and ends."""
     from numba.core import event
 
     class Reporter(event.Listener):
@@ -203,7 +272,7 @@ def _main() -> int:
 
     event.register("numba:compile", Reporter())
     try:
-        compile_engine(on_design=lambda: print(DESIGN, flush=True))
+        compile_engine(on_design=lambda: print(DESIGN, flush=True), hooks=tuple(sys.argv[1:]))
     except KeyboardInterrupt:
         return 130
     print(DONE, flush=True)

@@ -1,8 +1,9 @@
 """Optional numba kernel for :class:`NumbaCollisionBackend`: the numpy geometry, scalar, one
 configuration at a time with early exit. The numpy backend stays the reference; the tests check
-that both agree. The distance primitives are shared with the Monte Carlo kernel
-(:mod:`firmtool.estimation.compiled`). Module-level and cached on disk by numba (compiled once, ~1-2 s; later
-processes load them in well under a second).
+that both agree. The distance primitives and the test of a capsule against the boxes
+(:func:`capsule_meets_boxes`) are shared with the Monte Carlo kernel (:mod:`firmtool.estimation.compiled.collide`).
+Module-level and cached on disk by numba (compiled once, ~1-2 s; later processes load them in well
+under a second).
 """
 
 from __future__ import annotations
@@ -21,9 +22,11 @@ except ImportError:  # pragma: no cover - exercised only without numba
 # process). firmtool.estimation.compiled compiles these distances into its step kernel; firmtool.jit's cache key
 # covers this file, so the kernel is recompiled after an edit here, not loaded stale.
 if numba is not None:
-    from firmtool.jit import cached_njit
+    from firmtool.jit import KERNEL_OPTIONS, cached_njit
 
-    njit = cached_njit(nogil=True, fastmath=False, error_model="numpy")
+    njit = cached_njit(**KERNEL_OPTIONS)
+    # inlined into its callers at numba's IR level: no compile of its own (the kernels' cold compile)
+    inline = cached_njit(**KERNEL_OPTIONS, inline="always")
 
     @njit
     def pseg_d2(px, py, ax, ay, bx, by):
@@ -73,10 +76,32 @@ if numba is not None:
         d = min(d, pseg_d2(b0x, b0y, a0x, a0y, a1x, a1y))
         return min(d, pseg_d2(b1x, b1y, a0x, a0y, a1x, a1y))
 
+    @inline
+    def capsule_meets_boxes(ax, ay, bx, by, r, r2, C, H, cs, sn, blo, bhi):
+        """Whether the capsule from ``(ax, ay)`` to ``(bx, by)`` of radius ``r`` (``r2 = r * r``) meets a
+        box: box k has centre ``C[k]``, half sizes ``H[k]``, rotation ``(cs[k], sn[k])`` (cos and sin;
+        1 and 0 when axis-aligned) and bounding box ``[blo[k], bhi[k]]``. The capsule's bounding box
+        against each box's first, then the segment in the box's frame (:func:`seg_box_d2`). The loop
+        of both the numba backend and the Monte Carlo kernel (tests/test_geometry.py and
+        tests/test_kernels.py pin each against the numpy backend)."""
+        lox, hix = min(ax, bx) - r, max(ax, bx) + r
+        loy, hiy = min(ay, by) - r, max(ay, by) + r
+        for k in range(C.shape[0]):
+            if lox > bhi[k, 0] or hix < blo[k, 0] or loy > bhi[k, 1] or hiy < blo[k, 1]:
+                continue
+            qax, qay = ax - C[k, 0], ay - C[k, 1]
+            qbx, qby = bx - C[k, 0], by - C[k, 1]
+            c_, s_ = cs[k], sn[k]
+            if s_ != 0.0 or c_ != 1.0:
+                qax, qay = c_ * qax + s_ * qay, -s_ * qax + c_ * qay
+                qbx, qby = c_ * qbx + s_ * qby, -s_ * qbx + c_ * qby
+            if seg_box_d2(qax, qay, qbx, qby, H[k, 0], H[k, 1]) < r2:
+                return True
+        return False
+
     @njit
     def kernel(S, E, r, lo, hi, C, H, cs, sn, blo, bhi, self_collision, out):
         M, L = S.shape[0], S.shape[1]
-        K = C.shape[0]
         r2, lim = r * r, 4.0 * r * r
         for m in range(M):
             hit = False
@@ -90,21 +115,7 @@ if numba is not None:
             for l in range(L):
                 if hit:
                     break
-                ax, ay, bx, by = S[m, l, 0], S[m, l, 1], E[m, l, 0], E[m, l, 1]
-                lox, hix = min(ax, bx) - r, max(ax, bx) + r
-                loy, hiy = min(ay, by) - r, max(ay, by) + r
-                for k in range(K):
-                    if lox > bhi[k, 0] or hix < blo[k, 0] or loy > bhi[k, 1] or hiy < blo[k, 1]:
-                        continue
-                    qax, qay = ax - C[k, 0], ay - C[k, 1]
-                    qbx, qby = bx - C[k, 0], by - C[k, 1]
-                    c_, s_ = cs[k], sn[k]
-                    if s_ != 0.0 or c_ != 1.0:
-                        qax, qay = c_ * qax + s_ * qay, -s_ * qax + c_ * qay
-                        qbx, qby = c_ * qbx + s_ * qby, -s_ * qbx + c_ * qby
-                    if seg_box_d2(qax, qay, qbx, qby, H[k, 0], H[k, 1]) < r2:
-                        hit = True
-                        break
+                hit = capsule_meets_boxes(S[m, l, 0], S[m, l, 1], E[m, l, 0], E[m, l, 1], r, r2, C, H, cs, sn, blo, bhi)
             # self-collision, non-adjacent pairs
             if self_collision and not hit:
                 for a in range(L):

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.estimation import compiled as kernels
 from firmtool.online.belief import BeliefFilter
 from firmtool.online.innovation import JumpTests
 from firmtool.online.replanning import GOAL_CHECK_OLDER, ReplanSettings
@@ -38,11 +37,9 @@ class Arrival:
         self.regions, self.kinds = regions, kinds
 
     def locate(self, xhat: np.ndarray, candidates: np.ndarray) -> int:
-        """The node whose region holds the estimate ``xhat`` (1, n), or -1: the Monte Carlo kernel's
-        membership test when numba is there (the same decision as :meth:`NodeRegions.locate`)."""
-        if kernels.numba is None:  # pragma: no cover
-            return int(self.regions.locate(xhat, candidates)[0])
-        return kernels.locate_one(self.regions, xhat[0], candidates)
+        """The node whose region holds the estimate ``xhat`` (1, n), or -1 (:meth:`NodeRegions.locate_one`:
+        the compiled membership test, the same decision as :meth:`NodeRegions.locate`)."""
+        return self.regions.locate_one(xhat[0], candidates)
 
     def start_node(self, mean: np.ndarray, covariance: np.ndarray) -> int:
         """The node whose region holds the belief ``(mean (n,), covariance (n, n))``, or -1."""

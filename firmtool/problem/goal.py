@@ -37,7 +37,7 @@ the threshold): by Anderson's theorem the ball of radius ``r - d`` around the me
 holds at least ``chi2_D.cdf((r - d)^2 / lambda_max)``, which accepts; the slab ``|u'(t - c)| < r``
 along any unit ``u`` contains the ball, so ``Pr`` is at most the slab's probability (``u`` along the
 mean's offset and along the top eigenvector), which rejects. The compiled Monte Carlo engine
-reproduces the same test for planar task spaces (:func:`firmtool.estimation.compiled.goal_test`).
+reproduces the same test for planar task spaces (:func:`firmtool.estimation.compiled.goal.goal_test`).
 """
 
 from __future__ import annotations

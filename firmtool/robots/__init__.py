@@ -11,7 +11,8 @@ question (:class:`RobotModel`, :class:`RobotGeometry`, :class:`TaskSpace`, :clas
 """
 
 from firmtool.io.schema import Field  # a robot declares its [model] keys with it
-from firmtool.robots.base import CompiledKinematics, Robot
+from firmtool.robots.base import Robot
+from firmtool.robots.compiled import CompiledKinematics
 from firmtool.robots.drawing import Drawable
 from firmtool.robots.geometry import RobotGeometry
 from firmtool.robots.jumps import JumpAnswers

@@ -21,7 +21,8 @@ import numpy as np
 from firmtool.errors import ScenarioError
 from firmtool.io.schema import Errors, Field, valid
 from firmtool.models import planar_arm
-from firmtool.robots.base import CompiledKinematics
+from firmtool.robots import planar
+from firmtool.robots.compiled import CompiledKinematics
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
 from firmtool.robots.registry import register
 
@@ -163,9 +164,9 @@ class ArmRobot(LinearRobot):
         return pad(theta[None])[0]
 
     def compiled_kinematics(self) -> CompiledKinematics | None:
-        if type(self) is not ArmRobot:  # a subclass opts in by overriding this
+        if type(self) is not ArmRobot or planar.numba is None:  # a subclass opts in by overriding this
             return None
-        return CompiledKinematics("planar_chain", np.asarray(self.lengths, dtype=float), self_collision=True)
+        return planar.chain_kinematics(self.lengths, self.model.nz, self_collision=True)
 
 
 register("arm", ArmRobot)

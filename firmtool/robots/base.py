@@ -32,7 +32,8 @@ what differs:
 - optionally, :class:`~firmtool.robots.jumps.JumpAnswers` (:mod:`firmtool.robots.jumps`) and
   :class:`~firmtool.robots.relocalisation.Relocalising` (:mod:`firmtool.robots.relocalisation`):
   what a jump the online policy found did to the belief, and how to re-localise after one;
-- optionally, the compiled engine's kinematics (:meth:`compiled_kinematics`; None: numpy engine);
+- optionally, :class:`~firmtool.robots.compiled.CompiledHooks` (:mod:`firmtool.robots.compiled`): the
+  compiled engine's hooks (:meth:`compiled_kinematics`; None: the numpy engine runs);
 - optionally, :class:`~firmtool.robots.drawing.Drawable` (:mod:`firmtool.robots.drawing`): how to
   draw it in a 2-D figure (:meth:`draw`; a 3-D robot is drawn from above).
 
@@ -42,12 +43,9 @@ the entry-point group ``firmtool.robots``) is :mod:`firmtool.robots.registry`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from firmtool.errors import InputError
+from firmtool.robots.compiled import CompiledHooks
 from firmtool.robots.drawing import DrawingDefaults
 from firmtool.robots.geometry import GeometryDefaults
 from firmtool.robots.jumps import JumpDefaults
@@ -61,34 +59,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.scenario import Scenario
 
 
-@dataclass(frozen=True)
-class CompiledKinematics:
-    """What the compiled Monte Carlo engine (:mod:`firmtool.estimation.compiled`) needs of a robot's kinematics.
-
-    The engine knows two planar kinds, and a robot that returns one promises that its key points,
-    sensing coordinates and collision shape are exactly the kind's:
-
-    - ``"planar_point"``: one key point, the state's first two coordinates; every measurement is
-      sensed at its x; a disc of ``world.robot_radius``;
-    - ``"planar_chain"``: a chain of links of ``link_lengths`` from the origin, the joint angles
-      (relative) the state's first ``L`` coordinates; measurement ``j`` sensed at the x of key point
-      ``j + 1``; capsules of ``world.robot_radius`` between consecutive key points, non-adjacent
-      ones tested against each other when ``self_collision``.
-    """
-
-    kind: str
-    link_lengths: np.ndarray
-    self_collision: bool
-
-    KINDS: ClassVar[tuple[str, ...]] = ("planar_point", "planar_chain")
-
-    def __post_init__(self) -> None:
-        if self.kind not in self.KINDS:
-            raise InputError(f"compiled kinematics: expected one of {self.KINDS}, found {self.kind!r}")
-
-
 class Robot(ModelDefaults, GeometryDefaults, TaskSpaceDefaults, StabiliserDefaults, NominalDefaults, JumpDefaults,
-            RelocalisationDefaults, DrawingDefaults):
+            RelocalisationDefaults, CompiledHooks, DrawingDefaults):
     """Base class of robots: the defaults of every protocol of the module docs, composed (see there
     for what a subclass says; each mixin's module has its protocol).
 
@@ -110,11 +82,3 @@ class Robot(ModelDefaults, GeometryDefaults, TaskSpaceDefaults, StabiliserDefaul
         self.scenario = scenario
         self.world_dim = len(scenario.world.lo)
         self._collision = None
-
-    # -- engines -------------------------------------------------------------------------------------
-
-    def compiled_kinematics(self) -> CompiledKinematics | None:
-        """The compiled engine's kinematics for this robot, or None (the numpy engine runs). A robot
-        returns one only if its :meth:`points`, :meth:`sensing_from_points` and :attr:`shape` are
-        exactly that kind's (:class:`CompiledKinematics`)."""
-        return None

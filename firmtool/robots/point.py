@@ -3,14 +3,15 @@ dynamics per coordinate (``[model] dynamics``: single or double integrator, or m
 position measured (or ``measurement.H``), the sensing coordinate its x.
 
 Configuration: the position (D coordinates, D the world's dimension), bounded by ``world.bounds``.
-In a planar world the compiled Monte Carlo engine runs it (``planar_point`` kinematics).
+In a planar world the compiled Monte Carlo engine runs it (the point's hooks, :mod:`firmtool.robots.planar`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from firmtool.robots.base import CompiledKinematics
+from firmtool.robots import planar
+from firmtool.robots.compiled import CompiledKinematics
 from firmtool.robots.linear import LinearRobot
 from firmtool.robots.registry import register
 
@@ -55,9 +56,9 @@ class PointRobot(LinearRobot):
 
     def compiled_kinematics(self) -> CompiledKinematics | None:
         # a subclass may move its points or sensing elsewhere: it opts in by overriding this
-        if type(self) is not PointRobot or self.world_dim != 2:
+        if type(self) is not PointRobot or self.world_dim != 2 or planar.numba is None:
             return None
-        return CompiledKinematics("planar_point", np.zeros(0), self_collision=False)
+        return planar.point_kinematics(self.model.nz)
 
 
 register("point", PointRobot)

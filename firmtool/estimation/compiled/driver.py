@@ -1,0 +1,163 @@
+"""The compiled engine's Python driver: :func:`simulate`, the data it prepares for the kernel (once per
+problem, once per segment of an edge's steps), and its caches.
+
+Steps are run in segments; per segment the local controller's filter recursion is run as far as the
+segment's end (lazily: particles mostly stop within a few steps of the edge's end, long before the
+controller's ~edge + 200 steps) and the node candidates of its steps are computed at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmtool.errors import InputError
+from firmtool.estimation.compiled.collide import world_group
+from firmtool.estimation.compiled.goal import goal_group
+from firmtool.estimation.compiled.locate import candidate_lists
+from firmtool.estimation.compiled.run import kernel
+from firmtool.estimation.compiled.select import supports
+from firmtool.estimation.compiled.step import sensor_group
+from firmtool.estimation.outcomes import TIMEOUT, ParticleOutcomes, cost_terms
+from firmtool.roadmap.membership import locate_data
+
+FIRST_SEGMENT_PAST_EDGE = 8  # the first segment: the edge and this many stabiliser steps
+SEGMENT_STEPS = (16, 32, 64)  # the following segments (the last length repeats)
+CALL_PARTICLE_STEPS = 1024  # particle-steps of noise drawn per kernel call
+
+
+class _ProblemData:
+    """Per-problem constant arrays for the kernel: the model's matrices, the sensor, the robot's
+    compiled hooks and their constants (the kernel's robot group), the world."""
+
+    def __init__(self, problem) -> None:
+        model = problem.model
+        self.mats = tuple(np.ascontiguousarray(M, dtype=float) for M in (model.A, model.B, model.F, model.H))
+        self.r, self.nz = model.F.shape[1], model.nz
+        self.noise = sensor_group(model.noise)
+        self.hooks = hooks = problem.robot.compiled_kinematics()
+        n_seg, seg_offset = hooks.segments
+        self.robot = (hooks.params, hooks.sensing, hooks.n_points, n_seg, seg_offset, hooks.self_collision,
+                      hooks.half_lengths, hooks.work_size)
+        self.world = world_group(problem.scenario.world)
+
+
+_problem_cache: dict[int, tuple[object, _ProblemData]] = {}
+
+
+def _problem_data(problem) -> _ProblemData:
+    hit = _problem_cache.get(id(problem))
+    if hit is not None and hit[0] is problem:
+        return hit[1]
+    data = _ProblemData(problem)
+    if len(_problem_cache) > 8:
+        _problem_cache.clear()
+    _problem_cache[id(problem)] = (problem, data)
+    return data
+
+
+def _checked_problem_data(problem) -> _ProblemData:
+    """:func:`_problem_data`, the problem checked once (a frozen dataclass), not per edge."""
+    hit = _problem_cache.get(id(problem))
+    if hit is None or hit[0] is not problem:
+        reason = supports(problem)
+        if reason is not None:
+            raise InputError(f"the compiled Monte Carlo engine cannot run this problem: {reason}")
+    return _problem_data(problem)
+
+
+class _NumpyStream:
+    """numpy's stream of normals (``numpy_noise=True``): drawn a few steps ahead, what the kernel has
+    not consumed yet carried on to the next block."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng, self.noise, self.pos = rng, np.empty(0), 0
+
+    def ahead(self, count: int) -> np.ndarray:
+        """The unconsumed normals and ``count`` fresh ones (the kernel reads them from position 0)."""
+        fresh = self.rng.standard_normal(count)
+        self.noise = np.concatenate([self.noise[self.pos:], fresh]) if self.pos < self.noise.shape[0] else fresh
+        return self.noise
+
+
+def _segment_end(k: int, segment: int, lc) -> int:
+    """The step the segment that starts at step ``k`` (the ``segment``-th, 0 the first) runs to."""
+    if segment == 0:
+        return min(lc.steps, max(1, lc.edge_steps + FIRST_SEGMENT_PAST_EDGE))
+    return min(lc.steps, k + SEGMENT_STEPS[min(segment - 1, len(SEGMENT_STEPS) - 1)])
+
+
+def _update_candidates(regions, P_steps: np.ndarray, lo_t: int, k_end: int, cand_ptr: np.ndarray) -> tuple:
+    """The node candidates of steps ``lo_t`` to ``k_end`` (the kernel's candidates group; ``cand_ptr``
+    (T + 1,) filled in place) from the filter covariances ``P_steps``."""
+    cand = regions.covariance_candidates(P_steps[1 + lo_t:1 + k_end])
+    ptr, cand_idx, cand_key = candidate_lists(regions, cand)
+    cand_ptr[:] = 0
+    cand_ptr[lo_t:k_end + 1] = ptr
+    cand_ptr[k_end + 1:] = ptr[-1]
+    return cand_ptr, cand_idx, cand_key
+
+
+def _run_on_stream(run, k: int, k_end: int, n_alive: int, ensemble: tuple, stream: _NumpyStream,
+                   rng_state: np.ndarray, d: int, first_test: int, groups: tuple) -> tuple[int, int]:
+    """One segment with numpy's stream: kernel calls of ~:data:`CALL_PARTICLE_STEPS` particle-steps of
+    noise each (little is drawn ahead, the last draw is wasted where particles stop; few kernel calls
+    when few particles remain)."""
+    while k < k_end and n_alive > 0:
+        ahead = min(k_end - k, max(1, CALL_PARTICLE_STEPS // n_alive))
+        if k <= first_test:  # most particles stop at the first test step: no block runs past it
+            ahead = min(ahead, first_test + 1 - k)
+        noise = stream.ahead(n_alive * d * ahead)
+        k, n_alive, stream.pos = run(k, k_end, n_alive, 0, ensemble, (noise, rng_state), *groups)
+    return k, n_alive
+
+
+def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.random.Generator,
+             numpy_noise: bool = False, goal_node: int = 1):
+    """Compiled twin of :func:`firmtool.estimation.edges.simulate` (same arguments, same result type).
+
+    ``x`` and ``xhat`` (M, n) are updated in place for the particles' last live step, like the
+    numpy path does.
+
+    ``numpy_noise``: False (the default) draws the noise inside the kernel (xoshiro256++ seeded from
+    four words of ``rng``, ziggurat normals): fast, and reproducible from ``rng``'s state. True feeds
+    the kernel ``rng.standard_normal`` in the numpy path's order instead, so that both engines
+    simulate the same particles (the tests' particle-by-particle check of the arithmetic).
+    """
+    pd = _checked_problem_data(problem)
+    run = kernel(pd.hooks)
+    perfect = problem.perfect
+    M, T = x.shape[0], lc.steps
+    outcome, steps, effort = np.full(M, TIMEOUT, dtype=np.int64), np.full(M, T, dtype=np.int64), np.zeros(M)
+    X, Xh = np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(xhat, dtype=float)
+    d = pd.r + (0 if perfect else pd.nz)
+    n_alive, k = M, 0
+    rng_state, no_stream = np.zeros(4, dtype=np.uint64), np.empty(0)
+    stream = _NumpyStream(rng) if numpy_noise else None
+    if not numpy_noise:
+        rng_state[:] = rng.bit_generator.random_raw(4)
+        rng_state[0] |= np.uint64(rng_state.any() == 0)  # xoshiro's one forbidden state: all zero
+    x_ref, u_ref, K_ = (np.ascontiguousarray(a, dtype=float) for a in (lc.x_ref, lc.u_ref, lc.K))
+    ensemble = (np.arange(M, dtype=np.int64), X, Xh, outcome, steps, effort)  # the kernel's argument groups
+    first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
+    candidates = (np.zeros(T + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
+    segment = 0
+    while k < T and n_alive > 0:
+        # a segment of steps: the filter recursion and the node candidates only that far
+        k_end = _segment_end(k, segment, lc)
+        segment += 1
+        Ld, P_ = lc.compute(k_end)  # L[:k_end], P[:k_end + 1] final (the buffers are filled in place)
+        lo_t = max(k, first_test)
+        if lo_t < k_end:
+            candidates = _update_candidates(regions, P_, lo_t, k_end, candidates[0])
+        goal = goal_group(regions, P_, k_end, pd.hooks.task_block, perfect, goal_node)
+        groups = (pd.mats, (x_ref, u_ref, K_, np.ascontiguousarray(Ld, dtype=float)), candidates,
+                  locate_data(regions), pd.noise, pd.robot, pd.world, bool(perfect), goal)
+        if stream is None:
+            k, n_alive, _ = run(k, k_end, n_alive, 0, ensemble, (no_stream, rng_state), *groups)
+        else:
+            k, n_alive = _run_on_stream(run, k, k_end, n_alive, ensemble, stream, rng_state, d, first_test, groups)
+    if X is not x:
+        x[...] = X
+    if Xh is not xhat:
+        xhat[...] = Xh
+    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort))

@@ -1,0 +1,92 @@
+"""Which Monte Carlo engine runs a problem: the compiled one wherever it computes exactly the problem's
+Monte Carlo, the numpy one otherwise, with a one-line notice saying why.
+
+:func:`firmtool.estimation.edges.simulate` dispatches to the compiled engine when :func:`engine_for`
+says so: the environment variable ``FIRMTOOL_ENGINE=numpy`` forces the numpy path; unset, ``auto``
+or ``numba`` use the compiled kernel whenever numba is importable and the kernel computes exactly
+the problem's Monte Carlo (:func:`supports`: the robot's compiled hooks, a linear model, a compiled
+noise form, planar box geometry of numpy/numba, no user's validity checker), and the numpy path
+otherwise (:func:`engine_choice`).
+"""
+
+from __future__ import annotations
+
+import os
+
+from firmtool.errors import InputError
+from firmtool.estimation.compiled.run import disk_cached
+from firmtool.estimation.compiled.step import NOISE_FORMS
+from firmtool.jit import numba
+from firmtool.models.linear import LinearGaussianModel
+
+ENGINE_ENV = "FIRMTOOL_ENGINE"
+COMPILED_BACKENDS = ("numpy", "numba")  # the collision geometry the kernel reproduces exactly
+
+
+def supports(problem) -> str | None:
+    """None if the compiled engine computes exactly ``problem``'s Monte Carlo, else why it cannot.
+
+    The robot offers its compiled hooks (:meth:`firmtool.robots.Robot.compiled_kinematics`, the
+    twins of its key points, sensing, collision shape and task point); the kernel also needs a linear
+    model, a noise form with a compiled twin, the problem's validity to be exactly the scenario's
+    planar geometry (numpy/numba backend, boxes, the robot's own test, no user's checker), and a goal
+    ball's task point to be the robot's own."""
+    if numba is None:
+        return "numba is not installed"
+    if len(problem.scenario.world.lo) != 2:
+        return f"the compiled engine is planar, this world is {len(problem.scenario.world.lo)}-D"
+    robot = problem.robot
+    hooks = None if robot is None else robot.compiled_kinematics()
+    if hooks is None:
+        return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
+    if type(problem.model) is not LinearGaussianModel:
+        return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
+    if problem.validity is not None:
+        return "the problem has a Python validity checker, which the compiled engine does not compute"
+    if not (problem.points_valid == robot.points_valid and problem.points == robot.points
+            and problem.sensing_from_points == robot.sensing_from_points):
+        return "the problem's key points, sensing or validity are not its robot's own"
+    w = problem.scenario.world
+    if w.collision_backend not in COMPILED_BACKENDS:
+        return f"collision backend {w.collision_backend!r} is not compiled (numpy/numba geometry only)"
+    if len(w.lo) != 2 or any(o.kind != "box" for o in w.obstacles):
+        return "the compiled engine's geometry is planar boxes only"
+    if hooks.sensing.size != problem.model.nz or hooks.task_block > problem.model.n:
+        return (f"the robot's compiled kinematics sense {hooks.sensing.size} measurements with a task block of "
+                f"{hooks.task_block}, its model has {problem.model.nz} measurements and {problem.model.n} states")
+    goal = problem.goal_region
+    if goal is not None and not (goal.task_point == robot.task_point and goal.task_jacobian == robot.task_jacobian):
+        return "the goal ball's task point is not the robot's own, which the compiled goal test computes"
+    noise = problem.model.noise
+    if getattr(noise, "compiled", None) not in NOISE_FORMS:
+        return f"measurement noise {getattr(noise, 'form', type(noise).__name__)!r} is not compiled"
+    return None
+
+
+def engine_choice(problem) -> tuple[str, str | None]:
+    """``("numba" | "numpy", notice)`` for this problem, honouring ``FIRMTOOL_ENGINE``.
+
+    The compiled engine runs only where it computes exactly the problem's Monte Carlo
+    (:func:`supports`); where it was asked for (``auto`` with numba installed, or ``numba``) but
+    cannot, the numpy engine runs and ``notice`` says why, in one line. Where the compiled engine
+    runs on hooks another process cannot import (defined in ``__main__``), ``notice`` says that it
+    is compiled in every process, not cached on disk. Else ``notice`` is None."""
+    choice = os.environ.get(ENGINE_ENV, "auto").strip().lower() or "auto"
+    if choice not in ("auto", "numpy", "numba"):
+        raise InputError(f"{ENGINE_ENV}: expected 'auto', 'numpy' or 'numba' but found {choice!r}")
+    if choice == "numpy":
+        return "numpy", None
+    reason = supports(problem)
+    if reason is None:
+        if disk_cached(problem.robot.compiled_kinematics()):
+            return "numba", None
+        return "numba", (f"compiled Monte Carlo engine: robot {problem.scenario.model.robot!r}'s compiled hooks are "
+                         "not importable by name (defined in __main__ or inside a function), so the kernel is "
+                         "compiled in every process, not cached on disk")
+    asked = f"{ENGINE_ENV}=numba" if choice == "numba" else "the compiled Monte Carlo engine"
+    return "numpy", f"numpy Monte Carlo engine: {asked} cannot run this problem ({reason})"
+
+
+def engine_for(problem) -> str:
+    """``"numba"`` or ``"numpy"`` for this problem (:func:`engine_choice` without its notice)."""
+    return engine_choice(problem)[0]
