@@ -29,8 +29,7 @@ from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_counts_of, predicted_interval
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.graph import SolveStatus, policy_path
-from firmtool.io.roadmap_file import STAGES, write_roadmap
-from firmtool.io.roadmap_file import Roadmap as RoadmapFile
+from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.online.policy import Policy
 from firmtool.problem import ValidityChecker
 from firmtool.reports import BuildReport, SolveReport

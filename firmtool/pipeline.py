@@ -49,7 +49,7 @@ from firmtool.io.atomic import check_target
 from firmtool.io.hashing import digest, inputs_hash
 from firmtool.io.locking import writer_lock
 from firmtool.io.roadmap_file import (
-    Roadmap,
+    RoadmapFile,
     concat_edge_tables,
     create_roadmap,
     is_roadmap_file,
@@ -105,7 +105,7 @@ def default_output(scenario: Scenario) -> Path:
     return Path("artifacts") / f"{scenario.name}.h5"
 
 
-def problem_of(roadmap: Roadmap, validity: Callable | None = None, *, need_validity: bool = True) -> Problem:
+def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_validity: bool = True) -> Problem:
     """Rebuild the problem from the scenario text stored in the roadmap, and check the roadmap's
     stages against its model (dimensions, node centres in bounds and valid).
 
@@ -131,7 +131,7 @@ def problem_of(roadmap: Roadmap, validity: Callable | None = None, *, need_valid
     return problem
 
 
-def validity_of(roadmap: Roadmap) -> str:
+def validity_of(roadmap: RoadmapFile) -> str:
     """The identity of the Python validity checker a roadmap was built with ("" for none)."""
     return str(roadmap.attrs("nodes").get(VALIDITY_ATTR, "")) if roadmap.has("nodes") else ""
 
@@ -146,7 +146,7 @@ def check_output(path: str | Path, force: bool = False) -> Path:
     return check_target(path, "roadmap", is_roadmap_file, force)
 
 
-def design_of(roadmap: Roadmap) -> Design:
+def design_of(roadmap: RoadmapFile) -> Design:
     nodes = roadmap.require("nodes", "centers", "kind")
     c = roadmap.require("controllers", "u_eq", "K", "S", "L", "P", "Sigma", "scale",
                         "edge_source", "edge_target", "edge_steps")
@@ -155,7 +155,7 @@ def design_of(roadmap: Roadmap) -> Design:
                   edge_target=c["edge_target"].astype(np.int64), edge_steps=c["edge_steps"].astype(np.int64))
 
 
-def execution_design(roadmap: Roadmap) -> Design:
+def execution_design(roadmap: RoadmapFile) -> Design:
     """The design with one edge row per row of ``/edges`` (the edges a policy indexes).
 
     A policy's edge indices are rows of the estimated edge table, which lacks the designed edges
@@ -243,7 +243,7 @@ def _check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: 
                          f"{problem.scenario.controller.node_radius:g}); move the goal or lower the node radius")
 
 
-def controllers_inputs(roadmap: Roadmap) -> str:
+def controllers_inputs(roadmap: RoadmapFile) -> str:
     """Identity of the design stage's inputs: the nodes' inputs and the node centres and kinds."""
     nodes = roadmap.require("nodes", "centers", "kind")
     return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
@@ -273,7 +273,7 @@ def design_stage(path: str | Path, *, validity: Callable | None = None, workers:
 def _design_stage(path: str | Path, validity: Callable | None = None, session: Workers | None = None,
                   progress: ProgressCallback | None = None) -> DesignReport:
     t0 = time.perf_counter()
-    roadmap = Roadmap(path)
+    roadmap = RoadmapFile(path)
     problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
@@ -349,7 +349,7 @@ def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, sch
                     checkpoint_seconds: float, validity: Callable | None = None,
                     session: Workers | None = None) -> EstimateReport:
     t0 = time.perf_counter()
-    roadmap = Roadmap(path)
+    roadmap = RoadmapFile(path)
     problem = problem_of(roadmap, validity)
     d = design_of(roadmap)
     sc = problem.scenario
@@ -521,7 +521,7 @@ def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, fa
                           notices=tuple(notices))
 
 
-def edge_probabilities(roadmap: Roadmap) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
+def edge_probabilities(roadmap: RoadmapFile) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
     """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``.
 
     Failure includes the goal misses (:data:`firmtool.estimation.edges.GOAL_MISS`: the belief declared arrival in
@@ -561,7 +561,7 @@ def policy_inputs(edges_inputs: str, failure_cost: float, method: str, cost: obj
     return inputs_hash(edges_inputs, failure_cost, method, digest(cost).hex())
 
 
-def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
+def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, method: str = "value",
                  progress: ProgressCallback | None = None) -> PolicyGroup:
     """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
     baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
@@ -660,7 +660,7 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
         After writing the policy, if the goal is unreachable from the start node.
     """
     with writer_lock(path):
-        roadmap = Roadmap(path)
+        roadmap = RoadmapFile(path)
         group = solve_policy(roadmap, failure_cost=failure_cost, method=method, progress=progress)
         write_policy(path, group)
     J = group.arrays["cost_to_go"]
@@ -670,7 +670,7 @@ def solve_stage(path: str | Path, *, failure_cost: float | None = None, method: 
     return solve_report(path, group, roadmap.require("edges", "target")["target"], goals, node_task_points(roadmap))
 
 
-def node_task_points(roadmap: Roadmap) -> np.ndarray | None:
+def node_task_points(roadmap: RoadmapFile) -> np.ndarray | None:
     """The nodes' task points (N, D) (:meth:`firmtool.robots.Robot.task_point`; the robot alone is
     built, not the problem), or None when the robot cannot be built here (a robot class the
     roadmap's process had and this one has not)."""
@@ -686,13 +686,13 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def _resumable(out: Path, scenario: Scenario, validity: str = "") -> Roadmap | None:
+def _resumable(out: Path, scenario: Scenario, validity: str = "") -> RoadmapFile | None:
     """The roadmap at ``out`` if its nodes were sampled from the same inputs (so the build can go on
     from it), else None (a new roadmap replaces it)."""
     if not out.exists():
         return None
     try:
-        rm = Roadmap(out)
+        rm = RoadmapFile(out)
         rm.require("nodes", "centers", "kind", fresh=False)
     except FileBusyError:
         raise  # another process is writing it: never start over under its feet
@@ -719,7 +719,7 @@ def add_nodes_stage(path: str | Path, count: int, connect: bool = False, *,
 
 def _add_nodes_stage(path: str | Path, count: int, connect: bool, validity: Callable | None = None) -> AddNodesReport:
     t0 = time.perf_counter()
-    roadmap = Roadmap(path)
+    roadmap = RoadmapFile(path)
     problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     attrs = roadmap.attrs("nodes")
@@ -814,7 +814,7 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
     notices: list[str] = []
 
     def design_and_estimate() -> EstimateReport:
-        rm = Roadmap(out)
+        rm = RoadmapFile(out)
         if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
                 and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
             seconds["design"] += design_stage(out, validity=validity, session=session, progress=progress).seconds
@@ -836,7 +836,7 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
         e = last or e
     else:
         del seconds["solve"]
-    rm = Roadmap(out)
+    rm = RoadmapFile(out)
     nodes = rm.require("nodes", "centers")["centers"].shape[0]
     connectivity = roadmap_connectivity(rm, validity)
     rate = totals["simulated_particle_steps"] / seconds["estimate"] if seconds["estimate"] else 0.0
@@ -849,7 +849,7 @@ def _build(scenario: Scenario, out: Path, *, workers: int | None, executor: str,
                        notices=tuple(notices))
 
 
-def roadmap_connectivity(roadmap: Roadmap, validity: Callable | None = None) -> ConnectivityReport:
+def roadmap_connectivity(roadmap: RoadmapFile, validity: Callable | None = None) -> ConnectivityReport:
     """The connected structure of a roadmap's nodes (:func:`firmtool.roadmap.connectivity.connectivity_report`),
     what its connection stage added, and the goal nodes the start reaches under the estimated edges
     (when ``/edges`` is there). ``validity``: the roadmap's Python validity checker, if it was built
@@ -873,7 +873,7 @@ def _restamp_policy(out: Path) -> None:
     """A policy kept by a build whose scenario text changed is still valid if its inputs (edge table,
     J_F, method, cost weights) are unchanged: stamp it with the new text; otherwise leave it stale
     (readers then ask for 'firmtool solve')."""
-    rm = Roadmap(out)
+    rm = RoadmapFile(out)
     if rm.stale_stages() != ["policy"]:  # nothing to do, or an earlier stage is stale too
         return
     a = rm.attrs("policy")
@@ -902,7 +902,7 @@ def _densify(out: Path, p_min: float, max_nodes: int | None, add_nodes: int | No
             seconds["solve"] += sol.seconds
         except RunFailure:  # the goal is not reachable yet: that is what densification is for
             p, reachable = 0.0, False
-        nodes = Roadmap(out).require("nodes", "centers")["centers"].shape[0]
+        nodes = RoadmapFile(out).require("nodes", "centers")["centers"].shape[0]
         rounds.append(DensifyRound(nodes=int(nodes), start_success_probability=float(p),
                                    estimated_edges=last.estimated_edges if last else None))
         if p >= p_min:

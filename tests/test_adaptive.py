@@ -8,11 +8,18 @@ import numpy as np
 import pytest
 
 import firmtool.pipeline
-from firmtool.estimation.adaptive import BINOMIAL_FLOOR, AdaptiveSettings, _neyman, allocate, required_halfwidth, solve_table
+from firmtool.estimation.adaptive import (
+    BINOMIAL_FLOOR,
+    AdaptiveSettings,
+    _neyman,
+    allocate,
+    required_halfwidth,
+    solve_table,
+)
 from firmtool.estimation.edge_table import to_arrays
 from firmtool.estimation.edges import FAILURE, EdgeEstimate, estimate_blocks, estimate_edge, merge_estimates
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline import build, design_of, problem_of, solve_stage
-from firmtool.io.roadmap_file import Roadmap
 from firmtool.scenario import CostSpec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,7 +84,7 @@ def smoke_problem(tmp_path_factory):
     scenario.write_text(SMOKE)
     out = tmp / "s.h5"
     build(scenario, out, workers=1)
-    rm = Roadmap(out)
+    rm = RoadmapFile(out)
     return problem_of(rm), design_of(rm)
 
 

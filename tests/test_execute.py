@@ -9,20 +9,19 @@ import pytest
 from typer.testing import CliRunner
 
 from firmtool.cli.commands import app
-from firmtool.roadmap.design import local_controller
-from firmtool.sim.disturbances import Disturbance, parse_disturbance, parse_disturbances
-from firmtool.estimation.edges import initial_ensemble, simulate
-from firmtool.io.episodes import load_episodes
 from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_counts_of, predicted_interval
-from firmtool.results import wilson_interval
-from firmtool.roadmap.nodes import GOAL, START_INDEX
+from firmtool.estimation.edges import initial_ensemble, simulate
+from firmtool.io.episodes import load_episodes
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.online import Policy, ReplanSettings
 from firmtool.online.innovation import reset_belief
-from firmtool.results import EventKind
-from firmtool.sim import SimulatedSystem, run_episodes
 from firmtool.pipeline import design_of, problem_of
-from firmtool.io.roadmap_file import Roadmap
+from firmtool.results import EventKind, wilson_interval
+from firmtool.roadmap.design import local_controller
+from firmtool.roadmap.nodes import GOAL, START_INDEX
+from firmtool.sim import SimulatedSystem, run_episodes
+from firmtool.sim.disturbances import Disturbance, parse_disturbance, parse_disturbances
 
 runner = CliRunner()
 EV_DISTURBANCE, EV_REPLAN = EventKind.DISTURBANCE, EventKind.REPLAN
@@ -31,7 +30,7 @@ EV_DISTURBANCE, EV_REPLAN = EventKind.DISTURBANCE, EventKind.REPLAN
 @pytest.fixture(scope="module")
 def smoke(smoke_roadmap):
     path, _ = smoke_roadmap
-    rm = Roadmap(path)
+    rm = RoadmapFile(path)
     pol = rm.require("policy", "edge", "cost_to_go", "success_probability")
     return path, rm, problem_of(rm), design_of(rm), pol
 
@@ -384,8 +383,8 @@ def test_replan_after_an_alarm_starts_near_the_true_state(smoke):
     below what a consistent belief (distances chi2_2) exceeds in only 1% of samples of this size
     (an order-statistic bound: the median is below chi2_2's p-quantile whenever more than half the
     draws are, which, with p chosen below, a consistent belief gives with probability 0.99)."""
-    from scipy.stats import binom, chi2
     from scipy.optimize import brentq
+    from scipy.stats import binom, chi2
 
     rep = run(smoke, episodes=20, disturbances=parse_disturbances(["push:30:1.5"]), record=True)
     errors, mahalanobis = [], []

@@ -28,13 +28,13 @@ in memory from the old one and hands the bytes to :func:`firmtool.io.atomic.writ
 file in the same folder, then a rename): a crash never leaves a half-written roadmap, and a full
 disk is one clean error.
 
-:class:`Roadmap` is the one reader: it refuses, in one line naming the file and the dataset, a file
+:class:`RoadmapFile` is the one reader: it refuses, in one line naming the file and the dataset, a file
 that is not a firmtool roadmap, too large to read (checked from the shapes before anything is
 read), of the wrong shapes or dtypes, with values out of range (non-finite or negative costs,
 probabilities outside [0, 1], outcome counts that do not sum to the particles of their edge, node
 kinds, edge endpoints, policy edges that do not leave their node...), or with stages computed from
 another scenario than the stored one. Each check runs when a command first asks for the stage
-(:meth:`Roadmap.require`), so a command checks every dataset it uses and no other.
+(:meth:`RoadmapFile.require`), so a command checks every dataset it uses and no other.
 """
 
 from __future__ import annotations
@@ -180,7 +180,7 @@ def _write_table(f: h5py.File, name: str, arrays: Mapping[str, np.ndarray], attr
     g = f.create_group(name)
     g.attrs["encoding-type"] = f"firmtool.{name}"
     g.attrs["encoding-version"] = SCHEMA_VERSION
-    if name in STAGES:  # computed from the scenario stored now (see Roadmap.require)
+    if name in STAGES:  # computed from the scenario stored now (see RoadmapFile.require)
         g.attrs["scenario_sha256"] = str(f.attrs.get("scenario_sha256", ""))
     for k, v in attrs.items():
         g.attrs[k] = v
@@ -273,7 +273,7 @@ def restamp(path: str | Path, stages: tuple[str, ...]) -> None:
                 f[stage].attrs["scenario_sha256"] = sha
 
 
-class Roadmap:
+class RoadmapFile:
     """A roadmap file read into memory; each stage validated when a command first asks for it.
 
     Attributes
@@ -544,7 +544,7 @@ def _check_shapes(path: Path, stage: str, arrays: Mapping[str, np.ndarray], dims
     (updated with the sizes first seen)."""
     for name, symbols in _SHAPES[stage].items():
         if name not in arrays:
-            continue  # Roadmap.require names a missing dataset when a stage needs it
+            continue  # RoadmapFile.require names a missing dataset when a stage needs it
         a = np.asarray(arrays[name])
         at = _where(path, stage, name, where)
         if a.dtype.kind not in "biuf" or ((stage, name) in _INTEGER and a.dtype.kind not in "iu"):
@@ -584,7 +584,7 @@ def _index(at: str, a: np.ndarray, low: int, high: int | None, sym: str = "") ->
         _fail(at, f"holds values outside [{low}, {sym or (high if high is not None else 'inf')})")
 
 
-def _check_nodes(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+def _check_nodes(rm: RoadmapFile, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
     p = rm.path
     if "centers" in arrays:
         c = arrays["centers"]
@@ -604,7 +604,7 @@ def _check_nodes(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[s
             _fail(at, "holds no goal node")
 
 
-def _check_controllers(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+def _check_controllers(rm: RoadmapFile, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
     p, dims = rm.path, rm._dims
     for name in ("u_eq", "K", "S", "L", "P", "Sigma", "scale"):
         if name in arrays:
@@ -628,11 +628,11 @@ def _check_controllers(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Map
             _fail(_where(p, "controllers", "edge_steps"), f"holds values outside [1, {top}]")
 
 
-def _check_edges(rm: Roadmap | Path, arrays: Mapping[str, np.ndarray], dims: dict[str, int] | None = None,
+def _check_edges(rm: RoadmapFile | Path, arrays: Mapping[str, np.ndarray], dims: dict[str, int] | None = None,
                  where: str | None = None) -> None:
     """The ``/edges`` table (or the ``/edge_cache``, with ``where``)."""
-    p = rm.path if isinstance(rm, Roadmap) else rm
-    dims = rm._dims if isinstance(rm, Roadmap) else (dims or {})
+    p = rm.path if isinstance(rm, RoadmapFile) else rm
+    dims = rm._dims if isinstance(rm, RoadmapFile) else (dims or {})
     at = lambda name: _where(p, "edges", name, where)  # noqa: E731
     N, F = dims.get("N"), dims.get("F", 0)
     needed = ("source", "target", "particles", "outcome_edge", "outcome_code", "outcome_count")
@@ -667,7 +667,7 @@ def _check_edges(rm: Roadmap | Path, arrays: Mapping[str, np.ndarray], dims: dic
                                    "particles")
 
 
-def _check_edges_stage(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+def _check_edges_stage(rm: RoadmapFile, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
     _check_edges(rm, arrays)
     p = rm.path
     c = rm.stages["controllers"][0]
@@ -693,7 +693,7 @@ def _check_edges_stage(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Map
     rm._edge_rows = rows.astype(np.int64)
 
 
-def _check_policy(rm: Roadmap, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+def _check_policy(rm: RoadmapFile, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
     p, dims = rm.path, rm._dims
     N, F = dims.get("N"), dims.get("F", 0)
     at = lambda name: _where(p, "policy", name)  # noqa: E731
