@@ -26,7 +26,9 @@ reader compares it with the stored scenario's, to refuse a stale stage whatever 
 stages written before it existed carry none and are not checked). Every write builds the new file
 in memory from the old one and hands the bytes to :func:`firmtool.io.atomic.write_bytes` (temporary
 file in the same folder, then a rename): a crash never leaves a half-written roadmap, and a full
-disk is one clean error.
+disk is one clean error. Every function here that takes a path also takes a
+:class:`~firmtool.io.memory_file.MemoryFile` (the roadmap of a build without an output file): the
+same image is then kept in memory, and nothing is written to disk.
 
 :class:`RoadmapFile` is the one reader: it refuses, in one line naming the file and the dataset, a file
 that is not a firmtool roadmap, too large to read (checked from the shapes before anything is
@@ -51,8 +53,8 @@ import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import FileBusyError, RoadmapError
-from firmtool.io.atomic import write_bytes
 from firmtool.io.limits import MAX_SCENARIO_BYTES
+from firmtool.io.memory_file import MemoryFile, as_target, readable, replace_bytes, size_of
 from firmtool.io.schema import MAX_STATE_DIM
 
 SCHEMA_VERSION = 1
@@ -72,9 +74,9 @@ MAX_ATTRIBUTE_BYTES = MAX_SCENARIO_BYTES
 
 
 @contextmanager
-def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
+def _atomic_copy(path: Path | MemoryFile, fresh: bool = False) -> Iterator[h5py.File]:
     """Open an in-memory copy of ``path`` (a new file if ``fresh``) for writing; on success, write it
-    atomically over ``path``.
+    atomically over ``path`` (or keep it as the bytes of a :class:`~firmtool.io.memory_file.MemoryFile`).
 
     HDF5 writes only to memory here (never to a file that can fill a disk): the finished image is
     written by :func:`firmtool.io.atomic.write_bytes`, which turns a full disk into one clean error.
@@ -97,16 +99,16 @@ def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
     else:
         with h5py.File(edited, "w") as f:
             yield f
-    write_bytes(path, edited.getbuffer())
+    replace_bytes(path, edited.getbuffer())
 
 
-def create_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int) -> None:
+def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int) -> None:
     """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over)."""
-    with _atomic_copy(Path(path), fresh=True) as f:
+    with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
 
 
-def write_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int,
+def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
@@ -115,7 +117,7 @@ def write_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, se
     stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
         ``scenario_sha256`` stamp included; one without gets the stored scenario's).
     """
-    with _atomic_copy(Path(path), fresh=True) as f:
+    with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
         for name in STAGES:
             if name in stages:
@@ -134,7 +136,7 @@ def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
     f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
+def write_stage(path: str | Path | MemoryFile, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
                 drop_later: bool = True, cache: Mapping[str, np.ndarray] | None = None) -> None:
     """Replace one stage group atomically. Later stages are dropped: they depend on this one.
 
@@ -150,7 +152,7 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
     """
     if stage not in STAGES:
         raise ValueError(f"unknown stage {stage!r}")
-    p = Path(path)
+    p = as_target(path)
     if not p.exists():
         raise RoadmapError(f"{p}: no such roadmap file")
     with _atomic_copy(p) as f:
@@ -212,12 +214,12 @@ def _cache_edges(f: h5py.File) -> None:
         _write_table(f, CACHE, merged, {"description": "edge estimates keyed by their inputs, for reuse"})
 
 
-def read_edge_cache(path: str | Path, nodes: int | None = None) -> dict[str, np.ndarray]:
+def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None) -> dict[str, np.ndarray]:
     """The ``/edge_cache`` table (estimates of an interrupted or superseded estimate stage), or {}
     if there is none. A cache that fails the checks of ``/edges`` (shapes, ranges, counts summing to
     the particles; node ids below ``nodes`` when given) is ignored: it only saves work."""
     try:
-        with h5py.File(path, "r") as f:
+        with h5py.File(readable(path), "r") as f:
             if CACHE not in f or not isinstance(f[CACHE], h5py.Group):
                 return {}
             g = f[CACHE]
@@ -233,30 +235,31 @@ def read_edge_cache(path: str | Path, nodes: int | None = None) -> dict[str, np.
         dims = {"C": 3, "H": 32}
         if nodes is not None:
             dims["N"] = nodes
-        _check_shapes(Path(path), "edges", table, dims, where=CACHE)
-        _check_edges(Path(path), table, dims, where=CACHE)
+        _check_shapes(as_target(path), "edges", table, dims, where=CACHE)
+        _check_edges(as_target(path), table, dims, where=CACHE)
     except RoadmapError:
         return {}
     return table
 
 
-def write_edge_cache(path: str | Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+def write_edge_cache(path: str | Path | MemoryFile, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
     """Replace ``/edge_cache`` atomically (a checkpoint of the estimate stage); later stages stay."""
-    p = Path(path)
+    p = as_target(path)
     if not p.exists():
         raise RoadmapError(f"{p}: no such roadmap file")
     with _atomic_copy(p) as f:
         _write_table(f, CACHE, arrays, attrs)
 
 
-def update_scenario(path: str | Path, scenario_text: str, scenario_sha256: str, keep: tuple[str, ...] = ()) -> None:
+def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str,
+                    keep: tuple[str, ...] = ()) -> None:
     """Store a new scenario text (same seed) in an existing roadmap.
 
     The caller checked which stages stay valid under the new text (``keep``: they are stamped with
     its sha256); the others keep the stamp of the old text, so readers refuse them until they are
     recomputed (each stage's ``inputs_sha256`` tells the build which ones to re-run).
     """
-    with _atomic_copy(Path(path)) as f:
+    with _atomic_copy(as_target(path)) as f:
         f.attrs["scenario_toml"] = scenario_text
         f.attrs["scenario_sha256"] = scenario_sha256
         for stage in keep:
@@ -264,9 +267,9 @@ def update_scenario(path: str | Path, scenario_text: str, scenario_sha256: str, 
                 f[stage].attrs["scenario_sha256"] = scenario_sha256
 
 
-def restamp(path: str | Path, stages: tuple[str, ...]) -> None:
+def restamp(path: str | Path | MemoryFile, stages: tuple[str, ...]) -> None:
     """Mark ``stages`` as valid for the stored scenario (the caller checked their inputs' hashes)."""
-    with _atomic_copy(Path(path)) as f:
+    with _atomic_copy(as_target(path)) as f:
         sha = str(f.attrs["scenario_sha256"])
         for stage in stages:
             if stage in f and isinstance(f[stage], h5py.Group):
@@ -274,7 +277,8 @@ def restamp(path: str | Path, stages: tuple[str, ...]) -> None:
 
 
 class RoadmapFile:
-    """A roadmap file read into memory; each stage validated when a command first asks for it.
+    """A roadmap file (or a :class:`~firmtool.io.memory_file.MemoryFile`) read into memory; each stage
+    validated when a command first asks for it.
 
     Attributes
     ----------
@@ -283,18 +287,18 @@ class RoadmapFile:
         and sizes checked, values not yet: use :meth:`require`).
     """
 
-    def __init__(self, path: str | Path) -> None:
-        p = Path(path)
-        self.path = p
+    def __init__(self, path: str | Path | MemoryFile) -> None:
+        p = as_target(path)
+        self.path = p.name if isinstance(p, MemoryFile) else p  # what messages name
         if not p.exists():
             raise RoadmapError(f"{p}: no such roadmap file")
         if not p.is_file():
             raise RoadmapError(f"{p}: not a readable HDF5 roadmap file (not a regular file)")
-        if p.stat().st_size > MAX_READ_BYTES:  # bounds what any attribute (stored in the file) can hold
+        if size_of(p) > MAX_READ_BYTES:  # bounds what any attribute (stored in the file) can hold
             raise RoadmapError(f"{p}: a roadmap file larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged or "
                                "not a roadmap)")
         try:
-            f = h5py.File(p, "r")
+            f = h5py.File(readable(p), "r")
         except (OSError, ValueError) as exc:
             if "unable to lock file" in str(exc):
                 raise FileBusyError(f"{p}: the file is open for writing in another process (HDF5 file lock); "
