@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -31,7 +30,6 @@ from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.graph import SolveStatus, policy_path
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.online.policy import Policy
-from firmtool.problem import ValidityChecker
 from firmtool.reports import BuildReport, SolveReport
 from firmtool.results import Results
 from firmtool.roadmap.nodes import GOAL, START_INDEX
@@ -49,6 +47,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.roadmap.design import Design
     from firmtool.sim.disturbances import Disturbance
 
+# a user's disturbance: ``fn(step, state (n,), rng) -> new state (n,) or None`` (firmtool.sim.disturbances)
+DisturbanceFunction = Callable[[int, np.ndarray, np.random.Generator], "np.ndarray | None"]
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
 # /policy attributes that hold each policy's prediction interval
 _INTERVAL_ATTRS = {"firm": "success_probability_ci95", "shortest-path": "shortest_path_success_probability_ci95"}
@@ -303,8 +303,8 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
     output : str or Path, optional
         Build into this roadmap file (as ``firmtool build -o``): an existing roadmap there, sampled
         from the same settings, is continued (an interrupted build resumes, unchanged edges are
-        reused). Without it the roadmap is kept in memory and nothing is written outside a
-        temporary folder; :meth:`Roadmap.save` writes it later.
+        reused). Without it the roadmap is kept in memory and nothing is written to disk;
+        :meth:`Roadmap.save` writes it later.
     executor, scheduler : str, optional
         ``"process"`` (default) or ``"dask"`` (dask.distributed; ``scheduler`` its address).
     fresh : bool
@@ -337,21 +337,16 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
     ScenarioError, RunFailure, NumericalError
         Bad settings; no collision-free edge; a Riccati equation without a stabilising solution.
     """
-    scenario = pipeline.as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
-
-    checker = None if validity is None else ValidityChecker(validity)
-    options: dict[str, Any] = dict(workers=workers, executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min,
-                                   max_nodes=max_nodes, add_nodes=add_nodes, progress=progress,
-                                   checkpoint_seconds=checkpoint_seconds, force=force, validity=checker)
+    # every input checked once, here where it enters; the stages take the typed request as it is
+    request = pipeline.build_request(scenario, output, keep_in_memory=output is None, workers=workers,
+                                     executor=executor, scheduler=scheduler, progress=progress, fresh=fresh,
+                                     p_min=p_min, max_nodes=max_nodes, add_nodes=add_nodes,
+                                     checkpoint_seconds=checkpoint_seconds, force=force, validity=validity)
+    report = pipeline.build_roadmap(request)
+    data = RoadmapFile(request.target)  # read back from the file, or from the bytes kept in memory
     if output is not None:
-        report = pipeline.build(scenario, output, **options)
-        return Roadmap(RoadmapFile(output), path=Path(output), report=report, validity=checker)
-    with tempfile.TemporaryDirectory(prefix="firmtool-") as tmp:
-        out = Path(tmp) / f"{scenario.name}.h5"
-        report = pipeline.build(scenario, out, **options)
-        data = RoadmapFile(out)  # read into memory: the folder goes
-    data.path = Path(f"<roadmap {scenario.name} in memory>")  # what its messages name
-    return Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None), validity=checker)
+        return Roadmap(data, path=Path(output), report=report, validity=request.validity)
+    return Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None), validity=request.validity)
 
 
 # -- the solution ----------------------------------------------------------------------------------------
@@ -560,7 +555,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
 
 def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
              start: np.ndarray | None = None,
-             disturbances: Iterable["str | Disturbance | Callable[[int, np.ndarray, np.random.Generator], np.ndarray | None]"] = (),
+             disturbances: Iterable["str | Disturbance | DisturbanceFunction"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
              progress: "ProgressCallback | None" = None) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).

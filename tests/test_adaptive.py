@@ -7,7 +7,7 @@ import h5py
 import numpy as np
 import pytest
 
-import firmtool.pipeline
+import firmtool.pipeline.edge_runs
 from firmtool.estimation.adaptive import (
     BINOMIAL_FLOOR,
     AdaptiveSettings,
@@ -125,7 +125,7 @@ def test_an_interrupted_refinement_resumes_to_the_uninterrupted_table(tmp_path, 
     rounds = report.adaptive.rounds
     assert len(rounds) >= 3 and report.adaptive.particles_added > 0
 
-    real = firmtool.pipeline.run_edges
+    real = firmtool.pipeline.edge_runs.run_edges
     calls = {"blocks": 0}
 
     def interrupting(job, edges, **kw):
@@ -136,10 +136,10 @@ def test_an_interrupted_refinement_resumes_to_the_uninterrupted_table(tmp_path, 
         return real(job, edges, **kw)
 
     out = tmp_path / "r.h5"
-    monkeypatch.setattr(firmtool.pipeline, "run_edges", interrupting)
+    monkeypatch.setattr(firmtool.pipeline.edge_runs, "run_edges", interrupting)
     with pytest.raises(firmtool.pipeline.EstimationInterrupted):
         build(scenario, out, workers=1)
-    monkeypatch.setattr(firmtool.pipeline, "run_edges", real)
+    monkeypatch.setattr(firmtool.pipeline.edge_runs, "run_edges", real)
     resumed = build(scenario, out, workers=1)
     assert resumed.resumed and resumed.estimated_edges == 0  # the first pass came from the cache
     # the first round's blocks too: less simulated than the clean build's refinement
