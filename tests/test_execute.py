@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_counts_of, predicted_interval
 from firmtool.estimation.edges import initial_ensemble, simulate

@@ -24,7 +24,7 @@ from _processes import as_a_shell_starts_it
 from typer.testing import CliRunner
 
 import firmtool.io.atomic
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.io.locking import lock_path, writer_lock
 from firmtool.io.roadmap_file import RoadmapFile
 

@@ -27,7 +27,7 @@ from _processes import as_a_shell_starts_it
 from typer.testing import CliRunner
 
 import firmtool.estimation.executors
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.estimation.edges import estimate_edge as real_estimate_edge
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline import build, design_stage, estimate_stage, sample_stage, solve_stage
@@ -181,7 +181,7 @@ def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, si
     for particles in (2000, 8000, 32000):
         scenario = _scenario(tmp_path, **{"particles = 100": f"particles = {particles}\nadaptive_particles = 0"})
         out.unlink(missing_ok=True)
-        cmd = [sys.executable, "-m", "firmtool.cli.commands", "build", str(scenario), "-o", str(out), "--workers", "2",
+        cmd = [sys.executable, "-m", "firmtool", "build", str(scenario), "-o", str(out), "--workers", "2",
                "--checkpoint-seconds", "0"]
         done, seen = _run_until_cached(cmd, out, 8, sig)
         # finished before the signal: exit 0, or the signal's own exit once the command had printed its

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.models import planar_arm
 from firmtool.figures import point_covariance, point_jacobian
 from firmtool.problem import build_problem

@@ -18,7 +18,7 @@ import tomli_w
 from typer.testing import CliRunner
 
 from firmtool import robots
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.errors import ScenarioError
 from firmtool.geometry.shapes import KINDS
 from firmtool.scenario import OPTIONAL_SECTIONS, parse_scenario, sections

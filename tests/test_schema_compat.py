@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.errors import RoadmapError
 from firmtool.io.roadmap_file import SCHEMA_VERSION, STAGES, RoadmapFile
 

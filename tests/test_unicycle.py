@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.control.controllers import kalman_update, plan_local_controller
 from firmtool.roadmap.design import design, local_controller, node_controller
 from firmtool.estimation.edges import GOAL_MISS, belief_step, estimate_edge, initial_ensemble

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.errors import InputError
 from firmtool.estimation import compiled as kernels
 from firmtool.estimation.edge_table import edge_keys
