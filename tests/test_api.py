@@ -14,11 +14,11 @@ matplotlib.use("Agg")  # the test process draws no window (the library itself se
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from conftest import ROOT  # noqa: E402
 
 import firmtool as ft  # noqa: E402
 import firmtool.estimation.executors  # noqa: E402
 from firmtool.estimation.edges import estimate_edge as real_estimate_edge  # noqa: E402
-from conftest import ROOT  # noqa: E402
 
 
 def cli(*args, cwd=None) -> dict:

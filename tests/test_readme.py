@@ -7,7 +7,6 @@ import shlex
 from pathlib import Path
 
 import matplotlib
-import pytest
 from typer.testing import CliRunner
 
 from firmtool.cli import app

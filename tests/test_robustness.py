@@ -33,8 +33,8 @@ from typer.testing import CliRunner
 from firmtool.cli import app
 from firmtool.cli.output import to_json
 from firmtool.errors import ScenarioError
-from firmtool.problem import build_problem
 from firmtool.estimation.budgets import budget, check_budget
+from firmtool.problem import build_problem
 from firmtool.scenario import load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

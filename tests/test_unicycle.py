@@ -8,14 +8,14 @@ from typer.testing import CliRunner
 
 from firmtool.cli import app
 from firmtool.control.controllers import kalman_update, plan_local_controller
-from firmtool.roadmap.design import design, local_controller, node_controller
+from firmtool.control.stabilisers import OrbitSpec, design_periodic_node
 from firmtool.estimation.edges import GOAL_MISS, belief_step, estimate_edge, initial_ensemble
 from firmtool.models.linear import LightDarkNoise, LinearGaussianModel
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
-from firmtool.roadmap.nodes import GOAL, REGULAR, START
 from firmtool.problem import build_problem
+from firmtool.roadmap.design import design, local_controller, node_controller
+from firmtool.roadmap.nodes import GOAL, REGULAR, START
 from firmtool.scenario import parse_scenario
-from firmtool.control.stabilisers import OrbitSpec, design_periodic_node, figure_eight
 
 DT = 0.1
 TINY = """
