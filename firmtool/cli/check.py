@@ -18,7 +18,6 @@ from typing import Callable
 
 import numpy as np
 
-from firmtool.api import load_scenario
 from firmtool.errors import InputError
 from firmtool.estimation.budgets import check_budget
 from firmtool.pipeline import as_scenario, check_start_apart_from_goals
@@ -93,7 +92,7 @@ def check_scenario(scenario: Scenario | str | Path, *, validity: Callable | None
         A start or goal node whose stabiliser has no stabilising Riccati solution.
     """
     t0 = time.perf_counter()
-    sc = as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
+    sc = as_scenario(scenario)  # the one normalisation: a file or a name read, a Scenario synced
     problem = build_problem(sc, validity=validity)
     budget = check_budget(problem)
     if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Iterator
 
 import numpy as np
 
 from firmtool.estimation.adaptive import AdaptiveReport, AdaptiveSettings, refine
 from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, to_arrays
 from firmtool.estimation.edges import EdgeEstimate, merge_estimates
-from firmtool.estimation.executors import EstimationJob, Workers, run_edges
+from firmtool.estimation.executors import BatchResult, EstimationJob, Workers, run_edges
 from firmtool.io import interrupts
 from firmtool.io.roadmap_file import concat_edge_tables, write_edge_cache
 from firmtool.pipeline.settings import WorkerSettings
@@ -80,7 +81,7 @@ class EdgeRuns:
             self.checkpoint()
             self._last = time.monotonic()
 
-    def _run(self, job: EstimationJob, items: list[int], counter: Counter | None = None):
+    def _run(self, job: EstimationJob, items: list[int], counter: Counter | None = None) -> Iterator[BatchResult]:
         s = self.workers
         return run_edges(job, items, workers=s.workers, executor=s.executor, scheduler=s.scheduler,
                          progress=counter.callback() if counter else None, session=self.session)

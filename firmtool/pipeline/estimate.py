@@ -151,9 +151,9 @@ def _run(runs: EdgeRuns, todo: list[int], counter: Counter | None, d: Design, re
                                     "command again to resume") from None
 
 
-def _estimate_report(path, sc: Scenario, E: int, estimated: int, reused: int, failures: list[FailedEdge],
-                     steps: int, simulated: int, workers: int, executor: str, seconds: float,
-                     up_to_date: bool = False, adaptive: AdaptiveReport | None = None,
+def _estimate_report(path: str | RoadmapTarget, sc: Scenario, E: int, estimated: int, reused: int,
+                     failures: list[FailedEdge], steps: int, simulated: int, workers: int, executor: str,
+                     seconds: float, up_to_date: bool = False, adaptive: AdaptiveReport | None = None,
                      notices: tuple[str, ...] = ()) -> EstimateReport:
     """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
     return EstimateReport(roadmap=str(path), edges=E, estimated_edges=estimated, reused_edges=reused,
