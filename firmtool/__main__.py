@@ -12,7 +12,7 @@ interrupts.install()
 
 def main() -> None:
     """Run the command line (imported only now, after the handler is in place)."""
-    # lazy, on purpose: the CLI's imports take 0.5-1 s (firmtool.cli.app), and a Ctrl-C during them
+    # lazy, on purpose: the CLI's imports take 0.25 s (firmtool.cli.app), and a Ctrl-C during them
     # ends in the handler's one line, not a traceback
     from firmtool.cli import main as cli_main
 

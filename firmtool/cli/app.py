@@ -11,28 +11,28 @@ estimate, build), :mod:`~firmtool.cli.solve`, :mod:`~firmtool.cli.execute`, :mod
 Start-up time: what the imports inside the commands save
 --------------------------------------------------------
 The command modules import typer, numpy and firmtool's light modules (errors, the console, atomic
-writes) at their top, and the library (:mod:`firmtool.api`, the pipeline, the engines, matplotlib,
-h5py) only inside the command that needs it. Measured (issue 34) on this machine kind, 2 cores
-shared with other work (load ~5.5: times are ~2.5x a quiet machine's), min of 5 runs each: the
-house before the split, as it is ("lazy"), and with every import inside a command moved to its
-module's top ("eager")::
+writes, threadpoolctl) at their top, and the library (:mod:`firmtool.api`, the pipeline, the
+engines, matplotlib, h5py) only inside the command that needs it. Measured (issue 34) on this
+machine kind (2 cores, load ~1.5), min of 5 runs each: the house before the split, as it is
+("lazy"), and with every import inside a command moved to its module's top ("eager")::
 
-                                              house      lazy      eager
-    firmtool --help                           1.64 s     1.67 s    11.5 s
-    firmtool --version                        0.83 s     1.02 s    10.1 s
-    a usage error (firmtool nosuch)           1.67 s     1.57 s     9.9 s
-    firmtool scenarios                        8.6 s      5.9 s     10.3 s
-    firmtool check scenarios/smoke.toml       7.1 s      7.4 s     10.5 s
-    import firmtool.cli (python -X importtime)  0.58 s   0.46 s     8.2 s
+                                               house     lazy     eager
+    firmtool --help                            0.40 s    0.40 s   3.42 s
+    firmtool --version                         0.25 s    0.27 s   3.04 s
+    a usage error (firmtool nosuch)            0.39 s    0.61 s   3.16 s
+    firmtool scenarios                         2.01 s    2.09 s   2.86 s
+    firmtool check scenarios/smoke.toml        2.35 s    2.28 s   3.98 s
+    import firmtool.cli (python -X importtime) 0.17 s    0.24 s   2.89 s
 
-What each lazy import saves ``firmtool --help`` (its import after ``import firmtool.cli``, same
-load, min of 7): firmtool.api 4.8 s, the pipeline 5.4 s, the figures (matplotlib) 7.3 s,
-firmtool.cli.check 6.2 s, firmtool.cli.inspect 5.1 s, the budgets 4.6 s, the replanning settings
-5.1 s, the disturbances 5.6 s, the scenario package 1.8 s, its docs 2.0 s, the robots 1.8 s, the
-problem 4.9 s, the engine's warm-up 4.3 s, scipy.linalg 0.6 s, rich's progress bars 0.1 s; h5py
-(the roadmap and episode files) 0.2-0.3 s of the 0.8-1.2 s import of firmtool.cli (``--help`` 1.2 s
-without it, 1.7 s with it, min of 12). The imports kept at the top cost less: io.atomic 0.01 s,
-threadpoolctl 0.004 s.
+(15 more runs of the first three, house against lazy: 0.46 / 0.47 s, 0.28 / 0.30 s, 0.41 / 0.44 s.)
+What each lazy import saves ``firmtool --help`` (its import after ``import firmtool.cli``, min of
+7): firmtool.api 2.0 s, the pipeline 1.6 s, the figures with matplotlib 1.9 s, firmtool.cli.check
+1.4 s, firmtool.cli.inspect 1.6 s, the budgets 1.3 s, the replanning settings 1.35 s, the
+disturbances 1.45 s, the scenario package 0.5 s, its docs 0.7 s, the robots 0.6 s, the engine's
+warm-up 1.3 s, scipy.linalg 0.22 s, h5py with the roadmap file's module 0.05 s and the episode
+files' 0.03 s, rich's progress bars 0.035 s: each 7% or more of ``--help``. At the top, costing a
+few milliseconds each: io.atomic (0.01 s), threadpoolctl (0.004 s). On a loaded machine (load
+~5.5) every number above is 2.5-3 times larger (``--help`` 1.7 s lazy, 11.5 s eager).
 """
 
 from __future__ import annotations

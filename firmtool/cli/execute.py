@@ -159,7 +159,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
 
       firmtool execute artifacts/point_lightdark.h5 --start 6.0,1.0
     """
-    # lazy: saves firmtool --help the library's import, 4.8 s, and h5py's, 0.2 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the library's import, 2.0 s, and h5py's, 0.03 s (firmtool.cli.app)
     import firmtool.api as ft
     from firmtool.estimation.budgets import check_execution
     from firmtool.io.episodes import check_output as check_episodes_output
@@ -200,7 +200,7 @@ def replan_settings(no_replan: bool, threshold: float, deadline: float | None, c
                     goal_lookback: int | None) -> "ReplanSettings":
     """The replanning options of ``firmtool execute``, checked (each error names its option) and as
     :class:`~firmtool.online.replanning.ReplanSettings` (None: the option's default)."""
-    # lazy: saves firmtool --help the online policy's import, 5.1 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the online policy's import, 1.35 s (firmtool.cli.app)
     from firmtool.online.replanning import CLOCKS, GOAL_CHECK, GOAL_LOOKBACK, JUMP_WINDOW, LATENCIES, ReplanSettings
     if not (np.isfinite(threshold) and threshold > 0):
         raise InputError(f"--replan-threshold: expected a finite number > 0, found {threshold}")

@@ -133,8 +133,8 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 def _run(fn: Callable[..., Any], args: tuple, kwargs: dict) -> Any:
     """Run a command with one BLAS thread, and a notice on stderr when the engine compiles."""
-    # lazy: saves firmtool --help and a usage error, which need neither, scipy.linalg's import (0.6 s)
-    # and the engine's warm-up module's (numba, 4.3 s) (firmtool.cli.app)
+    # lazy: saves firmtool --help and a usage error, which need neither, scipy.linalg's import (0.22 s)
+    # and the engine's warm-up module's (numba, 1.3 s) (firmtool.cli.app)
     import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
 
     from firmtool.estimation import warmup

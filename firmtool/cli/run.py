@@ -29,7 +29,7 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
 
     Example: firmtool run smoke --episodes 50
     """
-    # lazy: saves firmtool --help the library's import, 4.8 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft
     from firmtool.estimation.budgets import check_execution
     from firmtool.pipeline import default_output, unreachable_failure

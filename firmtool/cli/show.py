@@ -38,7 +38,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
 
       firmtool plot artifacts/point_lightdark.h5 --kind calibration -n 400 -o calibration.png
     """
-    # lazy: saves firmtool --help the library's and matplotlib's import, 7.3 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the library's and matplotlib's import, 2 s (firmtool.cli.app)
     import firmtool.api as ft
     from firmtool.estimation.budgets import check_execution
     from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
@@ -65,7 +65,7 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
 
     Example: firmtool inspect artifacts/smoke.h5 --json
     """
-    from firmtool.cli import inspect as inspect_module  # lazy: saves firmtool --help 5.1 s (firmtool.cli.app)
+    from firmtool.cli import inspect as inspect_module  # lazy: saves firmtool --help 1.6 s (firmtool.cli.app)
     check_exists(roadmap, "roadmap file")
     report = inspect_module.summarize(roadmap).to_dict()
     emit(report, as_json, lambda r: "\n".join(f"{k.replace('_', ' ')}: {console.value(v, k)}" for k, v in r.items()

@@ -43,7 +43,7 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
 
     Example: firmtool solve artifacts/smoke.h5 --failure-cost 500
     """
-    # lazy: saves firmtool --help the library's import, 4.8 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft
     from firmtool.pipeline import unreachable_failure
     check_exists(roadmap, "roadmap file")

@@ -36,7 +36,7 @@ def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
 
     Example: firmtool sample smoke -o artifacts/smoke.h5
     """
-    # lazy: saves firmtool --help the pipeline's import, 5.4 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import sample_stage
     # the pipeline's boundary reads the scenario (a file or a shipped name) once
     report = sample_stage(scenario, output, force=force, progress=console.progress()).to_dict()
@@ -51,7 +51,7 @@ def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled n
 
     Example: firmtool design artifacts/smoke.h5
     """
-    # lazy: saves firmtool --help the pipeline's import, 5.4 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import design_stage
     check_exists(roadmap, "roadmap file")
     emit(design_stage(roadmap, progress=console.progress()).to_dict(), as_json,
@@ -72,7 +72,7 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
 
     Example: firmtool estimate artifacts/smoke.h5 --workers 2
     """
-    # lazy: saves firmtool --help the pipeline's import, 5.4 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import estimate_stage
     check_exists(roadmap, "roadmap file")
     report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
@@ -148,7 +148,7 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
 
     Example: firmtool build point_lightdark --workers 2 --p-min 0.8 --max-nodes 120
     """
-    # lazy: saves firmtool --help the library's import, 4.8 s (firmtool.cli.app)
+    # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft
     from firmtool.pipeline import default_output
     if max_nodes is not None and p_min is None:
