@@ -41,9 +41,9 @@ def designed_roadmap(name: str) -> Path:
 
 def load(name: str):
     """(problem, design, regions) of a designed roadmap."""
+    from firmtool.io.roadmap_file import RoadmapFile
     from firmtool.pipeline import design_of, problem_of
-    from firmtool.io.roadmap_file import Roadmap
-    rm = Roadmap(designed_roadmap(name))
+    rm = RoadmapFile(designed_roadmap(name))
     problem, d = problem_of(rm), design_of(rm)
     return problem, d, d.regions(problem)
 

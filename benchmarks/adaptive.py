@@ -37,8 +37,8 @@ def run(path: Path, out: Path, workers: int, **estimation) -> dict:
     seconds = time.perf_counter() - t0
     sol = solve_stage(out)
     lo, hi = sol.start_success_probability_ci95
-    from firmtool.io.roadmap_file import Roadmap
-    e = Roadmap(out).require("edges", "particles", "particle_steps")
+    from firmtool.io.roadmap_file import RoadmapFile
+    e = RoadmapFile(out).require("edges", "particles", "particle_steps")
     return {"particles_per_edge_first_pass": sc.estimation.particles, "edges": report.edges,
             "particles": int(e["particles"].sum()), "particle_steps": int(e["particle_steps"].sum()),
             "p": sol.start_success_probability, "ci95": [lo, hi], "halfwidth": 0.5 * (hi - lo),

@@ -87,7 +87,7 @@ def main(argv=None) -> dict:
     from firmtool.estimation import executors as parallel
     from firmtool.estimation.compiled import engine_choice
     from firmtool.estimation.executors import EstimationJob, job_extras, run_edges
-    from firmtool.io.roadmap_file import Roadmap
+    from firmtool.io.roadmap_file import RoadmapFile
 
     @contextlib.contextmanager
     def session_of(executor: str, scheduler: str | None):
@@ -101,7 +101,7 @@ def main(argv=None) -> dict:
 
     problem, d, _ = load("arm")
     sc = problem.scenario
-    rm = Roadmap(designed_roadmap("arm"))
+    rm = RoadmapFile(designed_roadmap("arm"))
     edges = np.sort(np.random.default_rng(0).choice(d.edge_source.size, min(args.edges, d.edge_source.size),
                                                     replace=False)).tolist()
     engine = engine_choice(problem)[0]

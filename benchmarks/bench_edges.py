@@ -32,8 +32,8 @@ def _edges(d, count: int, seed: int = 0) -> np.ndarray:
 
 
 def engine_throughput(name: str, edges_count: int, repeat: int, particles: int | None = None) -> dict:
-    from firmtool.roadmap.design import local_controller
     from firmtool.estimation.edges import initial_ensemble, simulate
+    from firmtool.roadmap.design import local_controller
     problem, d, regions = load(name)
     M = particles or problem.scenario.estimation.particles
     edges = _edges(d, edges_count)
@@ -60,12 +60,13 @@ def engine_throughput(name: str, edges_count: int, repeat: int, particles: int |
 
 
 def estimate_throughput(name: str, edges_count: int, repeat: int, workers: int, eng: str) -> dict:
-    from firmtool.estimation.executors import EstimationJob, run_edges
     from _common import designed_roadmap
-    from firmtool.io.roadmap_file import Roadmap
+
+    from firmtool.estimation.executors import EstimationJob, run_edges
+    from firmtool.io.roadmap_file import RoadmapFile
     problem, d, _ = load(name)
     sc = problem.scenario
-    rm = Roadmap(designed_roadmap(name))
+    rm = RoadmapFile(designed_roadmap(name))
     edges = _edges(d, edges_count).tolist()
     job = EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(rm.path), design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed)

@@ -51,7 +51,7 @@ CASES = [(name, kind) for name in ("arm", "point") for kind in ("imperfect", "pe
 def _case(name: str, kind: str, edges_count: int, particles: int, tmp: Path) -> dict:
     """The designed roadmap of one scenario (perfect: its [measurement] replaced), edges, controllers, starts."""
     from firmtool.estimation.edges import initial_ensemble
-    from firmtool.io.roadmap_file import Roadmap
+    from firmtool.io.roadmap_file import RoadmapFile
     from firmtool.pipeline import design_of, design_stage, problem_of, sample_stage
     from firmtool.roadmap.design import local_controller
 
@@ -63,7 +63,7 @@ def _case(name: str, kind: str, edges_count: int, particles: int, tmp: Path) -> 
     out = tmp / f"{name}_{kind}.h5"
     sample_stage(src, out)
     design_stage(out)
-    rm = Roadmap(out)
+    rm = RoadmapFile(out)
     problem, d = problem_of(rm), design_of(rm)
     assert problem.perfect == (kind == "perfect")
     regions = d.regions(problem)

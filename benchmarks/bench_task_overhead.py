@@ -14,8 +14,8 @@ import scipy.linalg  # noqa: F401  (scipy's own BLAS loaded first, so the limit 
 from threadpoolctl import threadpool_limits
 
 from firmtool.estimation.executors import EstimationJob, run_edges
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline import design_of, problem_of
-from firmtool.io.roadmap_file import Roadmap
 
 
 def main() -> None:
@@ -26,7 +26,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
     threadpool_limits(1)
-    rm = Roadmap(args.roadmap)
+    rm = RoadmapFile(args.roadmap)
     problem, d = problem_of(rm), design_of(rm)
     sc = problem.scenario
     job = EstimationJob(scenario_text=rm.scenario_text, scenario_path=args.roadmap, design=d,

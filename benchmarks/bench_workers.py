@@ -37,11 +37,11 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     one_blas_thread()
     from firmtool.estimation.executors import EstimationJob, run_edges
-    from firmtool.io.roadmap_file import Roadmap
+    from firmtool.io.roadmap_file import RoadmapFile
 
     problem, d, _ = load("arm")
     sc = problem.scenario
-    rm = Roadmap(designed_roadmap("arm"))
+    rm = RoadmapFile(designed_roadmap("arm"))
     edges = np.sort(np.random.default_rng(0).choice(d.edge_source.size, min(args.edges, d.edge_source.size),
                                                     replace=False)).tolist()
     job = EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(rm.path), design=d,

@@ -41,14 +41,14 @@ def main(argv=None) -> dict:
                     help="time the local controller with its recursion run to the end (as execution reads it)")
     args = ap.parse_args(argv)
     one_blas_thread()
-    from firmtool.roadmap.design import local_controller
     from firmtool.estimation.edges import edge_seed_sequence, initial_ensemble, simulate
     from firmtool.estimation.executors import EstimationJob, run_batch
-    from firmtool.io.roadmap_file import Roadmap
+    from firmtool.io.roadmap_file import RoadmapFile
+    from firmtool.roadmap.design import local_controller
 
     problem, d, regions = load(args.robot)
     sc = problem.scenario
-    rm = Roadmap(designed_roadmap(args.robot))
+    rm = RoadmapFile(designed_roadmap(args.robot))
     edges = np.sort(np.random.default_rng(0).choice(d.edge_source.size, min(args.edges, d.edge_source.size),
                                                     replace=False)).tolist()
     job = EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(rm.path), design=d,

@@ -7,12 +7,19 @@ import h5py
 import numpy as np
 import pytest
 
-import firmtool.pipeline
-from firmtool.estimation.adaptive import BINOMIAL_FLOOR, AdaptiveSettings, _neyman, allocate, required_halfwidth, solve_table
+import firmtool.pipeline.edge_runs
+from firmtool.estimation.adaptive import (
+    BINOMIAL_FLOOR,
+    AdaptiveSettings,
+    _neyman,
+    allocate,
+    required_halfwidth,
+    solve_table,
+)
 from firmtool.estimation.edge_table import to_arrays
 from firmtool.estimation.edges import FAILURE, EdgeEstimate, estimate_blocks, estimate_edge, merge_estimates
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline import build, design_of, problem_of, solve_stage
-from firmtool.io.roadmap_file import Roadmap
 from firmtool.scenario import CostSpec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,7 +84,7 @@ def smoke_problem(tmp_path_factory):
     scenario.write_text(SMOKE)
     out = tmp / "s.h5"
     build(scenario, out, workers=1)
-    rm = Roadmap(out)
+    rm = RoadmapFile(out)
     return problem_of(rm), design_of(rm)
 
 
@@ -118,7 +125,7 @@ def test_an_interrupted_refinement_resumes_to_the_uninterrupted_table(tmp_path, 
     rounds = report.adaptive.rounds
     assert len(rounds) >= 3 and report.adaptive.particles_added > 0
 
-    real = firmtool.pipeline.run_edges
+    real = firmtool.pipeline.edge_runs.run_edges
     calls = {"blocks": 0}
 
     def interrupting(job, edges, **kw):
@@ -129,10 +136,10 @@ def test_an_interrupted_refinement_resumes_to_the_uninterrupted_table(tmp_path, 
         return real(job, edges, **kw)
 
     out = tmp_path / "r.h5"
-    monkeypatch.setattr(firmtool.pipeline, "run_edges", interrupting)
+    monkeypatch.setattr(firmtool.pipeline.edge_runs, "run_edges", interrupting)
     with pytest.raises(firmtool.pipeline.EstimationInterrupted):
         build(scenario, out, workers=1)
-    monkeypatch.setattr(firmtool.pipeline, "run_edges", real)
+    monkeypatch.setattr(firmtool.pipeline.edge_runs, "run_edges", real)
     resumed = build(scenario, out, workers=1)
     assert resumed.resumed and resumed.estimated_edges == 0  # the first pass came from the cache
     # the first round's blocks too: less simulated than the clean build's refinement

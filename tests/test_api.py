@@ -23,7 +23,7 @@ from firmtool.estimation.edges import estimate_edge as real_estimate_edge  # noq
 
 def cli(*args, cwd=None) -> dict:
     """Run ``firmtool ARGS --json`` in a fresh interpreter and return its JSON."""
-    r = subprocess.run([sys.executable, "-m", "firmtool.cli.commands", *map(str, args), "--json"], capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "firmtool", *map(str, args), "--json"], capture_output=True,
                        text=True, cwd=cwd, timeout=600)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
@@ -159,6 +159,38 @@ def test_build_without_output_writes_nothing_in_the_working_folder(tmp_path, mon
     assert list(work.iterdir()) == []
     assert list(temp.iterdir()) == []  # its temporary folder went
     assert rm.has_stage("edges") and not rm.has_stage("policy")
+
+
+def test_build_checks_its_inputs_once_and_writes_no_file_without_an_output(monkeypatch):
+    """Issue 34: the scenario is synced, the checker wrapped and the workers checked once, where
+    ft.build enters; without an output no file is written at all, not even a temporary one."""
+    import firmtool.io.atomic
+    import firmtool.pipeline.inputs
+    import firmtool.pipeline.settings
+    import firmtool.problem
+
+    calls = {"synced": 0, "check_workers": 0, "checker": 0}
+
+    def counted(name, fn):
+        def wrapper(*args, **kwargs):
+            calls[name] += 1
+            return fn(*args, **kwargs)
+        return wrapper
+
+    def no_file(path, *args, **kwargs):
+        raise AssertionError(f"a file was written: {path}")
+
+    monkeypatch.setattr(firmtool.pipeline.inputs, "synced", counted("synced", firmtool.pipeline.inputs.synced))
+    monkeypatch.setattr(firmtool.pipeline.settings, "check_workers",
+                        counted("check_workers", firmtool.pipeline.settings.check_workers))
+    monkeypatch.setattr(firmtool.problem.ValidityChecker, "__init__",
+                        counted("checker", firmtool.problem.ValidityChecker.__init__))
+    monkeypatch.setattr(firmtool.io.atomic, "replacing", no_file)
+    sc = ft.load_scenario("smoke").replace(roadmap={"nodes": 6}, estimation={"particles": 20})
+    rm = ft.build(sc, workers=1, validity=lambda X: np.ones(len(X), dtype=bool))
+    assert calls == {"synced": 1, "check_workers": 1, "checker": 1}
+    assert rm.path is None and rm.report.workers == 1 and rm.has_stage("edges")
+    assert rm.validity is not None and rm.validity.identity.startswith("sha256:")
 
 
 def test_save_writes_the_schema_the_cli_writes_and_open_reads_it_back(point, point_cli, tmp_path):

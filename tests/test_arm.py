@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from firmtool.models import planar_arm
-from firmtool.roadmap.nodes import GOAL, roadmap_nodes
 from firmtool.problem import build_problem
+from firmtool.roadmap.nodes import GOAL, roadmap_nodes
 from firmtool.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,16 +54,16 @@ def test_goal_nodes_put_the_tip_in_the_goal_disc(arm):
 @pytest.mark.slow
 def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     """The paper's Fig. 1 claim, end to end (about 1-2 minutes on 2 cores)."""
-    from firmtool.online import Policy
-    from firmtool.sim import run_episodes
     from firmtool.graph import policy_path
+    from firmtool.io.roadmap_file import RoadmapFile
+    from firmtool.online import Policy
     from firmtool.pipeline import build, design_of, problem_of, solve_stage
-    from firmtool.io.roadmap_file import Roadmap
+    from firmtool.sim import run_episodes
 
     out = tmp_path / "arm.h5"
     build(ARM, out, workers=2)
     solve_stage(out)
-    rm = Roadmap(out)
+    rm = RoadmapFile(out)
     problem, design = problem_of(rm), design_of(rm)
     pol = rm.require("policy", "edge", "shortest_path_edge", "success_probability")
     goals = np.flatnonzero(design.kinds == GOAL)

@@ -8,8 +8,15 @@ import pytest
 import scipy.sparse
 from scipy.stats import fisher_exact
 
-from firmtool.estimation.calibration import (EdgeCounts, dirichlet_draws, edge_calibration, holm, interval_containing,
-                                  posterior_rows, predicted_interval)
+from firmtool.estimation.calibration import (
+    EdgeCounts,
+    dirichlet_draws,
+    edge_calibration,
+    holm,
+    interval_containing,
+    posterior_rows,
+    predicted_interval,
+)
 from firmtool.estimation.edges import FAILURE, TIMEOUT
 from firmtool.graph import expected_visits, success_probability, success_probability_samples
 from firmtool.results import Episode, Outcome
@@ -207,7 +214,7 @@ def test_interval_is_stored_at_solve_time_and_execute_does_not_recompute_it(smok
 
     import firmtool as ft
     from firmtool.estimation import calibration
-    from firmtool.io.roadmap_file import Roadmap as RoadmapFile
+    from firmtool.io.roadmap_file import RoadmapFile
 
     path = tmp_path / "smoke.h5"
     shutil.copy(smoke_roadmap[0], path)

@@ -19,8 +19,7 @@ from typer.testing import CliRunner
 
 import firmtool as ft
 from firmtool import progress
-from firmtool.cli import console
-from firmtool.cli.commands import app
+from firmtool.cli import app, console
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "scenarios" / "smoke.toml"

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
+from firmtool.problem import build_problem
 from firmtool.roadmap.connectivity import connect_goals, connectivity_report, shortcut, structure, tree_search
 from firmtool.roadmap.nodes import roadmap_nodes, segment_is_valid
-from firmtool.problem import build_problem
 from firmtool.scenario import parse_scenario
 
 runner = CliRunner()

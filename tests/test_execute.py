@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_counts_of, predicted_interval
 from firmtool.estimation.edges import initial_ensemble, simulate
 from firmtool.io.episodes import load_episodes
-from firmtool.io.roadmap_file import Roadmap
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.online import Policy, ReplanSettings
 from firmtool.online.innovation import reset_belief
 from firmtool.pipeline import design_of, problem_of
@@ -30,7 +30,7 @@ EV_DISTURBANCE, EV_REPLAN = EventKind.DISTURBANCE, EventKind.REPLAN
 @pytest.fixture(scope="module")
 def smoke(smoke_roadmap):
     path, _ = smoke_roadmap
-    rm = Roadmap(path)
+    rm = RoadmapFile(path)
     pol = rm.require("policy", "edge", "cost_to_go", "success_probability")
     return path, rm, problem_of(rm), design_of(rm), pol
 

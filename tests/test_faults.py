@@ -20,13 +20,13 @@ from pathlib import Path
 
 import h5py
 import pytest
+from _processes import as_a_shell_starts_it
 from typer.testing import CliRunner
 
 import firmtool.io.atomic
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.io.locking import lock_path, writer_lock
-from firmtool.io.roadmap_file import Roadmap
-from _processes import as_a_shell_starts_it
+from firmtool.io.roadmap_file import RoadmapFile
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "scenarios" / "smoke.toml"
@@ -321,7 +321,7 @@ def test_sigint_at_random_moments_gives_one_line_and_130(tmp_path):
             assert p.returncode == 0, (delay, p.returncode, err[-2000:])  # finished before the signal
             outcomes.append("finished")
         if out.exists():
-            Roadmap(out)  # intact and readable
+            RoadmapFile(out)  # intact and readable
         assert not list(tmp_path.glob("*.tmp")), delay
         deadline = time.monotonic() + 300  # a hang guard, not a timing verdict
         while any(_alive(w) for w in workers) and time.monotonic() < deadline:
@@ -406,7 +406,7 @@ def test_two_builds_on_one_file(tmp_path):
     if not running:  # pragma: no cover - a very fast machine
         pytest.skip("the first build ended before the second one started")
     assert second.exit_code == 2 and f"(pid {first.pid}) is writing this roadmap" in one_error_line(second.output)
-    rm = Roadmap(out)
+    rm = RoadmapFile(out)
     assert rm.require("edges", "source")["source"].size == rm.require("controllers", "edge_source")["edge_source"].size
 
 
@@ -428,4 +428,4 @@ def test_build_on_a_roadmap_held_open_for_writing_keeps_its_stages(smoke_roadmap
     finally:
         holder.kill()
         holder.wait()
-    assert Roadmap(path).has("policy")
+    assert RoadmapFile(path).has("policy")

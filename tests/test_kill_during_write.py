@@ -25,7 +25,7 @@ import time
 import numpy as np
 import pytest
 
-from firmtool.io.roadmap_file import Roadmap, create_roadmap, write_stage
+from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_stage
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32" or not hasattr(os, "fork"), reason="needs fork and SIGKILL")
 
@@ -75,7 +75,7 @@ def _next_report(fd: int) -> int:
 
 
 def _version(path) -> int:
-    rm = Roadmap(path)  # raises on a damaged file
+    rm = RoadmapFile(path)  # raises on a damaged file
     arrays, attrs = rm.stages["edges"]
     v = int(arrays["source"][0])
     assert attrs["inputs_sha256"] == f"v{v}"

@@ -23,16 +23,15 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from _processes import as_a_shell_starts_it
 from typer.testing import CliRunner
 
 import firmtool.estimation.executors
 import firmtool.estimation.tasks
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.estimation.edges import estimate_edge as real_estimate_edge
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline import build, design_stage, estimate_stage, sample_stage, solve_stage
-from firmtool.io.roadmap_file import Roadmap
-
-from _processes import as_a_shell_starts_it
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = (ROOT / "scenarios" / "smoke.toml").read_text()
@@ -94,13 +93,13 @@ def test_dask_local_cluster_gives_the_one_worker_table(designed, tmp_path):
 def test_the_engine_is_chosen_once_keyed_and_run_by_every_worker(designed, tmp_path, monkeypatch):
     """The edge keys record the engine, and the workers run the one the caller chose, whatever their
     own FIRMTOOL_ENGINE says: a switch of engine re-estimates instead of reusing the other's results."""
+    from firmtool.estimation.compiled import ENGINE_ENV
     from firmtool.estimation.edge_table import edge_keys
     from firmtool.estimation.edges import estimate_edge
-    from firmtool.estimation.compiled import ENGINE_ENV
     from firmtool.pipeline import design_of, problem_of
 
     path, reference = designed
-    rm = Roadmap(path)
+    rm = RoadmapFile(path)
     problem, d = problem_of(rm), design_of(rm)
     assert not np.array_equal(edge_keys(problem, d, engine="numpy"), edge_keys(problem, d, engine="numba"))
     sc = problem.scenario
@@ -127,7 +126,7 @@ def test_batch_size_does_not_change_results(designed, tmp_path):
     shutil.copyfile(path, copy)
     # one edge per task vs the default batches: the same random streams, the same table
     from firmtool.pipeline import design_of, problem_of
-    rm = Roadmap(copy)
+    rm = RoadmapFile(copy)
     problem, d = problem_of(rm), design_of(rm)
     job = firmtool.estimation.executors.EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(copy), design=d,
                                           particles=problem.scenario.estimation.particles,
@@ -183,7 +182,7 @@ def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, si
     for particles in (2000, 8000, 32000):
         scenario = _scenario(tmp_path, **{"particles = 100": f"particles = {particles}\nadaptive_particles = 0"})
         out.unlink(missing_ok=True)
-        cmd = [sys.executable, "-m", "firmtool.cli.commands", "build", str(scenario), "-o", str(out), "--workers", "2",
+        cmd = [sys.executable, "-m", "firmtool", "build", str(scenario), "-o", str(out), "--workers", "2",
                "--checkpoint-seconds", "0"]
         done, seen = _run_until_cached(cmd, out, 8, sig)
         # finished before the signal: exit 0, or the signal's own exit once the command had printed its
@@ -197,7 +196,7 @@ def test_interrupted_build_resumes_and_matches_an_uninterrupted_one(tmp_path, si
         assert done.returncode == -signal.SIGKILL
     else:
         assert done.returncode == 130 and "saved" in done.stderr and "Traceback" not in done.stderr
-    rm = Roadmap(out)  # intact and readable; nothing written before is lost
+    rm = RoadmapFile(out)  # intact and readable; nothing written before is lost
     assert rm.has("nodes") and rm.has("controllers") and not rm.has("edges")
     with h5py.File(out, "r") as f:
         cached = f["edge_cache/source"].shape[0]
@@ -219,7 +218,7 @@ def test_a_complete_build_is_not_redone(tmp_path):
     solve_stage(out)
     again = build(scenario, out, workers=1)
     assert again.resumed and again.estimated_edges == 0 and again.simulated_particle_steps == 0
-    assert Roadmap(out).has("policy")  # nothing changed: the policy is still valid
+    assert RoadmapFile(out).has("policy")  # nothing changed: the policy is still valid
     fresh = build(scenario, out, workers=1, fresh=True)
     assert not fresh.resumed and fresh.estimated_edges == fresh.edges
 
@@ -263,7 +262,7 @@ def test_densification_estimates_only_new_edges_and_stops_on_its_budget(tmp_path
     scenario = _scenario(tmp_path, **{"nodes = 10": "nodes = 5", "process_noise_std = 0.05": "process_noise_std = 0.15"})
     out = tmp_path / "d.h5"
     build(scenario, out, workers=1)
-    first_nodes = Roadmap(out).require("nodes", "centers")["centers"].shape[0]
+    first_nodes = RoadmapFile(out).require("nodes", "centers")["centers"].shape[0]
     first_pairs = _edge_pairs(out)
     report = build(scenario, out, workers=1, p_min=0.999, max_nodes=first_nodes + 8, add_nodes=4)
     dens = report.densify

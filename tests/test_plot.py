@@ -5,14 +5,14 @@ import matplotlib.image
 import matplotlib.text
 import numpy as np
 import pytest
+from conftest import ROOT
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
-from firmtool.models import planar_arm
+from firmtool.cli import app
 from firmtool.figures import point_covariance, point_jacobian
+from firmtool.models import planar_arm
 from firmtool.problem import build_problem
 from firmtool.scenario import load_scenario
-from conftest import ROOT
 
 
 def test_plot_command_writes_a_real_figure(smoke_roadmap, tmp_path):

@@ -7,10 +7,9 @@ import shlex
 from pathlib import Path
 
 import matplotlib
-import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()

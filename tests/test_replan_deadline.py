@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 import firmtool as ft
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.online import Policy, ReplanSettings
 from firmtool.sim import SimulatedSystem, episode_seeds
 

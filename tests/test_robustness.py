@@ -30,7 +30,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app, to_json
+from firmtool.cli import app
+from firmtool.cli.output import to_json
 from firmtool.errors import ScenarioError
 from firmtool.estimation.budgets import budget, check_budget
 from firmtool.problem import build_problem
@@ -170,7 +171,7 @@ def test_brackets_in_strings_and_comments_are_not_nesting(tmp_path):
 def test_real_process_prints_no_traceback(tmp_path):
     """The console entry point itself (not CliRunner): stderr is one line, exit 2."""
     bad = BAD / "not_stabilisable.toml"
-    p = subprocess.run([sys.executable, "-c", "from firmtool.cli.commands import main; main()", "sample", str(bad),
+    p = subprocess.run([sys.executable, "-c", "from firmtool.cli import main; main()", "sample", str(bad),
                         "-o", str(tmp_path / "x.h5")], capture_output=True, text=True, timeout=900)
     assert p.returncode == 2, p.stderr
     assert p.stderr.strip().count("\n") == 0 and "Traceback" not in p.stderr

@@ -18,13 +18,20 @@ import tomli_w
 from typer.testing import CliRunner
 
 from firmtool import robots
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.errors import ScenarioError
 from firmtool.geometry.shapes import KINDS
-from firmtool.scenario import OPTIONAL_SECTIONS, parse_scenario, sections
-from firmtool.scenario.docs import (builtin_noise_forms, builtin_robots, reference, reference_markdown, template, template_robots,
-                                    toml_value)
 from firmtool.io.schema import Errors, read_value
+from firmtool.scenario import OPTIONAL_SECTIONS, parse_scenario, sections
+from firmtool.scenario.docs import (
+    builtin_noise_forms,
+    builtin_robots,
+    reference,
+    reference_markdown,
+    template,
+    template_robots,
+    toml_value,
+)
 
 runner = CliRunner()
 PROBE = "zz_probe"

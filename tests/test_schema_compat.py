@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.errors import RoadmapError
-from firmtool.io.roadmap_file import SCHEMA_VERSION, STAGES, Roadmap
+from firmtool.io.roadmap_file import SCHEMA_VERSION, STAGES, RoadmapFile
 
 DATA = Path(__file__).resolve().parent / "data"
 FIXTURES = sorted(DATA.glob("roadmap_schema*.h5"))
@@ -40,7 +40,7 @@ def test_every_released_schema_has_a_fixture():
 @pytest.mark.parametrize("path", FIXTURES, ids=lambda p: p.name)
 def test_current_reader_reads_or_refuses_with_migration_advice(path):
     try:
-        rm = Roadmap(path)
+        rm = RoadmapFile(path)
     except RoadmapError as exc:  # a dropped schema: the message must say what to do
         assert "\n" not in str(exc) and re.search(r"rebuild|migrat", str(exc)), str(exc)
         return

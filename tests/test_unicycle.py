@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from firmtool.cli.commands import app
+from firmtool.cli import app
 from firmtool.control.gains import kalman_update
 from firmtool.control.local import plan_local_controller
 from firmtool.control.stabilisers import OrbitSpec, design_periodic_node

@@ -24,16 +24,16 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from firmtool.cli import app
+from firmtool.errors import InputError
 from firmtool.estimation import compiled as kernels
-from firmtool.cli.commands import app
-from firmtool.roadmap.design import design
 from firmtool.estimation.edge_table import edge_keys
 from firmtool.estimation.edges import FAILURE, estimate_edge
-from firmtool.errors import InputError
-from firmtool.roadmap.nodes import roadmap_nodes
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline import VALIDITY_ATTR, build, problem_of, solve_stage
 from firmtool.problem import ValidityChecker, build_problem
-from firmtool.io.roadmap_file import Roadmap
+from firmtool.roadmap.design import design
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.scenario import parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -181,7 +181,7 @@ def checked_roadmap(tmp_path_factory):
 def test_workers_and_the_roadmap_honour_the_checker(checked_roadmap, tmp_path):
     scenario, one, report = checked_roadmap
     assert any("Python validity checker" in n for n in report.notices)
-    rm = Roadmap(one)
+    rm = RoadmapFile(one)
     assert rm.attrs("nodes")[VALIDITY_ATTR] == ValidityChecker(disc_checker()).identity
     centers = rm.require("nodes", "centers")["centers"]
     assert np.all(np.linalg.norm(centers[:, :2] - DISC, axis=1) >= RADIUS)  # nodes sampled with it
@@ -192,9 +192,9 @@ def test_workers_and_the_roadmap_honour_the_checker(checked_roadmap, tmp_path):
     # the same checker resumes (nothing re-estimated); another one is refused by the stages
     assert build(scenario, two, workers=1, validity=disc_checker()).estimated_edges == 0
     with pytest.raises(InputError, match="another validity checker"):
-        problem_of(Roadmap(two), disc_checker(radius=0.3))
+        problem_of(RoadmapFile(two), disc_checker(radius=0.3))
     with pytest.raises(InputError, match="Python validity checker"):
-        problem_of(Roadmap(two))
+        problem_of(RoadmapFile(two))
 
 
 def test_execution_honours_the_checker(checked_roadmap, tmp_path):

@@ -82,7 +82,7 @@ def test_a_cold_cache_is_compiled_once_announced_and_reused(tmp_path):
     assert report["estimated_edges"] == report["edges"] > 0
     assert _run(cached, cache, tmp_path).stdout.strip() == "True"
 
-    warm = _run(["-m", "firmtool.cli.commands", "build", "smoke", "-o", "b.h5", "--workers", "2"], cache, tmp_path)
+    warm = _run(["-m", "firmtool", "build", "smoke", "-o", "b.h5", "--workers", "2"], cache, tmp_path)
     assert warm.returncode == 0, warm.stderr
     assert MESSAGE not in warm.stderr
 

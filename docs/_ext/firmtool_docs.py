@@ -80,7 +80,7 @@ class ScenarioReference(SphinxDirective):
 def _command(name: str):
     import typer
 
-    from firmtool.cli.commands import app
+    from firmtool.cli import app
 
     group = typer.main.get_command(app)
     return group, group.commands.get(name)
@@ -89,9 +89,8 @@ def _command(name: str):
 def _metavar(name: str, param) -> str:
     """The kind of value an option takes, from the command function's annotation (typer's own
     parameter classes differ between its versions)."""
-    from firmtool.cli import commands as cli
-
-    annotation = str(inspect.signature(getattr(cli, name)).parameters[param.name].annotation)
+    _, cmd = _command(name)
+    annotation = str(inspect.signature(cmd.callback).parameters[param.name].annotation)
     for word, metavar in (("Path", "PATH"), ("list", "TEXT"), ("float", "NUMBER"), ("int", "INTEGER"),
                           ("str", "TEXT")):
         if word in annotation:

@@ -18,10 +18,9 @@ from typing import Callable
 
 import numpy as np
 
-from firmtool.api import load_scenario
 from firmtool.errors import InputError
 from firmtool.estimation.budgets import check_budget
-from firmtool.pipeline import _check_start_apart_from_goals, as_scenario
+from firmtool.pipeline import as_scenario, check_start_apart_from_goals
 from firmtool.problem import build_problem
 from firmtool.reports import Report
 from firmtool.roadmap.nodes import GOAL, START
@@ -93,12 +92,12 @@ def check_scenario(scenario: Scenario | str | Path, *, validity: Callable | None
         A start or goal node whose stabiliser has no stabilising Riccati solution.
     """
     t0 = time.perf_counter()
-    sc = as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
+    sc = as_scenario(scenario)  # the one normalisation: a file or a name read, a Scenario synced
     problem = build_problem(sc, validity=validity)
     budget = check_budget(problem)
     if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
         raise InputError(f"{sc.path}: task.goal: expected a goal apart from the start, found the start itself")
-    _check_start_apart_from_goals(problem, np.stack([problem.start, problem.goal]), np.array([START, GOAL]))
+    check_start_apart_from_goals(problem, np.stack([problem.start, problem.goal]), np.array([START, GOAL]))
     model = problem.model
     return CheckReport(scenario=sc.path, name=sc.name, robot=sc.model.robot, states=int(model.n),
                        inputs=int(model.m), measurements=int(model.nz), configuration_dim=int(problem.config_dim),

@@ -1,6 +1,6 @@
 """The command line's human output: rounded numbers, lists as text, progress bars, next steps.
 
-Only :mod:`firmtool.cli.commands` uses this module (the library never prints). What it decides:
+Only the command modules of :mod:`firmtool.cli` use this module (the library never prints). What it decides:
 
 - numbers are printed with the digits that mean something (:func:`num`, :func:`prob`), never a
   float's full repr; lists as comma-separated text (:func:`items`), long ones shortened;
@@ -116,6 +116,7 @@ class ProgressBar:
     disappear when the command ends (:meth:`close`)."""
 
     def __init__(self) -> None:
+        # lazy: saves every command 0.035 s (firmtool.cli.app); the bars are drawn on a terminal only
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 

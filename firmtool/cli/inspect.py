@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmtool.io.roadmap_file import STAGES, Roadmap, read_edge_cache
+from firmtool.io.roadmap_file import STAGES, RoadmapFile, read_edge_cache
 from firmtool.reports import RoadmapSummary
 from firmtool.roadmap.nodes import START_INDEX
 from firmtool.scenario import parse_scenario
@@ -23,7 +23,7 @@ def summarize(path: str | Path) -> RoadmapSummary:
     RoadmapError, ScenarioError
         A file that is not a valid roadmap, or whose stored scenario is invalid.
     """
-    rm = Roadmap(path)
+    rm = RoadmapFile(path)
     scenario = parse_scenario(rm.scenario_text, f"{path}:scenario_toml")
     out: dict = {"stale_stages": tuple(rm.stale_stages())}
     for stage in STAGES:

@@ -35,7 +35,7 @@ from firmtool.models.base import Model
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design, local_controller, start_covariance
 from firmtool.roadmap.nodes import GOAL_INDEX, START, NodeRegions
-from firmtool.scenario import START_MODES
+from firmtool.scenario import START_MODES, CostSpec
 
 
 def control_and_move(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: np.ndarray,

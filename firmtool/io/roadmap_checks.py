@@ -3,7 +3,7 @@ values in range (non-finite or negative costs, probabilities outside [0, 1], out
 not sum to the particles of their edge, node kinds, edge endpoints, policy edges that do not leave
 their node...), each failure one line naming the file and the dataset (:class:`RoadmapError`).
 
-The reader (:class:`firmtool.io.roadmap_file.Roadmap`) runs :func:`check_stage` on a stage when a
+The reader (:class:`firmtool.io.roadmap_file.RoadmapFile`) runs :func:`check_stage` on a stage when a
 command first asks for it, after the stages before it; :func:`check_shapes` and :func:`check_edges`
 also check the ``/edge_cache``.
 """
@@ -61,7 +61,7 @@ def check_shapes(path: Path, stage: str, arrays: Mapping[str, np.ndarray], dims:
     (updated with the sizes first seen)."""
     for name, symbols in _SHAPES[stage].items():
         if name not in arrays:
-            continue  # the reader names a missing dataset when a stage needs it (Roadmap.require)
+            continue  # the reader names a missing dataset when a stage needs it (RoadmapFile.require)
         a = np.asarray(arrays[name])
         at = _where(path, stage, name, where)
         if a.dtype.kind not in "biuf" or ((stage, name) in _INTEGER and a.dtype.kind not in "iu"):

@@ -26,15 +26,17 @@ reader compares it with the stored scenario's, to refuse a stale stage whatever 
 stages written before it existed carry none and are not checked). Every write builds the new file
 in memory from the old one and hands the bytes to :func:`firmtool.io.atomic.write_bytes` (temporary
 file in the same folder, then a rename): a crash never leaves a half-written roadmap, and a full
-disk is one clean error.
+disk is one clean error. Every function here that takes a path also takes a
+:class:`~firmtool.io.memory_file.MemoryFile` (the roadmap of a build without an output file): the
+same image is then kept in memory, and nothing is written to disk.
 
-:class:`Roadmap` is the one reader: it refuses, in one line naming the file and the dataset, a file
+:class:`RoadmapFile` is the one reader: it refuses, in one line naming the file and the dataset, a file
 that is not a firmtool roadmap, too large to read (checked from the shapes before anything is
 read), of the wrong shapes or dtypes, with values out of range (non-finite or negative costs,
 probabilities outside [0, 1], outcome counts that do not sum to the particles of their edge, node
 kinds, edge endpoints, policy edges that do not leave their node...), or with stages computed from
 another scenario than the stored one. Each check runs when a command first asks for the stage
-(:meth:`Roadmap.require`), so a command checks every dataset it uses and no other.
+(:meth:`RoadmapFile.require`), so a command checks every dataset it uses and no other.
 
 The file's parts, one job each: its layout's names and bounds (:mod:`firmtool.io.roadmap_format`),
 writing (:mod:`firmtool.io.roadmap_write`), the checks of each stage (:mod:`firmtool.io.roadmap_checks`)
@@ -54,6 +56,7 @@ import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import FileBusyError, RoadmapError
+from firmtool.io.memory_file import MemoryFile, as_target, readable, size_of
 from firmtool.io.roadmap_checks import check_edges, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
     CACHE,
@@ -83,12 +86,12 @@ from firmtool.io.roadmap_write import (
 )
 
 __all__ = ["CACHE", "ENCODING_TYPE", "GOAL", "GOAL_INDEX", "MAX_ATTRIBUTE_BYTES", "MAX_READ_BYTES", "REGULAR",
-           "SCHEMA_VERSION", "STAGES", "STAGE_COMMANDS", "START", "START_INDEX", "Roadmap", "concat_edge_tables",
+           "SCHEMA_VERSION", "STAGES", "STAGE_COMMANDS", "START", "START_INDEX", "RoadmapFile", "concat_edge_tables",
            "create_roadmap", "is_roadmap_file", "read_edge_cache", "restamp", "update_scenario", "write_edge_cache",
            "write_roadmap", "write_stage"]
 
 
-class Roadmap:
+class RoadmapFile:
     """A roadmap file read into memory; each stage validated when a command first asks for it.
 
     Attributes
@@ -98,18 +101,18 @@ class Roadmap:
         and sizes checked, values not yet: use :meth:`require`).
     """
 
-    def __init__(self, path: str | Path) -> None:
-        p = Path(path)
-        self.path = p
+    def __init__(self, path: str | Path | MemoryFile) -> None:
+        p = as_target(path)
+        self.path = p.name if isinstance(p, MemoryFile) else p  # what messages name
         if not p.exists():
             raise RoadmapError(f"{p}: no such roadmap file")
         if not p.is_file():
             raise RoadmapError(f"{p}: not a readable HDF5 roadmap file (not a regular file)")
-        if p.stat().st_size > MAX_READ_BYTES:  # bounds what any attribute (stored in the file) can hold
+        if size_of(p) > MAX_READ_BYTES:  # bounds what any attribute (stored in the file) can hold
             raise RoadmapError(f"{p}: a roadmap file larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged or "
                                "not a roadmap)")
         try:
-            f = h5py.File(p, "r")
+            f = h5py.File(readable(p), "r")
         except (OSError, ValueError) as exc:
             if "unable to lock file" in str(exc):
                 raise FileBusyError(f"{p}: the file is open for writing in another process (HDF5 file lock); "
@@ -314,12 +317,12 @@ def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any,
     return value
 
 
-def read_edge_cache(path: str | Path, nodes: int | None = None) -> dict[str, np.ndarray]:
+def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None) -> dict[str, np.ndarray]:
     """The ``/edge_cache`` table (estimates of an interrupted or superseded estimate stage), or {}
     if there is none. A cache that fails the checks of ``/edges`` (shapes, ranges, counts summing to
     the particles; node ids below ``nodes`` when given) is ignored: it only saves work."""
     try:
-        with h5py.File(path, "r") as f:
+        with h5py.File(readable(path), "r") as f:
             if CACHE not in f or not isinstance(f[CACHE], h5py.Group):
                 return {}
             g = f[CACHE]
@@ -335,14 +338,14 @@ def read_edge_cache(path: str | Path, nodes: int | None = None) -> dict[str, np.
         dims = {"C": 3, "H": 32}
         if nodes is not None:
             dims["N"] = nodes
-        check_shapes(Path(path), "edges", table, dims, where=CACHE)
-        check_edges(Path(path), table, dims, where=CACHE)
+        check_shapes(as_target(path), "edges", table, dims, where=CACHE)
+        check_edges(as_target(path), table, dims, where=CACHE)
     except RoadmapError:
         return {}
     return table
 
 
-def is_roadmap_file(path: str | Path) -> bool:
+def is_roadmap_file(path: str | Path | MemoryFile) -> bool:
     """Whether ``path`` is an HDF5 file marked as a firmtool roadmap (any schema version).
 
     Raises
@@ -351,7 +354,7 @@ def is_roadmap_file(path: str | Path) -> bool:
         Another process holds the file open for writing (HDF5's file lock).
     """
     try:
-        with h5py.File(path, "r") as f:
+        with h5py.File(readable(path), "r") as f:
             return f.attrs.get("encoding-type") == ENCODING_TYPE
     except (OSError, ValueError, KeyError, TypeError) as exc:
         if "unable to lock file" in str(exc):

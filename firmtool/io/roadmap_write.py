@@ -20,14 +20,14 @@ import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import RoadmapError
-from firmtool.io.atomic import write_bytes
+from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
 from firmtool.io.roadmap_format import CACHE, ENCODING_TYPE, SCHEMA_VERSION, STAGES, read_table, short
 
 
 @contextmanager
-def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
+def _atomic_copy(path: Path | MemoryFile, fresh: bool = False) -> Iterator[h5py.File]:
     """Open an in-memory copy of ``path`` (a new file if ``fresh``) for writing; on success, write it
-    atomically over ``path``.
+    atomically over ``path`` (or keep it as the bytes of a :class:`~firmtool.io.memory_file.MemoryFile`).
 
     HDF5 writes only to memory here (never to a file that can fill a disk): the finished image is
     written by :func:`firmtool.io.atomic.write_bytes`, which turns a full disk into one clean error.
@@ -50,16 +50,16 @@ def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
     else:
         with h5py.File(edited, "w") as f:
             yield f
-    write_bytes(path, edited.getbuffer())
+    replace_bytes(path, edited.getbuffer())
 
 
-def create_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int) -> None:
+def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int) -> None:
     """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over)."""
-    with _atomic_copy(Path(path), fresh=True) as f:
+    with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
 
 
-def write_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, seed: int,
+def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
@@ -68,7 +68,7 @@ def write_roadmap(path: str | Path, scenario_text: str, scenario_sha256: str, se
     stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
         ``scenario_sha256`` stamp included; one without gets the stored scenario's).
     """
-    with _atomic_copy(Path(path), fresh=True) as f:
+    with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
         for name in STAGES:
             if name in stages:
@@ -87,7 +87,7 @@ def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
     f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
+def write_stage(path: str | Path | MemoryFile, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
                 drop_later: bool = True, cache: Mapping[str, np.ndarray] | None = None) -> None:
     """Replace one stage group atomically. Later stages are dropped: they depend on this one.
 
@@ -103,7 +103,7 @@ def write_stage(path: str | Path, stage: str, arrays: Mapping[str, np.ndarray], 
     """
     if stage not in STAGES:
         raise ValueError(f"unknown stage {stage!r}")
-    p = Path(path)
+    p = as_target(path)
     if not p.exists():
         raise RoadmapError(f"{p}: no such roadmap file")
     with _atomic_copy(p) as f:
@@ -129,7 +129,7 @@ def _write_table(f: h5py.File, name: str, arrays: Mapping[str, np.ndarray], attr
     g = f.create_group(name)
     g.attrs["encoding-type"] = f"firmtool.{name}"
     g.attrs["encoding-version"] = SCHEMA_VERSION
-    if name in STAGES:  # computed from the scenario stored now (see Roadmap.require)
+    if name in STAGES:  # computed from the scenario stored now (see RoadmapFile.require)
         g.attrs["scenario_sha256"] = str(f.attrs.get("scenario_sha256", ""))
     for k, v in attrs.items():
         g.attrs[k] = v
@@ -161,23 +161,23 @@ def _cache_edges(f: h5py.File) -> None:
         _write_table(f, CACHE, merged, {"description": "edge estimates keyed by their inputs, for reuse"})
 
 
-def write_edge_cache(path: str | Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+def write_edge_cache(path: str | Path | MemoryFile, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
     """Replace ``/edge_cache`` atomically (a checkpoint of the estimate stage); later stages stay."""
-    p = Path(path)
+    p = as_target(path)
     if not p.exists():
         raise RoadmapError(f"{p}: no such roadmap file")
     with _atomic_copy(p) as f:
         _write_table(f, CACHE, arrays, attrs)
 
 
-def update_scenario(path: str | Path, scenario_text: str, scenario_sha256: str, keep: tuple[str, ...] = ()) -> None:
+def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, keep: tuple[str, ...] = ()) -> None:
     """Store a new scenario text (same seed) in an existing roadmap.
 
     The caller checked which stages stay valid under the new text (``keep``: they are stamped with
     its sha256); the others keep the stamp of the old text, so readers refuse them until they are
     recomputed (each stage's ``inputs_sha256`` tells the build which ones to re-run).
     """
-    with _atomic_copy(Path(path)) as f:
+    with _atomic_copy(as_target(path)) as f:
         f.attrs["scenario_toml"] = scenario_text
         f.attrs["scenario_sha256"] = scenario_sha256
         for stage in keep:
@@ -185,9 +185,9 @@ def update_scenario(path: str | Path, scenario_text: str, scenario_sha256: str, 
                 f[stage].attrs["scenario_sha256"] = scenario_sha256
 
 
-def restamp(path: str | Path, stages: tuple[str, ...]) -> None:
+def restamp(path: str | Path | MemoryFile, stages: tuple[str, ...]) -> None:
     """Mark ``stages`` as valid for the stored scenario (the caller checked their inputs' hashes)."""
-    with _atomic_copy(Path(path)) as f:
+    with _atomic_copy(as_target(path)) as f:
         sha = str(f.attrs["scenario_sha256"])
         for stage in stages:
             if stage in f and isinstance(f[stage], h5py.Group):

@@ -1,0 +1,91 @@
+"""Execution: :func:`simulate`, closed-loop episodes of a solution's policy on the simulated system."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from firmtool.api.solution import Solution
+from firmtool.errors import InputError
+from firmtool.online.policy import Policy
+from firmtool.results import Results
+from firmtool.roadmap.nodes import START_INDEX
+from firmtool.sim.disturbances import as_disturbances
+from firmtool.sim.environment import SimulatedSystem
+from firmtool.sim.episodes import run_episodes
+
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.online.replanning import ReplanSettings
+    from firmtool.progress import ProgressCallback
+    from firmtool.sim.disturbances import Disturbance
+
+# a user's disturbance: ``fn(step, state (n,), rng) -> new state (n,) or None`` (firmtool.sim.disturbances)
+DisturbanceFunction = Callable[[int, np.ndarray, np.random.Generator], "np.ndarray | None"]
+
+
+def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
+             start: np.ndarray | None = None,
+             disturbances: Iterable["str | Disturbance | DisturbanceFunction"] = (),
+             replan: "ReplanSettings | None" = None, record: bool = True,
+             progress: "ProgressCallback | None" = None) -> Results:
+    """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
+
+    Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
+    the measurements) against the simulated system (:class:`firmtool.sim.SimulatedSystem`: true
+    state, noise at the true state, collisions, disturbances). The policy starts at the start node
+    (or at ``start``), follows its edge controllers node to node, replans in real time after large
+    deviations, and declares the goal; the system ends an episode on a collision. The filter is never
+    told of disturbances.
+
+    Parameters
+    ----------
+    solution : Solution
+    episodes : int
+        Number of episodes (>= 1).
+    seed : int
+        Episode ``i``'s true system draws from ``SeedSequence([seed, 0xE7EC, i])`` and the policy's
+        own draws from its first spawned child (:func:`firmtool.sim.episode_seeds`): reproducible,
+        and the same numbers as ``firmtool execute --seed``.
+    policy : {"firm", "shortest-path"}
+        The DP's policy, or the baseline that ignores uncertainty.
+    start : (config_dim,) or (n,) array, optional
+        Start at this configuration or state instead of the start node (a start in no node gets an
+        initial controller to the best nearby node).
+    disturbances : iterable of str, Disturbance or callable
+        ``"push:STEP:SIZE"``, ``"push:random:SIZE:RATE"``, ``"kidnap:STEP"``,
+        ``"kidnap:random:RATE"`` (see :mod:`firmtool.sim.disturbances`), or a callable
+        ``fn(step, state, rng) -> new state (n,) or None`` asked before every step.
+    replan : ReplanSettings, optional
+        Replanning settings (default: on, threshold 3, a decision's deadline the control period on
+        the deterministic work clock); ``ReplanSettings(enabled=False)`` follows the stored
+        controllers only.
+    record : bool
+        Keep every episode's arrays (``states``, ``estimates`` (T + 1, n), ``covariances``
+        (T + 1, n, n), ``controls`` (T, m)); they take ~8 (T + 1) (n^2 + 2n) bytes per episode.
+    progress : callable, optional
+        ``progress(stage, done, total)``, told of the episodes run (:mod:`firmtool.progress`).
+
+    Returns
+    -------
+    Results
+        Success rate with its Wilson interval, the prediction with its interval, the calibration
+        check of the edges taken, compute per step and per decision, and the episodes.
+    """
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise InputError(f"episodes: expected an integer >= 1, found {episodes!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed: expected an integer >= 0, found {seed!r}")
+    _, probabilities = solution._policy(policy)
+    dists = as_disturbances(disturbances)
+    agent = Policy(solution, policy=policy, replan=replan)
+    rm = solution.roadmap
+    system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals
+    at_start_node = start is None
+    return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
+                        predicted=float(probabilities[START_INDEX]) if at_start_node else None,
+                        predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
+                        edge_counts=rm.edge_counts, system=system, progress=progress)
+
+

@@ -1,0 +1,226 @@
+"""Solutions: :func:`solve` (the DP on a roadmap, nothing written) and :class:`Solution`, the policy
+with its success probabilities, its report and :meth:`Solution.save`."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from firmtool import pipeline
+from firmtool.errors import InputError
+from firmtool.estimation.calibration import predicted_interval
+from firmtool.graph import SolveStatus, policy_path
+from firmtool.reports import SolveReport
+from firmtool.roadmap.nodes import START_INDEX
+
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.api.roadmap import Roadmap
+    from firmtool.progress import ProgressCallback
+
+POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
+# /policy attributes that hold each policy's prediction interval
+_INTERVAL_ATTRS = {"firm": "success_probability_ci95", "shortest-path": "shortest_path_success_probability_ci95"}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Solution:
+    """A solved roadmap: the FIRM policy (eq. 12) and the shortest-path baseline, with their success
+    probabilities (Sec. III-E).
+
+    Attributes
+    ----------
+    roadmap : Roadmap
+    status : SolveStatus
+        How the DP ended (``CONVERGED`` or ``MAX_ITERATIONS``).
+    policy : (N,) int64
+        The edge (a row of ``roadmap.edges``) taken at each node; -1 at goals and at nodes that
+        cannot reach the goal.
+    cost_to_go : (N,) float
+        Optimal expected cost from each node; ``inf`` where the goal cannot be reached.
+    success_probabilities : (N,) float
+        Probability of reaching the goal from each node under ``policy``.
+    shortest_path_policy, shortest_path_success_probabilities : (N,)
+        The same for the baseline that ignores uncertainty (shortest configuration-space path).
+    unreachable_nodes : (K,) int64
+        Nodes (goal excluded) that cannot reach the goal.
+    iterations, residual : the DP's sweeps (or improvements) and last residual.
+    failure_cost : J_F it was solved with.
+    method : ``"value"`` or ``"policy"`` iteration.
+    seconds : wall time of the solve (0 for a policy read from a file).
+    """
+
+    roadmap: Roadmap
+    status: SolveStatus
+    policy: np.ndarray
+    cost_to_go: np.ndarray
+    success_probabilities: np.ndarray
+    shortest_path_policy: np.ndarray
+    shortest_path_success_probabilities: np.ndarray
+    unreachable_nodes: np.ndarray
+    iterations: int
+    residual: float
+    failure_cost: float
+    method: str
+    seconds: float = 0.0
+    _inputs_sha256: str = dataclasses.field(default="", repr=False)
+    _intervals: dict = dataclasses.field(default_factory=dict, repr=False)
+    _interval_attrs: dict = dataclasses.field(default_factory=dict, repr=False)
+
+    def __repr__(self) -> str:
+        return (f"<firmtool.Solution {self.status.name}: success probability {self.success_probability:.4f}, "
+                f"cost-to-go {self.start_cost_to_go:.4g}, path {self.path()}>")
+
+    @classmethod
+    def _from_group(cls, roadmap: Roadmap, group: pipeline.PolicyGroup) -> "Solution":
+        a, at = group.arrays, group.attrs
+        return cls(roadmap=roadmap, status=SolveStatus[str(at["status"])], policy=a["edge"].astype(np.int64),
+                   cost_to_go=a["cost_to_go"], success_probabilities=a["success_probability"],
+                   shortest_path_policy=a["shortest_path_edge"].astype(np.int64),
+                   shortest_path_success_probabilities=a["shortest_path_success_probability"],
+                   unreachable_nodes=np.asarray(a["unreachable"], dtype=np.int64),
+                   iterations=int(at["iterations"]), residual=float(at["residual"]),
+                   failure_cost=float(at["failure_cost"]), method=str(at["method"]), seconds=group.seconds,
+                   _inputs_sha256=str(at.get("inputs_sha256", "")),
+                   _intervals={name: (float(at[key][0]), float(at[key][1])) for name, key in _INTERVAL_ATTRS.items()
+                               if key in at},
+                   _interval_attrs={k: at[k] for k in ("interval_method", "interval_prior", "interval_samples")
+                                    if k in at})
+
+    def _group(self) -> pipeline.PolicyGroup:
+        edges = self.roadmap.edges
+        next_node = np.where(self.policy >= 0, edges[np.maximum(self.policy, 0), 1], -1)
+        arrays = {"cost_to_go": self.cost_to_go, "edge": self.policy, "next_node": next_node,
+                  "success_probability": self.success_probabilities, "unreachable": self.unreachable_nodes,
+                  "shortest_path_edge": self.shortest_path_policy,
+                  "shortest_path_success_probability": self.shortest_path_success_probabilities}
+        attrs = {"inputs_sha256": self._inputs_sha256, "status": self.status.name, "iterations": self.iterations,
+                 "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method,
+                 **{key: np.asarray(self._intervals[name]) for name, key in _INTERVAL_ATTRS.items()
+                    if name in self._intervals}, **self._interval_attrs}
+        return pipeline.PolicyGroup(arrays=arrays, attrs=attrs, seconds=self.seconds)
+
+    # summaries
+    @property
+    def success_probability(self) -> float:
+        """Probability of reaching the goal from the start node under the FIRM policy."""
+        return float(self.success_probabilities[START_INDEX])
+
+    @property
+    def start_cost_to_go(self) -> float:
+        """Expected cost from the start node (``inf`` when the goal is unreachable from it)."""
+        return float(self.cost_to_go[START_INDEX])
+
+    @property
+    def start_reachable(self) -> bool:
+        """Whether the goal can be reached from the start node."""
+        return bool(np.isfinite(self.cost_to_go[START_INDEX]))
+
+    @property
+    def success_probability_ci95(self) -> tuple[float, float]:
+        """95% interval of :attr:`success_probability` from the edge-count uncertainty, computed when
+        the roadmap was solved (:meth:`success_probability_interval`)."""
+        return self.success_probability_interval()
+
+    def success_probability_interval(self, policy: str = "firm") -> tuple[float, float]:
+        """95% interval of the start node's success probability under ``policy``, from the
+        uncertainty of the edge counts (:func:`firmtool.estimation.calibration.predicted_interval`): every
+        policy edge's outcome distribution is drawn from its Dirichlet posterior (prior 1/2 on every
+        observed outcome and on failure), and the interval is the shortest one holding 95% of the
+        draws and the point estimate. Computed once when the roadmap is solved, from a stream keyed by
+        the roadmap's seed, and stored with the policy; for a policy solved before intervals were
+        stored it is computed here on first use.
+
+        Parameters
+        ----------
+        policy : ``"firm"`` or ``"shortest-path"``.
+        """
+        if policy not in self._intervals:
+            edges, probabilities = self._policy(policy)
+            rm = self.roadmap
+            self._intervals[policy] = predicted_interval(rm.edge_counts, rm.nodes.shape[0], rm.goals, edges, rm.seed,
+                                                         point=float(probabilities[START_INDEX]))
+        return self._intervals[policy]
+
+    def _policy(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(edge per node, success probability per node) of a policy by name."""
+        if name == "firm":
+            return self.policy, self.success_probabilities
+        if name == "shortest-path":
+            return self.shortest_path_policy, self.shortest_path_success_probabilities
+        raise InputError(f"policy: expected one of {', '.join(POLICIES)}, found {name!r}")
+
+    def path(self, policy: str = "firm") -> list[int]:
+        """The policy's nominal node sequence from the start: each chosen edge's target in turn,
+        until a goal (or a node without an edge, or a repeated node)."""
+        edges, _ = self._policy(policy)
+        return policy_path(edges, self.roadmap.edges[:, 1], START_INDEX, self.roadmap.goals)
+
+    @property
+    def report(self) -> SolveReport:
+        """The summary ``firmtool solve --json`` prints."""
+        rm = self.roadmap
+        return pipeline.solve_report(rm.path, self._group(), rm.edges[:, 1], rm.goals,
+                                     pipeline.node_task_points(rm._data))
+
+    def to_dict(self) -> dict[str, Any]:
+        """:attr:`report` as plain JSON types."""
+        return self.report.to_dict()
+
+    def save(self, path: str | Path | None = None) -> Path:
+        """Write the roadmap with this policy as its ``/policy`` group (what ``firmtool solve`` does).
+
+        Parameters
+        ----------
+        path : str or Path, optional
+            Default: the roadmap's own file, where only ``/policy`` is replaced. Another path gets
+            the whole roadmap.
+
+        Returns
+        -------
+        Path
+        """
+        rm = self.roadmap
+        target = Path(path) if path is not None else rm.path
+        if target is None:
+            raise InputError("Solution.save: the roadmap is in memory; give a path")
+        group = self._group()
+        if rm.path is not None and target.resolve() == rm.path.resolve():
+            pipeline.write_policy(target, group)
+        else:
+            rm._write(target, {"policy": (group.arrays, group.attrs)})
+        return target
+
+
+def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
+          progress: "ProgressCallback | None" = None) -> Solution:
+    """Solve the constrained graph DP (paper eq. 12) and the success probabilities (Sec. III-E).
+
+    Timeouts count as failures. Nothing is written (:meth:`Solution.save` stores the policy).
+
+    Parameters
+    ----------
+    roadmap : Roadmap
+        A roadmap with estimated edges.
+    failure_cost : float, optional
+        J_F (default: the scenario's ``cost.failure_cost``).
+    method : {"value", "policy"}
+        Value iteration (the paper's) or policy iteration.
+    progress : callable, optional
+        ``progress(stage, done, total)``, told of the solve's steps (:mod:`firmtool.progress`).
+
+    Returns
+    -------
+    Solution
+        Also when the goal cannot be reached from the start (then ``start_reachable`` is False,
+        ``success_probability`` 0 and ``start_cost_to_go`` inf).
+    """
+    if method not in ("value", "policy"):
+        raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
+    if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
+        raise InputError(f"failure_cost: expected a finite number > 0, found {failure_cost}")
+    group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress)
+    return Solution._from_group(roadmap, group)
+

@@ -1,0 +1,320 @@
+"""The build: sample + design + estimate into one roadmap (a file, or memory), going on from an
+existing roadmap when it can, and densification (``p_min``) with solves between its rounds.
+
+:func:`build_request` checks a build's inputs once, where they enter (the scenario synced, the
+output checked or the roadmap kept in memory, the validity checker wrapped, the workers resolved and
+checked against the cores and the memory the problem needs); :func:`build_roadmap` runs the stages
+on the typed :class:`BuildRequest`, which nothing below checks again. :func:`build` is both, for a
+caller of the pipeline itself; :func:`firmtool.build` (the API) is the other way in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from firmtool.errors import FileBusyError, InputError, RoadmapError, RunFailure
+from firmtool.estimation import warmup
+from firmtool.estimation.compiled import engine_choice
+from firmtool.estimation.executors import Workers, default_workers
+from firmtool.graph import reachable_from
+from firmtool.io.roadmap_file import RoadmapFile, restamp, update_scenario
+from firmtool.pipeline.design import design_into
+from firmtool.pipeline.estimate import estimate_into
+from firmtool.pipeline.inputs import (
+    as_checker,
+    as_scenario,
+    checker_identity,
+    controllers_inputs,
+    nodes_inputs,
+    policy_inputs,
+)
+from firmtool.pipeline.reading import edge_probabilities, problem_of
+from firmtool.pipeline.sample import add_nodes_stage, sample_into
+from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
+from firmtool.pipeline.solve import solve_stage
+from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, in_memory, locked
+from firmtool.problem import Problem, ValidityChecker, build_problem
+from firmtool.progress import ProgressCallback
+from firmtool.reports import BuildReport, ConnectivityReport, DensifyReport, DensifyRound, EstimateReport, FailedEdge
+from firmtool.roadmap.connectivity import connectivity_report
+from firmtool.roadmap.nodes import GOAL, START_INDEX
+from firmtool.scenario import Scenario
+
+
+@dataclasses.dataclass(frozen=True)
+class Densify:
+    """Densification (paper III-E): add ``add_nodes`` nodes a round (default: a quarter of the
+    current count, at least 5) until the start node's success probability reaches ``p_min`` or the
+    roadmap has ``max_nodes`` nodes."""
+
+    p_min: float
+    max_nodes: int | None = None
+    add_nodes: int | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildRequest:
+    """A build's inputs, checked once where they entered (:func:`build_request`).
+
+    Attributes
+    ----------
+    scenario : the scenario, synced (its text says what its fields say).
+    target : the roadmap file (checked), or a roadmap kept in memory.
+    problem : the scenario's problem (with the checker), built where the build entered.
+    workers : the worker settings, checked against the cores and the memory ``problem`` needs.
+    validity : the user's validity checker, wrapped once (None: the scenario's geometry alone).
+    densify : the ``p_min`` loop, or None.
+    fresh : start a new roadmap even if the one at ``target`` could be continued.
+    checkpoint_seconds, progress : see :func:`firmtool.pipeline.estimate.estimate_stage`.
+    """
+
+    scenario: Scenario
+    target: RoadmapTarget
+    problem: Problem
+    workers: WorkerSettings
+    validity: ValidityChecker | None = None
+    densify: Densify | None = None
+    fresh: bool = False
+    checkpoint_seconds: float = CHECKPOINT_SECONDS
+    progress: ProgressCallback | None = None
+
+
+def build_request(scenario: Scenario | str | Path, output: str | Path | None, *, keep_in_memory: bool = False,
+                  workers: int | None = None, executor: str = "process", scheduler: str | None = None,
+                  progress: ProgressCallback | None = None, fresh: bool = False, p_min: float | None = None,
+                  max_nodes: int | None = None, add_nodes: int | None = None,
+                  checkpoint_seconds: float = CHECKPOINT_SECONDS, force: bool = False,
+                  validity: Callable | None = None) -> BuildRequest:
+    """Check a build's inputs once (parameters as :func:`build`; ``keep_in_memory``: build a roadmap in
+    memory, not into ``output``).
+
+    Raises
+    ------
+    ScenarioError, InputError
+        A scenario that is not valid, an output that must not be replaced, a ``p_min`` outside
+        (0, 1], a checker that is not callable, workers this machine cannot run, an unknown executor.
+    """
+    scenario = as_scenario(scenario)
+    checker = as_checker(validity)
+    target = in_memory(scenario) if keep_in_memory else check_output(output if output else default_output(scenario),
+                                                                     force)
+    if p_min is not None and not (0 < p_min <= 1):
+        raise InputError(f"--p-min: expected a probability in (0, 1], found {p_min}")
+    problem = build_problem(scenario, validity=checker)
+    settings = worker_settings(workers, executor, scheduler, default=default_workers(), problem=problem)
+    return BuildRequest(scenario=scenario, target=target, problem=problem, workers=settings, validity=checker,
+                        densify=None if p_min is None else Densify(p_min, max_nodes, add_nodes), fresh=fresh,
+                        checkpoint_seconds=checkpoint_seconds, progress=progress)
+
+
+def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers: int | None = None,
+          executor: str = "process", scheduler: str | None = None,
+          progress: ProgressCallback | None = None, fresh: bool = False,
+          p_min: float | None = None, max_nodes: int | None = None, add_nodes: int | None = None,
+          checkpoint_seconds: float = CHECKPOINT_SECONDS, force: bool = False,
+          validity: Callable | None = None) -> BuildReport:
+    """sample + design + estimate into the roadmap file ``output``, going on from an existing roadmap
+    there when it can.
+
+    A roadmap whose nodes come from the same inputs (seed, model, measurement, world, task, roadmap
+    and controller settings) keeps its nodes and designs; its edges are reused by key, so an
+    interrupted build resumes, and a changed cost weight or particle count re-estimates only what
+    depends on it (nothing, or every edge). ``fresh`` starts over.
+
+    With ``p_min``: solve, and while the start node's success probability is below ``p_min`` and
+    the roadmap has fewer than ``max_nodes`` nodes, add ``add_nodes`` nodes (default: a quarter of
+    the current count, at least 5), re-design, estimate only the new edges and solve again.
+
+    Parameters
+    ----------
+    scenario : a scenario, a scenario file, or a shipped scenario's name.
+    output : the roadmap file (default ``artifacts/NAME.h5``).
+    workers, executor, scheduler, checkpoint_seconds : see :func:`firmtool.pipeline.estimate.estimate_stage`.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told by every stage.
+    force : replace an existing file at ``output`` even if it is not a firmtool roadmap.
+    validity : a user's vectorised validity checker (:func:`firmtool.problem.build_problem`), used
+        by every stage; the roadmap records its identity.
+
+    The output is locked for the whole build (a second writer is refused).
+    """
+    return build_roadmap(build_request(scenario, output, workers=workers, executor=executor, scheduler=scheduler,
+                                       progress=progress, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
+                                       add_nodes=add_nodes, checkpoint_seconds=checkpoint_seconds, force=force,
+                                       validity=validity))
+
+
+def build_roadmap(request: BuildRequest) -> BuildReport:
+    """Run a build on its checked inputs (:func:`build_request`); see :func:`build`."""
+    s = request.workers
+    # one set of workers for every stage of the build (local processes start on first use, a dask
+    # cluster is joined once)
+    with locked(request.target), Workers(s.workers, s.executor, s.scheduler) as session:
+        # a fresh install: compile the engine while sampling and designing (a user's validity checker
+        # runs the numpy engine: nothing to compile)
+        if request.validity is None and not warmup.engine_is_cached():
+            warmup.start(engine_choice(request.problem)[0], request.problem)  # with the kernel of its robot
+        return _BuildRun(request, session).run()
+
+
+class _BuildRun:
+    """The stages of one build, and what they add up to (stage times, edges estimated, failures, notices)."""
+
+    def __init__(self, request: BuildRequest, session: Workers) -> None:
+        self.request, self.session = request, session
+        self.seconds = {"sample": 0.0, "design": 0.0, "estimate": 0.0, "solve": 0.0}
+        self.estimated_edges = self.simulated_particle_steps = 0
+        self.failed: tuple[FailedEdge, ...] = ()
+        self.notices: list[str] = []
+
+    def nodes(self) -> RoadmapFile | None:
+        """Sample the nodes, or go on from the roadmap at the target (returned; None if sampled anew)."""
+        r, sc = self.request, self.request.scenario
+        existing = None if r.fresh else _resumable(r.target, sc, checker_identity(r.validity))
+        if existing is None:
+            self.seconds["sample"] = sample_into(sc, r.target, problem=r.problem, validity=r.validity,
+                                                 session=self.session, progress=r.progress).seconds
+        elif existing.scenario_sha256 != sc.sha256:
+            # the nodes' inputs are unchanged (_resumable); so are the controllers if their inputs hash matches
+            keep = ("nodes",) + (("controllers",) if existing.has("controllers") and
+                                 existing.attrs("controllers").get("inputs_sha256") == controllers_inputs(existing)
+                                 else ())
+            update_scenario(r.target, sc.text, sc.sha256, keep=keep)
+        return existing
+
+    def design_and_estimate(self) -> EstimateReport:
+        """Design (unless the stored design is up to date), then estimate; adds to the build's totals."""
+        r = self.request
+        rm = RoadmapFile(r.target)
+        if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
+                and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
+            self.seconds["design"] += design_into(r.target, r.validity, self.session, r.progress).seconds
+        roadmap = RoadmapFile(r.target)
+        e = estimate_into(r.target, roadmap, problem_of(roadmap, r.validity), r.workers, progress=r.progress,
+                          checkpoint_seconds=r.checkpoint_seconds, session=self.session)
+        self.notices.extend(n for n in e.notices if n not in self.notices)
+        self.seconds["estimate"] += e.seconds
+        self.estimated_edges += e.estimated_edges
+        self.simulated_particle_steps += e.simulated_particle_steps
+        self.failed = e.failed_edges
+        return e
+
+    def run(self) -> BuildReport:
+        r = self.request
+        existing = self.nodes()
+        e = self.design_and_estimate()
+        _restamp_policy(r.target)
+        densify = None
+        if r.densify is not None:
+            densify, last = _densify(r.target, r.densify, self.seconds, self.design_and_estimate, r.validity)
+            e = last or e
+        else:
+            del self.seconds["solve"]
+        rm = RoadmapFile(r.target)
+        nodes = rm.require("nodes", "centers")["centers"].shape[0]
+        connectivity = roadmap_connectivity(rm, r.validity)
+        steps, estimate_seconds = self.simulated_particle_steps, self.seconds["estimate"]
+        return BuildReport(roadmap=str(r.target), resumed=existing is not None, nodes=int(nodes), edges=e.edges,
+                           estimated_edges=self.estimated_edges, reused_edges=e.reused_edges,
+                           failed_edges=tuple(self.failed), particles_per_edge=e.particles_per_edge,
+                           particle_steps=e.particle_steps, simulated_particle_steps=steps,
+                           particle_steps_per_second=steps / estimate_seconds if estimate_seconds else 0.0,
+                           workers=r.workers.workers, executor=r.workers.executor, seconds=self.seconds,
+                           densify=densify, connectivity=connectivity, adaptive=e.adaptive,
+                           notices=tuple(self.notices))
+
+
+def _resumable(out: RoadmapTarget, scenario: Scenario, validity: str = "") -> RoadmapFile | None:
+    """The roadmap at ``out`` if its nodes were sampled from the same inputs (so the build can go on
+    from it), else None (a new roadmap replaces it)."""
+    if not out.exists():
+        return None
+    try:
+        rm = RoadmapFile(out)
+        rm.require("nodes", "centers", "kind", fresh=False)
+    except FileBusyError:
+        raise  # another process is writing it: never start over under its feet
+    except RoadmapError:
+        return None  # a damaged roadmap (check_output refused anything else): replaced by a fresh build
+    if rm.seed != scenario.seed or not rm.has("nodes") or \
+            rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario, validity):
+        return None
+    return rm
+
+
+def roadmap_connectivity(roadmap: RoadmapFile, validity: Callable | None = None) -> ConnectivityReport:
+    """The connected structure of a roadmap's nodes (:func:`firmtool.roadmap.connectivity.connectivity_report`),
+    what its connection stage added, and the goal nodes the start reaches under the estimated edges
+    (when ``/edges`` is there). ``validity``: the roadmap's Python validity checker, if it was built
+    with one (the free segments between nodes depend on it)."""
+    problem = problem_of(roadmap, validity)
+    nodes = roadmap.require("nodes", "centers", "kind")
+    attrs = roadmap.attrs("nodes")
+    report = connectivity_report(problem, nodes["centers"], nodes["kind"],
+                                 added=int(attrs.get("connect_added", 0)), budget=int(attrs.get("connect_budget", 0)),
+                                 reason=str(attrs.get("connect_stop_reason", "")))
+    if roadmap.has("edges"):
+        landing, _, _, _ = edge_probabilities(roadmap)
+        source = roadmap.require("edges", "source")["source"].astype(np.int64)
+        reach = reachable_from(landing.shape[1], source, landing, START_INDEX)
+        goals = np.flatnonzero(nodes["kind"] == GOAL)
+        report = dataclasses.replace(report, reachable_goal_nodes=tuple(int(g) for g in goals[reach[goals]]))
+    return report
+
+
+def _restamp_policy(out: RoadmapTarget) -> None:
+    """A policy kept by a build whose scenario text changed is still valid if its inputs (edge table,
+    J_F, method, cost weights) are unchanged: stamp it with the new text; otherwise leave it stale
+    (readers then ask for 'firmtool solve')."""
+    rm = RoadmapFile(out)
+    if rm.stale_stages() != ["policy"]:  # nothing to do, or an earlier stage is stale too
+        return
+    a = rm.attrs("policy")
+    try:
+        cost = problem_of(rm, need_validity=False).scenario.cost
+        same = a.get("inputs_sha256") == policy_inputs(str(rm.attrs("edges").get("inputs_sha256")),
+                                                       float(a.get("failure_cost")), str(a.get("method")), cost)
+    except (TypeError, ValueError):
+        return
+    if same:
+        restamp(out, ("policy",))
+
+
+def _densify(out: RoadmapTarget, densify: Densify, seconds: dict, design_and_estimate: Callable[[], EstimateReport],
+             validity: Callable | None = None) -> tuple[DensifyReport, EstimateReport | None]:
+    """The p_min loop of :func:`build`: its report, and the last round's estimate report (None if
+    no round added nodes)."""
+    p_min, max_nodes, add_nodes = densify.p_min, densify.max_nodes, densify.add_nodes
+    rounds = []
+    last = None
+    while True:
+        reachable = True
+        try:
+            sol = solve_stage(out)
+            p = sol.start_success_probability
+            seconds["solve"] += sol.seconds
+        except RunFailure:  # the goal is not reachable yet: that is what densification is for
+            p, reachable = 0.0, False
+        nodes = RoadmapFile(out).require("nodes", "centers")["centers"].shape[0]
+        rounds.append(DensifyRound(nodes=int(nodes), start_success_probability=float(p),
+                                   estimated_edges=last.estimated_edges if last else None))
+        if p >= p_min:
+            reason = f"reached p_min: start success probability {p:.4f} >= {p_min:g} with {nodes} nodes"
+            break
+        if max_nodes is None or nodes >= max_nodes:
+            reason = (f"node budget spent: {nodes} nodes (--max-nodes {max_nodes}) and the start success "
+                      f"probability is {p:.4f} < p_min {p_min:g}")
+            break
+        count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
+        added = add_nodes_stage(out, count, connect=not reachable, validity=validity)
+        seconds["sample"] += added.seconds
+        if added.added == 0:
+            reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"
+            break
+        last = design_and_estimate()
+    report = DensifyReport(p_min=p_min, max_nodes=max_nodes, reached=p >= p_min, reason=reason, rounds=tuple(rounds),
+                           start_success_probability=float(p))
+    return report, last

@@ -1,0 +1,101 @@
+"""What the stages rebuild from a roadmap: its problem (checked against the stored stages), its
+design, the edge table as probabilities, and the nodes' task points."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse
+
+from firmtool import robots
+from firmtool.errors import FirmtoolError, InputError, RoadmapError
+from firmtool.estimation.edge_table import outcome_probabilities
+from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.pipeline.inputs import problem_checker_identity, validity_of
+from firmtool.problem import Problem, build_problem
+from firmtool.roadmap.design import Design
+from firmtool.scenario import parse_scenario
+
+
+def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_validity: bool = True) -> Problem:
+    """Rebuild the problem from the scenario text stored in the roadmap, and check the roadmap's
+    stages against its model (dimensions, node centres in bounds and valid).
+
+    A roadmap built with a Python validity checker records the checker's identity (``/nodes``
+    attribute ``validity_checker``): the stage must be given the same checker (``validity``), or,
+    with ``need_validity`` (every stage that samples, designs, estimates or executes), it is refused
+    in one line rather than run on the scenario's geometry alone. A checker for a roadmap built
+    without one is refused too (its nodes were sampled without it)."""
+    recorded = validity_of(roadmap)
+    if validity is None and recorded and need_validity:
+        raise InputError(f"{roadmap.path}: built with a Python validity checker ({recorded[:23]}), which the "
+                         "command line cannot rebuild; run this stage from Python with the same checker "
+                         "(validity=...)")
+    problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"), validity=validity)
+    given = problem_checker_identity(problem)
+    if validity is not None and given != recorded:
+        raise InputError(f"{roadmap.path}: " + (f"built with another validity checker ({recorded[:23]}), not "
+                                                  f"this one ({given[:23]})" if recorded else
+                                                  "built without a validity checker; build a new roadmap with it"))
+    model = problem.model
+    roadmap.check_model(model.n, model.m, model.nz, problem.config_dim, problem.config_lo, problem.config_hi,
+                        problem.is_valid)
+    return problem
+
+
+def design_of(roadmap: RoadmapFile) -> Design:
+    nodes = roadmap.require("nodes", "centers", "kind")
+    c = roadmap.require("controllers", "u_eq", "K", "S", "L", "P", "Sigma", "scale",
+                        "edge_source", "edge_target", "edge_steps")
+    return Design(centers=nodes["centers"], kinds=nodes["kind"], u_eq=c["u_eq"], K=c["K"], S=c["S"], L=c["L"], P=c["P"],
+                  Sigma=c["Sigma"], scale=c["scale"], edge_source=c["edge_source"].astype(np.int64),
+                  edge_target=c["edge_target"].astype(np.int64), edge_steps=c["edge_steps"].astype(np.int64))
+
+
+def execution_design(roadmap: RoadmapFile) -> Design:
+    """The design with one edge row per row of ``/edges`` (the edges a policy indexes).
+
+    A policy's edge indices are rows of the estimated edge table, which lacks the designed edges
+    whose Monte Carlo failed; execution looks its controllers up by those indices, so it must see
+    the design's edges in that table's order (the same arrays when no edge failed).
+    """
+    d = design_of(roadmap)
+    e = roadmap.require("edges", "source", "target")
+    source, target = e["source"].astype(np.int64), e["target"].astype(np.int64)
+    if np.array_equal(source, d.edge_source) and np.array_equal(target, d.edge_target):
+        return d
+    row = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(d.edge_source, d.edge_target))}
+    try:
+        rows = np.array([row[(int(i), int(j))] for i, j in zip(source, target)], dtype=np.int64)
+    except KeyError as exc:
+        raise RoadmapError(f"{roadmap.path}: /edges holds edge {exc.args[0]} that the design does not have "
+                           "(file damaged)") from None
+    return dataclasses.replace(d, edge_source=source, edge_target=target, edge_steps=d.edge_steps[rows])
+
+
+def edge_probabilities(roadmap: RoadmapFile) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
+    """Landing matrix (E, N), failure and timeout probabilities (E,), particles (E,) from ``/edges``.
+
+    Failure includes the goal misses (:data:`firmtool.estimation.edges.GOAL_MISS`: the belief declared arrival in
+    a goal ball that the true task point was outside of), so that the DP and the success
+    probabilities are for success judged on the true state."""
+    e = roadmap.require("edges", "source", "particles", "outcome_edge", "outcome_code", "outcome_count")
+    N = roadmap.require("nodes", "centers")["centers"].shape[0]
+    try:
+        return outcome_probabilities(e, N)
+    except ValueError as exc:
+        raise RoadmapError(f"{roadmap.path}: /edges {exc}") from None
+
+
+def node_task_points(roadmap: RoadmapFile) -> np.ndarray | None:
+    """The nodes' task points (N, D) (:meth:`firmtool.robots.Robot.task_point`; the robot alone is
+    built, not the problem), or None when the robot cannot be built here (a robot class the
+    roadmap's process had and this one has not)."""
+    try:
+        scenario = parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml")
+        robot = robots.get(scenario.model.robot)(scenario)
+    except FirmtoolError:
+        return None
+    return robot.task_point(roadmap.require("nodes", "centers")["centers"])

@@ -1,0 +1,134 @@
+"""The sample stage: the nodes of a new roadmap (start, goals, valid configurations at rest, and the
+connection stage's), and densification's added nodes."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from firmtool.errors import InputError
+from firmtool.estimation.budgets import check_budget
+from firmtool.estimation.executors import Workers, parallel_validity
+from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_stage
+from firmtool.pipeline.inputs import VALIDITY_ATTR, as_checker, as_scenario, nodes_inputs, problem_checker_identity
+from firmtool.pipeline.reading import problem_of
+from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, locked
+from firmtool.problem import Problem, ValidityChecker, build_problem
+from firmtool.progress import ProgressCallback
+from firmtool.reports import AddNodesReport, SampleReport
+from firmtool.roadmap.connectivity import connect_goals
+from firmtool.roadmap.design import design, start_covariance
+from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
+from firmtool.scenario import Scenario
+
+
+def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False, *,
+                 validity: Callable | None = None, session: Workers | None = None,
+                 progress: ProgressCallback | None = None) -> SampleReport:
+    """Sample the nodes of a new roadmap (start, goal, then valid configurations at rest).
+
+    Parameters
+    ----------
+    scenario : a scenario, a scenario file, or a shipped scenario's name.
+    output : the roadmap file to create (replaced atomically); default ``artifacts/NAME.h5``.
+    force : replace an existing file there even if it is not a firmtool roadmap.
+    validity : a user's vectorised checker (:func:`firmtool.problem.build_problem`); the roadmap
+        records its identity, and the later stages need the same checker.
+    session : workers (:class:`firmtool.estimation.executors.Workers`) that check large batches of states
+        (the collision checks of node pairs); the nodes are the same without them.
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the nodes sampled.
+    """
+    scenario = as_scenario(scenario)
+    out = check_output(output if output else default_output(scenario), force)
+    return sample_into(scenario, out, validity=as_checker(validity), session=session, progress=progress)
+
+
+def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem | None = None,
+                validity: ValidityChecker | None = None, session: Workers | None = None,
+                progress: ProgressCallback | None = None) -> SampleReport:
+    """:func:`sample_stage` on checked inputs: a synced scenario (:func:`~firmtool.pipeline.inputs.as_scenario`),
+    a checked output file or a roadmap in memory, the checker as the boundary wrapped it, and the
+    scenario's problem if the boundary built it (with that checker) already."""
+    t0 = time.perf_counter()
+    problem = problem if problem is not None else build_problem(scenario, validity=validity)
+    check_budget(problem)  # refuse up front what would take hours or exhaust memory
+    if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
+        raise InputError(f"{scenario.path}: task.goal: expected a goal apart from the start, found the start itself")
+    rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
+    centers, kinds = roadmap_nodes(parallel_validity(problem, session) if session else problem, rng,
+                                   progress=progress)
+    check_start_apart_from_goals(problem, centers, kinds)
+    budget = scenario.roadmap.bridge_nodes
+    centers, kinds, added, reason = connect_goals(problem, centers, kinds, budget, rng)
+    identity = problem_checker_identity(problem)
+    with locked(target):
+        create_roadmap(target, scenario.text, scenario.sha256, scenario.seed)
+        write_stage(target, "nodes", {"centers": centers, "kind": kinds},
+                    {"inputs_sha256": nodes_inputs(scenario, identity), "densify_rounds": 0,
+                     "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: identity,
+                     "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
+    return SampleReport(roadmap=str(target), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
+                        seconds=time.perf_counter() - t0, connect_added=added)
+
+
+def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> None:
+    """Refuse a task whose start lies in a goal node's region (input time: before anything is
+    written): the start would be a goal already, every edge from it would land at once, and the
+    graph would have no way out of the start. Designs the start and goal nodes only."""
+    keep = np.flatnonzero(kinds != REGULAR)
+    d = design(problem, centers[keep], kinds[keep])
+    regions = d.regions(problem)
+    start = int(np.flatnonzero(keep == START_INDEX)[0])
+    P0 = start_covariance(problem, d, start)
+    inside = [int(keep[g]) for g in np.flatnonzero(d.kinds == GOAL)
+              if regions.contains(int(g), d.centers[start], P0)]
+    if inside and problem.goal_region is not None:
+        raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
+                         "belief already meets it (its mean's task point lies in the goal ball, with probability "
+                         f">= task.goal_confidence {problem.scenario.task.goal_confidence:g} that the true one does)")
+    if inside:
+        raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
+                         f"lies inside the region of goal node {inside[0]} (controller.node_radius "
+                         f"{problem.scenario.controller.node_radius:g}); move the goal or lower the node radius")
+
+
+def add_nodes_stage(path: str | RoadmapTarget, count: int, connect: bool = False, *,
+                    validity: Callable | None = None) -> AddNodesReport:
+    """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
+    scenario's minimum separation from the others, from a random stream keyed by the seed and the
+    round number (so a densified build is reproducible). Later stages are rebuilt by the caller.
+
+    With ``connect`` (the start cannot reach the goal), the nodes go first where connections fail
+    (:func:`firmtool.roadmap.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
+    the rest."""
+    with locked(path):
+        return _add_nodes(path, count, connect, validity)
+
+
+def _add_nodes(path: str | RoadmapTarget, count: int, connect: bool,
+               validity: Callable | None = None) -> AddNodesReport:
+    t0 = time.perf_counter()
+    roadmap = RoadmapFile(path)
+    problem = problem_of(roadmap, validity)
+    nodes = roadmap.require("nodes", "centers", "kind")
+    attrs = roadmap.attrs("nodes")
+    rounds = int(attrs.get("densify_rounds", 0)) + 1
+    rng = np.random.default_rng(np.random.SeedSequence([problem.scenario.seed, 0xD5, rounds]))
+    spec = problem.scenario.roadmap
+    centers, kinds, connected, _ = (connect_goals(problem, nodes["centers"], nodes["kind"], count, rng) if connect
+                                    else (nodes["centers"], nodes["kind"], 0, ""))
+    count -= connected
+    new = sample_nodes(problem, count, rng, min_separation=spec.min_separation, existing=centers)
+    if new.shape[0] < count:  # the separation leaves no room: fill the rest without it
+        more = sample_nodes(problem, count - new.shape[0], rng, existing=np.concatenate([centers, new]))
+        new = np.concatenate([new, more])
+    centers = np.concatenate([centers, new])
+    kinds = np.concatenate([kinds, np.full(new.shape[0], REGULAR, dtype=kinds.dtype)])
+    write_stage(path, "nodes", {"centers": centers, "kind": kinds},
+                {**{k: v for k, v in attrs.items() if k not in ("encoding-type", "encoding-version")},
+                 "densify_rounds": rounds, "connect_added": int(attrs.get("connect_added", 0)) + connected})
+    return AddNodesReport(added=int(new.shape[0]) + connected, nodes=int(centers.shape[0]),
+                          seconds=time.perf_counter() - t0, connect_added=connected)

@@ -1,0 +1,159 @@
+"""The solve stage: the constrained graph DP (eq. 12), the success probabilities and the
+shortest-path baseline, on a roadmap in memory (:func:`solve_policy`, so that :func:`firmtool.solve`
+needs no file), and the ``/policy`` group it writes."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from firmtool.errors import RunFailure
+from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
+from firmtool.estimation.edge_table import edge_costs
+from firmtool.graph import SolveStatus, policy_path, shortest_path_policy, solve_dp, success_probability
+from firmtool.io.memory_file import MemoryFile
+from firmtool.io.roadmap_file import RoadmapFile, write_stage
+from firmtool.pipeline.inputs import policy_inputs
+from firmtool.pipeline.reading import edge_probabilities, node_task_points, problem_of
+from firmtool.pipeline.target import RoadmapTarget, locked
+from firmtool.progress import SOLVE, Counter, ProgressCallback
+from firmtool.reports import SolveReport
+from firmtool.roadmap.nodes import GOAL, START_INDEX
+
+
+@dataclasses.dataclass(frozen=True)
+class PolicyGroup:
+    """The ``/policy`` group of a roadmap, as :func:`solve_policy` computes it and a file stores it.
+
+    Attributes
+    ----------
+    arrays : ``cost_to_go``, ``edge``, ``next_node``, ``success_probability``, ``unreachable``,
+        ``shortest_path_edge``, ``shortest_path_success_probability`` (N,) (``unreachable``: node ids).
+    attrs : ``inputs_sha256``, ``status`` (a :class:`SolveStatus` name), ``iterations``, ``residual``,
+        ``failure_cost``, ``method``; the prediction intervals of the start node's success probability
+        under each policy, ``success_probability_ci95`` and ``shortest_path_success_probability_ci95``
+        (2,), with ``interval_method``, ``interval_prior`` and ``interval_samples``
+        (:func:`firmtool.estimation.calibration.predicted_interval`; absent in files solved before them).
+    seconds : wall time of the solve (0 for a group read from a file).
+    """
+
+    arrays: dict[str, np.ndarray]
+    attrs: dict[str, Any]
+    seconds: float = 0.0
+
+
+def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, method: str = "value",
+                 progress: ProgressCallback | None = None) -> PolicyGroup:
+    """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
+    baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
+
+    Parameters
+    ----------
+    roadmap : a roadmap with estimated edges.
+    failure_cost : J_F (default: the scenario's ``cost.failure_cost``).
+    method : ``"value"`` (value iteration) or ``"policy"`` (policy iteration).
+    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the solve's steps
+        (the DP, the success probabilities, the shortest-path baseline).
+    """
+    t0 = time.perf_counter()
+    steps = Counter(progress, SOLVE, 3).start()
+    problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
+    edges = roadmap.require("edges", "source", "target", "cost_mean")
+    if edges["source"].size == 0:
+        raise RunFailure(f"{roadmap.path}: no edge was estimated (every edge's Monte Carlo failed); "
+                         "run 'firmtool estimate' again")
+    cost = edge_costs(edges, problem.scenario.cost)
+    landing, fail, timeout, _ = edge_probabilities(roadmap)
+    N = landing.shape[1]
+    goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
+    JF = float(failure_cost if failure_cost is not None else problem.scenario.cost.failure_cost)
+    res = solve_dp(N, goals, edges["source"].astype(np.int64), cost, landing,
+                   fail + timeout, JF, method=method)
+    steps.advance()
+    p = success_probability(N, goals, res.policy, landing)
+    steps.advance()
+    next_node = np.where(res.policy >= 0, edges["target"][np.maximum(res.policy, 0)], -1)
+    # The baseline that ignores uncertainty: shortest configuration-space path on the same roadmap.
+    centers = roadmap.require("nodes", "centers")["centers"][:, :problem.config_dim]
+    length = np.linalg.norm(centers[edges["target"]] - centers[edges["source"]], axis=1)
+    sp = shortest_path_policy(N, goals, edges["source"], edges["target"], length)
+    p_sp = success_probability(N, goals, sp, landing)
+    counts = edge_counts_of(roadmap)
+    intervals = {f"{prefix}success_probability_ci95": np.asarray(
+        predicted_interval(counts, N, goals, pol, roadmap.seed, node=START_INDEX, point=float(prob[START_INDEX])))
+        for prefix, pol, prob in (("", res.policy, p), ("shortest_path_", sp, p_sp))}
+    steps.finish()
+    arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
+              "success_probability": p, "unreachable": res.unreachable,
+              "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
+    attrs = {"inputs_sha256": policy_inputs(str(roadmap.attrs("edges")["inputs_sha256"]), JF, method,
+                                            problem.scenario.cost),
+             "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
+             "failure_cost": JF, "method": method, **intervals, "interval_method": INTERVAL_METHOD,
+             "interval_prior": PRIOR, "interval_samples": INTERVAL_SAMPLES}
+    return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
+
+
+def write_policy(path: str | RoadmapTarget, group: PolicyGroup) -> None:
+    """Store a solved policy as the ``/policy`` group of the roadmap file at ``path`` (atomically)."""
+    with locked(path):
+        write_stage(path, "policy", group.arrays, group.attrs)
+
+
+def solve_report(roadmap_path: str | Path | MemoryFile | None, group: PolicyGroup, edge_target: np.ndarray,
+                 goals: np.ndarray, task_points: np.ndarray | None = None) -> SolveReport:
+    """The summary of a solved policy (what ``firmtool solve --json`` prints); ``task_points`` (N, D):
+    the nodes' task points, for the path's."""
+    a, at = group.arrays, group.attrs
+    path = tuple(policy_path(a["edge"], edge_target, START_INDEX, goals))
+    return SolveReport(roadmap=None if roadmap_path is None else str(roadmap_path),
+                       status=SolveStatus[str(at["status"])], iterations=int(at["iterations"]),
+                       residual=float(at["residual"]), failure_cost=float(at["failure_cost"]),
+                       method=str(at["method"]), start_cost_to_go=_finite_or_none(a["cost_to_go"][START_INDEX]),
+                       start_success_probability=float(a["success_probability"][START_INDEX]),
+                       shortest_path_start_success_probability=float(
+                           a["shortest_path_success_probability"][START_INDEX]),
+                       unreachable_nodes=tuple(int(i) for i in a["unreachable"]), path=path, seconds=group.seconds,
+                       path_task_points=() if task_points is None else
+                       tuple(tuple(float(v) for v in task_points[j]) for j in path),
+                       start_success_probability_ci95=_interval_or_none(at.get("success_probability_ci95")),
+                       shortest_path_start_success_probability_ci95=_interval_or_none(
+                           at.get("shortest_path_success_probability_ci95")))
+
+
+def _interval_or_none(value: Any) -> tuple[float, float] | None:
+    return None if value is None else (float(value[0]), float(value[1]))
+
+
+def unreachable_failure(roadmap_path: str | Path | MemoryFile | None, unreachable: int, nodes: int) -> RunFailure:
+    """The error of a solve whose goal cannot be reached from the start node."""
+    return RunFailure(f"{roadmap_path or 'roadmap'}: the goal is unreachable from the start node under the estimated "
+                      f"edges ({unreachable} of {nodes} nodes cannot reach it); add nodes or neighbours")
+
+
+def solve_stage(path: str | RoadmapTarget, *, failure_cost: float | None = None, method: str = "value",
+                progress: ProgressCallback | None = None) -> SolveReport:
+    """Solve the roadmap file at ``path`` (:func:`solve_policy`) and write ``/policy``.
+
+    Raises
+    ------
+    RunFailure
+        After writing the policy, if the goal is unreachable from the start node.
+    """
+    with locked(path):
+        roadmap = RoadmapFile(path)
+        group = solve_policy(roadmap, failure_cost=failure_cost, method=method, progress=progress)
+        write_policy(path, group)
+    J = group.arrays["cost_to_go"]
+    if not np.isfinite(J[START_INDEX]):
+        raise unreachable_failure(path, len(group.arrays["unreachable"]), J.size)
+    goals = np.flatnonzero(roadmap.require("nodes", "kind")["kind"] == GOAL)
+    return solve_report(path, group, roadmap.require("edges", "target")["target"], goals, node_task_points(roadmap))
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
