@@ -32,7 +32,7 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
     # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft
     from firmtool.estimation.budgets import check_execution
-    from firmtool.pipeline import default_output, unreachable_failure
+    from firmtool.pipeline import default_output
     from firmtool.problem import build_problem
     sc = ft.load_scenario(scenario)
     check_execution(build_problem(sc), episodes, max_total_steps=max_total_steps)
@@ -40,10 +40,10 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
     bar = console.progress()
     rm = ft.build(sc, output=out, workers=workers, progress=bar, force=force)
     exit_on_failed_edges(rm.report.to_dict())
-    sol = ft.solve(rm, progress=bar)
+    sol = ft.solve(rm, progress=bar, allow_unreachable=True)
     sol.save()
     if not sol.start_reachable:
-        raise unreachable_failure(out, sol.unreachable_nodes.size, sol.cost_to_go.size)
+        raise sol.unreachable_error()
     res = ft.simulate(sol, episodes, seed, record=False, progress=bar)
     report = {"build": rm.report.to_dict(), "solve": sol.to_dict(), "execute": res.to_dict()}
     emit(report, as_json, lambda r: "\n".join([build_human(r["build"]), solve_human(r["solve"]),

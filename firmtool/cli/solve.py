@@ -45,16 +45,17 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     """
     # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft
-    from firmtool.pipeline import unreachable_failure
     check_exists(roadmap, "roadmap file")
     if method not in ("value", "policy"):
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
-    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress())
+    # the policy is written also when the goal is unreachable (inspect shows it), then the run fails
+    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
+                   allow_unreachable=True)
     sol.save()
     if not sol.start_reachable:
-        raise unreachable_failure(roadmap, sol.unreachable_nodes.size, sol.cost_to_go.size)
+        raise sol.unreachable_error()
     emit(sol.to_dict(), as_json, solve_human)
     console.next_step(f"the policy into {roadmap}", f"firmtool execute {roadmap}")
 
