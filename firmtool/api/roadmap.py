@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -256,8 +257,19 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
     ------
     RoadmapError
         One line naming the file and what is wrong with it.
+
+    Warns
+    -----
+    UserWarning
+        When the roadmap was built with a validity checker and ``validity`` is not given.
     """
-    return Roadmap(RoadmapFile(path), path=Path(path), validity=validity)
+    data = RoadmapFile(path)
+    recorded = pipeline.validity_of(data)
+    if recorded and validity is None:  # said now, not first when simulate needs the problem
+        warnings.warn(f"{path}: built with a Python validity checker ({recorded[:23]}); without it the roadmap "
+                      "can be solved but not simulated or extended: open_roadmap(path, validity=checker)",
+                      UserWarning, stacklevel=2)
+    return Roadmap(data, path=Path(path), validity=validity)
 
 
 def build(scenario: Scenario | str | Path, *, workers: int | None = None, output: str | Path | None = None,

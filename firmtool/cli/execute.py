@@ -12,7 +12,7 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import interval, items, num, prob
 from firmtool.cli.exits import fail, handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists
+from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -173,7 +173,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     check_policy(policy_name)
     if save_episodes is not None:
         check_episodes_output(save_episodes, force)  # before the episodes run, not after
-    rm = ft.open_roadmap(roadmap)
+    rm = open_roadmap(roadmap)
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,

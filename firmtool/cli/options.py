@@ -3,11 +3,16 @@ arguments that name files."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from firmtool.errors import InputError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.api import Roadmap
 
 DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 SCENARIO_HELP = "Scenario: a TOML file, or the name of a shipped scenario (see 'firmtool scenarios')."
@@ -33,3 +38,15 @@ QuietOpt = typer.Option(False, "--quiet", "-q", help="Print only errors, notices
 def check_exists(path: Path, what: str) -> None:
     if not path.exists():
         raise InputError(f"{path}: no such {what}")
+
+
+def open_roadmap(path: Path) -> "Roadmap":
+    """:func:`firmtool.open_roadmap` for a command. A command cannot pass a Python validity checker, so
+    the warning meant for a script (a roadmap built with one was opened without it) is not printed:
+    a stage that needs the checker refuses in one line instead (:func:`firmtool.pipeline.problem_of`),
+    and the DP, which needs no geometry, runs."""
+    import firmtool.api as ft  # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*built with a Python validity checker", category=UserWarning)
+        return ft.open_roadmap(path)

@@ -10,7 +10,7 @@ import typer
 
 from firmtool.cli import console
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists
+from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -39,7 +39,6 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
       firmtool plot artifacts/point_lightdark.h5 --kind calibration -n 400 -o calibration.png
     """
     # lazy: saves firmtool --help the library's and matplotlib's import, 2 s (firmtool.cli.app)
-    import firmtool.api as ft
     from firmtool.estimation.budgets import check_execution
     from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
     check_exists(roadmap, "roadmap file")
@@ -49,7 +48,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     if kind not in FIGURE_KINDS:
         raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
-    rm = ft.open_roadmap(roadmap)
+    rm = open_roadmap(roadmap)
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,

@@ -11,7 +11,7 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import items, num, prob
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import JsonOpt, QuietOpt, check_exists
+from firmtool.cli.options import JsonOpt, QuietOpt, check_exists, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -51,7 +51,7 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
     # the policy is written also when the goal is unreachable (inspect shows it), then the run fails
-    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
+    sol = ft.solve(open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
                    allow_unreachable=True)
     sol.save()
     if not sol.start_reachable:
