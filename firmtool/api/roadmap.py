@@ -304,7 +304,8 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
     checkpoint_seconds : float
         Seconds between saves of finished edges into ``output`` (resume after a kill).
     force : bool
-        Replace an existing file at ``output`` even if it is not a firmtool roadmap.
+        Replace an existing file at ``output`` even if it is not a firmtool roadmap, or is the roadmap
+        of another scenario (another ``[scenario] name``: refused otherwise).
     validity : callable, optional
         A vectorised checker ``states (M, n) -> bool (M,)`` (True where valid), ANDed with the
         scenario's geometry in sampling, nominals, the Monte Carlo (every executor) and

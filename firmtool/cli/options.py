@@ -22,7 +22,7 @@ WorkersOpt = typer.Option(None, "--workers", "-w", min=1,
                           help="Worker processes (default: all cores; at most 2 per core, and as many as memory "
                                "allows).")
 ForceOpt = typer.Option(False, "--force", help="Replace an existing output file even if it is not a firmtool file "
-                                               "of the same kind.")
+                                               "of the same kind (a roadmap: of the same scenario).")
 MaxStepsOpt = typer.Option(1e8, "--max-total-steps", min=1.0,
                            help="Refuse runs of more than this many control steps in the worst case "
                                 "(episodes x the scenario's execution.max_steps).")

@@ -15,6 +15,7 @@ from firmtool.estimation.executors import Workers, parallel_validity
 from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_stage
 from firmtool.pipeline.inputs import VALIDITY_ATTR, as_checker, as_scenario, nodes_inputs, problem_checker_identity
 from firmtool.pipeline.reading import problem_of
+from firmtool.pipeline.restart import check_same_scenario, previous_roadmap
 from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, locked
 from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import ProgressCallback
@@ -34,7 +35,8 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     ----------
     scenario : a scenario, a scenario file, or a shipped scenario's name.
     output : the roadmap file to create (replaced atomically); default ``artifacts/NAME.h5``.
-    force : replace an existing file there even if it is not a firmtool roadmap.
+    force : replace an existing file there even if it is not a firmtool roadmap, or is the roadmap of
+        another scenario.
     validity : a user's vectorised checker (:func:`firmtool.problem.build_problem`); the roadmap
         records its identity, and the later stages need the same checker.
     session : workers (:class:`firmtool.estimation.executors.Workers`) that check large batches of states
@@ -43,6 +45,9 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     """
     scenario = as_scenario(scenario)
     out = check_output(output if output else default_output(scenario), force)
+    previous = previous_roadmap(out)
+    if previous is not None:
+        check_same_scenario(previous, scenario, force=force)
     return sample_into(scenario, out, validity=as_checker(validity), session=session, progress=progress)
 
 
