@@ -134,7 +134,7 @@ class Solution:
         if connectivity is None:
             connectivity = pipeline.roadmap_connectivity(rm._data, rm.validity)
         return pipeline.unreachable_failure(rm.path, self.unreachable_nodes.size, self.cost_to_go.size,
-                                            connectivity.missing)
+                                            connectivity.missing, connectivity.goal_confidence_shortfall)
 
     @property
     def success_probability_ci95(self) -> tuple[float, float]:

@@ -12,7 +12,7 @@ from firmtool.cli import console
 from firmtool.cli.console import num
 from firmtool.cli.exits import handles_errors
 from firmtool.cli.options import SCENARIO_HELP, JsonOpt, QuietOpt
-from firmtool.cli.output import emit
+from firmtool.cli.output import emit, print_notices
 
 
 @handles_errors
@@ -57,6 +57,7 @@ def check(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     from firmtool.cli.check import check_scenario  # lazy: saves firmtool --help 1.4 s (firmtool.cli.app)
     report = check_scenario(scenario).to_dict()
     emit(report, as_json, _check_human)
+    print_notices(report)
     console.next_step(None, f"firmtool build {scenario}")
 
 

@@ -80,7 +80,7 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
     emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
                                      f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
                                      f"{r['simulated_particle_steps']:,} particle-steps in "
-                                     f"{console.seconds(r['seconds'])} on {r['workers']} workers)"))
+                                     f"{console.seconds(r['seconds'])} on {console.count(r['workers'], 'worker')})"))
     print_notices(report)
     exit_on_failed_edges(report)
     console.next_step(str(roadmap), f"firmtool solve {roadmap}")
@@ -101,7 +101,7 @@ def build_human(r: dict) -> str:
             f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
             f"{r['simulated_particle_steps']:,} particle-steps simulated\n"
             f"time: sample {console.seconds(s['sample'])}, design {console.seconds(s['design'])}, "
-            f"estimate {console.seconds(s['estimate'])} on {r['workers']} workers")
+            f"estimate {console.seconds(s['estimate'])} on {console.count(r['workers'], 'worker')}")
     a = r.get("adaptive")
     if a:
         last = a["rounds"][-1]
@@ -171,6 +171,8 @@ def exit_if_unreachable(report: dict) -> None:
     """Exit 1 when no goal node can be reached from the start (the roadmap cannot be solved)."""
     c = report.get("connectivity")
     if c and c.get("reachable_goal_nodes") is not None and not c["reachable_goal_nodes"]:
+        if c.get("goal_confidence_shortfall"):  # more nodes would not help: say what would
+            fail(f"{report['roadmap']}: no goal node is reachable from the start: {c['goal_confidence_shortfall']}", 1)
         why = "; ".join(c["missing"]) or "edges leave the start's component but none lands in a goal node"
         fail(f"{report['roadmap']}: no goal node is reachable from the start: {why}; raise roadmap.bridge_nodes "
               "or roadmap.nodes, or use --p-min to densify", 1)

@@ -32,7 +32,7 @@ from firmtool.pipeline.inputs import (
     nodes_inputs,
     policy_inputs,
 )
-from firmtool.pipeline.reading import edge_probabilities, problem_of
+from firmtool.pipeline.reading import design_of, edge_probabilities, problem_of
 from firmtool.pipeline.restart import check_same_scenario, previous_roadmap, starting_over
 from firmtool.pipeline.sample import add_nodes_stage, sample_into
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
@@ -42,6 +42,7 @@ from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import BuildReport, ConnectivityReport, DensifyReport, DensifyRound, EstimateReport, FailedEdge
 from firmtool.roadmap.connectivity import connectivity_report
+from firmtool.roadmap.goal_confidence import goal_confidence_shortfall
 from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario
 
@@ -261,7 +262,11 @@ def roadmap_connectivity(roadmap: RoadmapFile, validity: Callable | None = None)
         source = roadmap.require("edges", "source")["source"].astype(np.int64)
         reach = reachable_from(landing.shape[1], source, landing, START_INDEX)
         goals = np.flatnonzero(nodes["kind"] == GOAL)
-        report = dataclasses.replace(report, reachable_goal_nodes=tuple(int(g) for g in goals[reach[goals]]))
+        reachable = tuple(int(g) for g in goals[reach[goals]])
+        # none reachable: is it for want of certainty at the goal rather than of nodes?
+        shortfall = (goal_confidence_shortfall(problem, design_of(roadmap))
+                     if not reachable and roadmap.has("controllers") else None)
+        report = dataclasses.replace(report, reachable_goal_nodes=reachable, goal_confidence_shortfall=shortfall)
     return report
 
 

@@ -21,7 +21,7 @@ from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import AddNodesReport, SampleReport
 from firmtool.roadmap.connectivity import connect_goals
-from firmtool.roadmap.design import design, start_covariance
+from firmtool.roadmap.design import Design, design, start_covariance
 from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.scenario import Scenario
 
@@ -79,10 +79,11 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
                         seconds=time.perf_counter() - t0, connect_added=added)
 
 
-def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> None:
+def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> Design:
     """Refuse a task whose start lies in a goal node's region (input time: before anything is
     written): the start would be a goal already, every edge from it would land at once, and the
-    graph would have no way out of the start. Designs the start and goal nodes only."""
+    graph would have no way out of the start. Designs the start and goal nodes only, and returns
+    that design."""
     keep = np.flatnonzero(kinds != REGULAR)
     d = design(problem, centers[keep], kinds[keep])
     regions = d.regions(problem)
@@ -98,6 +99,7 @@ def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: n
         raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
                          f"lies inside the region of goal node {inside[0]} (controller.node_radius "
                          f"{problem.scenario.controller.node_radius:g}); move the goal or lower the node radius")
+    return d
 
 
 def add_nodes_stage(path: str | RoadmapTarget, count: int, connect: bool = False, *,

@@ -130,13 +130,16 @@ def _interval_or_none(value: Any) -> tuple[float, float] | None:
 
 
 def unreachable_failure(roadmap_path: str | Path | MemoryFile | None, unreachable: int, nodes: int,
-                        missing: Sequence[str] = ()) -> Unreachable:
+                        missing: Sequence[str] = (), shortfall: str | None = None) -> Unreachable:
     """The error of a solve whose goal cannot be reached from the start node; ``missing``: the
-    connectivity report's sentences (what is not connected, and where), added to the message."""
+    connectivity report's sentences (what is not connected, and where), added to the message;
+    ``shortfall``: why no goal node's belief meets the goal confidence
+    (:func:`firmtool.roadmap.goal_confidence.goal_confidence_shortfall`), the advice then instead of
+    "add nodes or neighbours"."""
     where = "".join(f"; missing: {m}" for m in missing)
+    advice = shortfall or "add nodes or neighbours"
     return Unreachable(f"{roadmap_path or 'roadmap'}: the goal is unreachable from the start node under the estimated "
-                       f"edges ({unreachable} of {nodes} nodes cannot reach it); add nodes or neighbours{where}",
-                       tuple(missing))
+                       f"edges ({unreachable} of {nodes} nodes cannot reach it); {advice}{where}", tuple(missing))
 
 
 def solve_stage(path: str | RoadmapTarget, *, failure_cost: float | None = None, method: str = "value",
