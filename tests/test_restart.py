@@ -62,3 +62,25 @@ def test_changed_sections_ignore_layout_comments_and_what_keeps_the_nodes():
          '[cost]\nx = 2\n')
     assert changed_sections(a, b) == []
     assert changed_sections(a, a.replace("seed = 1", "seed = 2").replace("[1, 1]", "[1, 2]")) == ["seed", "[world]"]
+
+
+def test_a_scenario_where_a_roadmap_is_expected_and_the_reverse_say_so(tmp_path):
+    """``execute room.toml`` used to answer with HDF5's "file signature not found"."""
+    room = _scenario(tmp_path, "room")
+    out = tmp_path / "room.h5"
+    assert runner.invoke(app, ["sample", str(room), "-o", str(out)]).exit_code == 0
+    for command in ("solve", "execute", "plot", "inspect", "estimate", "design"):
+        res = runner.invoke(app, [command, str(room)])
+        line = res.output.strip()
+        assert res.exit_code == 2 and "\n" not in line, (command, res.output)
+        assert line == f"error: {room}: a scenario file, not a roadmap; build its roadmap first: firmtool build {room}"
+    for command in ("build", "sample", "check", "run"):
+        res = runner.invoke(app, [command, str(out)])
+        line = res.output.strip()
+        assert res.exit_code == 2 and "\n" not in line, (command, res.output)
+        assert line.startswith(f"error: {out}: an HDF5 file (a roadmap?), not a scenario;") and "inspect" in line
+    junk = tmp_path / "notes.txt"
+    junk.write_text("not a roadmap, not a scenario")
+    res = runner.invoke(app, ["solve", str(junk)])
+    # neither: the roadmap reader's own one line, not a guess
+    assert res.exit_code == 2 and str(junk) in res.output and "scenario file" not in res.output

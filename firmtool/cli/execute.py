@@ -12,7 +12,7 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import interval, items, num, prob
 from firmtool.cli.exits import fail, handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists, open_roadmap
+from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -165,7 +165,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     from firmtool.io.episodes import check_output as check_episodes_output
     from firmtool.io.episodes import save_episodes as write_episodes
     from firmtool.sim.disturbances import parse_disturbances
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     dists = parse_disturbances(disturbance)
     settings = replan_settings(no_replan, replan_threshold, replan_deadline, replan_clock, replan_latency,
                                goal_check, jump_false_alarm, jump_window, goal_lookback)

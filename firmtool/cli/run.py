@@ -11,7 +11,16 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.execute import execute_human
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import DEFAULT_SCENARIO, SCENARIO_HELP, ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, WorkersOpt
+from firmtool.cli.options import (
+    DEFAULT_SCENARIO,
+    SCENARIO_HELP,
+    ForceOpt,
+    JsonOpt,
+    MaxStepsOpt,
+    QuietOpt,
+    WorkersOpt,
+    check_scenario_argument,
+)
 from firmtool.cli.output import emit, print_notices
 from firmtool.cli.solve import solve_human
 from firmtool.cli.stages import build_human, exit_on_failed_edges
@@ -34,6 +43,7 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
     from firmtool.estimation.budgets import check_execution
     from firmtool.pipeline import default_output
     from firmtool.problem import build_problem
+    check_scenario_argument(scenario)
     sc = ft.load_scenario(scenario)
     check_execution(build_problem(sc), episodes, max_total_steps=max_total_steps)
     out = output or default_output(sc)

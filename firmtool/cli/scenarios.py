@@ -11,7 +11,7 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import num
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import SCENARIO_HELP, JsonOpt, QuietOpt
+from firmtool.cli.options import SCENARIO_HELP, JsonOpt, QuietOpt, check_scenario_argument
 from firmtool.cli.output import emit, print_notices
 
 
@@ -55,6 +55,7 @@ def check(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     Example: firmtool check my_room.toml
     """
     from firmtool.cli.check import check_scenario  # lazy: saves firmtool --help 1.4 s (firmtool.cli.app)
+    check_scenario_argument(scenario)
     report = check_scenario(scenario).to_dict()
     emit(report, as_json, _check_human)
     print_notices(report)

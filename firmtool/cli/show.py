@@ -10,7 +10,7 @@ import typer
 
 from firmtool.cli import console
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists, open_roadmap
+from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -41,7 +41,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     # lazy: saves firmtool --help the library's and matplotlib's import, 2 s (firmtool.cli.app)
     from firmtool.estimation.budgets import check_execution
     from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
         raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
@@ -65,7 +65,7 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
     Example: firmtool inspect artifacts/smoke.h5 --json
     """
     from firmtool.cli import inspect as inspect_module  # lazy: saves firmtool --help 1.6 s (firmtool.cli.app)
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     report = inspect_module.summarize(roadmap).to_dict()
     emit(report, as_json, lambda r: "\n".join(f"{k.replace('_', ' ')}: {console.value(v, k)}" for k, v in r.items()
                                               if v is not None and v != []))

@@ -11,7 +11,7 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import items, num, prob
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import JsonOpt, QuietOpt, check_exists, open_roadmap
+from firmtool.cli.options import JsonOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -45,7 +45,7 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     """
     # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     if method not in ("value", "policy"):
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):

@@ -20,7 +20,8 @@ from firmtool.cli.options import (
     QuietOpt,
     SchedulerOpt,
     WorkersOpt,
-    check_exists,
+    check_roadmap_argument,
+    check_scenario_argument,
 )
 from firmtool.cli.output import emit, print_notices
 from firmtool.errors import InputError
@@ -39,6 +40,7 @@ def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import sample_stage
     # the pipeline's boundary reads the scenario (a file or a shipped name) once
+    check_scenario_argument(scenario)
     report = sample_stage(scenario, output, force=force, progress=console.progress()).to_dict()
     emit(report, as_json, lambda r: f"sampled {r['nodes']} nodes in {console.seconds(r['seconds'])}")
     console.next_step(report["roadmap"], f"firmtool design {report['roadmap']}")
@@ -53,7 +55,7 @@ def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled n
     """
     # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import design_stage
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     emit(design_stage(roadmap, progress=console.progress()).to_dict(), as_json,
          lambda r: f"designed {r['nodes']} node stabilisers and {r['edges']} edges (mean nominal "
                    f"{num(r['mean_edge_steps'], 3)} steps) in {console.seconds(r['seconds'])}")
@@ -74,7 +76,7 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
     """
     # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import estimate_stage
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
                             progress=console.progress(), checkpoint_seconds=checkpoint_seconds).to_dict()
     emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
@@ -153,6 +155,7 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     from firmtool.pipeline import default_output
     if max_nodes is not None and p_min is None:
         raise InputError("--max-nodes: only meaningful with --p-min")
+    check_scenario_argument(scenario)
     sc = ft.load_scenario(scenario)
     rm = ft.build(sc, output=output or default_output(sc), workers=workers, executor=executor, scheduler=scheduler,
                   progress=console.progress(), fresh=fresh, p_min=p_min, max_nodes=max_nodes,
