@@ -17,7 +17,7 @@ from firmtool.errors import InputError
 
 @handles_errors
 def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
-         output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG file (default: next to the roadmap)."),
+         output: Optional[Path] = typer.Option(None, "--output", "-o", help="Image file: PNG, PDF or SVG by its extension (default: a PNG next to the roadmap)."),
          policy_name: str = typer.Option("both", "--policy", help="'both' (side by side), 'firm' or 'shortest-path'."),
          seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
          episodes: int = typer.Option(20, "--episodes", "-n", min=0,
