@@ -32,7 +32,8 @@ DisturbanceOpt = typer.Option(
          "control step STEP), push:random:SIZE:RATE (pushes at random steps, probability RATE per "
          "step), kidnap:STEP (true state jumps to a random valid state at rest), kidnap:random:RATE. "
          "Repeatable.")
-NoReplanOpt = typer.Option(False, "--no-replan", help="Follow the stored controllers only: no real-time replanning.")
+NoReplanOpt = typer.Option(False, "--no-replan", metavar="",
+                           help="Follow the stored controllers only: no real-time replanning.")
 ReplanThresholdOpt = typer.Option(
     3.0, "--replan-threshold",
     help="Replan when the estimate leaves the running controller's nominal by more than this, in "

@@ -20,12 +20,13 @@ if TYPE_CHECKING:  # pragma: no cover
 DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 SCENARIO_HELP = "Scenario: a TOML file, or the name of a shipped scenario (see 'firmtool scenarios')."
 
-JsonOpt = typer.Option(False, "--json", help="Print machine-readable results on stdout.")
+JsonOpt = typer.Option(False, "--json", metavar="", help="Print machine-readable results on stdout.")
 WorkersOpt = typer.Option(None, "--workers", "-w", min=1,
                           help="Worker processes (default: all cores; at most 2 per core, and as many as memory "
                                "allows).")
-ForceOpt = typer.Option(False, "--force", help="Replace an existing output file even if it is not a firmtool file "
-                                               "of the same kind (a roadmap: of the same scenario).")
+ForceOpt = typer.Option(False, "--force", metavar="",
+                        help="Replace an existing output file even if it is not a firmtool file of the same kind (a "
+                             "roadmap: of the same scenario).")
 MaxStepsOpt = typer.Option(1e8, "--max-total-steps", min=1.0,
                            help="Refuse runs of more than this many control steps in the worst case "
                                 "(episodes x the scenario's execution.max_steps).")
@@ -34,8 +35,8 @@ CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
 SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
                             "without it --executor dask starts a LocalCluster.")
-QuietOpt = typer.Option(False, "--quiet", "-q", help="Print only errors, notices and --json output: no progress "
-                                                     "bar, no summary, no next step.")
+QuietOpt = typer.Option(False, "--quiet", "-q", metavar="",
+                        help="Print only errors, notices and --json output: no progress bar, no summary, no next step.")
 
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"  # the first 8 bytes of an HDF5 file without a user block (h5py writes none)

@@ -28,9 +28,10 @@ from firmtool.cli.stages import build_human, exit_on_failed_edges
 
 @handles_errors
 def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
-        output: Optional[Path] = typer.Option(None, "--output", "-o"),
-        episodes: int = typer.Option(200, "--episodes", "-n", min=1),
-        seed: int = typer.Option(0, "--seed", min=0),
+        output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                              help="Roadmap file (default: artifacts/NAME.h5)."),
+        episodes: int = typer.Option(200, "--episodes", "-n", min=1, help="Episodes to execute."),
+        seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
         workers: Optional[int] = WorkersOpt, force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt,
         as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Build, solve and execute a scenario in one go (default: the paper's 8-link arm experiment):

@@ -22,7 +22,7 @@ def init(name: str = typer.Argument(..., help="The scenario's name: writes NAME.
                                              help="The robot (default point): a built-in one (point, arm, unicycle), "
                                                   "or a registered robot that has a template."),
          output: Optional[Path] = typer.Option(None, "--output", "-o", help="Scenario file (default NAME.toml)."),
-         force: bool = typer.Option(False, "--force", help="Replace an existing file."),
+         force: bool = typer.Option(False, "--force", metavar="", help="Replace an existing file."),
          quiet: bool = QuietOpt) -> None:
     """Write a commented scenario for a built-in robot that builds as it is: every key listed with
     what it is (from the scenario schema), the keys at their defaults commented out.

@@ -17,13 +17,16 @@ from firmtool.errors import InputError
 
 @handles_errors
 def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
-         output: Optional[Path] = typer.Option(None, "--output", "-o", help="Image file: PNG, PDF or SVG by its extension (default: a PNG next to the roadmap)."),
+         output: Optional[Path] = typer.Option(None, "--output", "-o", help="Image file: PNG, PDF or SVG by its "
+                                                                           "extension (default: a PNG next to the "
+                                                                           "roadmap)."),
          policy_name: str = typer.Option("both", "--policy", help="'both' (side by side), 'firm' or 'shortest-path'."),
          seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
          episodes: int = typer.Option(20, "--episodes", "-n", min=0,
                                       help="Episodes run per policy: the panel shows their success rate and draws "
                                            "the first successful one (0: the roadmap and the policy only)."),
-         dpi: int = typer.Option(120, "--dpi", min=30, max=600), force: bool = ForceOpt,
+         dpi: int = typer.Option(120, "--dpi", min=30, max=600, help="Resolution of a PNG (dots per inch)."),
+         force: bool = ForceOpt,
          kind: str = typer.Option("paths", "--kind", help="'paths' (the paper's Fig. 1) or 'calibration' (predicted "
                                                           "vs executed probabilities of the policy edges)."),
          unit: str = typer.Option("m", "--unit", help="The length unit of the scenario's world (axis labels)."),
