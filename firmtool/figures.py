@@ -41,7 +41,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 OBSTACLE_COLOR = "#8c564b"  # brown, as in the paper
 GOAL_COLOR = "#9467bd"  # purple
-ELLIPSE_EVERY = 6  # draw a covariance ellipse every this many steps
+ELLIPSE_SPACING = 1 / 40  # covariance ellipses at least this fraction of the world's diagonal apart (their centres)
 DEFAULT_UNIT = "m"  # the length unit of the axes (a scenario's world has no unit of its own)
 
 
@@ -126,6 +126,20 @@ def _background(ax, problem: Problem, unit: str = DEFAULT_UNIT):
     return image
 
 
+def thinned(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Indices of the points (T, 2) to draw an ellipse at: the first, then each next point at least
+    ``spacing`` from the last one kept, and the last. In the dark a fixed step made the 3-sigma
+    ellipses of a slow belief merge into a band that hid the path; spacing by distance keeps a
+    settling belief (many steps in one place) to one ellipse there."""
+    keep = [0]
+    for i in range(1, len(points)):
+        if np.linalg.norm(points[i] - points[keep[-1]]) >= spacing:
+            keep.append(i)
+    if len(points) > 1 and keep[-1] != len(points) - 1:
+        keep.append(len(points) - 1)
+    return np.asarray(keep, dtype=np.int64)
+
+
 def _robot(ax, problem: Problem, state: np.ndarray, color: str, label: str, lw: float = 2.0) -> None:
     problem.robot.draw(ax, state, color=color, label=label, lw=lw)
 
@@ -158,18 +172,28 @@ def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = 
     goals = np.flatnonzero(design.kinds == GOAL)
     if problem.goal_disc is not None:
         c, r = problem.goal_disc
-        ax.add_patch(Circle(c[:2], r, color=GOAL_COLOR, alpha=0.6, zorder=4, label="goal"))
+        region = problem.goal_region
+        label = "goal" if region is None or problem.perfect else f"goal (confidence {region.confidence:g})"
+        ax.add_patch(Circle(c[:2], r, color=GOAL_COLOR, alpha=0.6, zorder=4, label=label))
     else:
         ax.plot(tips[goals, 0], tips[goals, 1], "*", color=GOAL_COLOR, ms=14, zorder=4, label="goal")
     path = policy_path(data.policy, design.edge_target, START_INDEX, goals)
     ax.plot(tips[path, 0], tips[path, 1], "-", color="tab:orange", lw=2, alpha=0.9, zorder=4, label="policy path")
     _robot(ax, problem, design.centers[START_INDEX], "black", "start")
+    if not problem.perfect:  # the start belief: the task's start covariance, else the start node's stationary one
+        P0 = problem.start_covariance if problem.start_covariance is not None else design.P[START_INDEX]
+        cov0 = point_covariance(problem, design.centers[START_INDEX:START_INDEX + 1], P0[None])[0]
+        e = _ellipse(tips[START_INDEX], cov0, fill=False, color="black", lw=0.9, ls="--", zorder=5,
+                     label="start belief (3-sigma)")
+        if e is not None:
+            ax.add_patch(e)
 
     ep = data.episode
     if ep is not None and ep.estimates is not None:
         mean = problem.points(ep.estimates)[:, -1, :2]
         ax.plot(mean[:, 0], mean[:, 1], "-", color="red", lw=1.2, zorder=5, label="estimated mean")
-        idx = np.arange(0, len(ep.estimates), ELLIPSE_EVERY)
+        lo, hi = problem.scenario.world.lo[:2], problem.scenario.world.hi[:2]
+        idx = thinned(mean, ELLIPSE_SPACING * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo))))
         if not problem.perfect:
             covs = point_covariance(problem, ep.estimates[idx], ep.covariances[idx])
             for k, (center, cov) in enumerate(zip(mean[idx], covs)):
@@ -178,8 +202,9 @@ def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = 
                 if e is not None:
                     ax.add_patch(e)
         _headings(ax, problem, ep.estimates[idx[::2]], mean[idx[::2]], "red")
-        _robot(ax, problem, ep.states[-1], "green", f"final true ({ep.outcome})")
+        # the estimate first, the true state over it: a final-estimate disc used to cover the true position
         _robot(ax, problem, ep.estimates[-1], "blue", "final estimate", lw=1.2)
+        _robot(ax, problem, ep.states[-1], "green", f"final true ({ep.outcome})")
     title = data.name
     if data.predicted is not None:
         title += f"\npredicted success {data.predicted:.3f}"

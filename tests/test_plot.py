@@ -51,7 +51,8 @@ def test_figures_fit_for_a_paper(scenario, smoke_roadmap, tmp_path):
         sc = ft.load_scenario(ROOT / "scenarios" / "arm8_lightdark.toml").replace(
             roadmap={"nodes": 20, "goal_nodes": 2, "bridge_nodes": 0}, estimation={"particles": 20})
         rm = ft.build(sc, workers=1)
-    sol = rm.solution() if scenario == "smoke" else ft.solve(rm)
+    # the tiny arm cannot reach its goal (no bridge nodes): the figure's layout is what is tested
+    sol = rm.solution() if scenario == "smoke" else ft.solve(rm, allow_unreachable=True)
     res = ft.simulate(sol, episodes=2, seed=0)
     fig = plot_policies(sol, [res, None], ["firm", "shortest-path"], dpi=60, unit="m")
     assert max(_sticks_out(fig)) < 0.01
@@ -62,7 +63,9 @@ def test_figures_fit_for_a_paper(scenario, smoke_roadmap, tmp_path):
     (legend,) = fig.legends
     renderer = fig.canvas.get_renderer()  # the Agg canvas _sticks_out attached
     assert legend.get_window_extent(renderer).y1 <= min(ax.get_window_extent(renderer).y0 for ax in panels)
-    assert {"start", "goal", "policy path", "estimated mean"} <= {t.get_text() for t in legend.get_texts()}
+    texts = {t.get_text() for t in legend.get_texts()}
+    assert {"start", "policy path", "estimated mean"} <= texts
+    assert any(t == "goal" or t.startswith("goal (confidence ") for t in texts), texts  # the ball with its level
 
 
 def test_calibration_figure_draws_every_checked_edge(smoke_roadmap):
@@ -140,3 +143,29 @@ def test_the_format_follows_the_extension_and_the_title_says_which_episodes(smok
                                                                                     policies=("firm",)))
     titles = [ax.get_title() for ax in fig.axes]
     assert any("of 3 episodes, seed 4" in t for t in titles), titles
+
+
+def test_ellipses_are_thinned_by_distance_and_the_start_belief_is_drawn(smoke_roadmap):
+    """A settling belief (many steps in one place) gets one ellipse there, not a band (issue 42, 3)."""
+    import matplotlib.patches
+
+    import firmtool as ft
+    from firmtool.figures import ELLIPSE_SPACING, plot, thinned
+
+    pts = np.array([[0.0, 0.0]] * 30 + [[0.1 * k, 0.0] for k in range(1, 21)])
+    keep = thinned(pts, 0.25)
+    assert keep[0] == 0 and keep[-1] == len(pts) - 1
+    gaps = np.linalg.norm(np.diff(pts[keep], axis=0), axis=1)
+    assert (gaps[:-1] >= 0.25 - 1e-12).all() and len(keep) <= 2 + 2.0 / 0.25
+    assert np.sum(keep < 30) == 1  # the 30 steps at rest: one ellipse
+    sol = ft.open_roadmap(smoke_roadmap[0]).solution()
+    res = ft.simulate(sol, 3, 0, record=True)
+    ax = plot(sol, res)
+    ellipses = [p for p in ax.patches if type(p) is matplotlib.patches.Ellipse]  # a Circle is an Ellipse too
+    labels = [p.get_label() for p in ellipses]
+    assert "start belief (3-sigma)" in labels
+    drawn = [p for p in ellipses if p.get_label() != "start belief (3-sigma)"]
+    centres = np.array([p.center for p in drawn])
+    lo, hi = np.array(sol.roadmap.scenario.world.lo), np.array(sol.roadmap.scenario.world.hi)
+    spacing = ELLIPSE_SPACING * np.linalg.norm(hi - lo)
+    assert (np.linalg.norm(np.diff(centres, axis=0), axis=1)[:-1] >= spacing - 1e-9).all()
