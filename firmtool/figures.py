@@ -29,6 +29,7 @@ from matplotlib.patches import Circle, Ellipse, Rectangle
 from firmtool import __version__
 from firmtool.api import Solution, simulate
 from firmtool.errors import InputError
+from firmtool.estimation.edge_table import ENGINE_VERSION
 from firmtool.graph import policy_path
 from firmtool.io.atomic import check_target, write_bytes
 from firmtool.problem import Problem
@@ -425,15 +426,29 @@ def check_output(path: str | Path, force: bool = False) -> Path:
     return checked
 
 
-def save_figure(fig: Figure, path: str | Path, force: bool = False) -> None:
+def figure_provenance(solution: Solution, options: FigureOptions | None = None) -> dict[str, str]:
+    """What a figure's numbers come from, for its PNG text chunks (:func:`save_figure`): the scenario's
+    name and the hash of its text, the Monte Carlo engine's version (a change of either moves the
+    numbers), and the episodes drawn. The documentation's test compares a committed figure's
+    against the shipped scenario and this engine, so that a figure made by other numbers fails it."""
+    data = solution.roadmap._data
+    out = {"firmtool:scenario": solution.roadmap.scenario.name, "firmtool:scenario_sha256": str(data.scenario_sha256),
+           "firmtool:engine_version": str(ENGINE_VERSION)}
+    if options is not None:
+        out["firmtool:episodes"] = f"{options.episodes} episodes, seed {options.seed}"
+    return out
+
+
+def save_figure(fig: Figure, path: str | Path, force: bool = False, provenance: dict[str, str] | None = None) -> None:
     """Write a figure atomically, in the format of its extension (PNG, PDF or SVG: :func:`figure_format`):
     rendered in memory, then :func:`firmtool.io.atomic.write_bytes` (an existing file there is
-    replaced only if firmtool wrote it, or with ``force``)."""
+    replaced only if firmtool wrote it, or with ``force``). A PNG also carries ``provenance``
+    (:func:`figure_provenance`) as text chunks."""
     try:
         check_output(path, force)
         fmt = figure_format(path)
         image = io.BytesIO()
-        metadata = {"Software": PNG_SOFTWARE} if fmt == "png" else {"Creator": PNG_SOFTWARE}
+        metadata = {"Software": PNG_SOFTWARE, **(provenance or {})} if fmt == "png" else {"Creator": PNG_SOFTWARE}
         # bbox_inches="tight": nothing outside the figure's edge is cut (tick labels, outside legends)
         fig.savefig(image, format=fmt, metadata=metadata, bbox_inches="tight", pad_inches=0.05)
         write_bytes(path, image.getbuffer())

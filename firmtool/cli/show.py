@@ -43,7 +43,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     """
     # lazy: saves firmtool --help the library's and matplotlib's import, 2 s (firmtool.cli.app)
     from firmtool.estimation.budgets import check_execution
-    from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
+    from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, figure_provenance, make_figure, save_figure
     check_roadmap_argument(roadmap)
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
@@ -56,7 +56,8 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
                             progress=console.progress())
-    save_figure(make_figure(kind, rm.solution(), options), out, force=force)
+    sol = rm.solution()
+    save_figure(make_figure(kind, sol, options), out, force=force, provenance=figure_provenance(sol, options))
     console.next_step(str(out))
 
 
