@@ -77,6 +77,8 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
     stale = report.get("stale_stages") or []
     following = {"nodes": "design", "controllers": "estimate", "edges": "solve", "policy": "execute"}
     done = [s for s in stages if s not in stale]
-    if done and done[-1] in following:
+    if done and done[-1] == "policy":  # solved: maybe executed already (run does), which the file cannot tell
+        console.next_step(None, f"firmtool execute {roadmap} (episodes of the policy) or firmtool plot {roadmap}")
+    elif done and done[-1] in following:
         console.next_step(None, f"firmtool {following[done[-1]]} {roadmap}")
 
