@@ -29,6 +29,8 @@ _EXPORTS = {
     "build": "firmtool.api",
     "open_roadmap": "firmtool.api",
     "solve": "firmtool.api",
+    "Query": "firmtool.api",
+    "QueryReport": "firmtool.reports",
     "simulate": "firmtool.api",
     "plot": "firmtool.figures",
     "Roadmap": "firmtool.api",
@@ -68,7 +70,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
-    from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
+    from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
     from firmtool.errors import FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError
     from firmtool.figures import plot
     from firmtool.graph import SolveStatus
@@ -80,6 +82,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time 
         DesignReport,
         EstimateReport,
         FailedEdge,
+        QueryReport,
         RoadmapSummary,
         SampleReport,
         SolveReport,
