@@ -422,6 +422,7 @@ class RoadmapSummary(Report):
         (``particles_per_edge`` the median: adaptive Monte Carlo gives some edges more; ``particles``
         the total).
     cached_edges : estimates an interrupted estimate stage left for reuse (``/edge_cache``).
+    queries : the names of the queries stored in the file (``/queries``: ``firmtool solve --goal --name``).
     solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
         (``start_cost_to_go`` None when the goal is unreachable from the start);
         ``start_success_probability_ci95`` its interval stored at solve time.
@@ -454,3 +455,4 @@ class RoadmapSummary(Report):
     particles: int | None = None
     validity_checker: str | None = None
     stale_stages: tuple[str, ...] = ()
+    queries: tuple[str, ...] = ()
