@@ -78,8 +78,8 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     if goal or task is not None or start is not None:
         return _queries(roadmap, queries_of(goal or [], name or [], goal_radius, goal_confidence, start,
                                             start_covariance, task), failure_cost, method, force, workers, as_json)
-    if name or goal_radius is not None or goal_confidence is not None or start_covariance is not None:
-        raise InputError("--name, --goal-radius, --goal-confidence, --start-covariance: only with a query "
+    if name or force or goal_radius is not None or goal_confidence is not None or start_covariance is not None:
+        raise InputError("--name, --force, --goal-radius, --goal-confidence, --start-covariance: only with a query "
                          "(--goal, --start or --task)")
     sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress())
     sol.save()
