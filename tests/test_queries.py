@@ -57,12 +57,15 @@ def _reference(rm: ft.Roadmap, image: MemoryFile) -> MemoryFile:
     return ref
 
 
-def test_query_edges_are_connect_of_the_new_node_set(smoke_fixed):
+@pytest.mark.parametrize("start_covariance", [None, [0.02, 0.02]])
+def test_query_edges_are_connect_of_the_new_node_set(smoke_fixed, start_covariance):
     """The edges a query checks incrementally (only pairs touching changed nodes) are the full
-    design's of the same node set, bit for bit."""
-    sol = ft.solve(smoke_fixed, goal=NEW_GOAL, start=[0.6, 2.4])
+    design's of the same node set, bit for bit (a moved start, and a start belief with its wider
+    candidate edges)."""
+    sol = ft.solve(smoke_fixed, goal=NEW_GOAL, start=[0.6, 2.4], start_covariance=start_covariance)
     d = sol.roadmap.design
     problem = sol.roadmap.problem
+    assert (problem.start_covariance is not None) == (start_covariance is not None)
     src, dst, steps = connect(problem, d.centers, d.kinds, retired=d.retired)
     assert np.array_equal(src, d.edge_source) and np.array_equal(dst, d.edge_target)
     assert np.array_equal(steps, d.edge_steps)
@@ -198,6 +201,8 @@ def test_cli_solve_queries_execute_and_bad_input(tmp_path, smoke_roadmap):
 
 
 def test_dataclass_query_task_keys():
-    q = ft.Query(goal=np.array([1.0, 2.0]), goal_radius=0.2, start_covariance=[0.1, 0.1, 0.0, 0.0])
-    assert q.task() == {"goal": [1.0, 2.0], "goal_radius": 0.2, "start_covariance": [0.1, 0.1, 0.0, 0.0]}
-    assert dataclasses.replace(q, goal=None).task() == {"goal_radius": 0.2, "start_covariance": [0.1, 0.1, 0.0, 0.0]}
+    q = ft.Query(goal=np.array([1.0, 2.0]), goal_radius=0.2, start_covariance=[0.1, 0.2])
+    cov = [[0.1, 0.0], [0.0, 0.2]]  # a diagonal given as its entries
+    assert q.task() == {"goal": [1.0, 2.0], "goal_radius": 0.2, "start_covariance": cov}
+    assert dataclasses.replace(q, goal=None).task() == {"goal_radius": 0.2, "start_covariance": cov}
+    assert dataclasses.replace(q, start_covariance=cov).task()["start_covariance"] == cov

@@ -47,7 +47,8 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
           start: Optional[str] = typer.Option(None, "--start", help="The queries' start X,Y[,..]."),
           start_covariance: Optional[str] = typer.Option(None, "--start-covariance",
                                                          help="The queries' start covariance (its diagonal)."),
-          task: Optional[Path] = typer.Option(None, "--task", help="A TOML file with the queries' [task] fields."),
+          task: Optional[Path] = typer.Option(None, "--task", help="A TOML file with the queries' task fields "
+                                              "(a task table, or its keys at the top)."),
           name: Optional[list[str]] = typer.Option(None, "--name", help="Store each query under this name "
                                                    "(one per --goal; default: q- and its task's hash)."),
           force: bool = typer.Option(False, "--force", help="Replace a stored query of the same name."),
@@ -65,7 +66,7 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
 
       firmtool solve artifacts/point_lightdark.h5 --goal 8.5,5.0 --name east
 
-      firmtool solve artifacts/arm8_lightdark.h5 --goal 1.2,0.9 --goal-radius 0.15 --goal 0.4,1.3 --name a --name b
+      firmtool solve artifacts/arm8_lightdark.h5 --goal 0.47,1.01 --goal 0.6,-1.0 --name up --name down
     """
     # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft

@@ -92,9 +92,12 @@ class Query:
         out = {}
         for key in _TASK_KEYS:
             value = getattr(self, key)
-            if value is not None:
-                out[key] = np.asarray(value, dtype=float).tolist() if key in ("start", "goal", "start_covariance") \
-                    else float(value)
+            if value is None:
+                continue
+            if key == "start_covariance" and np.ndim(value) == 1:  # its diagonal
+                value = np.diag(np.asarray(value, dtype=float))
+            out[key] = np.asarray(value, dtype=float).tolist() if key in ("start", "goal", "start_covariance") \
+                else float(value)
         return out
 
 
