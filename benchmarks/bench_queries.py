@@ -48,6 +48,8 @@ def main() -> None:
     t0 = time.perf_counter()
     report = build(SCENARIOS[args.scenario], out, workers=args.workers)
     build_s = time.perf_counter() - t0
+    print(f"build: {build_s:.2f} s wall ({report.nodes} nodes, {report.edges} edges; stages {report.seconds})",
+          flush=True)
     rm = ft.open_roadmap(out)
     lo, hi = np.asarray(rm.scenario.world.lo, float), np.asarray(rm.scenario.world.hi, float)
     radius = rm.scenario.task.goal_radius
@@ -77,6 +79,9 @@ def main() -> None:
                "ratio_median_query_to_build": statistics.median(times) / build_s,
                "ratio_total_to_builds": sum(times) / (build_s * len(rows)),
                "median_parts": {k: statistics.median(r["parts"][k] for r in rows) for k in rows[0]["parts"]}}
+    print(json.dumps(summary, indent=1), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({"summary": summary, "queries": rows}, indent=1))
     if args.execute:
         inside = 0
         checks = []
@@ -93,11 +98,11 @@ def main() -> None:
                            "inside": ok})
             print(f"executed {i + 1}: predicted {sol.success_probability:.3f}, executed {res.success_rate:.3f} "
                   f"[{a:.3f}, {b:.3f}] {'inside' if ok else 'OUTSIDE'}", flush=True)
-        summary.update({"executed": len(checks), "episodes": args.episodes, "prediction_inside_wilson": inside,
-                        "checks": checks})
-    print(json.dumps(summary, indent=1))
-    if args.json:
-        args.json.write_text(json.dumps({"summary": summary, "queries": rows}, indent=1))
+            summary.update({"executed": len(checks), "episodes": args.episodes, "prediction_inside_wilson": inside,
+                            "checks": checks})
+            if args.json:  # after each execution: a long run stopped early keeps what it measured
+                args.json.write_text(json.dumps({"summary": summary, "queries": rows}, indent=1))
+        print(json.dumps({k: summary[k] for k in ("executed", "episodes", "prediction_inside_wilson")}))
 
 
 if __name__ == "__main__":
