@@ -54,6 +54,7 @@ from firmtool.pipeline.reading import design_of, problem_of, retired_nodes
 from firmtool.pipeline.sample import check_start_apart_from_goals
 from firmtool.pipeline.settings import WorkerSettings
 from firmtool.pipeline.solve import solve_policy, write_policy
+from firmtool.pipeline.target import locked
 from firmtool.problem import build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import QueryReport
@@ -363,15 +364,16 @@ def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]],
     InputError
         A name that exists without ``force``.
     """
-    base = RoadmapFile(path)
-    edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
-    existing = query_images(path)
-    for name in answers:
-        if name in existing and not force:
-            raise InputError(f"{path}: a query named {name!r} is stored already; give --force to replace it, "
-                             "or another --name")
-    write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **_summary(report)})
-                         for name, (image, report) in answers.items()})
+    with locked(path):  # one writer at a time, as every stage writes; the check and the write under it
+        base = RoadmapFile(path)
+        edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
+        existing = query_images(path)
+        for name in answers:
+            if name in existing and not force:
+                raise InputError(f"{path}: a query named {name!r} is stored already; give --force to replace it, "
+                                 "or another --name")
+        write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **_summary(report)})
+                             for name, (image, report) in answers.items()})
 
 
 def _summary(report: QueryReport) -> dict[str, Any]:
