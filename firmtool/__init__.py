@@ -29,6 +29,8 @@ _EXPORTS = {
     "build": "firmtool.api",
     "open_roadmap": "firmtool.api",
     "solve": "firmtool.api",
+    "Query": "firmtool.api",
+    "QueryReport": "firmtool.reports",
     "simulate": "firmtool.api",
     "plot": "firmtool.figures",
     "Roadmap": "firmtool.api",
@@ -69,7 +71,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
-    from firmtool.api import Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
+    from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
     from firmtool.errors import (FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError,
                                  Unreachable)
     from firmtool.figures import plot
@@ -82,6 +84,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time 
         DesignReport,
         EstimateReport,
         FailedEdge,
+        QueryReport,
         RoadmapSummary,
         SampleReport,
         SolveReport,

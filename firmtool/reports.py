@@ -210,6 +210,41 @@ class AddNodesReport(Report):
 
 
 @dataclasses.dataclass(frozen=True)
+class QueryReport(Report):
+    """A new query answered on a built roadmap (:func:`firmtool.pipeline.query.answer_query`): what it
+    reused and what it computed.
+
+    Attributes
+    ----------
+    name : the query's name (its key in the roadmap file's ``/queries``).
+    nodes : nodes of the query's roadmap; goal_nodes : its goal nodes (appended after the roadmap's);
+    retired_nodes : the roadmap's own goal nodes the query set aside (kept at their indices, unused).
+    start_changed : whether the query's start replaced node 0.
+    edges : edges of the query's roadmap; reused_edges : of them, estimates taken from the roadmap;
+    estimated_edges : edges the query estimated (new ones, and roadmap edges whose particles landed in
+    a retired or changed node, which are estimated again: ``reestimated_edges`` of them).
+    simulated_particle_steps : the query's Monte Carlo (its adaptive rounds included).
+    seconds : per part (``nodes``, ``design``, ``estimate``, ``solve``) and ``total``.
+    start_success_probability : the query's prediction (the DP from its start).
+    notices : what the answer approximates (the reused edges' stopping region).
+    """
+
+    name: str
+    nodes: int
+    goal_nodes: int
+    retired_nodes: int
+    start_changed: bool
+    edges: int
+    reused_edges: int
+    estimated_edges: int
+    reestimated_edges: int
+    simulated_particle_steps: int
+    seconds: Mapping[str, float]
+    start_success_probability: float
+    notices: tuple[str, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
 class DensifyRound(Report):
     """The roadmap after a densification round: its size, the start's success probability, and the
     edges that round estimated (None for the first, which is the build's own estimate stage)."""
@@ -391,6 +426,7 @@ class RoadmapSummary(Report):
         (``particles_per_edge`` the median: adaptive Monte Carlo gives some edges more; ``particles``
         the total).
     cached_edges : estimates an interrupted estimate stage left for reuse (``/edge_cache``).
+    queries : the names of the queries stored in the file (``/queries``: ``firmtool solve --goal --name``).
     solve_status, solve_iterations, start_success_probability, start_cost_to_go : of ``/policy``
         (``start_cost_to_go`` None when the goal is unreachable from the start);
         ``start_success_probability_ci95`` its interval stored at solve time.
@@ -423,3 +459,4 @@ class RoadmapSummary(Report):
     particles: int | None = None
     validity_checker: str | None = None
     stale_stages: tuple[str, ...] = ()
+    queries: tuple[str, ...] = ()

@@ -40,12 +40,12 @@ DOCS = Path(__file__).resolve().parents[1]
 # The public API by group (firmtool.__all__): each name in exactly one group.
 API_GROUPS = {
     "workflow": ["load_scenario", "build", "open_roadmap", "solve", "simulate", "plot"],
-    "objects": ["Scenario", "Roadmap", "Solution"],
+    "objects": ["Scenario", "Roadmap", "Solution", "Query"],
     "results": ["Results", "Episode", "Event", "EventKind", "Outcome", "Calibration", "EdgeCheck"],
     "online": ["Policy", "PolicyStatus", "SimulatedSystem", "episode_seeds", "UserDisturbance"],
     "settings": ["ReplanSettings", "Disturbance", "SolveStatus"],
     "reports": ["SampleReport", "DesignReport", "EstimateReport", "BuildReport", "DensifyReport", "SolveReport",
-                "FailedEdge", "RoadmapSummary"],
+                "QueryReport", "FailedEdge", "RoadmapSummary"],
     "errors": ["FirmtoolError", "InputError", "ScenarioError", "RoadmapError", "NumericalError", "RunFailure",
                "Unreachable"],
 }

@@ -19,7 +19,9 @@ Each input is checked once, where it enters here; the pipeline below takes typed
 
 from firmtool.api.execution import DisturbanceFunction, simulate
 from firmtool.api.roadmap import Roadmap, build, load_scenario, open_roadmap
-from firmtool.api.solution import POLICIES, Solution, solve
+from firmtool.api.queries import solve
+from firmtool.api.solution import POLICIES, Solution
+from firmtool.pipeline.query import Query
 
-__all__ = ["DisturbanceFunction", "POLICIES", "Roadmap", "Solution", "build", "load_scenario", "open_roadmap",
+__all__ = ["DisturbanceFunction", "POLICIES", "Query", "Roadmap", "Solution", "build", "load_scenario", "open_roadmap",
            "simulate", "solve"]

@@ -14,10 +14,12 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.api.solution import Solution
+from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
-from firmtool.reports import BuildReport
+from firmtool.io.roadmap_queries import query_images
+from firmtool.reports import BuildReport, QueryReport
 from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
@@ -76,9 +78,10 @@ class Roadmap:
     policy's edge indices (:attr:`Solution.policy`) are rows of them.
     """
 
-    def __init__(self, data: RoadmapFile, *, path: Path | None = None, report: BuildReport | None = None,
+    def __init__(self, data: RoadmapFile, *, path: Path | None = None, report: BuildReport | QueryReport | None = None,
                  validity: "Callable | None" = None) -> None:
         self._data = data
+        self._image = None  # the memory file it lives in (a query's, or a build's in memory): queries read it
         self.path = path
         self.report = report
         self.validity = validity  # the Python validity checker it was built with (None: the scenario's geometry)
@@ -230,6 +233,55 @@ class Roadmap:
         # one atomic write, built in memory: a failure names ``path``, never a temporary file
         write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
 
+    # queries (firmtool.api.queries answers them)
+    @property
+    def queries(self) -> list[str]:
+        """The names of the queries stored in the roadmap's file (:meth:`save_queries`); [] in memory."""
+        if self.path is None:
+            return []
+        return sorted(query_images(self._data.path))
+
+    def query(self, name: str) -> "Roadmap":
+        """The roadmap of the stored query ``name`` (in memory; :meth:`solution` gives its policy).
+
+        Raises
+        ------
+        InputError
+            No query of that name (the message lists the stored ones).
+        RoadmapError
+            A query answered on edges this roadmap no longer has.
+        """
+        if self.path is None:
+            raise InputError(f"query {name!r}: a roadmap in memory stores no queries; save it first")
+        image = pipeline.stored_query(self.path, name)
+        rm = Roadmap(RoadmapFile(image), path=None, validity=self.validity)
+        rm._image = image
+        return rm
+
+    def save_queries(self, solutions: "Solution | list[Solution]", *, force: bool = False) -> list[str]:
+        """Store answered queries (:func:`firmtool.solve` with a goal) in the roadmap's file, each under
+        its name (``solution.roadmap.report.name``), atomically. A name already stored is replaced only
+        with ``force``.
+
+        Returns
+        -------
+        list of str
+            The names stored.
+        """
+        sols = [solutions] if isinstance(solutions, Solution) else list(solutions)
+        if self.path is None:
+            raise InputError("save_queries: the roadmap is in memory; save it first (Roadmap.save)")
+        answers = {}
+        for sol in sols:
+            image, report = getattr(sol.roadmap, "_image", None), sol.roadmap.report
+            if image is None or not isinstance(report, QueryReport):
+                raise InputError("save_queries: expected solutions of queries (firmtool.solve with a goal)")
+            if report.name in answers:
+                raise InputError(f"save_queries: two queries named {report.name!r}")
+            answers[report.name] = (image, report)
+        pipeline.store_queries(self.path, answers, force=force)
+        return list(answers)
+
     def solution(self) -> "Solution":
         """The policy stored in the roadmap (``firmtool solve`` wrote it), as a :class:`Solution`.
 
@@ -333,5 +385,7 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
     data = RoadmapFile(request.target)  # read back from the file, or from the bytes kept in memory
     if output is not None:
         return Roadmap(data, path=Path(output), report=report, validity=request.validity)
-    return Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None), validity=request.validity)
+    rm = Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None), validity=request.validity)
+    rm._image = request.target  # its /edge_cache: the earlier particle blocks a query reuses
+    return rm
 

@@ -122,18 +122,19 @@ class Solution:
         """Whether the goal can be reached from the start node."""
         return bool(np.isfinite(self.cost_to_go[START_INDEX]))
 
-    def unreachable_error(self) -> Unreachable:
+    def unreachable_error(self, where: str | None = None) -> Unreachable:
         """The :class:`~firmtool.Unreachable` error of this solution's roadmap: what is not connected
         and where (the build report's connectivity, or the roadmap's connectivity computed now for a
         roadmap read from a file). For a solution whose start reaches the goal, an error would be a lie:
-        :class:`~firmtool.errors.InputError`."""
+        :class:`~firmtool.errors.InputError`. ``where``: what the message names (default: the
+        roadmap's file)."""
         if self.start_reachable:
             raise InputError("unreachable_error: the goal is reachable from the start of this solution")
         rm = self.roadmap
-        connectivity = rm.report.connectivity if rm.report is not None else None
+        connectivity = getattr(rm.report, "connectivity", None)  # a build's report has it; a query's has not
         if connectivity is None:
             connectivity = pipeline.roadmap_connectivity(rm._data, rm.validity)
-        return pipeline.unreachable_failure(rm.path, self.unreachable_nodes.size, self.cost_to_go.size,
+        return pipeline.unreachable_failure(where or rm.path, self.unreachable_nodes.size, self.cost_to_go.size,
                                             connectivity.missing, connectivity.goal_confidence_shortfall)
 
     @property

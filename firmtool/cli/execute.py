@@ -12,7 +12,15 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import interval, items, num, prob
 from firmtool.cli.exits import fail, handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_roadmap_argument, open_roadmap
+from firmtool.cli.options import (
+    ForceOpt,
+    JsonOpt,
+    MaxStepsOpt,
+    QueryOpt,
+    QuietOpt,
+    check_roadmap_argument,
+    open_roadmap,
+)
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -140,7 +148,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
             replan_latency: str = ReplanLatencyOpt, goal_check: Optional[float] = GoalCheckOpt,
             jump_false_alarm: Optional[float] = JumpFalseAlarmOpt, jump_window: Optional[int] = JumpWindowOpt,
             goal_lookback: Optional[int] = GoalLookbackOpt, start: Optional[str] = StartOpt,
-            save_episodes: Optional[Path] = SaveEpisodesOpt,
+            save_episodes: Optional[Path] = SaveEpisodesOpt, query: Optional[str] = QueryOpt,
             force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt, as_json: bool = JsonOpt,
             quiet: bool = QuietOpt) -> None:
     """Run closed-loop episodes of the policy on a simulated true system, with real-time replanning
@@ -175,6 +183,8 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     if save_episodes is not None:
         check_episodes_output(save_episodes, force)  # before the episodes run, not after
     rm = open_roadmap(roadmap)
+    if query is not None:
+        rm = rm.query(query)
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,

@@ -35,6 +35,8 @@ CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
 SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
                             "without it --executor dask starts a LocalCluster.")
+QueryOpt = typer.Option(None, "--query", help="A query stored in the roadmap (firmtool solve ROADMAP --goal ... "
+                                                "--name NAME): run its policy instead of the roadmap's own.")
 QuietOpt = typer.Option(False, "--quiet", "-q", metavar="",
                         help="Print only errors, notices and --json output: no progress bar, no summary, no next step.")
 

@@ -10,7 +10,15 @@ import typer
 
 from firmtool.cli import console
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_roadmap_argument, open_roadmap
+from firmtool.cli.options import (
+    ForceOpt,
+    JsonOpt,
+    MaxStepsOpt,
+    QueryOpt,
+    QuietOpt,
+    check_roadmap_argument,
+    open_roadmap,
+)
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -30,7 +38,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
          kind: str = typer.Option("paths", "--kind", help="'paths' (the paper's Fig. 1) or 'calibration' (predicted "
                                                           "vs executed probabilities of the policy edges)."),
          unit: str = typer.Option("m", "--unit", help="The length unit of the scenario's world (axis labels)."),
-         max_total_steps: float = MaxStepsOpt, quiet: bool = QuietOpt) -> None:
+         max_total_steps: float = MaxStepsOpt, query: Optional[str] = QueryOpt, quiet: bool = QuietOpt) -> None:
     """Draw the paper's Fig. 1: obstacles, sensing field, goal, roadmap, policy path, and an executed
     episode's estimated mean with 3-sigma ellipses of the robot's followed point (the arm's tip); or,
     with --kind calibration, the predicted vs executed probabilities of the policy edges.
@@ -52,6 +60,8 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
     rm = open_roadmap(roadmap)
+    if query is not None:
+        rm = rm.query(query)
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,

@@ -12,7 +12,7 @@ import numpy as np
 
 from firmtool.control.local import LocalController
 from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import GOAL, GOAL_INDEX
+from firmtool.roadmap.nodes import GOAL, first_goal
 from firmtool.scenario import CostSpec
 
 # Outcome codes besides node ids: a constraint violated, no node reached in time, and a belief that
@@ -56,4 +56,4 @@ def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np
 def goal_code(design_: Design, target: int) -> int:
     """The outcome code of a landing in the goal region on an edge to ``target``: the target if it is
     a goal node, else the first goal node (every goal node is the same absorbing goal of the DP)."""
-    return int(target) if design_.kinds[target] == GOAL else GOAL_INDEX
+    return int(target) if design_.kinds[target] == GOAL else first_goal(design_.kinds)

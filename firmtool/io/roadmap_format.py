@@ -16,6 +16,7 @@ STAGES = ("nodes", "controllers", "edges", "policy")
 REGULAR, START, GOAL = 0, 1, 2
 START_INDEX, GOAL_INDEX = 0, 1
 CACHE = "edge_cache"  # not a stage: estimates kept for reuse while /edges is incomplete or stale
+QUERIES = "queries"  # not a stage: answered queries by name, each a whole roadmap image (firmtool.io.roadmap_queries)
 STAGE_COMMANDS = {"nodes": "firmtool sample", "controllers": "firmtool design",
                   "edges": "firmtool estimate", "policy": "firmtool solve"}
 # Most bytes of datasets one reader loads (from their shapes, before reading): an arm roadmap of

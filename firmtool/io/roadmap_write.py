@@ -21,7 +21,7 @@ import numpy as np
 from firmtool import __version__
 from firmtool.errors import RoadmapError
 from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
-from firmtool.io.roadmap_format import CACHE, ENCODING_TYPE, SCHEMA_VERSION, STAGES, read_table, short
+from firmtool.io.roadmap_format import CACHE, ENCODING_TYPE, QUERIES, SCHEMA_VERSION, STAGES, read_table, short
 
 
 @contextmanager
@@ -192,3 +192,20 @@ def restamp(path: str | Path | MemoryFile, stages: tuple[str, ...]) -> None:
         for stage in stages:
             if stage in f and isinstance(f[stage], h5py.Group):
                 f[stage].attrs["scenario_sha256"] = sha
+
+
+def write_queries(path: str | Path | MemoryFile, images: Mapping[str, tuple[bytes, Mapping[str, Any]]]) -> None:
+    """Store query answers (:mod:`firmtool.io.roadmap_queries`) in ``/queries``, one uint8 dataset of
+    each query's roadmap image by name (a name there is replaced), atomically; the stages stay."""
+    p = as_target(path)
+    if not p.exists():
+        raise RoadmapError(f"{p}: no such roadmap file")
+    with _atomic_copy(p) as f:
+        g = f.require_group(QUERIES)
+        g.attrs["encoding-type"] = f"firmtool.{QUERIES}"
+        g.attrs["encoding-version"] = SCHEMA_VERSION
+        for name, (data, attrs) in images.items():
+            _delete(g, name)
+            d = g.create_dataset(name, data=np.frombuffer(data, dtype=np.uint8))
+            for k, v in attrs.items():
+                d.attrs[k] = v

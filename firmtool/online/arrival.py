@@ -22,7 +22,7 @@ from firmtool.online.innovation import JumpTests
 from firmtool.online.replanning import GOAL_CHECK_OLDER, ReplanSettings
 from firmtool.online.running import RunningController
 from firmtool.results import Event, EventKind
-from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, NodeRegions
+from firmtool.roadmap.nodes import GOAL, NodeRegions, first_goal
 
 
 class Arrival:
@@ -35,6 +35,7 @@ class Arrival:
 
     def __init__(self, regions: NodeRegions, kinds: np.ndarray) -> None:
         self.regions, self.kinds = regions, kinds
+        self.goal_code = first_goal(kinds)  # a goal ball's landing on an edge to a regular node
 
     def locate(self, xhat: np.ndarray, candidates: np.ndarray) -> int:
         """The node whose region holds the estimate ``xhat`` (1, n), or -1 (:meth:`NodeRegions.locate_one`:
@@ -50,14 +51,14 @@ class Arrival:
         ball's test (its node then the running controller's goal target, else the goal index)."""
         goal = self.regions.goal  # a goal ball's region of beliefs: tested at every step
         if goal is not None and bool(goal.contains(belief.xhat, belief.P)[0]):
-            return (run.target if self.kinds[run.target] == GOAL else GOAL_INDEX), True
+            return (run.target if self.kinds[run.target] == GOAL else self.goal_code), True
         if k + 1 >= run.land_from and run.cand[k].any():
             return self.locate(belief.xhat, run.cand[k]), False
         return -1, False
 
     def is_goal(self, node: int) -> bool:
         """Whether an arrival at ``node`` (a node or the goal index) declares the goal."""
-        return node == GOAL_INDEX or self.kinds[node] == GOAL
+        return node == self.goal_code or self.kinds[node] == GOAL
 
 
 class GoalCheck:

@@ -33,6 +33,7 @@ from firmtool.pipeline.inputs import (
     policy_inputs,
     validity_of,
 )
+from firmtool.pipeline.query import Query, answer_query, store_queries, stored_query
 from firmtool.pipeline.reading import design_of, edge_probabilities, execution_design, node_task_points, problem_of
 from firmtool.pipeline.sample import add_nodes_stage, check_start_apart_from_goals, sample_stage
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
@@ -48,7 +49,7 @@ from firmtool.pipeline.target import RoadmapTarget, check_output, default_output
 
 __all__ = [
     "BuildRequest", "CHECKPOINT_SECONDS", "Densify", "EstimationInterrupted", "PolicyGroup", "RoadmapTarget",
-    "VALIDITY_ATTR", "WorkerSettings", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
+    "Query", "VALIDITY_ATTR", "WorkerSettings", "answer_query", "store_queries", "stored_query", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
     "build_roadmap", "check_output", "check_start_apart_from_goals", "controllers_inputs", "default_output",
     "design_of", "design_stage", "edge_probabilities", "edges_inputs", "estimate_stage", "execution_design",
     "in_memory", "node_task_points", "nodes_inputs", "policy_inputs", "problem_of", "roadmap_connectivity",

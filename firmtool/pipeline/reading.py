@@ -51,7 +51,23 @@ def design_of(roadmap: RoadmapFile) -> Design:
                         "edge_source", "edge_target", "edge_steps")
     return Design(centers=nodes["centers"], kinds=nodes["kind"], u_eq=c["u_eq"], K=c["K"], S=c["S"], L=c["L"], P=c["P"],
                   Sigma=c["Sigma"], scale=c["scale"], edge_source=c["edge_source"].astype(np.int64),
-                  edge_target=c["edge_target"].astype(np.int64), edge_steps=c["edge_steps"].astype(np.int64))
+                  edge_target=c["edge_target"].astype(np.int64), edge_steps=c["edge_steps"].astype(np.int64),
+                  retired=retired_nodes(roadmap))
+
+
+def retired_nodes(roadmap: RoadmapFile) -> np.ndarray | None:
+    """(N,) bool: the nodes a query retired (``/nodes`` attribute ``retired``, their indices; see
+    :attr:`firmtool.roadmap.design.Design.retired`), or None when none is."""
+    index = roadmap.attrs("nodes").get("retired")
+    if index is None or np.asarray(index).size == 0:
+        return None
+    n = roadmap.require("nodes", "centers")["centers"].shape[0]
+    index = np.asarray(index).astype(np.int64).ravel()
+    if np.any(index < 0) or np.any(index >= n):
+        raise RoadmapError(f"{roadmap.path}: /nodes attribute 'retired' holds node indices outside 0..{n - 1}")
+    out = np.zeros(n, dtype=bool)
+    out[index] = True
+    return out
 
 
 def execution_design(roadmap: RoadmapFile) -> Design:

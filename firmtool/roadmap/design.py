@@ -44,6 +44,10 @@ class Design:
     edge_source: np.ndarray  # (E,) int64
     edge_target: np.ndarray  # (E,) int64
     edge_steps: np.ndarray  # (E,) int64 nominal length iota
+    # (N,) bool: nodes a query retired (the goal nodes of the roadmap's own goal, when a query asks for
+    # another): kept at their indices, so every other node keeps its number and its edges' random
+    # streams, but never landed in and without edges (firmtool.pipeline.query). None: none retired.
+    retired: np.ndarray | None = None
 
     def node(self, j: int) -> NodeController:
         return NodeController(self.centers[j], self.u_eq[j], self.K[j], self.S[j], self.L[j], self.P[j], self.Sigma[j])
@@ -59,6 +63,8 @@ class Design:
             excluded |= goals
         if problem.start_covariance is not None:
             excluded |= self.kinds == START
+        if self.retired is not None:
+            excluded |= self.retired
         return NodeRegions(self.centers, self.P, self.scale, c.node_radius, c.covariance_tolerance, problem.perfect,
                            goal=problem.goal_region, excluded=excluded if excluded.any() else None, goal_nodes=goals,
                            true_scale=true_scale(self.Sigma, self.P))
@@ -110,33 +116,40 @@ def nominal_trajectory(problem: Problem, x0: np.ndarray, xf: np.ndarray) -> tupl
 
 
 def directed_edges(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
-                   free_pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
+                   free_pairs: list[tuple[int, int]], retired: np.ndarray | None = None) -> list[tuple[int, int]]:
     """The candidate edges (sorted) from the collision-free neighbour pairs: both directions, none
     from a goal node (goals are absorbing) and none into a start node whose start belief the task
     gives (it is never landed in); from such a start, edges to
-    :func:`~firmtool.roadmap.nodes.start_belief_targets` as well. The serial and the parallel design share it."""
+    :func:`~firmtool.roadmap.nodes.start_belief_targets` as well. None touches a ``retired`` node
+    (:attr:`Design.retired`). The serial and the parallel design share it."""
     belief_start = problem.start_covariance is not None
+    gone = np.zeros(len(kinds), dtype=bool) if retired is None else np.asarray(retired, dtype=bool)
     directed = {p for i, j in free_pairs for p in ((int(i), int(j)), (int(j), int(i)))
-                if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START)}
+                if kinds[p[0]] != GOAL and not (belief_start and kinds[p[1]] == START)
+                and not gone[p[0]] and not gone[p[1]]}
     if belief_start:
-        directed |= {(START_INDEX, j) for j in start_belief_targets(problem, centers)}
+        directed |= {(START_INDEX, j) for j in start_belief_targets(problem, centers) if not gone[j]}
     return sorted(directed)
 
 
 def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
-            progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            progress: ProgressCallback | None = None, retired: np.ndarray | None = None,
+            free_pairs: list[tuple[int, int]] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edges to the k nearest neighbours (configuration space), both directions, nominal collision-free.
 
     No edge leaves a goal node (goals are absorbing), and none enters a start node whose start belief
     the task gives (that node is never landed in: :meth:`Design.regions`); from such a start, edges
     go to more candidates than its neighbours (:func:`firmtool.roadmap.nodes.start_belief_targets`).
+    ``retired``: nodes without edges (:attr:`Design.retired`). ``free_pairs``: the collision-free
+    neighbour pairs when the caller knows them (a query: :mod:`firmtool.roadmap.queries`), else checked here.
 
     Returns
     -------
     source, target, steps : (E,) int64 arrays sorted by (source, target).
     """
     counter = Counter(progress, DESIGN_EDGES, 3).start()  # the pairs' validity, the nominals, their checks
-    directed = directed_edges(problem, centers, kinds, valid_pairs(problem, centers))
+    pairs = valid_pairs(problem, centers) if free_pairs is None else free_pairs
+    directed = directed_edges(problem, centers, kinds, pairs, retired)
     counter.advance()
     ij = np.array(directed, dtype=np.int64).reshape(-1, 2)
     # the nominals of all edges, those of one length together (bit for bit nominal_trajectory's)
@@ -152,15 +165,16 @@ def connect(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
 
 
 def design(problem: Problem, centers: np.ndarray, kinds: np.ndarray,
-           progress: ProgressCallback | None = None) -> Design:
+           progress: ProgressCallback | None = None, retired: np.ndarray | None = None) -> Design:
     """Run the whole design stage for the given node centres and kinds (``progress``: told of the
-    nodes and edges designed, :mod:`firmtool.progress`)."""
+    nodes and edges designed, :mod:`firmtool.progress`; ``retired``: :attr:`Design.retired`)."""
     nodes = design_nodes(problem, centers, progress=progress)
     stack = lambda name: np.stack([getattr(nc, name) for nc in nodes])  # noqa: E731
     Sigma = stack("Sigma")
-    src, dst, steps = connect(problem, centers, kinds, progress)
+    src, dst, steps = connect(problem, centers, kinds, progress, retired)
     return Design(centers=centers, kinds=np.asarray(kinds), u_eq=stack("u_eq"), K=stack("K"), S=stack("S"), L=stack("L"), P=stack("P"),
-                  Sigma=Sigma, scale=region_scale(Sigma), edge_source=src, edge_target=dst, edge_steps=steps)
+                  Sigma=Sigma, scale=region_scale(Sigma), edge_source=src, edge_target=dst, edge_steps=steps,
+                  retired=retired)
 
 
 def start_covariance(problem: Problem, design_: Design, source: int) -> np.ndarray:

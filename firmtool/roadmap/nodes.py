@@ -178,6 +178,14 @@ def roadmap_nodes(problem: Problem, rng: np.random.Generator,
     return centers, kinds
 
 
+def first_goal(kinds: np.ndarray) -> int:
+    """The first goal node: the outcome code of a goal ball's landing on an edge to a regular node
+    (every goal node is the same absorbing goal of the DP). :data:`GOAL_INDEX` in a built roadmap; a
+    query on it (:mod:`firmtool.pipeline.query`) may retire that node and append its own goal nodes."""
+    goals = np.flatnonzero(np.asarray(kinds) == GOAL)
+    return int(goals[0]) if goals.size else GOAL_INDEX
+
+
 def segment_is_valid(problem: Problem, q0: np.ndarray, q1: np.ndarray) -> bool:
     """Whether the straight configuration-space segment between two states is collision-free.
 

@@ -1,0 +1,407 @@
+"""New queries on a built roadmap (paper Sec. III-D: the edges are computed offline, independent of
+the query): a new goal (and start) answered by reusing the roadmap's nodes, stabilisers and
+estimated edges, computing only what the query adds, then the DP.
+
+A query (:class:`Query`) gives a new ``[task]``: the query's scenario is the roadmap's with that
+section replaced. :func:`answer_query` makes the query's roadmap, a whole roadmap image kept in
+memory (:class:`~firmtool.io.memory_file.MemoryFile`: nodes, controllers, edges, policy), which
+every command that reads a roadmap reads as it is; :func:`store_queries` keeps the images in the
+roadmap file by name (``/queries``, :mod:`firmtool.io.roadmap_queries`).
+
+What a query computes (:mod:`firmtool.roadmap.queries` for the node set and its edges):
+
+- its goal nodes, appended after the roadmap's nodes, sampled as the build samples goal nodes from a
+  stream keyed by the seed and the query's task section (the same query gives the same nodes);
+  the roadmap's own goal nodes are retired (kept at their indices, so that every other node keeps
+  its index and every kept edge its random streams: ``edge_seed_sequence`` keys them by indices);
+- a new start in place of node 0;
+- the stabilisers of those nodes, the edges touching them, the DP;
+- the Monte Carlo of the new edges, and again of the roadmap's edges whose particles landed in a
+  retired or changed node (or missed the old goal): their outcomes would differ now. Every other
+  estimate is reused, re-keyed to the query's edge keys (:func:`firmtool.estimation.edge_table.edge_keys`
+  hashes the task section), with every particle block the adaptive rounds stored, so the query's
+  own adaptive rounds find them.
+
+The approximation (the one densification makes, :mod:`firmtool.estimation.edge_table`): a reused edge
+keeps the stopping region it was estimated with, so its particles do not stop in the query's goal
+region on their way to its target; the query's edges see every node. The report says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from firmtool.errors import InputError, RoadmapError, ScenarioError
+from firmtool.estimation.compiled import engine_choice
+from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, edge_keys, from_arrays, to_arrays
+from firmtool.estimation.edges import GOAL_MISS, EdgeEstimate
+from firmtool.estimation.executors import Workers
+from firmtool.io.hashing import digest
+from firmtool.io.memory_file import MemoryFile
+from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, read_edge_cache, write_edge_cache, write_stage
+from firmtool.io.roadmap_queries import QUERY_NAME, query_images
+from firmtool.io.roadmap_write import write_queries
+from firmtool.pipeline.design import DESIGN_ARRAYS
+from firmtool.pipeline.estimate import estimate_into
+from firmtool.pipeline.inputs import VALIDITY_ATTR, controllers_inputs, nodes_inputs, problem_checker_identity
+from firmtool.pipeline.reading import design_of, problem_of, retired_nodes
+from firmtool.pipeline.sample import check_start_apart_from_goals
+from firmtool.pipeline.settings import WorkerSettings
+from firmtool.pipeline.solve import solve_policy, write_policy
+from firmtool.pipeline.target import locked
+from firmtool.problem import build_problem
+from firmtool.progress import ProgressCallback
+from firmtool.reports import QueryReport
+from firmtool.roadmap.design import Design, design_nodes, region_scale
+from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX
+from firmtool.roadmap.queries import query_edges, query_goal_nodes
+from firmtool.scenario import Scenario
+
+_TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance")
+# the option each task key comes from on the command line (messages name what the user typed)
+OPTION_OF = {"task.goal": "--goal", "task.goal_radius": "--goal-radius", "task.goal_confidence": "--goal-confidence",
+             "task.start": "--start", "task.start_covariance": "--start-covariance"}
+
+
+@dataclasses.dataclass(frozen=True)
+class Query:
+    """A new query: the task fields it changes (None: the roadmap's own value is kept).
+
+    Attributes
+    ----------
+    goal : (D,) a configuration or state, or with a goal ball the ball's centre in the task space.
+    goal_radius, goal_confidence : the goal ball (see ``[task]``, :class:`firmtool.scenario.TaskSpec`).
+    start : (D,) the start belief's mean; start_covariance : (n, n) or its diagonal (n,).
+    name : the name it is stored under (default: ``q-`` and 8 hex digits of its task's hash).
+    """
+
+    goal: Any = None
+    goal_radius: float | None = None
+    goal_confidence: float | None = None
+    start: Any = None
+    start_covariance: Any = None
+    name: str | None = None
+
+    def task(self) -> dict[str, Any]:
+        """The ``[task]`` keys it sets (TOML values: lists, floats)."""
+        out = {}
+        for key in _TASK_KEYS:
+            value = getattr(self, key)
+            if value is None:
+                continue
+            if key == "start_covariance" and np.ndim(value) == 1:  # its diagonal
+                value = np.diag(np.asarray(value, dtype=float))
+            out[key] = np.asarray(value, dtype=float).tolist() if key in ("start", "goal", "start_covariance") \
+                else float(value)
+        return out
+
+
+def query_scenario(base: Scenario, query: Query, where: str) -> Scenario:
+    """The roadmap's scenario with the query's task fields (checked: one line naming the field).
+
+    Raises
+    ------
+    InputError
+        A query that sets nothing, or a task field the scenario's rules refuse (named as the option).
+    """
+    task = query.task()
+    if not task:
+        raise InputError(f"{where}: a query needs a goal or a start (--goal, --start, --task)")
+    try:
+        return base.replace(task=task)
+    except ScenarioError as exc:
+        raise InputError(f"{where}: {OPTION_OF.get(exc.field, exc.field)}: {exc.expected}") from None
+
+
+def query_name(query: Query, scenario: Scenario) -> str:
+    """The query's name: its own, checked, or ``q-`` and 8 hex digits of its task section's hash."""
+    if query.name is None:
+        return "q-" + digest(scenario.task).hex()[:8]
+    if not re.fullmatch(QUERY_NAME, query.name):
+        raise InputError(f"--name: expected letters, digits, '.', '_' or '-' (at most 64), found {query.name!r}")
+    return query.name
+
+
+@dataclasses.dataclass
+class _NodeSet:
+    """The query's nodes: centres and kinds, the retired and the changed ones (new or moved)."""
+
+    centers: np.ndarray
+    kinds: np.ndarray
+    retired: np.ndarray
+    changed: np.ndarray
+    start_changed: bool
+    goal_nodes: int
+
+
+def _node_set(base: RoadmapFile, problem: Any, base_problem: Any) -> _NodeSet:
+    """The roadmap's nodes under the query: a new start in place of node 0, the old goal nodes
+    retired and the query's appended (unless the goal is the roadmap's own)."""
+    nodes = base.require("nodes", "centers", "kind")
+    centers, kinds = nodes["centers"].copy(), nodes["kind"].copy()
+    N0 = centers.shape[0]
+    old = retired_nodes(base)
+    retired = np.zeros(N0, dtype=bool) if old is None else old.copy()
+    changed = np.zeros(N0, dtype=bool)
+    t, b = problem.scenario.task, base_problem.scenario.task
+    start_changed = not (np.array_equal(problem.start, base_problem.start)
+                         and _same(problem.start_covariance, base_problem.start_covariance))
+    if start_changed:
+        centers[START_INDEX], changed[START_INDEX] = problem.start, True
+    same_goal = (np.array_equal(problem.goal, base_problem.goal) and t.goal_radius == b.goal_radius
+                 and t.goal_confidence == b.goal_confidence)
+    if not same_goal:
+        goals = kinds == GOAL
+        retired |= goals
+        changed |= goals
+        kinds[goals] = REGULAR
+        seq = np.frombuffer(digest(t)[:16], dtype=np.uint32).tolist()
+        rng = np.random.default_rng(np.random.SeedSequence([problem.scenario.seed, 0x9E5, *seq]))
+        new = query_goal_nodes(problem, rng, centers[~retired])
+        centers = np.concatenate([centers, new])
+        kinds = np.concatenate([kinds, np.full(new.shape[0], GOAL, dtype=kinds.dtype)])
+        retired = np.concatenate([retired, np.zeros(new.shape[0], dtype=bool)])
+        changed = np.concatenate([changed, np.ones(new.shape[0], dtype=bool)])
+    return _NodeSet(centers, kinds, retired, changed, start_changed, int(np.sum(kinds == GOAL)))
+
+
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+
+def _query_design(problem: Any, base: Design, ns: _NodeSet) -> Design:
+    """The design of the query's node set: the roadmap's stabilisers, those of the changed nodes,
+    and the edges of the new node set (:func:`firmtool.roadmap.queries.query_edges`)."""
+    N0, N = base.centers.shape[0], ns.centers.shape[0]
+    arrays = {name: getattr(base, name) for name in ("u_eq", "K", "S", "L", "P", "Sigma")}
+    todo = np.flatnonzero(ns.changed & ~ns.retired)
+    designed = design_nodes(problem, ns.centers[todo], indices=todo.tolist()) if todo.size else []
+    for name in arrays:
+        a = np.concatenate([arrays[name], np.zeros((N - N0,) + arrays[name].shape[1:])]) if N > N0 \
+            else arrays[name].copy()
+        for j, nc in zip(todo.tolist(), designed):
+            a[j] = getattr(nc, name)
+        arrays[name] = a
+    scale = region_scale(arrays["Sigma"])
+    # the regions' floor is global: a node whose scale it moved has another region now
+    ns.changed[:N0] |= np.any(scale[:N0] != base.scale, axis=1)
+    src, dst, steps = query_edges(problem, ns.centers, ns.kinds, ns.retired, ns.changed, base.centers,
+                                  (base.edge_source, base.edge_target, base.edge_steps))
+    return Design(centers=ns.centers, kinds=ns.kinds, scale=scale, edge_source=src, edge_target=dst, edge_steps=steps,
+                  retired=ns.retired if ns.retired.any() else None, **arrays)
+
+
+def reusable_edges(table: dict[str, np.ndarray], unusable: np.ndarray, goal_changed: bool) -> np.ndarray:
+    """Which rows of the roadmap's ``/edges`` a query keeps: (E0,) bool.
+
+    A row is kept when neither end and no landing of its particles is ``unusable`` (N0,) bool (a
+    retired or changed node: a landing there would now stop elsewhere, or not at all) and, when the
+    goal changed, none of its particles missed the old goal (``GOAL_MISS``). An edge whose particles
+    never reached a retired node's region ran as it would without that node."""
+    source, target = table["source"].astype(np.int64), table["target"].astype(np.int64)
+    code, edge = table["outcome_code"].astype(np.int64), table["outcome_edge"].astype(np.int64)
+    ok = ~(unusable[source] | unusable[target])
+    bad = np.zeros(code.size, dtype=bool)
+    landed = code >= 0
+    bad[landed] = unusable[code[landed]]
+    if goal_changed:
+        bad |= code == GOAL_MISS
+    ok[np.unique(edge[bad])] = False
+    return ok
+
+
+def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design: Design, problem: Any, d: Design,
+                  ns: _NodeSet, engine: str) -> tuple[dict[str, np.ndarray] | None, int, int]:
+    """The roadmap's reusable estimates (every stored particle block) under the query's keys, as an
+    ``/edge_cache`` table; and how many of the query's edges they cover, and how many of the
+    roadmap's estimated edges the query must estimate again."""
+    table = base.table("edges")
+    N0 = base_design.centers.shape[0]
+    keep = reusable_edges(table, ns.changed[:N0] | ns.retired[:N0], bool(ns.retired[:N0].any()))
+    kept = {(int(s), int(t)) for s, t, k in zip(table["source"], table["target"], keep) if k}
+    base_row = {(int(s), int(t)): e for e, (s, t) in enumerate(zip(base_design.edge_source, base_design.edge_target))}
+    pairs = list(zip(d.edge_source.tolist(), d.edge_target.tolist()))
+    rows = [(e, base_row[p]) for e, p in enumerate(pairs) if p in kept and p in base_row]
+    estimated = {(int(s), int(t)) for s, t in zip(table["source"], table["target"])}
+    again = sum(1 for p in pairs if p in estimated and p not in kept)  # estimated before, and again now
+    if not rows:
+        return None, 0, again
+    base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=engine)
+    new_keys = edge_keys(problem, d, [e for e, _ in rows], engine=engine)
+    of_edge = {(int(d.edge_source[e]), int(d.edge_target[e])): (bk, nk) for (e, _), bk, nk in
+               zip(rows, base_keys, new_keys)}
+    B = base_problem.scenario.estimation.particles
+    known: dict[bytes, EdgeEstimate] = from_arrays(table)
+    known.update(from_arrays(read_edge_cache(source, nodes=N0)))
+    estimates, keys, covered = [], [], set()
+    for key, x in known.items():
+        pair = (x.source, x.target)
+        if pair not in of_edge or x.particles % B:
+            continue
+        bk, nk = of_edge[pair]
+        if bytes(blocks_key(bk, x.particles // B)) == key:  # an estimate of this very edge, not a stale one
+            estimates.append(x)
+            keys.append(blocks_key(nk, x.particles // B))
+            covered.add(pair)
+    if not estimates:
+        return None, 0, again
+    arrays = to_arrays(estimates, np.array(keys, dtype=np.uint8).reshape(-1, KEY_BYTES), problem.scenario.cost)
+    return arrays, len(covered), again
+
+
+def answer_query(base: RoadmapFile, query: Query, *, validity: Callable | None = None,
+                 settings: WorkerSettings | None = None, session: Workers | None = None,
+                 progress: ProgressCallback | None = None, source: Any = None) -> tuple[MemoryFile, QueryReport]:
+    """Answer one query on a built roadmap (module notes); nothing is written to the roadmap.
+    ``source``: the file (or memory file) ``base`` was read from, whose ``/edge_cache`` holds the
+    earlier particle blocks of the edges the adaptive rounds refined (default ``base.path``).
+
+    Returns
+    -------
+    image : the query's roadmap in memory (nodes, controllers, edges, policy).
+    report : what it reused and computed, and its prediction.
+
+    Raises
+    ------
+    InputError
+        A goal or start outside the world or in collision, a start inside the goal region, a query
+        that sets nothing (one line naming the option).
+    RoadmapError
+        A roadmap without estimated edges.
+    """
+    t0 = time.perf_counter()
+    seconds: dict[str, float] = {}
+    base_problem = problem_of(base, validity)
+    base.require("edges", "source", "target", "outcome_code")
+    sc = query_scenario(base_problem.scenario, query, str(base.path))
+    name = query_name(query, sc)
+    problem = _query_problem(sc, base_problem, validity, str(base.path))
+    base_design = design_of(base)
+    ns = _node_set(base, problem, base_problem)
+    _check_start(problem, ns, str(base.path))
+    seconds["nodes"] = time.perf_counter() - t0
+    d = _query_design(problem, base_design, ns)
+    if d.edge_source.size == 0:
+        raise InputError(f"{base.path}: the query's goal nodes have no collision-free edge to the roadmap's nodes")
+    engine = engine_choice(problem)[0]
+    cache, reused, again = _reused_table(base, base.path if source is None else source, base_problem, base_design,
+                                         problem, d, ns, engine)
+    image = _write_image(base, sc, problem, d, ns, cache, name)
+    seconds["design"] = time.perf_counter() - t0 - seconds["nodes"]
+    rm = RoadmapFile(image)
+    settings = settings or WorkerSettings(workers=1)
+    e = estimate_into(image, rm, problem_of(rm, validity), settings, progress=progress, session=session)
+    seconds["estimate"] = e.seconds
+    t1 = time.perf_counter()
+    group = solve_policy(RoadmapFile(image))
+    write_policy(image, group)
+    seconds["solve"] = time.perf_counter() - t1
+    seconds["total"] = time.perf_counter() - t0
+    notice = ("reused edges keep the stopping region they were estimated with: their particles do not stop in "
+              "the query's goal region on the way to their target (the query's own edges see every node)")
+    return image, QueryReport(
+        name=name, nodes=int(ns.centers.shape[0]), goal_nodes=ns.goal_nodes, retired_nodes=int(ns.retired.sum()),
+        start_changed=ns.start_changed, edges=e.edges, reused_edges=e.reused_edges, estimated_edges=e.estimated_edges,
+        reestimated_edges=again, simulated_particle_steps=e.simulated_particle_steps, seconds=seconds,
+        start_success_probability=float(group.arrays["success_probability"][START_INDEX]),
+        notices=(notice,) + tuple(e.notices) if reused else tuple(e.notices))
+
+
+def _query_problem(sc: Scenario, base_problem: Any, validity: Callable | None, where: str) -> Any:
+    """The query's problem (the goal and start checked as a build checks them, named as options)."""
+    try:
+        return build_problem(sc, validity=base_problem.validity)
+    except ScenarioError as exc:
+        raise InputError(f"{where}: {OPTION_OF.get(exc.field, exc.field)}: {exc.expected}") from None
+
+
+def _check_start(problem: Any, ns: _NodeSet, where: str) -> None:
+    """A start inside the query's goal region is refused (as the build refuses it), named as options."""
+    live = ~ns.retired
+    index = np.flatnonzero(live)
+    if np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
+        raise InputError(f"{where}: --goal / --start: expected a goal apart from the start, found the start itself")
+    try:
+        check_start_apart_from_goals(problem, ns.centers[live], ns.kinds[live])
+    except InputError as exc:
+        raise InputError(f"{where}: --goal / --start: {str(exc).split(': ', 2)[-1]}") from None
+    assert index[0] == START_INDEX
+
+
+def _write_image(base: RoadmapFile, sc: Scenario, problem: Any, d: Design, ns: _NodeSet,
+                 cache: dict[str, np.ndarray] | None, name: str) -> MemoryFile:
+    """The query's roadmap in memory: nodes and controllers, and the reused estimates as its cache."""
+    image = MemoryFile(f"{base.path}#{name}")
+    create_roadmap(image, sc.text, sc.sha256, sc.seed)
+    identity = problem_checker_identity(problem)
+    attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, identity), "densify_rounds": 0, "start": START_INDEX,
+                             "goals": np.flatnonzero(ns.kinds == GOAL), VALIDITY_ATTR: identity,
+                             "query_of": base.scenario_sha256}
+    if ns.retired.any():
+        attrs["retired"] = np.flatnonzero(ns.retired)
+    write_stage(image, "nodes", {"centers": ns.centers, "kind": ns.kinds}, attrs)
+    write_stage(image, "controllers", {k: getattr(d, k) for k in DESIGN_ARRAYS},
+                {"inputs_sha256": controllers_inputs(RoadmapFile(image)),
+                 "node_radius": problem.scenario.controller.node_radius,
+                 "covariance_tolerance": problem.scenario.controller.covariance_tolerance})
+    if cache:
+        write_edge_cache(image, cache, {"description": "the roadmap's estimates a query reuses"})
+    return image
+
+
+def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]], *, force: bool = False) -> None:
+    """Keep query answers in the roadmap file ``path`` by name (``/queries``); a name already there
+    is replaced only with ``force``.
+
+    Raises
+    ------
+    InputError
+        A name that exists without ``force``.
+    """
+    with locked(path):  # one writer at a time, as every stage writes; the check and the write under it
+        base = RoadmapFile(path)
+        edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
+        existing = query_images(path)
+        for name in answers:
+            if name in existing and not force:
+                raise InputError(f"{path}: a query named {name!r} is stored already; give --force to replace it, "
+                                 "or another --name")
+        write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **_summary(report)})
+                             for name, (image, report) in answers.items()})
+
+
+def _summary(report: QueryReport) -> dict[str, Any]:
+    return {"start_success_probability": report.start_success_probability, "goal_nodes": report.goal_nodes,
+            "reused_edges": report.reused_edges, "estimated_edges": report.estimated_edges}
+
+
+def stored_query(path: Any, name: str) -> MemoryFile:
+    """The roadmap image of the query ``name`` stored in ``path``, checked to be of the roadmap's
+    current edges.
+
+    Raises
+    ------
+    InputError
+        No query of that name (the message lists the stored ones).
+    RoadmapError
+        A query answered on edges the roadmap no longer has (answer it again).
+    """
+    images = query_images(path)
+    if name not in images:
+        have = ", ".join(sorted(images)) or "none"
+        raise InputError(f"{path}: --query: no query named {name!r} (stored: {have})")
+    data, attrs = images[name]
+    base = RoadmapFile(path)
+    edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
+    if str(attrs.get("base_edges_sha256", "")) != str(edges):
+        raise RoadmapError(f"{path}: query {name!r} was answered on edges this roadmap no longer has; answer it "
+                           f"again (firmtool solve {path} --goal ... --name {name} --force)")
+    image = MemoryFile(f"{path}#{name}")
+    image.data = data
+    return image
