@@ -51,7 +51,9 @@ import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import FileBusyError, RoadmapError
+from firmtool.io import hdf5
 from firmtool.io.atomic import write_bytes
+from firmtool.io.attributes import ROOT_ATTRIBUTES, check_attributes, check_stage_attributes
 from firmtool.io.limits import MAX_SCENARIO_BYTES
 from firmtool.io.schema import MAX_STATE_DIM
 
@@ -83,16 +85,13 @@ def _atomic_copy(path: Path, fresh: bool = False) -> Iterator[h5py.File]:
     """
     edited = io.BytesIO()
     if path.exists() and not fresh:
-        try:
-            original = io.BytesIO(path.read_bytes())
+        try:  # a regular file of bounded size (never a FIFO), copied by value: no link or external storage kept
+            original = io.BytesIO(hdf5.read_image(path, MAX_READ_BYTES, "HDF5 roadmap file", RoadmapError))
             src = h5py.File(original, "r")
         except OSError as exc:
             raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({_short(exc)})") from None
         with src, h5py.File(edited, "w") as f:
-            for k, v in src.attrs.items():
-                f.attrs[k] = v
-            for name in src:
-                src.copy(src[name], f, name=name)
+            hdf5.copy_by_value(src, f, "/", path, RoadmapError)
             yield f
     else:
         with h5py.File(edited, "w") as f:
@@ -217,15 +216,17 @@ def read_edge_cache(path: str | Path, nodes: int | None = None) -> dict[str, np.
     if there is none. A cache that fails the checks of ``/edges`` (shapes, ranges, counts summing to
     the particles; node ids below ``nodes`` when given) is ignored: it only saves work."""
     try:
-        with h5py.File(path, "r") as f:
-            if CACHE not in f or not isinstance(f[CACHE], h5py.Group):
+        with hdf5.open_regular(path, "HDF5 roadmap file", RoadmapError) as f:
+            g = hdf5.member(f, CACHE, "/", path, RoadmapError)  # a link or external storage: not read
+            if not isinstance(g, h5py.Group):
                 return {}
-            g = f[CACHE]
-            meta = {k: (g[k].shape, g[k].dtype) for k in g if isinstance(g[k], h5py.Dataset)}
-            if sum(_nbytes(shape, dtype) for shape, dtype in meta.values()) > MAX_READ_BYTES:
+            datasets = {k: d for k, d in hdf5.members(g, f"/{CACHE}", path, RoadmapError)
+                        if isinstance(d, h5py.Dataset) and d.dtype.kind in "biuf"}
+            if sum(_nbytes(d.shape, d.dtype) for d in datasets.values()) > MAX_READ_BYTES or \
+                    sum(hdf5.working_bytes(d.shape) for d in datasets.values()) > hdf5.MAX_WORKING_BYTES:
                 return {}
-            table = _read_table(g)
-    except (OSError, ValueError, KeyError, TypeError):
+            table = {k: d[()] for k, d in datasets.items()}
+    except (OSError, ValueError, KeyError, TypeError):  # RoadmapError included: the cache only saves work
         return {}
     if "key" not in table:
         return {}
@@ -339,21 +340,23 @@ class Roadmap:
         self.scenario_text = str(values["scenario_toml"])
         self.scenario_sha256 = str(values["scenario_sha256"])
         self.seed = int(values["seed"])
-        self.created = str(_attribute(p, attrs, "created", ""))
-        self.firmtool_version = str(_attribute(p, attrs, "firmtool_version", ""))
+        root = {key: _attribute(p, attrs, key, "") for key in ROOT_ATTRIBUTES}
+        check_attributes(p, "/", root, ROOT_ATTRIBUTES)
+        self.created, self.firmtool_version = str(root["created"]), str(root["firmtool_version"])
         if hashlib.sha256(self.scenario_text.encode()).hexdigest() != self.scenario_sha256:
             raise RoadmapError(f"{p}: the stored scenario text does not match its sha256 (file altered?)")
         # shapes and sizes first (metadata only), then the data: nothing large is read blindly
-        groups = {}
-        total = 0
+        # every object a hard link to data stored in this file (firmtool.io.hdf5), sized as the checks use it
+        groups: dict[str, tuple[h5py.Group, dict[str, h5py.Dataset]]] = {}
+        total = used = 0
         for name in STAGES:
-            if name not in f:
+            g = hdf5.member(f, name, "/", p, RoadmapError)
+            if g is None:
                 continue
-            g = f[name]
             if not isinstance(g, h5py.Group):
                 raise RoadmapError(f"{p}: '/{name}' is not a group")
-            for k in g:
-                d = g[k]
+            datasets = {}
+            for k, d in hdf5.members(g, f"/{name}", p, RoadmapError):
                 if not isinstance(d, h5py.Dataset):
                     raise RoadmapError(f"{p}: '/{name}/{k}' is not a dataset (file damaged or from another tool)")
                 if d.dtype.kind not in "biuf":
@@ -363,13 +366,16 @@ class Roadmap:
                 if total > MAX_READ_BYTES:
                     raise RoadmapError(f"{p}: '/{name}/{k}' of shape {d.shape} makes the roadmap larger than "
                                        f"{MAX_READ_BYTES / 2**30:.0f} GiB to read (file damaged)")
-            groups[name] = g
+                used += hdf5.working_bytes(d.shape)
+                if used > hdf5.MAX_WORKING_BYTES:
+                    raise RoadmapError(f"{p}: '/{name}/{k}' of shape {d.shape} makes the roadmap need more than "
+                                       f"{hdf5.MAX_WORKING_BYTES / 2**30:.0f} GiB to check (its elements are checked "
+                                       "as float64, whatever the stored dtype; file damaged)")
+                datasets[k] = d
+            groups[name] = (g, datasets)
         self.stages: dict[str, tuple[dict[str, np.ndarray], dict[str, Any]]] = {}
-        for name, g in groups.items():
-            try:
-                arrays = {k: g[k][()] for k in g.keys()}
-            except (OSError, KeyError, ValueError) as exc:
-                raise RoadmapError(f"{p}: group '/{name}' is unreadable ({_short(exc)})") from None
+        for name, (g, datasets) in groups.items():
+            arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}
             self.stages[name] = (arrays, {k: _attribute(p, g.attrs, k, None, f"/{name}") for k in g.attrs})
 
     def has(self, stage: str) -> bool:
@@ -408,9 +414,10 @@ class Roadmap:
         return self.stages[stage][0]
 
     def attrs(self, stage: str) -> dict[str, Any]:
-        """The attributes of a stage that is present (values not checked)."""
+        """The attributes of a stage that is present (those firmtool reads checked: type, shape, range)."""
         if stage not in self.stages:
             raise RoadmapError(f"{self.path}: stage '{stage}' is missing; run '{STAGE_COMMANDS[stage]}' first")
+        check_stage_attributes(self.path, stage, self.stages[stage][1])
         return self.stages[stage][1]
 
     def stale_stages(self) -> list[str]:
@@ -432,6 +439,7 @@ class Roadmap:
         if stage in self._checked:
             return
         arrays, attrs = self.stages[stage]
+        check_stage_attributes(self.path, stage, attrs)  # firmtool.io.attributes
         _check_shapes(self.path, stage, arrays, self._dims)
         _CHECKS[stage](self, arrays, attrs)
         self._checked.add(stage)
@@ -478,6 +486,7 @@ def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any,
     variable-length string, whose size HDF5 tells only by reading it; the file's size bounds it)."""
     if key not in attrs:
         return default
+    hdf5.check_attribute_type(attrs, key, where, path, RoadmapError)  # no references or opaque data
     try:
         size = attrs.get_id(key).get_storage_size()
     except (KeyError, OSError, ValueError):
@@ -768,6 +777,8 @@ def is_roadmap_file(path: str | Path) -> bool:
     FileBusyError
         Another process holds the file open for writing (HDF5's file lock).
     """
+    if hdf5.regular_file_error(path) is not None:  # never open a FIFO or a device
+        return False
     try:
         with h5py.File(path, "r") as f:
             return f.attrs.get("encoding-type") == ENCODING_TYPE
