@@ -25,7 +25,8 @@ robot with a linear model, node stabilisers at rest and rest-to-rest nominals):
 - optionally, how to draw it in a 2-D figure (:meth:`draw`; a 3-D robot is drawn from above).
 
 Registry: :func:`register` (from Python), the entry-point group ``firmtool.robots`` (a separately
-installed package: ``[project.entry-points."firmtool.robots"] myrobot = "mypkg.robot:MyRobot"``),
+installed package: ``[project.entry-points."firmtool.robots"] myrobot = "mypkg.robot:MyRobot"``; read
+from installed distributions only, :mod:`firmtool.robots.installed`),
 and the built-in ``point``, ``arm`` and ``unicycle``, each registered by its own module of
 firmtool/robots (a new built-in robot is one new module there); :func:`get` looks a name up.
 """
@@ -34,7 +35,6 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from importlib import metadata
 from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
@@ -51,6 +51,7 @@ from firmtool.geometry.registry import backend_for_world
 from firmtool.io.fingerprint import _by_reference, fingerprint
 from firmtool.io.schema import Errors, Field
 from firmtool.models import noise as noise_models
+from firmtool.robots import installed
 from firmtool.robots.jumps import mixed_velocity
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -546,8 +547,8 @@ def register(name: str, cls: type[Robot], *, replace: bool = False) -> type[Robo
 
 
 def _entry_points() -> dict[str, Any]:
-    try:
-        return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    try:  # installed distributions only, never a folder that is merely on sys.path (firmtool.robots.installed)
+        return installed.entry_points(ENTRY_POINT_GROUP)
     except Exception:  # noqa: BLE001 - a broken installed distribution must not break firmtool
         return {}
 
@@ -562,6 +563,7 @@ def get(name: str) -> type[Robot]:
         return _REGISTERED[name]
     ep = _entry_points().get(name)
     if ep is not None:
+        installed.check_origin(name, ep)  # its module from its distribution, not from the current folder
         try:
             cls = ep.load()
         except Exception as exc:  # noqa: BLE001 - report which package failed, in one line
