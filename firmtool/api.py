@@ -26,29 +26,30 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.errors import InputError
+from firmtool.estimation.budgets import MAX_EXECUTION_STEPS, check_execution, check_push_size
 from firmtool.estimation.calibration import edge_counts_of, predicted_interval
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.graph import SolveStatus, policy_path
+from firmtool.io import arguments
 from firmtool.io.roadmap_file import STAGES, write_roadmap
 from firmtool.io.roadmap_file import Roadmap as RoadmapFile
 from firmtool.online.policy import Policy
+from firmtool.online.replanning import ReplanSettings
 from firmtool.problem import ValidityChecker
 from firmtool.reports import BuildReport, SolveReport
 from firmtool.results import Results
 from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
-from firmtool.sim.disturbances import as_disturbances
+from firmtool.sim.disturbances import PUSH, Disturbance, as_disturbances
 from firmtool.sim.episodes import run_episodes
 
 if TYPE_CHECKING:  # pragma: no cover
 
     from firmtool.estimation.calibration import EdgeCounts
-    from firmtool.online.replanning import ReplanSettings
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
     from firmtool.roadmap.design import Design
-    from firmtool.sim.disturbances import Disturbance
 
 POLICIES = ("firm", "shortest-path")  # the DP's policy, and the baseline that ignores uncertainty
 # /policy attributes that hold each policy's prediction interval
@@ -77,6 +78,7 @@ def load_scenario(source: str | Path) -> Scenario:
     ScenarioError
         One line naming the file, the field and what was expected.
     """
+    arguments.path(source, "source")
     return _load_scenario_file(source)  # an existing path wins over a name (scenario.resolve_scenario)
 
 
@@ -243,7 +245,7 @@ class Roadmap:
         Path
             ``path``; :attr:`path` is set to it.
         """
-        path = Path(path)
+        path = arguments.path(path, "path")
         self._write(path, {})
         self.path = self._data.path = path
         return path
@@ -284,6 +286,8 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
     RoadmapError
         One line naming the file and what is wrong with it.
     """
+    arguments.path(path, "path")
+    arguments.function(validity, "validity")
     return Roadmap(RoadmapFile(path), path=Path(path), validity=validity)
 
 
@@ -338,6 +342,10 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
     ScenarioError, RunFailure, NumericalError
         Bad settings; no collision-free edge; a Riccati equation without a stabilising solution.
     """
+    arguments.check_build(None if isinstance(scenario, Scenario) else scenario, workers=workers, output=output,
+                          executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
+                          add_nodes=add_nodes, progress=progress, checkpoint_seconds=checkpoint_seconds, force=force,
+                          validity=validity)
     scenario = pipeline.as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
 
     checker = None if validity is None else ValidityChecker(validity)
@@ -515,7 +523,7 @@ class Solution:
         Path
         """
         rm = self.roadmap
-        target = Path(path) if path is not None else rm.path
+        target = arguments.path(path, "path", optional=True) or rm.path
         if target is None:
             raise InputError("Solution.save: the roadmap is in memory; give a path")
         group = self._group()
@@ -549,10 +557,10 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         Also when the goal cannot be reached from the start (then ``start_reachable`` is False,
         ``success_probability`` 0 and ``start_cost_to_go`` inf).
     """
-    if method not in ("value", "policy"):
-        raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
-    if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
-        raise InputError(f"failure_cost: expected a finite number > 0, found {failure_cost}")
+    arguments.instance(roadmap, Roadmap, "roadmap", "a firmtool.Roadmap (from ft.build or ft.open_roadmap)")
+    arguments.choice(method, "method", ("value", "policy"))
+    arguments.number(failure_cost, "failure_cost", positive=True, optional=True)
+    arguments.function(progress, "progress")
     group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress)
     return Solution._from_group(roadmap, group)
 
@@ -563,7 +571,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
              start: np.ndarray | None = None,
              disturbances: Iterable["str | Disturbance | Callable[[int, np.ndarray, np.random.Generator], np.ndarray | None]"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
-             progress: "ProgressCallback | None" = None) -> Results:
+             progress: "ProgressCallback | None" = None, max_total_steps: float = MAX_EXECUTION_STEPS) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
     Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
@@ -600,6 +608,9 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         (T + 1, n, n), ``controls`` (T, m)); they take ~8 (T + 1) (n^2 + 2n) bytes per episode.
     progress : callable, optional
         ``progress(stage, done, total)``, told of the episodes run (:mod:`firmtool.progress`).
+    max_total_steps : float
+        Refuse runs of more than this many control steps in the worst case (``episodes`` x the
+        scenario's ``execution.max_steps``), as ``firmtool execute --max-total-steps`` does.
 
     Returns
     -------
@@ -607,12 +618,18 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         Success rate with its Wilson interval, the prediction with its interval, the calibration
         check of the edges taken, compute per step and per decision, and the episodes.
     """
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise InputError(f"episodes: expected an integer >= 1, found {episodes!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed: expected an integer >= 0, found {seed!r}")
+    arguments.instance(solution, Solution, "solution", "a firmtool.Solution (from ft.solve(roadmap))")
+    arguments.optional_instance(replan, ReplanSettings, "replan", "a firmtool.ReplanSettings or None")
+    arguments.check_simulate(episodes=episodes, seed=seed, record=record, progress=progress, disturbances=disturbances)
     _, probabilities = solution._policy(policy)
     dists = as_disturbances(disturbances)
+    problem = solution.roadmap.problem
+    # the CLI's bounds, as a guard of the API: worst-case steps, and pushes within the configuration bounds
+    check_execution(problem, episodes, max_total_steps=max_total_steps,
+                    names=("episodes", "max_total_steps", "record"))
+    for d in dists:
+        if isinstance(d, Disturbance) and d.kind == PUSH:
+            check_push_size(problem, str(d), d.size)
     agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
     at_start_node = start is None

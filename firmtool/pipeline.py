@@ -19,7 +19,7 @@ from firmtool import robots
 from firmtool.errors import FileBusyError, FirmtoolError, InputError, RoadmapError, RunFailure
 from firmtool.estimation import warmup
 from firmtool.estimation.adaptive import ADAPTIVE_VERSION, AdaptiveSettings, refine
-from firmtool.estimation.budgets import check_budget, check_workers
+from firmtool.estimation.budgets import check_budget, check_node_spread, check_roadmap_nodes, check_workers
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import (
@@ -44,7 +44,7 @@ from firmtool.estimation.executors import (
     run_edges,
 )
 from firmtool.graph import SolveStatus, policy_path, reachable_from, shortest_path_policy, solve_dp, success_probability
-from firmtool.io import interrupts
+from firmtool.io import arguments, interrupts
 from firmtool.io.atomic import check_target
 from firmtool.io.hashing import digest, inputs_hash
 from firmtool.io.locking import writer_lock
@@ -228,6 +228,7 @@ def _check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: 
     graph would have no way out of the start. Designs the start and goal nodes only."""
     keep = np.flatnonzero(kinds != REGULAR)
     d = design(problem, centers[keep], kinds[keep])
+    check_node_spread(problem, d.Sigma + d.P)  # a control period (or noise) at which every edge would fail
     regions = d.regions(problem)
     start = int(np.flatnonzero(keep == START_INDEX)[0])
     P0 = start_covariance(problem, d, start)
@@ -262,7 +263,7 @@ def design_stage(path: str | Path, *, validity: Callable | None = None, workers:
     and edges designed (:mod:`firmtool.progress`)."""
     if workers is not None:
         check_workers(workers)
-    _check_executor(executor)
+    _check_executor(executor, scheduler)
     with writer_lock(path):
         if session is not None:
             return _design_stage(path, validity, session, progress)
@@ -277,6 +278,7 @@ def _design_stage(path: str | Path, validity: Callable | None = None, session: W
     problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
+    check_roadmap_nodes(problem, str(path), int(centers.shape[0]))  # the file's node count, not the scenario's
     if session is not None and session.parallel:
         # a fresh install: the background compile does the design's functions first; the workers then
         # load them from the cache instead of each compiling them at once (no-op with a warm cache)
@@ -332,16 +334,17 @@ def estimate_stage(path: str | Path, *, workers: int | None = None, executor: st
     """
     if workers is not None:
         check_workers(workers)  # refused before anything is read (again with the memory per worker below)
-    _check_executor(executor)
+    _check_executor(executor, scheduler)
     with writer_lock(path):
         return _estimate_stage(path, workers=workers, executor=executor, scheduler=scheduler,
                                progress=progress, checkpoint_seconds=checkpoint_seconds,
                                validity=validity, session=session)
 
 
-def _check_executor(executor: str) -> None:
+def _check_executor(executor: str, scheduler: str | None = None) -> None:
     if executor not in ("process", "dask"):
         raise InputError(f"--executor: expected 'process' or 'dask', found {executor!r}")
+    arguments.scheduler_address(scheduler)  # an address dask can parse, or one line naming --scheduler
 
 
 def _estimate_stage(path: str | Path, *, workers: int | None, executor: str, scheduler: str | None,
@@ -778,7 +781,7 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
         raise InputError(f"--p-min: expected a probability in (0, 1], found {p_min}")
     if workers is not None:
         check_workers(workers)
-    _check_executor(executor)
+    _check_executor(executor, scheduler)
     # one set of workers for every stage of the build (local processes start on first use, a dask
     # cluster is joined once)
     with writer_lock(out), Workers(workers or default_workers(), executor, scheduler) as session:

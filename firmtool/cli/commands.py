@@ -642,7 +642,8 @@ def execute(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
                               jump_window=JUMP_WINDOW if jump_window is None else jump_window,
                               goal_lookback=GOAL_LOOKBACK if goal_lookback is None else goal_lookback)
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
-                      replan=settings, record=save_episodes is not None, progress=console.progress())
+                      replan=settings, record=save_episodes is not None, progress=console.progress(),
+                      max_total_steps=max_total_steps)
     report = res.to_dict()
     if save_episodes is not None:
         from firmtool.io.episodes import save_episodes as write_episodes
@@ -711,7 +712,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
-                            progress=console.progress())
+                            progress=console.progress(), max_total_steps=max_total_steps)
     save_figure(make_figure(kind, rm.solution(), options), out, force=force)
     console.next_step(str(out))
 
@@ -764,7 +765,7 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
     sol.save()
     if not sol.start_reachable:
         raise unreachable_failure(out, sol.unreachable_nodes.size, sol.cost_to_go.size)
-    res = ft.simulate(sol, episodes, seed, record=False, progress=bar)
+    res = ft.simulate(sol, episodes, seed, record=False, progress=bar, max_total_steps=max_total_steps)
     report = {"build": rm.report.to_dict(), "solve": sol.to_dict(), "execute": res.to_dict()}
     _emit(report, as_json, lambda r: "\n".join([_build_human(r["build"]), _solve_human(r["solve"]),
                                                   _execute_human(r["execute"])]))
