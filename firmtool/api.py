@@ -31,6 +31,7 @@ from firmtool.estimation.calibration import edge_counts_of, predicted_interval
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.graph import SolveStatus, policy_path
 from firmtool.io import arguments
+from firmtool.io.locking import writer_lock
 from firmtool.io.roadmap_file import STAGES, write_roadmap
 from firmtool.io.roadmap_file import Roadmap as RoadmapFile
 from firmtool.online.policy import Policy
@@ -255,8 +256,10 @@ class Roadmap:
         data = self._data
         stages = {name: data.stages[name] for name in STAGES if data.has(name)}
         stages.update(replace)
-        # one atomic write, built in memory: a failure names ``path``, never a temporary file
-        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
+        # one atomic write, built in memory: a failure names ``path``, never a temporary file; under the
+        # writer lock, so that it never lands between two writes of a build of the same file
+        with writer_lock(path):
+            write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
 
     def solution(self) -> "Solution":
         """The policy stored in the roadmap (``firmtool solve`` wrote it), as a :class:`Solution`.
@@ -527,8 +530,8 @@ class Solution:
         if target is None:
             raise InputError("Solution.save: the roadmap is in memory; give a path")
         group = self._group()
-        if rm.path is not None and target.resolve() == rm.path.resolve():
-            pipeline.write_policy(target, group)
+        if rm.path is not None and target.resolve() == rm.path.resolve():  # only over the edges it came from
+            pipeline.write_policy(target, group, source=rm._data)
         else:
             rm._write(target, {"policy": (group.arrays, group.attrs)})
         return target

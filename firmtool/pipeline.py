@@ -46,6 +46,7 @@ from firmtool.estimation.executors import (
 from firmtool.graph import SolveStatus, policy_path, reachable_from, shortest_path_policy, solve_dp, success_probability
 from firmtool.io import arguments, interrupts
 from firmtool.io.atomic import check_target
+from firmtool.io.consistency import check_unchanged
 from firmtool.io.hashing import digest, inputs_hash
 from firmtool.io.locking import writer_lock
 from firmtool.io.roadmap_file import (
@@ -616,9 +617,15 @@ def solve_policy(roadmap: Roadmap, *, failure_cost: float | None = None, method:
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
 
 
-def write_policy(path: str | Path, group: PolicyGroup) -> None:
-    """Store a solved policy as the ``/policy`` group of the roadmap file at ``path`` (atomically)."""
+def write_policy(path: str | Path, group: PolicyGroup, source: Roadmap | None = None) -> None:
+    """Store a solved policy as the ``/policy`` group of the roadmap file at ``path`` (atomically).
+
+    ``source``: the roadmap the policy was solved from, read before the writer lock was taken (a
+    policy is written only over the nodes, controllers and edges it came from:
+    :func:`firmtool.io.consistency.check_unchanged`)."""
     with writer_lock(path):
+        if source is not None:
+            check_unchanged(path, source, ("nodes", "controllers", "edges"))
         write_stage(path, "policy", group.arrays, group.attrs)
 
 

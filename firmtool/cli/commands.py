@@ -24,6 +24,7 @@ from firmtool.cli import console
 from firmtool.cli.console import interval, items, num, prob
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure, ScenarioError
 from firmtool.io import interrupts
+from firmtool.io.locking import writer_lock
 
 DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 # The click that typer's commands raise from: recent typer vendors its own copy as typer._click,
@@ -462,8 +463,10 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
-    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress())
-    sol.save()
+    with writer_lock(roadmap):  # from the first read to the write: the policy is the edges' it was solved from
+        sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method,
+                       progress=console.progress())
+        sol.save()
     if not sol.start_reachable:
         raise unreachable_failure(roadmap, sol.unreachable_nodes.size, sol.cost_to_go.size)
     _emit(sol.to_dict(), as_json, _solve_human)
