@@ -49,6 +49,7 @@ from firmtool.io.atomic import check_target
 from firmtool.io.consistency import check_unchanged
 from firmtool.io.hashing import digest, inputs_hash
 from firmtool.io.locking import writer_lock
+from firmtool.io.previous import keeping_previous
 from firmtool.io.roadmap_file import (
     Roadmap,
     concat_edge_tables,
@@ -780,7 +781,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     validity : a user's vectorised validity checker (:func:`firmtool.problem.build_problem`), used
         by every stage; the roadmap records its identity.
 
-    The output is locked for the whole build (a second writer is refused).
+    The output is locked for the whole build (a second writer is refused), and a build that fails to
+    write (disk full) leaves the file it found as it was (:func:`firmtool.io.previous.keeping_previous`).
     """
     scenario = as_scenario(scenario)
     out = check_output(output if output else default_output(scenario), force)
@@ -791,7 +793,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     _check_executor(executor, scheduler)
     # one set of workers for every stage of the build (local processes start on first use, a dask
     # cluster is joined once)
-    with writer_lock(out), Workers(workers or default_workers(), executor, scheduler) as session:
+    # keeping_previous: a full disk at any write of the build puts back the file it found (io.previous)
+    with writer_lock(out), keeping_previous(out), Workers(workers or default_workers(), executor, scheduler) as session:
         # a fresh install: compile the engine while sampling and designing (a user's validity checker
         # runs the numpy engine: nothing to compile)
         if validity is None and not warmup.engine_is_cached():
