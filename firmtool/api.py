@@ -31,7 +31,6 @@ from firmtool.estimation.calibration import edge_counts_of, predicted_interval
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.graph import SolveStatus, policy_path
 from firmtool.io import arguments
-from firmtool.io.locking import writer_lock
 from firmtool.io.roadmap_file import STAGES, write_roadmap
 from firmtool.io.roadmap_file import Roadmap as RoadmapFile
 from firmtool.online.policy import Policy
@@ -256,10 +255,8 @@ class Roadmap:
         data = self._data
         stages = {name: data.stages[name] for name in STAGES if data.has(name)}
         stages.update(replace)
-        # one atomic write, built in memory: a failure names ``path``, never a temporary file; under the
-        # writer lock, so that it never lands between two writes of a build of the same file
-        with writer_lock(path):
-            write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
+        # one atomic write, built in memory: a failure names ``path``, never a temporary file
+        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
 
     def solution(self) -> "Solution":
         """The policy stored in the roadmap (``firmtool solve`` wrote it), as a :class:`Solution`.
@@ -346,9 +343,8 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
         Bad settings; no collision-free edge; a Riccati equation without a stabilising solution.
     """
     arguments.check_build(None if isinstance(scenario, Scenario) else scenario, workers=workers, output=output,
-                          executor=executor, scheduler=scheduler, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
-                          add_nodes=add_nodes, progress=progress, checkpoint_seconds=checkpoint_seconds, force=force,
-                          validity=validity)
+                          fresh=fresh, p_min=p_min, max_nodes=max_nodes, add_nodes=add_nodes, progress=progress,
+                          checkpoint_seconds=checkpoint_seconds, force=force, validity=validity)
     scenario = pipeline.as_scenario(scenario) if isinstance(scenario, Scenario) else load_scenario(scenario)
 
     checker = None if validity is None else ValidityChecker(validity)

@@ -19,9 +19,8 @@ at ``check`` time and where the work starts:
   before its design (:func:`check_roadmap_nodes`);
 - a push disturbance against the configuration bounds (:func:`check_push_size`: a push longer than
   their diagonal leaves them from every state, and its collision check would be sized by its length);
-- the control period (:func:`check_time_step`, :func:`check_node_spread`): a ``model.dt`` at which
-  one step crosses the whole configuration space, or at which a node's stationary belief spreads
-  wider than it, makes every edge fail.
+- the control period (:func:`check_time_step`): a ``model.dt`` at which one step at the nominals'
+  speed crosses the whole configuration space makes every edge fail.
 """
 
 from __future__ import annotations
@@ -234,23 +233,6 @@ def check_time_step(problem: Problem) -> None:
                             f"controller.max_speed {sc.controller.max_speed:g} stays inside the configuration bounds "
                             f"(diagonal {diagonal:.4g}); dt = {sc.model.dt:g} s moves {reach:.3g} (every edge would "
                             "fail)")
-
-
-def check_node_spread(problem: Problem, covariances: np.ndarray) -> None:
-    """Refuse (:class:`ScenarioError` naming ``model.dt``) nodes whose stationary belief, ``covariances``
-    (K, n, n) (the estimate's spread plus the error's, Sigma + P_s), spreads a configuration
-    coordinate wider (one standard deviation) than the configuration bounds' diagonal: nearly every
-    particle of every edge would start outside the bounds."""
-    sc = problem.scenario
-    d = problem.config_dim
-    diagonal = configuration_diagonal(problem)
-    variances = np.diagonal(np.asarray(covariances, dtype=float), axis1=1, axis2=2)[:, :d]
-    spread = float(np.sqrt(np.max(variances))) if variances.size else 0.0
-    if not (math.isfinite(spread) and spread <= diagonal):
-        raise ScenarioError(sc.path, "model.dt", f"expected nodes whose stationary belief fits the configuration "
-                            f"bounds (diagonal {diagonal:.4g}); at dt = {sc.model.dt:g} s a node's spreads "
-                            f"{spread:.3g} (one standard deviation), so every edge would fail; lower model.dt or the "
-                            "noise")
 
 
 def cores() -> int:

@@ -43,13 +43,16 @@ def optional_instance(value: Any, cls: type, name: str, what: str) -> Any:
 
 
 def number(value: Any, name: str, *, low: float | None = None, positive: bool = False,
-           optional: bool = False) -> float | None:
-    """A finite real number (not a bool, not a text), at least ``low`` or > 0 with ``positive``."""
+           optional: bool = False, finite: bool = True) -> float | None:
+    """A finite real number (not a bool, not a text), at least ``low`` or > 0 with ``positive``
+    (``finite=False``: the type alone, where the callee checks the range in its own words)."""
     if value is None and optional:
         return None
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ArgumentTypeError(f"{name}: expected a number, found {_type_name(value)}")
     x = float(value)
+    if not finite:
+        return x
     bound = " > 0" if positive else "" if low is None else f" >= {low:g}"
     if not math.isfinite(x) or (positive and not x > 0) or (low is not None and x < low):
         raise InputError(f"{name}: expected a finite number{bound}, found {value!r}")
@@ -117,20 +120,18 @@ def scheduler_address(value: Any, name: str = "--scheduler") -> str | None:
     return value
 
 
-def check_build(scenario: Any, *, workers: Any, output: Any, executor: Any, scheduler: Any, fresh: Any, p_min: Any,
-                max_nodes: Any, add_nodes: Any, progress: Any, checkpoint_seconds: Any, force: Any,
-                validity: Any) -> None:
+def check_build(scenario: Any, *, workers: Any, output: Any, fresh: Any, p_min: Any, max_nodes: Any, add_nodes: Any,
+                progress: Any, checkpoint_seconds: Any, force: Any, validity: Any) -> None:
     """The arguments of :func:`firmtool.build` (``scenario``: None for a Scenario object, else what
     names the file), each of its type and range: the first bad one raises."""
     if scenario is not None:
         path(scenario, "scenario")
     integer(workers, "workers", low=1, optional=True)
     path(output, "output", optional=True)
-    choice(executor, "executor", ("process", "dask"))
-    scheduler_address(scheduler, "scheduler")
+    # executor and scheduler: checked by firmtool.pipeline where every stage enters (naming --executor, --scheduler)
     flag(fresh, "fresh")
     flag(force, "force")
-    number(p_min, "p_min", positive=True, optional=True)
+    number(p_min, "p_min", optional=True, finite=False)  # its range: firmtool.pipeline.build (naming --p-min)
     integer(max_nodes, "max_nodes", low=1, optional=True)
     integer(add_nodes, "add_nodes", low=1, optional=True)
     function(progress, "progress")
