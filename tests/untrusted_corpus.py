@@ -197,6 +197,23 @@ def foreign_group_link(command: str) -> Case:
     return Case(f"foreign_group_external_link_{command}", "hdf5", make, ("'/notes/more' is an external link",))
 
 
+def foreign_group(kind: str, command: str, phrase: str) -> Case:
+    """A group firmtool does not know (a rewrite copies it): too many members, or datasets each within
+    the bound but too large together (declared, never written: a small file)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        def fn(f: h5py.File) -> None:
+            g = f.create_group("notes")
+            if kind == "members":
+                for i in range(300):
+                    g[f"n{i}"] = np.zeros(1)
+            else:
+                for name in ("a", "b"):
+                    g.create_dataset(name, shape=(2**27,), dtype="f8", chunks=(2**20,), compression="gzip")
+        edit(roadmap, fn)
+        return [command, str(roadmap), "--failure-cost", "50"]
+    return Case(f"foreign_group_{kind}_{command}", "hdf5", make, ("'/notes", phrase))
+
+
 def hdf5_cases() -> list[Case]:
     cases = [external_link(stage, command) for stage, command in
              (("edges", "inspect"), ("edges", "solve"), ("nodes", "design"), ("policy", "execute"),
@@ -214,7 +231,8 @@ def hdf5_cases() -> list[Case]:
     cases += [reference_attribute("inspect"), reference_attribute("solve")]
     cases += [roadmap_is_fifo(c) for c in ("inspect", "execute", "solve", "design", "estimate", "plot")]
     cases += [cache_link("inspect", 0, ()), cache_link("solve", 2, ("'/edge_cache' is an external link",)),
-              foreign_group_link("solve")]
+              foreign_group_link("solve"), foreign_group("members", "solve", "more than 256 members"),
+              foreign_group("large", "solve", "too large to copy")]
     return cases
 
 
@@ -461,7 +479,7 @@ def attribute_cases() -> list[Case]:
         attribute("nodes", "connect_budget", nan), attribute("nodes", "connect_budget", "x", "execute"),
         attribute("nodes", "connect_added", -1), attribute("nodes", "connect_stop_reason", 5),
         attribute("nodes", "validity_checker", arr, "solve"), attribute("nodes", "goals", "x"),
-        attribute("edges", "inputs_sha256", None, "solve"), attribute("edges", "inputs_sha256", "not hex", "solve"),
+        attribute("edges", "inputs_sha256", None, "solve"), attribute("edges", "inputs_sha256", 5, "solve"),
         attribute("edges", "inputs_sha256", arr), attribute("edges", "seed", -1),
         attribute("edges", "failed_edges", "x"), attribute("controllers", "node_radius", "wide"),
         attribute("controllers", "node_radius", -1.0, "execute"), attribute("controllers", "covariance_tolerance", nan),

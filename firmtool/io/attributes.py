@@ -12,7 +12,6 @@ type and size are checked on reading by :mod:`firmtool.io.hdf5`).
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -24,16 +23,14 @@ from firmtool.errors import RoadmapError
 # The names of firmtool.graph.SolveStatus (io sits below graph; tests/test_untrusted.py checks they agree)
 SOLVE_STATUSES = ("CONVERGED", "MAX_ITERATIONS")
 SOLVE_METHODS = ("value", "policy")
-_HEX64 = re.compile(r"[0-9a-f]{64}")
 
 
 @dataclass(frozen=True)
 class Attribute:
     """What one attribute must be.
 
-    kind : ``"int"`` (an integer, not a bool), ``"number"`` (finite), ``"text"``, ``"sha256"`` (64
-        lowercase hex digits, or "" where a writer had no hash), ``"choice"`` (one of ``choices``),
-        ``"int_array"`` (1-D integers).
+    kind : ``"int"`` (an integer, not a bool), ``"number"`` (finite), ``"text"``, ``"choice"`` (one
+        of ``choices``), ``"int_array"`` (1-D integers).
     low : the least value of a number (inclusive), or None.
     positive : a number must be > 0.
     required : a command reads it without a default.
@@ -51,8 +48,6 @@ class Attribute:
         if self.kind == "number":
             bound = " > 0" if self.positive else "" if self.low is None else f" >= {self.low:g}"
             return f"a finite number{bound}"
-        if self.kind == "sha256":
-            return "a sha256 in hexadecimal (64 digits)"
         if self.kind == "choice":
             return "one of " + ", ".join(repr(c) for c in self.choices)
         if self.kind == "int_array":
@@ -62,8 +57,6 @@ class Attribute:
     def accepts(self, value: Any) -> bool:
         if self.kind == "text":
             return isinstance(value, str)
-        if self.kind == "sha256":
-            return isinstance(value, str) and (value == "" or _HEX64.fullmatch(value) is not None)
         if self.kind == "choice":
             return isinstance(value, str) and value in self.choices
         if self.kind == "int_array":
@@ -82,8 +75,10 @@ class Attribute:
         return self.low is None or float(value) >= self.low
 
 
+# The hashes are compared for equality only (a stage whose hash is not the current one is recomputed or
+# refused as stale): any text will do, an array or a number will not.
 _ENCODING = {"encoding-type": Attribute("text"), "encoding-version": Attribute("int", low=0),
-             "inputs_sha256": Attribute("sha256"), "scenario_sha256": Attribute("sha256")}
+             "inputs_sha256": Attribute("text"), "scenario_sha256": Attribute("text")}
 _COUNT = Attribute("int", low=0)
 _CODE = Attribute("int")
 
@@ -94,7 +89,7 @@ STAGE_ATTRIBUTES: dict[str, dict[str, Attribute]] = {
               "start": _COUNT, "goals": Attribute("int_array")},
     "controllers": {**_ENCODING, "node_radius": Attribute("number", positive=True),
                     "covariance_tolerance": Attribute("number", low=0.0)},
-    "edges": {**_ENCODING, "inputs_sha256": Attribute("sha256", required=True), "seed": _COUNT,
+    "edges": {**_ENCODING, "inputs_sha256": Attribute("text", required=True), "seed": _COUNT,
               "engine_version": _COUNT, "failed_edges": _COUNT, "failure_code": _CODE, "timeout_code": _CODE,
               "goal_miss_code": _CODE, "particles_added": _COUNT, "particles_first_pass": _COUNT},
     "policy": {**_ENCODING, "status": Attribute("choice", required=True, choices=SOLVE_STATUSES),

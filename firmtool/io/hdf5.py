@@ -47,8 +47,10 @@ FLOAT_BYTES = 8
 # Members of one group a reader lists: a roadmap's groups hold at most a few dozen datasets; a
 # group of millions of links is damage (each costs a metadata read) or an attack.
 MAX_MEMBERS = 256
-# Objects one rewrite copies (groups and datasets, the whole file).
+# Objects one rewrite copies (groups and datasets, the whole file), and their data (a roadmap reader
+# reads at most as much: firmtool.io.roadmap_file.MAX_READ_BYTES).
 MAX_OBJECTS = 4096
+MAX_COPY_BYTES = 2**30
 
 
 def _kind(st: os.stat_result) -> str:
@@ -238,36 +240,59 @@ def plain_dtype(dtype: np.dtype) -> bool:
 
 
 def copy_by_value(src: h5py.Group, dst: h5py.Group, where: str, path: str | Path,
-                  error: type[InputError], budget: list[int] | None = None) -> None:
+                  error: type[InputError]) -> None:
     """Copy the members and attributes of ``src`` into ``dst`` as values (new contiguous datasets,
     plain attributes), each checked by :func:`member`: links, references and external or virtual
-    storage are refused, never copied. At most :data:`MAX_OBJECTS` objects in all."""
-    budget = budget if budget is not None else [MAX_OBJECTS]
+    storage are refused, never copied. Everything is checked before anything is read: at most
+    :data:`MAX_OBJECTS` objects, :data:`MAX_COPY_BYTES` of data and :data:`MAX_WORKING_BYTES` as
+    :func:`working_bytes` counts them."""
+    plan = list(_inventory(src, where, path, error))
+    stored = used = 0
+    for at, obj in plan:
+        if isinstance(obj, h5py.Dataset):
+            stored += element_count(obj.shape) * obj.dtype.itemsize
+            used += working_bytes(obj.shape)
+            if stored > MAX_COPY_BYTES or used > MAX_WORKING_BYTES:
+                raise error(f"{path}: '{at}' of shape {obj.shape} makes the file too large to copy (more than "
+                            f"{MAX_COPY_BYTES / 2**30:.0f} GiB of data; file damaged)")
+    _copy_attributes(src, dst, where, path, error)
+    groups = {where: dst}
+    for at, obj in plan:
+        parent, name = groups[at.rsplit("/", 1)[0] or "/"], at.rsplit("/", 1)[1]
+        if isinstance(obj, h5py.Group):
+            groups[at] = parent.create_group(name)
+            _copy_attributes(obj, groups[at], at, path, error)
+            continue
+        copy = parent.create_dataset(name, data=read_value(obj, at, path, error), dtype=obj.dtype)
+        _copy_attributes(obj, copy, at, path, error)
+
+
+def _inventory(group: h5py.Group, where: str, path: str | Path,
+               error: type[InputError]) -> Iterator[tuple[str, h5py.Group | h5py.Dataset]]:
+    """(where, object) of every group and dataset under ``group``, parents first, each checked by
+    :func:`member` (and a dataset's type by :func:`plain_dtype`); at most :data:`MAX_OBJECTS`."""
+    stack, count = [(group, where)], 0
+    while stack:
+        g, at = stack.pop(0)
+        for name, obj in members(g, at, path, error):
+            count += 1
+            if count > MAX_OBJECTS:
+                raise error(f"{path}: more than {MAX_OBJECTS} groups and datasets (file damaged or not a firmtool "
+                            "file)")
+            child = _join(at, name)
+            if isinstance(obj, h5py.Dataset) and not plain_dtype(obj.dtype):
+                raise error(f"{path}: '{child}' holds {obj.dtype} values, not numbers or text (file from another "
+                            "tool, or crafted)")
+            yield child, obj
+            if isinstance(obj, h5py.Group):
+                stack.append((obj, child))
+
+
+def _copy_attributes(src: h5py.HLObject, dst: h5py.HLObject, where: str, path: str | Path,
+                     error: type[InputError]) -> None:
     for key in src.attrs:
         check_attribute_type(src.attrs, key, where, path, error)
         dst.attrs[key] = src.attrs[key]
-    for name, obj in members(src, where, path, error):
-        budget[0] -= 1
-        if budget[0] < 0:
-            raise error(f"{path}: more than {MAX_OBJECTS} groups and datasets (file damaged or not a firmtool file)")
-        at = _join(where, name)
-        if isinstance(obj, h5py.Group):
-            copy_by_value(obj, dst.create_group(name), at, path, error, budget)
-            continue
-        if not plain_dtype(obj.dtype):
-            raise error(f"{path}: '{at}' holds {obj.dtype} values, not numbers or text (file from another tool, "
-                        "or crafted)")
-        if working_bytes(obj.shape) > MAX_WORKING_BYTES:
-            raise error(f"{path}: '{at}' of shape {obj.shape} is too large to copy (more than "
-                        f"{MAX_WORKING_BYTES / 2**30:.0f} GiB as used; file damaged)")
-        try:
-            value = obj[()]
-        except (OSError, ValueError, TypeError) as exc:
-            raise error(f"{path}: '{at}' is unreadable ({_first_line(exc)})") from None
-        copy = dst.create_dataset(name, data=value, dtype=obj.dtype)
-        for key in obj.attrs:
-            check_attribute_type(obj.attrs, key, at, path, error)
-            copy.attrs[key] = obj.attrs[key]
 
 
 def _first_line(exc: BaseException) -> str:

@@ -34,12 +34,7 @@ def keeping_previous(path: str | Path) -> Iterator[None]:
     system without hard links, the block runs as it is (each write stays atomic)."""
     real = Path(os.path.realpath(path))
     backup = previous_path(path)
-    try:
-        if not real.is_file():
-            raise FileNotFoundError(real)
-        _remove(backup)  # a leftover of a killed command (a link planted there is removed, not followed)
-        os.link(real, backup, follow_symlinks=False)
-    except OSError:
+    if not _linked(real, backup):
         yield
         return
     try:
@@ -54,6 +49,18 @@ def keeping_previous(path: str | Path) -> Iterator[None]:
         _remove(backup)
         raise
     _remove(backup)
+
+
+def _linked(real: Path, backup: Path) -> bool:
+    """Whether ``backup`` is now a second name of the regular file ``real``."""
+    if not real.is_file():
+        return False
+    _remove(backup)  # a leftover of a killed command (a link planted there is removed, not followed)
+    try:
+        os.link(real, backup, follow_symlinks=False)
+    except OSError:  # no hard links on this file system, or a folder in the way
+        return False
+    return True
 
 
 def _remove(path: Path) -> None:
