@@ -8,7 +8,8 @@ A world's obstacles are solids, each one of these kinds (``[[world.obstacles]] k
 - ``mesh`` (3-D worlds): ``vertices`` (V, 3) and ``triangles`` (T, 3) (0-based vertex indices), or
   ``file``: a Wavefront OBJ file of which only ``v x y z`` and triangular ``f i j k`` lines
   (1-based, ``i/...`` forms allowed) are read; a relative path is taken from the scenario file's
-  folder. A closed mesh (every edge shared by exactly two triangles) is a solid: a robot inside it
+  folder (for the scenario a roadmap stores: only a file inside the roadmap's folder), and the file
+  is read with bounds (:mod:`firmtool.io.mesh_file`). A closed mesh (every edge shared by exactly two triangles) is a solid: a robot inside it
   collides. An open one is a surface (a thin wall).
 
 Each kind declares its keys (:attr:`Obstacle.fields`) for the scenario schema; a collision backend
