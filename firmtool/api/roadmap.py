@@ -15,6 +15,7 @@ from firmtool import pipeline
 from firmtool.api.solution import Solution
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
+from firmtool.io import arguments
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.reports import BuildReport
 from firmtool.roadmap.nodes import GOAL, START_INDEX
@@ -50,6 +51,7 @@ def load_scenario(source: str | Path) -> Scenario:
     ScenarioError
         One line naming the file, the field and what was expected.
     """
+    arguments.path(source, "source")
     return _load_scenario_file(source)  # an existing path wins over a name (scenario.resolve_scenario)
 
 
@@ -216,7 +218,7 @@ class Roadmap:
         Path
             ``path``; :attr:`path` is set to it.
         """
-        path = Path(path)
+        path = arguments.path(path, "path")
         self._write(path, {})
         self.path = self._data.path = path
         return path
@@ -257,6 +259,8 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
     RoadmapError
         One line naming the file and what is wrong with it.
     """
+    arguments.path(path, "path")
+    arguments.function(validity, "validity")
     return Roadmap(RoadmapFile(path), path=Path(path), validity=validity)
 
 

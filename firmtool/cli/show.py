@@ -53,7 +53,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
-                            progress=console.progress())
+                            progress=console.progress(), max_total_steps=max_total_steps)
     save_figure(make_figure(kind, rm.solution(), options), out, force=force)
     console.next_step(str(out))
 

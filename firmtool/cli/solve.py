@@ -14,6 +14,7 @@ from firmtool.cli.exits import handles_errors
 from firmtool.cli.options import JsonOpt, QuietOpt, check_exists
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
+from firmtool.io.locking import writer_lock
 
 
 def solve_human(r: dict) -> str:
@@ -51,8 +52,10 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
-    sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress())
-    sol.save()
+    with writer_lock(roadmap):  # from the first read to the write: the policy is the edges' it was solved from
+        sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method,
+                       progress=console.progress())
+        sol.save()
     if not sol.start_reachable:
         raise unreachable_failure(roadmap, sol.unreachable_nodes.size, sol.cost_to_go.size)
     emit(sol.to_dict(), as_json, solve_human)
