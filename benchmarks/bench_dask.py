@@ -47,13 +47,16 @@ def start_cluster(workers: int, folder: Path) -> tuple[str, list[subprocess.Pope
     dask = str(Path(sys.executable).parent / "dask") if (Path(sys.executable).parent / "dask").exists() else shutil.which("dask")
     info = folder / "scheduler.json"
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
-    procs = [subprocess.Popen([dask, "scheduler", "--scheduler-file", str(info), "--port", "0", "--dashboard-address",
-                               ":0"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
+    # every address on loopback: a benchmark's cluster talks to nothing beyond this machine
+    procs = [subprocess.Popen([dask, "scheduler", "--scheduler-file", str(info), "--host", "127.0.0.1", "--port", "0",
+                               "--dashboard-address", "127.0.0.1:0"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, start_new_session=True)]
     while not info.exists():
         time.sleep(0.1)
     address = json.loads(info.read_text())["address"]
     for _ in range(workers):
-        procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+        procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", "1", "--nthreads", "1", "--host", "127.0.0.1",
+                                       "--no-dashboard"],
                                       env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                       start_new_session=True))
     from dask.distributed import Client

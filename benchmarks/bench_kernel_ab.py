@@ -1,7 +1,7 @@
 """A/B of versions of the compiled Monte Carlo engine in one process: does every particle end identically,
 and how long does the step kernel take per particle-step?
 
-    git show house:firmtool/estimation/compiled.py > /tmp/k_house.py
+    git show 8f15dfb:firmtool/estimation/compiled.py > /tmp/k_house.py  # the single-file engine before the split
     ROUNDS=15 python benchmarks/bench_kernel_ab.py /tmp/k_house.py firmtool/estimation/compiled
 
 A version is either a single-file engine of before the split (``compiled.py``, with the robot kinds

@@ -378,7 +378,7 @@ def save_figure(fig: Figure, path: str | Path, force: bool = False) -> None:
         write_bytes(path, image.getbuffer())
     finally:
         if fig.canvas.manager is not None:  # a pyplot figure: let pyplot forget it
-            import matplotlib.pyplot as plt
+            import matplotlib.pyplot as plt  # only for a figure pyplot made (pyplot's import is ~0.9 s)
 
             plt.close(fig)
 

@@ -28,6 +28,7 @@ from typer.testing import CliRunner
 
 import firmtool.estimation.executors
 import firmtool.estimation.tasks
+import firmtool.estimation.workers
 from firmtool.cli import app
 from firmtool.estimation.edges import estimate_edge as real_estimate_edge
 from firmtool.io.roadmap_file import RoadmapFile
@@ -81,13 +82,27 @@ def test_two_workers_give_the_one_worker_table(designed, tmp_path):
     _assert_same_tables(_edges(copy), reference)
 
 
-def test_dask_local_cluster_gives_the_one_worker_table(designed, tmp_path):
+def test_dask_local_cluster_gives_the_one_worker_table(designed, tmp_path, monkeypatch):
+    """... and the LocalCluster firmtool starts listens on loopback only (scheduler, workers, dashboard)."""
     pytest.importorskip("dask.distributed")
     path, reference = designed
     copy = tmp_path / "dask.h5"
     shutil.copyfile(path, copy)
+    addresses = []
+    close = firmtool.estimation.workers.Workers.close
+
+    def close_and_remember(self):
+        if self._cluster is not None:
+            info = self._client.scheduler_info()
+            addresses.extend([self._cluster.scheduler_address, *info["workers"]])
+            addresses.append(self._cluster.dashboard_link)
+        close(self)
+
+    monkeypatch.setattr(firmtool.estimation.workers.Workers, "close", close_and_remember)
     estimate_stage(copy, workers=2, executor="dask")
     _assert_same_tables(_edges(copy), reference)
+    assert len(addresses) >= 4 and len(addresses) % 4 == 0, addresses  # a cluster per session the stage opened
+    assert all("//127.0.0.1:" in a for a in addresses), addresses
 
 
 def test_the_engine_is_chosen_once_keyed_and_run_by_every_worker(designed, tmp_path, monkeypatch):
@@ -442,8 +457,8 @@ def test_dask_scheduler_and_two_worker_processes_joined_by_address(designed, tmp
     dask = _dask_command()
     info = tmp_path / "scheduler.json"
     env = {**os.environ, "PYTHONWARNINGS": "ignore", "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
-    procs = [subprocess.Popen(dask + ["scheduler", "--scheduler-file", str(info), "--port", "0",
-                                      "--dashboard-address", ":0"], env=env,
+    procs = [subprocess.Popen(dask + ["scheduler", "--scheduler-file", str(info), "--host", "127.0.0.1", "--port", "0",
+                                      "--dashboard-address", "127.0.0.1:0"], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
     try:
         deadline = time.monotonic() + 60
@@ -452,11 +467,15 @@ def test_dask_scheduler_and_two_worker_processes_joined_by_address(designed, tmp
         address = json.loads(info.read_text())["address"]
         for _ in range(2):
             procs.append(subprocess.Popen(dask + ["worker", address, "--nworkers", "1", "--nthreads", "1",
+                                                  "--host", "127.0.0.1",
                                                   "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
                                           stderr=subprocess.DEVNULL, start_new_session=True))
         with distributed.Client(address, timeout="60s") as client:
             client.wait_for_workers(2, timeout=60)
             assert len(client.scheduler_info()["workers"]) == 2
+            # test traffic stays on loopback: the scheduler and both workers listen on 127.0.0.1 only
+            assert address.startswith("tcp://127.0.0.1:"), address
+            assert all(w.startswith("tcp://127.0.0.1:") for w in client.scheduler_info()["workers"])
             copy = tmp_path / "cluster.h5"
             shutil.copyfile(path, copy)
             # the test process ran the kernel (the one-worker table), so its disk cache is warm if writable

@@ -35,6 +35,8 @@ import threading
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from firmtool.control import recursions, trajectories
 from firmtool.estimation import compiled as kernels
 from firmtool.estimation.compiled.run import HOOK_NAMES, disk_cached
@@ -215,8 +217,6 @@ def compile_engine(on_design: Callable[[], None] | None = None, hooks: tuple[str
     worker runs them (batched controllers, the kernel) with a few particles, one edge alone, and its
     controller's spread recursion (which execution reads); then the kernels of the other robots
     (:func:`compile_kernels`) and of ``hooks`` (:func:`hook_names`)."""
-    import numpy as np
-
     scenario = load_scenario(WARMUP_SCENARIO)
     problem = build_problem(scenario)
     centers, kinds = roadmap_nodes(problem, np.random.default_rng(0))
@@ -257,7 +257,7 @@ def compile_kernels(reference: Callable, hooks: tuple[str, ...] = ()) -> None:
 def _main() -> int:
     """``python -m firmtool.estimation.warmup [NAME=MODULE:QUALNAME ...]``: compile (with the kernel of
     those hooks), reporting on stdout when compiling starts and ends."""
-    from numba.core import event
+    from numba.core import event  # numba's event API: only the warm-up process listens to compiles
 
     class Reporter(event.Listener):
         said = False

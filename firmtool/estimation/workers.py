@@ -378,7 +378,10 @@ class Workers:
                 self._client = Client(self.scheduler, timeout="20s")
             else:
                 self._cluster = LocalCluster(n_workers=self.requested, threads_per_worker=1, processes=True,
-                                             dashboard_address=":0")  # a free port: 8787 may be taken
+                                             host="127.0.0.1",
+                                             # a free port (8787 may be taken), on loopback like the cluster:
+                                             # a cluster on this machine has nothing to tell other machines
+                                             dashboard_address="127.0.0.1:0")
                 self._client = Client(self._cluster)
         except (OSError, TimeoutError) as exc:
             raise InputError(f"--scheduler: cannot reach the dask scheduler {self.scheduler!r} "

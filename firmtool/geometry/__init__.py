@@ -38,7 +38,8 @@ __all__ = [
 
 
 def __getattr__(name: str):
-    # backends whose libraries are slow to import are loaded on demand
+    # backends whose libraries are slow to import are loaded on demand (python-fcl, numba's compiled
+    # loops): the numpy backend alone does not pay for them
     if name == "NumbaCollisionBackend":
         from firmtool.geometry._numba import NumbaCollisionBackend
         return NumbaCollisionBackend

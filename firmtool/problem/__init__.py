@@ -7,9 +7,11 @@ a new robot module, nothing here.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
+import cloudpickle
 import numpy as np
 
 from firmtool import robots
@@ -21,7 +23,6 @@ from firmtool.problem.goal import GoalRegion
 from firmtool.scenario import Scenario
 
 if TYPE_CHECKING:  # pragma: no cover
-    from firmtool.problem.goal import GoalRegion
     from firmtool.robots.base import Robot
 
 
@@ -47,8 +48,6 @@ class ValidityChecker:
     def pickled(self) -> bytes:
         """The checker, pickled with cloudpickle (by value if its module cannot be imported elsewhere)."""
         if self._pickled is None:
-            import cloudpickle
-
             try:
                 self._pickled = cloudpickle.dumps(self.fn)
             except Exception as exc:  # noqa: BLE001 - say which object cannot travel, in one line
@@ -208,8 +207,6 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     _check_task(problem)
     robot.check(problem)
     if task.start_covariance is not None:
-        import dataclasses
-
         problem = dataclasses.replace(problem, start_covariance=robot.start_belief_covariance(problem))
     return problem
 
