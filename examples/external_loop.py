@@ -111,8 +111,7 @@ def run(solution, episodes: int, seed: int, every: int = 10, out=sys.stdout) -> 
             # the policy declares arrival on its belief; whether the robot is there is the world's to say
             # (here the scenario's goal region, tested at the robot's true state, as ft.simulate does)
             node = policy.node
-            inside = policy.regions.true_arrival(np.array([node]), robot.x,
-                                                 angles=policy.problem.robot.angle_coordinates)[0]
+            inside = policy.arrived_in_goal(robot.x)
             outcome = "success" if inside else "goal_miss"
             if not inside:
                 j = max(j for j, ev in enumerate(events) if ev.kind == ft.EventKind.GOAL)

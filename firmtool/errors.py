@@ -58,6 +58,17 @@ class RunFailure(FirmtoolError, RuntimeError):
     """A run that failed on its own terms, e.g. a goal unreachable from the start (exit code 1)."""
 
 
+class Unreachable(RunFailure):
+    """The goal cannot be reached from the start node under the roadmap's estimated edges: a solve
+    that can only answer "success probability 0" (exit code 1). :attr:`missing` says, one sentence
+    per stranded goal component, what is not connected and where the gap is (the build report's
+    ``connectivity.missing``, what ``firmtool build`` prints as ``missing:`` lines)."""
+
+    def __init__(self, message: str, missing: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.missing = tuple(missing)
+
+
 class WriteFailure(RunFailure):
     """Writing an output failed in the environment (disk full, quota, I/O error); the previous file
     is intact and no temporary file is left (exit code 1)."""

@@ -56,6 +56,7 @@ class PanelData:
     episode: Episode | None = None  # with states/estimates/covariances recorded
     executed: tuple[float, float, float] | None = None  # (rate, lo, hi)
     label: str | None = None  # which episode is drawn, e.g. "episode 3 of seed 0"
+    runs: str | None = None  # which episodes the executed rate is of, e.g. "20 episodes, seed 0"
 
 
 def point_jacobian(problem: Problem, X: np.ndarray, eps: float = 1e-6) -> np.ndarray:
@@ -186,6 +187,8 @@ def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = 
     if data.executed is not None:
         rate, lo, hi = data.executed
         title += f", executed {rate:.3f} [{lo:.3f}, {hi:.3f}]"
+        if data.runs:  # a rate of 20 episodes and one of 200 must not read alike
+            title += f"\nof {data.runs}"
     if ep is not None and data.label is not None:
         title += f"\n{data.label}: {ep.outcome}, {ep.steps} steps"
     ax.set_title(title, fontsize=9)
@@ -340,13 +343,26 @@ PNG_SOFTWARE = f"firmtool {__version__}"  # the PNG's Software text: marks a fig
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def is_firmtool_png(path: str | Path) -> bool:
-    """Whether ``path`` is a PNG whose ``Software`` text (before its image data) names firmtool."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(1 << 16)
-    except OSError:
-        return False
+FIGURE_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}  # the output's format follows its extension
+_TAIL = 1 << 16  # a PDF's document information (its Creator) is written at its end
+
+
+def figure_format(path: str | Path) -> str:
+    """The format of a figure file from its extension (``png``, ``pdf`` or ``svg``).
+
+    Raises
+    ------
+    InputError
+        Any other extension, naming the file.
+    """
+    fmt = FIGURE_FORMATS.get(Path(path).suffix.lower())
+    if fmt is None:
+        raise InputError(f"{path}: expected a .png, .pdf or .svg file (the figure's format follows its extension)")
+    return fmt
+
+
+def _is_firmtool_png(head: bytes) -> bool:
+    """Whether a PNG's ``Software`` text (before its image data) names firmtool."""
     if not head.startswith(_PNG_SIGNATURE):
         return False
     pos = len(_PNG_SIGNATURE)
@@ -361,20 +377,45 @@ def is_firmtool_png(path: str | Path) -> bool:
     return False
 
 
+def is_firmtool_png(path: str | Path) -> bool:
+    """Whether ``path`` is a figure firmtool wrote (so that it may replace it): a PNG whose
+    ``Software`` text names firmtool, a PDF whose ``Creator`` does, or an SVG whose creator does."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(_TAIL)
+            fh.seek(0, 2)
+            size = fh.tell()
+            fh.seek(max(0, size - _TAIL))
+            tail = fh.read(_TAIL)
+    except OSError:
+        return False
+    if head.startswith(b"%PDF"):
+        return b"/Creator (firmtool" in tail
+    if head.lstrip().startswith(b"<?xml") or b"<svg" in head[:4096]:
+        return b"<dc:title>firmtool" in head
+    return _is_firmtool_png(head)
+
+
 def check_output(path: str | Path, force: bool = False) -> Path:
-    """Refuse a figure output path that is not a firmtool PNG (unless ``force``), a folder, a device,
-    or lies under a file (:func:`firmtool.io.atomic.check_target`)."""
-    return check_target(path, "PNG image", is_firmtool_png, force)
+    """Refuse a figure output path whose extension is not .png, .pdf or .svg, one that is not a
+    firmtool figure (unless ``force``), a folder, a device, or lies under a file
+    (:func:`firmtool.io.atomic.check_target`)."""
+    checked = check_target(path, "figure", is_firmtool_png, force)
+    figure_format(path)
+    return checked
 
 
 def save_figure(fig: Figure, path: str | Path, force: bool = False) -> None:
-    """Write a PNG atomically: rendered in memory, then :func:`firmtool.io.atomic.write_bytes` (an
-    existing file there is replaced only if it is a firmtool PNG, or with ``force``)."""
+    """Write a figure atomically, in the format of its extension (PNG, PDF or SVG: :func:`figure_format`):
+    rendered in memory, then :func:`firmtool.io.atomic.write_bytes` (an existing file there is
+    replaced only if firmtool wrote it, or with ``force``)."""
     try:
         check_output(path, force)
+        fmt = figure_format(path)
         image = io.BytesIO()
+        metadata = {"Software": PNG_SOFTWARE} if fmt == "png" else {"Creator": PNG_SOFTWARE}
         # bbox_inches="tight": nothing outside the figure's edge is cut (tick labels, outside legends)
-        fig.savefig(image, format="png", metadata={"Software": PNG_SOFTWARE}, bbox_inches="tight", pad_inches=0.05)
+        fig.savefig(image, format=fmt, metadata=metadata, bbox_inches="tight", pad_inches=0.05)
         write_bytes(path, image.getbuffer())
     finally:
         if fig.canvas.manager is not None:  # a pyplot figure: let pyplot forget it
@@ -415,9 +456,10 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
     if results is not None and results.policy is not None and results.policy != name:
         raise InputError(f"plot: the results are of policy {results.policy!r}, not {name!r}")
     edges, probabilities = solution._policy(name)
-    drawn, label, executed = None, None, None
+    drawn, label, executed, runs = None, None, None, None
     if results is not None:
         executed = (results.success_rate, *results.success_rate_ci95)
+        runs = f"{len(results.episodes)} episodes, seed {results.seed}"
         if episode is not None:
             if not 0 <= episode < len(results.episodes):
                 raise InputError(f"plot: episode {episode} is not in 0..{len(results.episodes) - 1}")
@@ -437,7 +479,8 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
         _, ax = plt.subplots(figsize=(6.0, 6.0), layout="constrained")
     rm = solution.roadmap
     panel(ax, rm.problem, rm.execution_design,
-          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label),
+          PanelData(name=name, policy=edges, predicted=predicted, episode=drawn, executed=executed, label=label,
+                    runs=runs),
           unit=unit, legend=legend)
     return ax
 

@@ -274,6 +274,9 @@ class ConnectivityReport(Report):
     missing : one sentence per stranded goal component: what is not connected and where the gap is.
     reachable_goal_nodes : goal nodes reachable from the start under the estimated edges (a chain of
         edges with positive landing counts); None before the edges are estimated.
+    goal_confidence_shortfall : when none is reachable and no goal node's stationary belief meets
+        ``task.goal_confidence``, the sentence that says so (the cause: more nodes would not help;
+        :func:`firmtool.roadmap.goal_confidence.goal_confidence_shortfall`), else None.
     """
 
     components: int
@@ -287,6 +290,7 @@ class ConnectivityReport(Report):
     stop_reason: str
     missing: tuple[str, ...]
     reachable_goal_nodes: tuple[int, ...] | None = None
+    goal_confidence_shortfall: str | None = None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -161,3 +161,37 @@ def test_densification_starts_from_an_unreachable_start(tmp_path):
         assert report.connectivity.added_nodes >= 1 and len(report.densify.rounds) >= 2
         return
     pytest.fail("no seed left the goal unreachable without the connection stage")
+
+
+def test_the_library_raises_on_an_impossible_query_with_what_is_missing(tmp_path):
+    """No silent zero (issue 42, 1): ``ft.solve`` of a roadmap whose goal the start cannot reach raises
+    ``ft.Unreachable`` naming what is missing, the same sentences as the build's ``missing:`` lines,
+    for a roadmap in memory (the build's report) and for one read back from its file (no report: the
+    connectivity is computed from the file); ``allow_unreachable=True`` returns the solution, whose
+    repr says so; ``firmtool solve`` exits 1 with the same text."""
+    import firmtool as ft
+
+    bad = tmp_path / "closed.toml"
+    bad.write_text(WALL.format(seed=0, obstacles=CLOSED, extra="bridge_nodes = 5"))
+    rm = ft.build(ft.load_scenario(bad), workers=1)
+    missing = rm.report.connectivity.missing
+    assert missing and any("goal nodes [1]" in m for m in missing)
+    with pytest.raises(ft.Unreachable) as caught:
+        ft.solve(rm)
+    assert isinstance(caught.value, ft.RunFailure) and caught.value.missing == missing
+    assert "unreachable from the start" in str(caught.value) and all(m in str(caught.value) for m in missing)
+    sol = ft.solve(rm, allow_unreachable=True)
+    assert not sol.start_reachable and sol.success_probability == 0.0
+    assert "unreachable" in repr(sol) and "success probability" not in repr(sol)
+    path = rm.save(tmp_path / "closed.h5")
+    with pytest.raises(ft.Unreachable) as again:
+        ft.solve(ft.open_roadmap(path))
+    assert again.value.missing == missing
+    res = runner.invoke(app, ["solve", str(path)])
+    assert res.exit_code == 1 and "missing: goal nodes [1]" in res.stderr, res.output
+    reachable = tmp_path / "gap.toml"
+    reachable.write_text(WALL.format(seed=0, obstacles=GAP, extra=""))
+    good = ft.solve(ft.build(ft.load_scenario(reachable), workers=1))
+    assert good.start_reachable and "goal reachable" in repr(good)
+    with pytest.raises(ft.InputError):
+        good.unreachable_error()

@@ -114,3 +114,35 @@ def test_the_users_loop_starts_where_the_task_says_and_in_an_open_world(capsys):
     assert sol.roadmap.problem.true_start is not None and not sol.roadmap.scenario.world.obstacles
     runs = external_loop.run(sol, 3, 0, every=1000, out=io.StringIO())
     assert all(external_loop.same_as_simulate(sol, runs, 0))
+
+
+def test_the_timing_summary_and_the_goal_judgement_of_a_users_loop(smoke):
+    """``Policy.timing_summary()`` is the raw record per call kind (mean, p99, max as numpy computes
+    them); ``Policy.arrived_in_goal`` refuses what is not a goal node or a state (issue 42, 5); its
+    verdicts are those of ft.simulate (the goal-miss test above runs the example that uses it)."""
+    policy = ft.Policy(smoke)
+    policy.reset(rng=np.random.default_rng(0))
+    robot = external_loop.robot_of(smoke, np.random.default_rng(1))
+    robot.start(policy.mean, policy.covariance)
+    u = policy.step(None)
+    while u is not None:
+        z, collided = robot.apply(u)
+        if collided:
+            break
+        u = policy.step(z)
+    raw, summary = policy.timing, policy.timing_summary()
+    for kind in ("act", "observe", "decision", "decision_cpu"):
+        times, got = raw[kind], getattr(summary, kind)
+        assert got.calls == times.size
+        if times.size:
+            assert (got.mean, got.p99, got.max) == (times.mean(), np.percentile(times, 99), times.max())
+        else:
+            assert (got.mean, got.p99, got.max) == (None, None, None)
+    assert summary.act.calls == policy.steps and summary.deadline_hits == int(raw["deadline_hit"].sum())
+    with pytest.raises(ft.InputError, match="not a goal node"):
+        policy.arrived_in_goal(robot.x[0], node=0)  # the start node
+    goal = int(smoke.roadmap.goals[0])
+    with pytest.raises(ft.InputError, match="true_state: expected shape"):
+        policy.arrived_in_goal(np.zeros(7), node=goal)
+    centre = smoke.roadmap.nodes[goal]
+    assert policy.arrived_in_goal(centre, node=goal)  # the goal node's own centre is in its goal

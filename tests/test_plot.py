@@ -117,3 +117,26 @@ def test_unknown_policy_name_is_an_input_error(smoke_roadmap):
     roadmap, _ = smoke_roadmap
     r = CliRunner().invoke(app, ["plot", str(roadmap), "--policy", "greedy"])
     assert r.exit_code == 2 and "--policy" in r.output
+
+
+def test_the_format_follows_the_extension_and_the_title_says_which_episodes(smoke_roadmap, tmp_path):
+    """A .pdf is a PDF and a .svg an SVG (they used to hold PNG bytes), each replaceable by firmtool
+    without --force; the panel's executed rate names its episodes and seed (issue 42, 3)."""
+    import firmtool as ft
+    from firmtool.figures import FigureOptions, make_figure
+
+    roadmap, _ = smoke_roadmap
+    for suffix, magic in ((".pdf", b"%PDF"), (".svg", b"<?xml")):
+        out = tmp_path / f"fig{suffix}"
+        for _ in range(2):  # the second run replaces firmtool's own file
+            r = CliRunner().invoke(app, ["plot", str(roadmap), "-o", str(out), "--episodes", "2", "--policy", "firm"])
+            assert r.exit_code == 0, r.output
+        assert out.read_bytes().startswith(magic)
+    foreign = tmp_path / "theirs.svg"
+    foreign.write_text('<?xml version="1.0"?><svg xmlns="http://www.w3.org/2000/svg"></svg>')
+    r = CliRunner().invoke(app, ["plot", str(roadmap), "-o", str(foreign), "--episodes", "0"])
+    assert r.exit_code == 2 and "is not a firmtool figure" in r.output
+    fig = make_figure("paths", ft.open_roadmap(roadmap).solution(), FigureOptions(episodes=3, seed=4,
+                                                                                    policies=("firm",)))
+    titles = [ax.get_title() for ax in fig.axes]
+    assert any("of 3 episodes, seed 4" in t for t in titles), titles

@@ -653,8 +653,9 @@ BAD_PATHS = {
     "episodes_output_is_a_roadmap": ("execute", "--save-episodes", "ROADMAP_COPY", "is not a firmtool episodes file"),
     "episodes_output_under_a_file": ("execute", "--save-episodes", _under_file, "is not a folder"),
     "plot_output_folder": ("plot", "-o", _dir, "is a folder"),
-    "plot_output_is_a_toml": ("plot", "-o", _file(TOML), "is not a firmtool PNG image"),
-    "plot_output_is_a_foreign_png": ("plot", "-o", _file(PNG), "is not a firmtool PNG image"),
+    "plot_output_is_a_toml": ("plot", "-o", _file(TOML), "is not a firmtool figure"),
+    "plot_output_is_a_foreign_png": ("plot", "-o", _file(PNG), "is not a firmtool figure"),
+    "plot_output_of_an_unknown_format": ("plot", "-o", lambda p: p.with_suffix(".jpg"), "expected a .png, .pdf or .svg"),
     "plot_output_dev_null": ("plot", "-o", lambda p: Path("/dev/null"), "is not a regular file"),
     # input paths
     "roadmap_is_a_folder": ("solve", None, _dir, "not a readable HDF5 roadmap"),

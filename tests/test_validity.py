@@ -226,7 +226,7 @@ def test_the_command_line_refuses_what_it_cannot_rebuild(checked_roadmap, tmp_pa
         r = runner.invoke(app, [str(a) for a in args])
         out = r.output.strip()
         assert r.exit_code == 2 and out.startswith("error: ") and "\n" not in out, (args, out)
-        assert "built with a Python validity checker" in out and "cannot rebuild" in out
+        assert "built with a Python validity checker" in out and "cannot be rebuilt from the file" in out
         assert copy.read_bytes() == before
     assert runner.invoke(app, ["solve", str(copy)]).exit_code in (0, 1)  # the DP needs no geometry
     import json
@@ -261,3 +261,46 @@ def test_dask_workers_get_the_checker_and_a_robot_defined_here(tmp_path):
     assert report.estimated_edges == report.edges and report.failed_edges == ()
     a, b = _table(one), _table(dask)
     assert all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_a_checker_written_for_one_state_is_told_what_a_checker_must_be():
+    """A non-vectorised checker fails in numpy's words ("truth value ... ambiguous"); the error names
+    the field and says what a checker must be (issue 42, 5)."""
+    import firmtool as ft
+
+    sc = ft.load_scenario("smoke")
+
+    def one_state(x):
+        return bool(np.linalg.norm(x[:2] - DISC) > RADIUS)  # x is (M, n): ambiguous for M > 1
+
+    with pytest.raises(InputError, match=r"validity: the checker .*vectorised: states \(M, n\) -> bool \(M,\)"):
+        ft.build(sc, workers=1, validity=one_state)
+
+    def ambiguous(x):
+        return x[:, 0] > 0 if x[:, 0] > 0 else x[:, 0] < 0  # ValueError for M > 1, in numpy's words
+
+    with pytest.raises(InputError, match=r"the checker failed on states of shape \(\d+, 2\) \(ValueError: "
+                                         r".*ambiguous.*vectorised"):
+        ValidityChecker(ambiguous)(np.zeros((3, 2)))
+
+    def wrong_shape(x):
+        return np.linalg.norm(x[:, :2] - DISC, axis=1)  # distances, not bools
+
+    with pytest.raises(InputError, match=r"must return a bool array of shape .* found float64"):
+        ft.build(sc, workers=1, validity=wrong_shape)
+
+
+def test_opening_a_roadmap_without_its_checker_warns_and_simulating_names_the_remedy(checked_roadmap):
+    import firmtool as ft
+
+    _, one, _ = checked_roadmap
+    with pytest.warns(UserWarning, match="built with a Python validity checker"):
+        rm = ft.open_roadmap(one)
+    with pytest.raises(InputError) as caught:
+        rm.problem
+    assert "validity=checker" in str(caught.value) and "command line" not in str(caught.value)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ft.open_roadmap(one, validity=disc_checker())  # given: no warning

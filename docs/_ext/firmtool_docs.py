@@ -46,7 +46,8 @@ API_GROUPS = {
     "settings": ["ReplanSettings", "Disturbance", "SolveStatus"],
     "reports": ["SampleReport", "DesignReport", "EstimateReport", "BuildReport", "DensifyReport", "SolveReport",
                 "FailedEdge", "RoadmapSummary"],
-    "errors": ["FirmtoolError", "InputError", "ScenarioError", "RoadmapError", "NumericalError", "RunFailure"],
+    "errors": ["FirmtoolError", "InputError", "ScenarioError", "RoadmapError", "NumericalError", "RunFailure",
+               "Unreachable"],
 }
 # Classes whose members are documented with them.
 API_MEMBERS = {"Roadmap", "Solution", "Results", "Scenario", "Episode", "Policy", "SimulatedSystem"}

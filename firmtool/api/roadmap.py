@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -258,10 +259,21 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
     ------
     RoadmapError
         One line naming the file and what is wrong with it.
+
+    Warns
+    -----
+    UserWarning
+        When the roadmap was built with a validity checker and ``validity`` is not given.
     """
     arguments.path(path, "path")
     arguments.function(validity, "validity")
-    return Roadmap(RoadmapFile(path), path=Path(path), validity=validity)
+    data = RoadmapFile(path)
+    recorded = pipeline.validity_of(data)
+    if recorded and validity is None:  # said now, not first when simulate needs the problem
+        warnings.warn(f"{path}: built with a Python validity checker ({recorded[:23]}); without it the roadmap "
+                      "can be solved but not simulated or extended: open_roadmap(path, validity=checker)",
+                      UserWarning, stacklevel=2)
+    return Roadmap(data, path=Path(path), validity=validity)
 
 
 def build(scenario: Scenario | str | Path, *, workers: int | None = None, output: str | Path | None = None,
@@ -296,7 +308,8 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
     checkpoint_seconds : float
         Seconds between saves of finished edges into ``output`` (resume after a kill).
     force : bool
-        Replace an existing file at ``output`` even if it is not a firmtool roadmap.
+        Replace an existing file at ``output`` even if it is not a firmtool roadmap, or is the roadmap
+        of another scenario (another ``[scenario] name``: refused otherwise).
     validity : callable, optional
         A vectorised checker ``states (M, n) -> bool (M,)`` (True where valid), ANDed with the
         scenario's geometry in sampling, nominals, the Monte Carlo (every executor) and

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.errors import ArgumentTypeError, InputError
+from firmtool.errors import ArgumentTypeError, InputError, Unreachable
 from firmtool.estimation.calibration import predicted_interval
 from firmtool.graph import SolveStatus, policy_path
 from firmtool.io import arguments
@@ -72,8 +72,12 @@ class Solution:
     _interval_attrs: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def __repr__(self) -> str:
-        return (f"<firmtool.Solution {self.status.name}: success probability {self.success_probability:.4f}, "
-                f"cost-to-go {self.start_cost_to_go:.4g}, path {self.path()}>")
+        # say it: a bare "success probability 0.0" reads as a bad plan, not an impossible one
+        if not self.start_reachable:
+            return (f"<firmtool.Solution {self.status.name}: the goal is unreachable from the start "
+                    f"({self.unreachable_nodes.size} of {self.cost_to_go.size} nodes cannot reach it)>")
+        return (f"<firmtool.Solution {self.status.name}, goal reachable: success probability "
+                f"{self.success_probability:.4f}, cost-to-go {self.start_cost_to_go:.4g}, path {self.path()}>")
 
     @classmethod
     def _from_group(cls, roadmap: Roadmap, group: pipeline.PolicyGroup) -> "Solution":
@@ -119,6 +123,20 @@ class Solution:
     def start_reachable(self) -> bool:
         """Whether the goal can be reached from the start node."""
         return bool(np.isfinite(self.cost_to_go[START_INDEX]))
+
+    def unreachable_error(self) -> Unreachable:
+        """The :class:`~firmtool.Unreachable` error of this solution's roadmap: what is not connected
+        and where (the build report's connectivity, or the roadmap's connectivity computed now for a
+        roadmap read from a file). For a solution whose start reaches the goal, an error would be a lie:
+        :class:`~firmtool.errors.InputError`."""
+        if self.start_reachable:
+            raise InputError("unreachable_error: the goal is reachable from the start of this solution")
+        rm = self.roadmap
+        connectivity = rm.report.connectivity if rm.report is not None else None
+        if connectivity is None:
+            connectivity = pipeline.roadmap_connectivity(rm._data, rm.validity)
+        return pipeline.unreachable_failure(rm.path, self.unreachable_nodes.size, self.cost_to_go.size,
+                                            connectivity.missing, connectivity.goal_confidence_shortfall)
 
     @property
     def success_probability_ci95(self) -> tuple[float, float]:
@@ -197,7 +215,7 @@ class Solution:
 
 
 def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
-          progress: "ProgressCallback | None" = None) -> Solution:
+          progress: "ProgressCallback | None" = None, allow_unreachable: bool = False) -> Solution:
     """Solve the constrained graph DP (paper eq. 12) and the success probabilities (Sec. III-E).
 
     Timeouts count as failures. Nothing is written (:meth:`Solution.save` stores the policy).
@@ -212,19 +230,30 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         Value iteration (the paper's) or policy iteration.
     progress : callable, optional
         ``progress(stage, done, total)``, told of the solve's steps (:mod:`firmtool.progress`).
+    allow_unreachable : bool
+        Return the solution also when the goal cannot be reached from the start (then
+        ``start_reachable`` is False, ``success_probability`` 0 and ``start_cost_to_go`` inf).
 
     Returns
     -------
     Solution
-        Also when the goal cannot be reached from the start (then ``start_reachable`` is False,
-        ``success_probability`` 0 and ``start_cost_to_go`` inf).
+
+    Raises
+    ------
+    Unreachable
+        When the goal cannot be reached from the start node and ``allow_unreachable`` is False: the
+        message (and its ``missing``) says what is not connected and where, as ``firmtool build``'s
+        ``missing:`` lines do.
     """
     _check_roadmap(roadmap)
     arguments.choice(method, "method", ("value", "policy"))
     arguments.number(failure_cost, "failure_cost", positive=True, optional=True)
     arguments.function(progress, "progress")
     group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress)
-    return Solution._from_group(roadmap, group)
+    solution = Solution._from_group(roadmap, group)
+    if not solution.start_reachable and not allow_unreachable:
+        raise solution.unreachable_error()
+    return solution
 
 
 def _check_roadmap(value: Any) -> None:

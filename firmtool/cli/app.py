@@ -72,7 +72,7 @@ def _print_version(value: bool) -> None:
 
 
 @app.callback()
-def _options(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+def _options(version: bool = typer.Option(False, "--version", metavar="", callback=_print_version, is_eager=True,
                                           help="Print firmtool's version and exit.")) -> None:
     """Options of every command (the help text is the app's)."""
 

@@ -23,6 +23,7 @@ from firmtool.estimation.budgets import check_budget
 from firmtool.pipeline import as_scenario, check_start_apart_from_goals
 from firmtool.problem import build_problem
 from firmtool.reports import Report
+from firmtool.roadmap.goal_confidence import goal_confidence_shortfall
 from firmtool.roadmap.nodes import GOAL, START
 from firmtool.scenario import Scenario
 
@@ -49,6 +50,10 @@ class CheckReport(Report):
     max_particle_steps : the worst-case work of the build's Monte Carlo (every particle running to its
         timeout), as :func:`firmtool.estimation.budgets.budget` estimates it before the design.
     seconds : wall time of the check.
+    notices : what the build would meet and the file cannot say, one sentence each: a goal whose
+        node's stationary belief falls short of ``task.goal_confidence``
+        (:func:`firmtool.roadmap.goal_confidence.goal_confidence_shortfall`; only beliefs that arrive
+        more certain than at rest can then declare arrival).
     """
 
     scenario: str
@@ -68,6 +73,7 @@ class CheckReport(Report):
     particles: int
     max_particle_steps: float
     seconds: float
+    notices: tuple[str, ...] = ()
 
 
 def check_scenario(scenario: Scenario | str | Path, *, validity: Callable | None = None) -> CheckReport:
@@ -97,7 +103,8 @@ def check_scenario(scenario: Scenario | str | Path, *, validity: Callable | None
     budget = check_budget(problem)
     if problem.goal is not None and np.allclose(problem.goal, problem.start, rtol=0, atol=1e-9):
         raise InputError(f"{sc.path}: task.goal: expected a goal apart from the start, found the start itself")
-    check_start_apart_from_goals(problem, np.stack([problem.start, problem.goal]), np.array([START, GOAL]))
+    ends = check_start_apart_from_goals(problem, np.stack([problem.start, problem.goal]), np.array([START, GOAL]))
+    shortfall = goal_confidence_shortfall(problem, ends)  # the goal's own node: no other will do better at rest
     model = problem.model
     return CheckReport(scenario=sc.path, name=sc.name, robot=sc.model.robot, states=int(model.n),
                        inputs=int(model.m), measurements=int(model.nz), configuration_dim=int(problem.config_dim),
@@ -105,4 +112,5 @@ def check_scenario(scenario: Scenario | str | Path, *, validity: Callable | None
                        collision_backend=sc.world.collision_backend, measurement=sc.measurement.kind,
                        noise=sc.measurement.noise, goal="region" if problem.goal_disc is not None else "state",
                        nodes=sc.roadmap.nodes, particles=sc.estimation.particles,
-                       max_particle_steps=float(budget["particle_steps"]), seconds=time.perf_counter() - t0)
+                       max_particle_steps=float(budget["particle_steps"]), seconds=time.perf_counter() - t0,
+                       notices=(shortfall,) if shortfall else ())

@@ -79,6 +79,11 @@ def seconds(s: float) -> str:
     return f"{int(s // 60)} min {int(s % 60):02d} s"
 
 
+def count(n: int, noun: str) -> str:
+    """``1 worker``, ``2 workers``: a count with its noun in the right number."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def items(values: Iterable[Any], limit: int = 12) -> str:
     """Values as comma-separated text, the first ``limit`` of them and how many more."""
     values = list(values)

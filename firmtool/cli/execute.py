@@ -12,7 +12,7 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import interval, items, num, prob
 from firmtool.cli.exits import fail, handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists
+from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
@@ -32,7 +32,8 @@ DisturbanceOpt = typer.Option(
          "control step STEP), push:random:SIZE:RATE (pushes at random steps, probability RATE per "
          "step), kidnap:STEP (true state jumps to a random valid state at rest), kidnap:random:RATE. "
          "Repeatable.")
-NoReplanOpt = typer.Option(False, "--no-replan", help="Follow the stored controllers only: no real-time replanning.")
+NoReplanOpt = typer.Option(False, "--no-replan", metavar="",
+                           help="Follow the stored controllers only: no real-time replanning.")
 ReplanThresholdOpt = typer.Option(
     3.0, "--replan-threshold",
     help="Replan when the estimate leaves the running controller's nominal by more than this, in "
@@ -165,7 +166,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     from firmtool.io.episodes import check_output as check_episodes_output
     from firmtool.io.episodes import save_episodes as write_episodes
     from firmtool.sim.disturbances import parse_disturbances
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     dists = parse_disturbances(disturbance)
     settings = replan_settings(no_replan, replan_threshold, replan_deadline, replan_clock, replan_latency,
                                goal_check, jump_false_alarm, jump_window, goal_lookback)
@@ -173,7 +174,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     check_policy(policy_name)
     if save_episodes is not None:
         check_episodes_output(save_episodes, force)  # before the episodes run, not after
-    rm = ft.open_roadmap(roadmap)
+    rm = open_roadmap(roadmap)
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,

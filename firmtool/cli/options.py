@@ -3,21 +3,30 @@ arguments that name files."""
 
 from __future__ import annotations
 
+import os
+import stat
+import tomllib
+import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from firmtool.errors import InputError
 
+if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.api import Roadmap
+
 DEFAULT_SCENARIO = "arm8_lightdark"  # a shipped scenario's name (firmtool scenarios)
 SCENARIO_HELP = "Scenario: a TOML file, or the name of a shipped scenario (see 'firmtool scenarios')."
 
-JsonOpt = typer.Option(False, "--json", help="Print machine-readable results on stdout.")
+JsonOpt = typer.Option(False, "--json", metavar="", help="Print machine-readable results on stdout.")
 WorkersOpt = typer.Option(None, "--workers", "-w", min=1,
                           help="Worker processes (default: all cores; at most 2 per core, and as many as memory "
                                "allows).")
-ForceOpt = typer.Option(False, "--force", help="Replace an existing output file even if it is not a firmtool file "
-                                               "of the same kind.")
+ForceOpt = typer.Option(False, "--force", metavar="",
+                        help="Replace an existing output file even if it is not a firmtool file of the same kind (a "
+                             "roadmap: of the same scenario).")
 MaxStepsOpt = typer.Option(1e8, "--max-total-steps", min=1.0,
                            help="Refuse runs of more than this many control steps in the worst case "
                                 "(episodes x the scenario's execution.max_steps).")
@@ -26,10 +35,61 @@ CheckpointOpt = typer.Option(10.0, "--checkpoint-seconds", min=0.0,
                              help="Save finished edge estimates into the roadmap this often (resume after a kill).")
 SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786; "
                             "without it --executor dask starts a LocalCluster.")
-QuietOpt = typer.Option(False, "--quiet", "-q", help="Print only errors, notices and --json output: no progress "
-                                                     "bar, no summary, no next step.")
+QuietOpt = typer.Option(False, "--quiet", "-q", metavar="",
+                        help="Print only errors, notices and --json output: no progress bar, no summary, no next step.")
+
+
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"  # the first 8 bytes of an HDF5 file without a user block (h5py writes none)
+SNIFF_BYTES = 65536  # enough of a file to tell a scenario's TOML from a roadmap's HDF5
 
 
 def check_exists(path: Path, what: str) -> None:
     if not path.exists():
         raise InputError(f"{path}: no such {what}")
+
+
+def _head(path: Path) -> bytes | None:
+    """The first bytes of a regular file (None for anything else: a link, a FIFO, a device are not read)."""
+    try:
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            return None
+        with open(path, "rb") as f:
+            return f.read(SNIFF_BYTES)
+    except OSError:
+        return None
+
+
+def _is_scenario_text(head: bytes) -> bool:
+    try:
+        return "scenario" in tomllib.loads(head.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False
+
+
+def check_roadmap_argument(path: Path) -> None:
+    """A roadmap argument that exists; a scenario file given where a roadmap is expected is told
+    which command makes its roadmap (rather than HDF5's "file signature not found")."""
+    check_exists(path, "roadmap file")
+    head = _head(path)
+    if head is not None and not head.startswith(HDF5_SIGNATURE) and _is_scenario_text(head):
+        raise InputError(f"{path}: a scenario file, not a roadmap; build its roadmap first: firmtool build {path}")
+
+
+def check_scenario_argument(scenario: str) -> None:
+    """A roadmap given where a scenario is expected is told what it is and what takes it."""
+    head = _head(Path(scenario))
+    if head is not None and head.startswith(HDF5_SIGNATURE):
+        raise InputError(f"{scenario}: an HDF5 file (a roadmap?), not a scenario; a roadmap is what solve, execute, "
+                         f"plot and inspect take: firmtool inspect {scenario}")
+
+
+def open_roadmap(path: Path) -> "Roadmap":
+    """:func:`firmtool.open_roadmap` for a command. A command cannot pass a Python validity checker, so
+    the warning meant for a script (a roadmap built with one was opened without it) is not printed:
+    a stage that needs the checker refuses in one line instead (:func:`firmtool.pipeline.problem_of`),
+    and the DP, which needs no geometry, runs."""
+    import firmtool.api as ft  # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*built with a Python validity checker", category=UserWarning)
+        return ft.open_roadmap(path)

@@ -11,8 +11,8 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import num
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import SCENARIO_HELP, JsonOpt, QuietOpt
-from firmtool.cli.output import emit
+from firmtool.cli.options import SCENARIO_HELP, JsonOpt, QuietOpt, check_scenario_argument
+from firmtool.cli.output import emit, print_notices
 
 
 @handles_errors
@@ -22,7 +22,7 @@ def init(name: str = typer.Argument(..., help="The scenario's name: writes NAME.
                                              help="The robot (default point): a built-in one (point, arm, unicycle), "
                                                   "or a registered robot that has a template."),
          output: Optional[Path] = typer.Option(None, "--output", "-o", help="Scenario file (default NAME.toml)."),
-         force: bool = typer.Option(False, "--force", help="Replace an existing file."),
+         force: bool = typer.Option(False, "--force", metavar="", help="Replace an existing file."),
          quiet: bool = QuietOpt) -> None:
     """Write a commented scenario for a built-in robot that builds as it is: every key listed with
     what it is (from the scenario schema), the keys at their defaults commented out.
@@ -55,8 +55,10 @@ def check(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     Example: firmtool check my_room.toml
     """
     from firmtool.cli.check import check_scenario  # lazy: saves firmtool --help 1.4 s (firmtool.cli.app)
+    check_scenario_argument(scenario)
     report = check_scenario(scenario).to_dict()
     emit(report, as_json, _check_human)
+    print_notices(report)
     console.next_step(None, f"firmtool build {scenario}")
 
 

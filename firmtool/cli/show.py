@@ -10,20 +10,23 @@ import typer
 
 from firmtool.cli import console
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_exists
+from firmtool.cli.options import ForceOpt, JsonOpt, MaxStepsOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 
 
 @handles_errors
 def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
-         output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG file (default: next to the roadmap)."),
+         output: Optional[Path] = typer.Option(None, "--output", "-o", help="Image file: PNG, PDF or SVG by its "
+                                                                           "extension (default: a PNG next to the "
+                                                                           "roadmap)."),
          policy_name: str = typer.Option("both", "--policy", help="'both' (side by side), 'firm' or 'shortest-path'."),
          seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
          episodes: int = typer.Option(20, "--episodes", "-n", min=0,
                                       help="Episodes run per policy: the panel shows their success rate and draws "
                                            "the first successful one (0: the roadmap and the policy only)."),
-         dpi: int = typer.Option(120, "--dpi", min=30, max=600), force: bool = ForceOpt,
+         dpi: int = typer.Option(120, "--dpi", min=30, max=600, help="Resolution of a PNG (dots per inch)."),
+         force: bool = ForceOpt,
          kind: str = typer.Option("paths", "--kind", help="'paths' (the paper's Fig. 1) or 'calibration' (predicted "
                                                           "vs executed probabilities of the policy edges)."),
          unit: str = typer.Option("m", "--unit", help="The length unit of the scenario's world (axis labels)."),
@@ -39,17 +42,16 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
       firmtool plot artifacts/point_lightdark.h5 --kind calibration -n 400 -o calibration.png
     """
     # lazy: saves firmtool --help the library's and matplotlib's import, 2 s (firmtool.cli.app)
-    import firmtool.api as ft
     from firmtool.estimation.budgets import check_execution
     from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, make_figure, save_figure
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
     if policy_name not in names:
         raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
     if kind not in FIGURE_KINDS:
         raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
-    rm = ft.open_roadmap(roadmap)
+    rm = open_roadmap(roadmap)
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
@@ -66,7 +68,7 @@ def inspect(roadmap: Path = typer.Argument(..., help="Roadmap file."), as_json: 
     Example: firmtool inspect artifacts/smoke.h5 --json
     """
     from firmtool.cli import inspect as inspect_module  # lazy: saves firmtool --help 1.6 s (firmtool.cli.app)
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     report = inspect_module.summarize(roadmap).to_dict()
     emit(report, as_json, lambda r: "\n".join(f"{k.replace('_', ' ')}: {console.value(v, k)}" for k, v in r.items()
                                               if v is not None and v != []))

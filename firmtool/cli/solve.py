@@ -11,7 +11,7 @@ import typer
 from firmtool.cli import console
 from firmtool.cli.console import items, num, prob
 from firmtool.cli.exits import handles_errors
-from firmtool.cli.options import JsonOpt, QuietOpt, check_exists
+from firmtool.cli.options import JsonOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.errors import InputError
 from firmtool.io.locking import writer_lock
@@ -46,18 +46,19 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     """
     # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
     import firmtool.api as ft
-    from firmtool.pipeline import unreachable_failure
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     if method not in ("value", "policy"):
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
-    with writer_lock(roadmap):  # from the first read to the write: the policy is the edges' it was solved from
-        sol = ft.solve(ft.open_roadmap(roadmap), failure_cost=failure_cost, method=method,
-                       progress=console.progress())
+    # from the first read to the write: the policy is the edges' it was solved from (issue 35); it is
+    # written also when the goal is unreachable (inspect shows it), then the run fails
+    with writer_lock(roadmap):
+        sol = ft.solve(open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
+                       allow_unreachable=True)
         sol.save()
     if not sol.start_reachable:
-        raise unreachable_failure(roadmap, sol.unreachable_nodes.size, sol.cost_to_go.size)
+        raise sol.unreachable_error()
     emit(sol.to_dict(), as_json, solve_human)
     console.next_step(f"the policy into {roadmap}", f"firmtool execute {roadmap}")
 

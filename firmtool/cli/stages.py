@@ -20,7 +20,8 @@ from firmtool.cli.options import (
     QuietOpt,
     SchedulerOpt,
     WorkersOpt,
-    check_exists,
+    check_roadmap_argument,
+    check_scenario_argument,
 )
 from firmtool.cli.output import emit, print_notices
 from firmtool.errors import InputError
@@ -39,6 +40,7 @@ def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import sample_stage
     # the pipeline's boundary reads the scenario (a file or a shipped name) once
+    check_scenario_argument(scenario)
     report = sample_stage(scenario, output, force=force, progress=console.progress()).to_dict()
     emit(report, as_json, lambda r: f"sampled {r['nodes']} nodes in {console.seconds(r['seconds'])}")
     console.next_step(report["roadmap"], f"firmtool design {report['roadmap']}")
@@ -53,7 +55,7 @@ def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled n
     """
     # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import design_stage
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     emit(design_stage(roadmap, progress=console.progress()).to_dict(), as_json,
          lambda r: f"designed {r['nodes']} node stabilisers and {r['edges']} edges (mean nominal "
                    f"{num(r['mean_edge_steps'], 3)} steps) in {console.seconds(r['seconds'])}")
@@ -74,13 +76,13 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
     """
     # lazy: saves firmtool --help the pipeline's import, 1.6 s (firmtool.cli.app)
     from firmtool.pipeline import estimate_stage
-    check_exists(roadmap, "roadmap file")
+    check_roadmap_argument(roadmap)
     report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
                             progress=console.progress(), checkpoint_seconds=checkpoint_seconds).to_dict()
     emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
                                      f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
                                      f"{r['simulated_particle_steps']:,} particle-steps in "
-                                     f"{console.seconds(r['seconds'])} on {r['workers']} workers)"))
+                                     f"{console.seconds(r['seconds'])} on {console.count(r['workers'], 'worker')})"))
     print_notices(report)
     exit_on_failed_edges(report)
     console.next_step(str(roadmap), f"firmtool solve {roadmap}")
@@ -101,7 +103,7 @@ def build_human(r: dict) -> str:
             f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
             f"{r['simulated_particle_steps']:,} particle-steps simulated\n"
             f"time: sample {console.seconds(s['sample'])}, design {console.seconds(s['design'])}, "
-            f"estimate {console.seconds(s['estimate'])} on {r['workers']} workers")
+            f"estimate {console.seconds(s['estimate'])} on {console.count(r['workers'], 'worker')}")
     a = r.get("adaptive")
     if a:
         last = a["rounds"][-1]
@@ -130,7 +132,8 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
           output: Optional[Path] = OutputOpt,
           workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
           scheduler: Optional[str] = SchedulerOpt, checkpoint_seconds: float = CheckpointOpt,
-          fresh: bool = typer.Option(False, "--fresh", help="Start a new roadmap even if the output can be reused."),
+          fresh: bool = typer.Option(False, "--fresh", metavar="",
+                                     help="Start a new roadmap even if the output can be reused."),
           p_min: Optional[float] = typer.Option(None, "--p-min", min=0.0, max=1.0,
                                                 help="Densify (add nodes, estimate new edges, re-solve) until the "
                                                      "start node's success probability reaches this."),
@@ -153,6 +156,7 @@ def build(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     from firmtool.pipeline import default_output
     if max_nodes is not None and p_min is None:
         raise InputError("--max-nodes: only meaningful with --p-min")
+    check_scenario_argument(scenario)
     sc = ft.load_scenario(scenario)
     rm = ft.build(sc, output=output or default_output(sc), workers=workers, executor=executor, scheduler=scheduler,
                   progress=console.progress(), fresh=fresh, p_min=p_min, max_nodes=max_nodes,
@@ -171,6 +175,8 @@ def exit_if_unreachable(report: dict) -> None:
     """Exit 1 when no goal node can be reached from the start (the roadmap cannot be solved)."""
     c = report.get("connectivity")
     if c and c.get("reachable_goal_nodes") is not None and not c["reachable_goal_nodes"]:
+        if c.get("goal_confidence_shortfall"):  # more nodes would not help: say what would
+            fail(f"{report['roadmap']}: no goal node is reachable from the start: {c['goal_confidence_shortfall']}", 1)
         why = "; ".join(c["missing"]) or "edges leave the start's component but none lands in a goal node"
         fail(f"{report['roadmap']}: no goal node is reachable from the start: {why}; raise roadmap.bridge_nodes "
               "or roadmap.nodes, or use --p-min to densify", 1)

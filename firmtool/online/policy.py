@@ -71,11 +71,12 @@ from firmtool.online.decision import KeepOrReplan
 from firmtool.online.record import Traversal
 from firmtool.online.replanning import Replanner, ReplanSettings, mission_false_alarm
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
+from firmtool.online.timing import TimingSummary
 from firmtool.online.running import EdgeControllers
 from firmtool.problem import Problem
 from firmtool.results import Event
 from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import START_INDEX, NodeRegions
+from firmtool.roadmap.nodes import GOAL, START_INDEX, NodeRegions
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api import Solution
@@ -330,6 +331,30 @@ class Policy:
         by Monte Carlo, the running controller included), ``deadline_hit`` (bool per decision: the
         deadline cut the search)."""
         return self._now.timing.as_dict()
+
+    def timing_summary(self) -> TimingSummary:
+        """:attr:`timing` per call kind: calls, mean, p99 and max seconds of ``act``, ``observe`` and
+        the decisions (:class:`~firmtool.online.timing.TimingSummary`)."""
+        return self._now.timing.summary()
+
+    def arrived_in_goal(self, true_state: np.ndarray, node: int | None = None) -> bool:
+        """Whether a TRUE state is in the goal the policy declared: the world's judgement of an arrival
+        the policy declares on its belief, as ``ft.simulate``'s system and the edge Monte Carlo judge
+        it (:meth:`NodeRegions.true_arrival <firmtool.roadmap.nodes.NodeRegions.true_arrival>`: in a
+        goal ball the true task point in the ball, else the true state in the goal node's region).
+
+        Parameters
+        ----------
+        true_state : (n,) the robot's true state (your own loop's, e.g. from a motion-capture system).
+        node : the goal node to judge by (default: the node the policy declared, :attr:`node`).
+        """
+        node = self.node if node is None else int(node)
+        if node < 0 or node not in set(np.flatnonzero(self.design.kinds == GOAL).tolist()):
+            raise InputError(f"arrived_in_goal: node {node} is not a goal node (the policy declares at one)")
+        x = np.asarray(true_state, dtype=float).reshape(-1)
+        if x.shape != (self.problem.model.n,):
+            raise InputError(f"arrived_in_goal: true_state: expected shape ({self.problem.model.n},), found {x.shape}")
+        return bool(self.regions.true_arrival(np.array([node]), x, angles=self.problem.robot.angle_coordinates)[0])
 
     @property
     def history(self) -> dict[str, np.ndarray] | None:

@@ -10,9 +10,46 @@ deadline cut its search.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from firmtool.online.replanning import Decision
+
+
+@dataclass(frozen=True)
+class CallTimes:
+    """Seconds per call of one kind: ``calls`` made, and their ``mean``, 99th percentile (``p99``,
+    numpy's linear interpolation) and ``max``; the three are None when no call was made."""
+
+    calls: int
+    mean: float | None
+    p99: float | None
+    max: float | None
+
+    @classmethod
+    def of(cls, seconds: np.ndarray) -> "CallTimes":
+        if seconds.size == 0:
+            return cls(0, None, None, None)
+        return cls(int(seconds.size), float(seconds.mean()), float(np.percentile(seconds, 99)), float(seconds.max()))
+
+
+@dataclass(frozen=True)
+class TimingSummary:
+    """What a run's compute cost, per call kind (:meth:`firmtool.online.Policy.timing_summary`).
+
+    Attributes
+    ----------
+    act, observe : :class:`CallTimes` of the control periods (wall seconds, decisions apart).
+    decision, decision_cpu : the decisions' wall and thread-CPU seconds.
+    deadline_hits : decisions the deadline cut short.
+    """
+
+    act: CallTimes
+    observe: CallTimes
+    decision: CallTimes
+    decision_cpu: CallTimes
+    deadline_hits: int
 
 
 class Timing:
@@ -59,6 +96,14 @@ class Timing:
         self._scored.append(scored)
         self._deadline_hit.append(hit)
         return work
+
+    def summary(self) -> TimingSummary:
+        """The record per call kind (:class:`TimingSummary`)."""
+        return TimingSummary(act=CallTimes.of(np.asarray(self.act, dtype=float)),
+                             observe=CallTimes.of(np.asarray(self.observe, dtype=float)),
+                             decision=CallTimes.of(np.asarray(self._seconds, dtype=float)),
+                             decision_cpu=CallTimes.of(np.asarray(self._cpu, dtype=float)),
+                             deadline_hits=int(sum(self._deadline_hit)))
 
     def as_dict(self) -> dict[str, np.ndarray]:
         """The record as arrays: ``act`` and ``observe`` (T,), and per decision ``decision`` (wall),

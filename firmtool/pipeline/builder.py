@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmtool.errors import FileBusyError, InputError, RoadmapError, RunFailure
+from firmtool.errors import InputError, RunFailure
 from firmtool.estimation import warmup
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.executors import Workers, default_workers
@@ -33,7 +33,8 @@ from firmtool.pipeline.inputs import (
     nodes_inputs,
     policy_inputs,
 )
-from firmtool.pipeline.reading import edge_probabilities, problem_of
+from firmtool.pipeline.reading import design_of, edge_probabilities, problem_of
+from firmtool.pipeline.restart import check_same_scenario, previous_roadmap, starting_over
 from firmtool.pipeline.sample import add_nodes_stage, sample_into
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
 from firmtool.pipeline.solve import solve_stage
@@ -42,6 +43,7 @@ from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import BuildReport, ConnectivityReport, DensifyReport, DensifyRound, EstimateReport, FailedEdge
 from firmtool.roadmap.connectivity import connectivity_report
+from firmtool.roadmap.goal_confidence import goal_confidence_shortfall
 from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario
 
@@ -70,6 +72,7 @@ class BuildRequest:
     validity : the user's validity checker, wrapped once (None: the scenario's geometry alone).
     densify : the ``p_min`` loop, or None.
     fresh : start a new roadmap even if the one at ``target`` could be continued.
+    force : replace the roadmap of another scenario at ``target`` (refused otherwise).
     checkpoint_seconds, progress : see :func:`firmtool.pipeline.estimate.estimate_stage`.
     """
 
@@ -82,6 +85,7 @@ class BuildRequest:
     fresh: bool = False
     checkpoint_seconds: float = CHECKPOINT_SECONDS
     progress: ProgressCallback | None = None
+    force: bool = False
 
 
 def build_request(scenario: Scenario | str | Path, output: str | Path | None, *, keep_in_memory: bool = False,
@@ -113,7 +117,7 @@ def build_request(scenario: Scenario | str | Path, output: str | Path | None, *,
     settings = worker_settings(workers, executor, scheduler, default=default_workers(), problem=problem)
     return BuildRequest(scenario=scenario, target=target, problem=problem, workers=settings, validity=checker,
                         densify=None if p_min is None else Densify(p_min, max_nodes, add_nodes), fresh=fresh,
-                        checkpoint_seconds=checkpoint_seconds, progress=progress)
+                        checkpoint_seconds=checkpoint_seconds, progress=progress, force=force)
 
 
 def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers: int | None = None,
@@ -140,7 +144,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     output : the roadmap file (default ``artifacts/NAME.h5``).
     workers, executor, scheduler, checkpoint_seconds : see :func:`firmtool.pipeline.estimate.estimate_stage`.
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told by every stage.
-    force : replace an existing file at ``output`` even if it is not a firmtool roadmap.
+    force : replace an existing file at ``output`` even if it is not a firmtool roadmap, or is the roadmap
+        of another scenario (another ``[scenario] name``).
     validity : a user's vectorised validity checker (:func:`firmtool.problem.build_problem`), used
         by every stage; the roadmap records its identity.
 
@@ -180,7 +185,12 @@ class _BuildRun:
     def nodes(self) -> RoadmapFile | None:
         """Sample the nodes, or go on from the roadmap at the target (returned; None if sampled anew)."""
         r, sc = self.request, self.request.scenario
-        existing = None if r.fresh else _resumable(r.target, sc, checker_identity(r.validity))
+        previous = previous_roadmap(r.target)
+        if previous is not None:
+            check_same_scenario(previous, sc, force=r.force)
+        existing = None if r.fresh or previous is None else _resumable(previous, sc, checker_identity(r.validity))
+        if existing is None and previous is not None and not r.fresh:  # replaced: never without a word
+            self.notices.append(starting_over(previous, sc))
         if existing is None:
             self.seconds["sample"] = sample_into(sc, r.target, problem=r.problem, validity=r.validity,
                                                  session=self.session, progress=r.progress).seconds
@@ -234,18 +244,9 @@ class _BuildRun:
                            notices=tuple(self.notices))
 
 
-def _resumable(out: RoadmapTarget, scenario: Scenario, validity: str = "") -> RoadmapFile | None:
-    """The roadmap at ``out`` if its nodes were sampled from the same inputs (so the build can go on
-    from it), else None (a new roadmap replaces it)."""
-    if not out.exists():
-        return None
-    try:
-        rm = RoadmapFile(out)
-        rm.require("nodes", "centers", "kind", fresh=False)
-    except FileBusyError:
-        raise  # another process is writing it: never start over under its feet
-    except RoadmapError:
-        return None  # a damaged roadmap (check_output refused anything else): replaced by a fresh build
+def _resumable(rm: RoadmapFile, scenario: Scenario, validity: str = "") -> RoadmapFile | None:
+    """``rm`` if its nodes were sampled from the same inputs (so the build can go on from it), else
+    None (a new roadmap replaces it)."""
     if rm.seed != scenario.seed or not rm.has("nodes") or \
             rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario, validity):
         return None
@@ -268,7 +269,11 @@ def roadmap_connectivity(roadmap: RoadmapFile, validity: Callable | None = None)
         source = roadmap.require("edges", "source")["source"].astype(np.int64)
         reach = reachable_from(landing.shape[1], source, landing, START_INDEX)
         goals = np.flatnonzero(nodes["kind"] == GOAL)
-        report = dataclasses.replace(report, reachable_goal_nodes=tuple(int(g) for g in goals[reach[goals]]))
+        reachable = tuple(int(g) for g in goals[reach[goals]])
+        # none reachable: is it for want of certainty at the goal rather than of nodes?
+        shortfall = (goal_confidence_shortfall(problem, design_of(roadmap))
+                     if not reachable and roadmap.has("controllers") else None)
+        report = dataclasses.replace(report, reachable_goal_nodes=reachable, goal_confidence_shortfall=shortfall)
     return report
 
 

@@ -30,9 +30,9 @@ def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_v
     without one is refused too (its nodes were sampled without it)."""
     recorded = validity_of(roadmap)
     if validity is None and recorded and need_validity:
-        raise InputError(f"{roadmap.path}: built with a Python validity checker ({recorded[:23]}), which the "
-                         "command line cannot rebuild; run this stage from Python with the same checker "
-                         "(validity=...)")
+        raise InputError(f"{roadmap.path}: built with a Python validity checker ({recorded[:23]}), which cannot be "
+                         "rebuilt from the file: give the same checker (open_roadmap(path, validity=checker)); "
+                         "a firmtool command cannot run this stage")
     problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"), validity=validity)
     given = problem_checker_identity(problem)
     if validity is not None and given != recorded:

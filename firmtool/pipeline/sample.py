@@ -15,12 +15,13 @@ from firmtool.estimation.executors import Workers, parallel_validity
 from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_stage
 from firmtool.pipeline.inputs import VALIDITY_ATTR, as_checker, as_scenario, nodes_inputs, problem_checker_identity
 from firmtool.pipeline.reading import problem_of
+from firmtool.pipeline.restart import check_same_scenario, previous_roadmap
 from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, locked
 from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import AddNodesReport, SampleReport
 from firmtool.roadmap.connectivity import connect_goals
-from firmtool.roadmap.design import design, start_covariance
+from firmtool.roadmap.design import Design, design, start_covariance
 from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
 from firmtool.scenario import Scenario
 
@@ -34,7 +35,8 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     ----------
     scenario : a scenario, a scenario file, or a shipped scenario's name.
     output : the roadmap file to create (replaced atomically); default ``artifacts/NAME.h5``.
-    force : replace an existing file there even if it is not a firmtool roadmap.
+    force : replace an existing file there even if it is not a firmtool roadmap, or is the roadmap of
+        another scenario.
     validity : a user's vectorised checker (:func:`firmtool.problem.build_problem`); the roadmap
         records its identity, and the later stages need the same checker.
     session : workers (:class:`firmtool.estimation.executors.Workers`) that check large batches of states
@@ -43,6 +45,9 @@ def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, for
     """
     scenario = as_scenario(scenario)
     out = check_output(output if output else default_output(scenario), force)
+    previous = previous_roadmap(out)
+    if previous is not None:
+        check_same_scenario(previous, scenario, force=force)
     return sample_into(scenario, out, validity=as_checker(validity), session=session, progress=progress)
 
 
@@ -74,10 +79,11 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
                         seconds=time.perf_counter() - t0, connect_added=added)
 
 
-def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> None:
+def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> Design:
     """Refuse a task whose start lies in a goal node's region (input time: before anything is
     written): the start would be a goal already, every edge from it would land at once, and the
-    graph would have no way out of the start. Designs the start and goal nodes only."""
+    graph would have no way out of the start. Designs the start and goal nodes only, and returns
+    that design."""
     keep = np.flatnonzero(kinds != REGULAR)
     d = design(problem, centers[keep], kinds[keep])
     regions = d.regions(problem)
@@ -93,6 +99,7 @@ def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: n
         raise InputError(f"{problem.scenario.path}: task.goal: expected a goal apart from the start, but the start "
                          f"lies inside the region of goal node {inside[0]} (controller.node_radius "
                          f"{problem.scenario.controller.node_radius:g}); move the goal or lower the node radius")
+    return d
 
 
 def add_nodes_stage(path: str | RoadmapTarget, count: int, connect: bool = False, *,

@@ -7,11 +7,11 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
-from firmtool.errors import RunFailure
+from firmtool.errors import RunFailure, Unreachable
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.edge_table import edge_costs
 from firmtool.graph import SolveStatus, policy_path, shortest_path_policy, solve_dp, success_probability
@@ -136,10 +136,17 @@ def _interval_or_none(value: Any) -> tuple[float, float] | None:
     return None if value is None else (float(value[0]), float(value[1]))
 
 
-def unreachable_failure(roadmap_path: str | Path | MemoryFile | None, unreachable: int, nodes: int) -> RunFailure:
-    """The error of a solve whose goal cannot be reached from the start node."""
-    return RunFailure(f"{roadmap_path or 'roadmap'}: the goal is unreachable from the start node under the estimated "
-                      f"edges ({unreachable} of {nodes} nodes cannot reach it); add nodes or neighbours")
+def unreachable_failure(roadmap_path: str | Path | MemoryFile | None, unreachable: int, nodes: int,
+                        missing: Sequence[str] = (), shortfall: str | None = None) -> Unreachable:
+    """The error of a solve whose goal cannot be reached from the start node; ``missing``: the
+    connectivity report's sentences (what is not connected, and where), added to the message;
+    ``shortfall``: why no goal node's belief meets the goal confidence
+    (:func:`firmtool.roadmap.goal_confidence.goal_confidence_shortfall`), the advice then instead of
+    "add nodes or neighbours"."""
+    where = "".join(f"; missing: {m}" for m in missing)
+    advice = shortfall or "add nodes or neighbours"
+    return Unreachable(f"{roadmap_path or 'roadmap'}: the goal is unreachable from the start node under the estimated "
+                       f"edges ({unreachable} of {nodes} nodes cannot reach it); {advice}{where}", tuple(missing))
 
 
 def solve_stage(path: str | RoadmapTarget, *, failure_cost: float | None = None, method: str = "value",

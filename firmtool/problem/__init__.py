@@ -64,10 +64,15 @@ class ValidityChecker:
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.asarray(X, dtype=float)
-        out = np.asarray(self.fn(X))
+        try:
+            out = np.asarray(self.fn(X))
+        except Exception as exc:  # noqa: BLE001 - a checker written for one state fails on (M, n) in numpy's words
+            raise InputError(f"validity: the checker failed on states of shape {X.shape} ({type(exc).__name__}: "
+                             f"{exc}); a checker must be vectorised: states (M, n) -> bool (M,)") from exc
         if out.shape != (X.shape[0],) or out.dtype != np.bool_:
             raise InputError(f"validity: the checker must return a bool array of shape ({X.shape[0]},) for states "
-                             f"of shape {X.shape}, found {out.dtype} {out.shape}")
+                             f"of shape {X.shape}, found {out.dtype} {out.shape}; a checker must be vectorised: "
+                             "states (M, n) -> bool (M,)")
         return out
 
     def __repr__(self) -> str:

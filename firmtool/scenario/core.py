@@ -102,8 +102,9 @@ class Scenario:
         return scenario_to_toml(self)
 
     def replace(self, **changes: Any) -> "Scenario":
-        """A copy with some settings changed, validated: ``sc.replace(seed=3, estimation={"particles": 100})``
-        (:func:`replace_scenario`)."""
+        """A copy with some settings changed, validated as a file is: ``sc.replace(seed=3,
+        estimation={"particles": 100})`` (:func:`replace_scenario`; dimensions against the robot's
+        model are checked when the problem is built)."""
         return replace_scenario(self, **changes)
 
     def __eq__(self, other: object) -> bool:
@@ -386,7 +387,11 @@ def _modified(path: str) -> str:
 
 
 def replace_scenario(scenario: Scenario, **changes: Any) -> Scenario:
-    """A copy of ``scenario`` with some settings changed, validated.
+    """A copy of ``scenario`` with some settings changed, validated as a file is (:func:`parse_scenario`:
+    every key's type, range and the section rules). What needs the robot's model (the dimensions of
+    ``task.start``, ``task.start_covariance`` or a goal against its state) is checked where the
+    model is built, as for a file: :func:`firmtool.problem.build_problem`, ``firmtool check``,
+    :func:`firmtool.build`.
 
     Parameters
     ----------

@@ -1,0 +1,86 @@
+"""A build that cannot go on from the roadmap at its output says why in one line, and the roadmap of
+another scenario is never replaced without --force (issue 42, 2): a mistyped -o used to overwrite
+another build silently, and an edited scenario started over with "0 reused" as the only hint."""
+
+import json
+
+from typer.testing import CliRunner
+
+from conftest import open_world
+from firmtool.cli import app
+from firmtool.pipeline.restart import changed_sections
+
+runner = CliRunner()
+
+
+def _scenario(tmp_path, name, obstacles="[]"):
+    path = tmp_path / f"{name}.toml"
+    path.write_text(open_world(obstacles=obstacles).replace('name = "open"', f'name = "{name}"'))
+    return path
+
+
+def test_another_scenarios_roadmap_is_refused_without_force_and_nothing_is_written(tmp_path):
+    room, other = _scenario(tmp_path, "room"), _scenario(tmp_path, "other")
+    out = tmp_path / "room.h5"
+    assert runner.invoke(app, ["sample", str(room), "-o", str(out)]).exit_code == 0
+    before = out.read_bytes()
+    for command in (["build", str(other), "-o", str(out), "--workers", "1"], ["sample", str(other), "-o", str(out)],
+                    ["build", str(other), "-o", str(out), "--workers", "1", "--fresh"]):
+        res = runner.invoke(app, command)
+        line = res.output.strip()
+        assert res.exit_code == 2 and "\n" not in line, (command, res.output)
+        assert f"{out}: holds the roadmap of scenario 'room', not 'other'" in line and "--force" in line
+        assert out.read_bytes() == before
+    res = runner.invoke(app, ["sample", str(other), "-o", str(out), "--force", "--json"])
+    assert res.exit_code == 0, res.output
+    assert runner.invoke(app, ["inspect", str(out), "--json"]).stdout.count('"other"') >= 1
+
+
+def test_an_edited_scenario_says_what_changed_when_the_build_starts_over(tmp_path):
+    room = _scenario(tmp_path, "room")
+    out = tmp_path / "room.h5"
+    first = runner.invoke(app, ["build", str(room), "-o", str(out), "--workers", "1", "--json"])
+    assert first.exit_code == 0, first.output
+    edges = json.loads(first.stdout)["edges"]
+    room.write_text(room.read_text().replace("obstacles = []", 'obstacles = [{ kind = "box", center = [2.5, 0.25], '
+                                                                   'half_size = [0.1, 0.25] }]'))
+    again = runner.invoke(app, ["build", str(room), "-o", str(out), "--workers", "1", "--json"])
+    assert again.exit_code == 0, again.output
+    report = json.loads(again.stdout)
+    notice = [n for n in report["notices"] if n.startswith("starting over")]
+    assert notice == [f"starting over: {out}: the scenario's [world] changed since it was built; its "
+                      f"{json.loads(first.stdout)['nodes']} nodes and {edges} estimated edges are not reused"]
+    assert report["reused_edges"] == 0
+    same = runner.invoke(app, ["build", str(room), "-o", str(out), "--workers", "1", "--json"])
+    assert not [n for n in json.loads(same.stdout)["notices"] if n.startswith("starting over")]
+    assert json.loads(same.stdout)["reused_edges"] == json.loads(same.stdout)["edges"]
+
+
+def test_changed_sections_ignore_layout_comments_and_what_keeps_the_nodes():
+    a = '[scenario]\nname = "a"\nseed = 1\n[world]\nbounds = [[0, 0], [1, 1]]\n[cost]\nx = 1\n'
+    b = ('# a comment\n[scenario]\nname = "a"\ndescription = "d"\nseed = 1\n[world]\nbounds = [ [0, 0], [1, 1] ]\n'
+         '[cost]\nx = 2\n')
+    assert changed_sections(a, b) == []
+    assert changed_sections(a, a.replace("seed = 1", "seed = 2").replace("[1, 1]", "[1, 2]")) == ["seed", "[world]"]
+
+
+def test_a_scenario_where_a_roadmap_is_expected_and_the_reverse_say_so(tmp_path):
+    """``execute room.toml`` used to answer with HDF5's "file signature not found"."""
+    room = _scenario(tmp_path, "room")
+    out = tmp_path / "room.h5"
+    assert runner.invoke(app, ["sample", str(room), "-o", str(out)]).exit_code == 0
+    for command in ("solve", "execute", "plot", "inspect", "estimate", "design"):
+        res = runner.invoke(app, [command, str(room)])
+        line = res.output.strip()
+        assert res.exit_code == 2 and "\n" not in line, (command, res.output)
+        assert line == f"error: {room}: a scenario file, not a roadmap; build its roadmap first: firmtool build {room}"
+    for command in ("build", "sample", "check", "run"):
+        res = runner.invoke(app, [command, str(out)])
+        line = res.output.strip()
+        assert res.exit_code == 2 and "\n" not in line, (command, res.output)
+        assert line.startswith(f"error: {out}: an HDF5 file (a roadmap?), not a scenario;") and "inspect" in line
+    junk = tmp_path / "notes.txt"
+    junk.write_text("not a roadmap, not a scenario")
+    res = runner.invoke(app, ["solve", str(junk)])
+    # neither: the roadmap reader's own one line, not a guess
+    assert res.exit_code == 2 and str(junk) in res.output and "scenario file" not in res.output
