@@ -33,6 +33,10 @@ class ScenarioError(InputError):
         super().__init__(text)
 
 
+class ArgumentTypeError(InputError, TypeError):
+    """An argument of the API of the wrong type (``ft.solve(None)``); the message names the argument."""
+
+
 class RoadmapError(InputError):
     """A roadmap file that is missing, unreadable, of an unknown schema or lacks a stage."""
 

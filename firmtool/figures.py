@@ -29,6 +29,7 @@ from matplotlib.patches import Circle, Ellipse, Rectangle
 from firmtool import __version__
 from firmtool.api import Solution, simulate
 from firmtool.errors import InputError
+from firmtool.estimation.budgets import MAX_EXECUTION_STEPS
 from firmtool.estimation.edge_table import ENGINE_VERSION
 from firmtool.graph import policy_path
 from firmtool.io.atomic import check_target, write_bytes
@@ -312,6 +313,7 @@ class FigureOptions:
     dpi : resolution.
     unit : length unit of the axes.
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), or None.
+    max_total_steps : the bound of the episodes' worst-case control steps (``--max-total-steps``).
     """
 
     episodes: int = 20
@@ -320,6 +322,7 @@ class FigureOptions:
     dpi: int = 120
     unit: str = DEFAULT_UNIT
     progress: Callable[[str, int, int], None] | None = None
+    max_total_steps: float = MAX_EXECUTION_STEPS
 
 
 def _relabel(progress, stage: str):
@@ -330,7 +333,8 @@ def _relabel(progress, stage: str):
 def paths_figure(solution, options: FigureOptions) -> Figure:
     """The paper's Fig. 1, one panel per policy (:func:`plot_policies`)."""
     results = [simulate(solution, options.episodes, options.seed, policy=name,
-                           progress=_relabel(options.progress, f"plot: {name} episodes"))
+                           progress=_relabel(options.progress, f"plot: {name} episodes"),
+                           max_total_steps=options.max_total_steps)
                if options.episodes else None for name in options.policies]
     return plot_policies(solution, results, list(options.policies), dpi=options.dpi, unit=options.unit)
 
@@ -338,7 +342,8 @@ def paths_figure(solution, options: FigureOptions) -> Figure:
 def calibration_kind_figure(solution, options: FigureOptions) -> Figure:
     """The calibration plot of the FIRM policy's edges over ``options.episodes`` episodes."""
     results = simulate(solution, max(options.episodes, 1), options.seed, record=False,
-                          progress=_relabel(options.progress, "plot: episodes"))
+                          progress=_relabel(options.progress, "plot: episodes"),
+                          max_total_steps=options.max_total_steps)
     return calibration_figure(results, dpi=options.dpi)
 
 

@@ -21,6 +21,7 @@ from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
 from firmtool.io.schema import Field, describe
 from firmtool.problem import build_problem
+from firmtool.robots import installed
 from firmtool.robots.point import PointRobot
 from firmtool.scenario import parse_scenario, sections
 
@@ -99,6 +100,9 @@ def test_a_registered_robot_reads_its_own_keys():
         parse_scenario(SMOKE.replace("dt = 0.1", "dt = 0.1\nfloor = 0.45"), "p.toml")
 
 
+SITE_DIRECTORIES = installed.site_directories
+
+
 def test_a_robot_from_an_installed_packages_entry_point(tmp_path, monkeypatch):
     """A separately installed package names its robot in the entry-point group firmtool.robots."""
     (tmp_path / "fake_firmtool_robot.py").write_text(
@@ -108,6 +112,8 @@ def test_a_robot_from_an_installed_packages_entry_point(tmp_path, monkeypatch):
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: fake-firmtool-robot\nVersion: 0.1\n")
     (dist / "entry_points.txt").write_text("[firmtool.robots]\ntest_rover = fake_firmtool_robot:Rover\n")
     monkeypatch.syspath_prepend(str(tmp_path))
+    # installed: entry points are read from the environment's site-packages folders only (issue 35)
+    monkeypatch.setattr(installed, "site_directories", lambda: (tmp_path, *SITE_DIRECTORIES()))
     assert "test_rover" in robots.names()
     problem = build_problem(parse_scenario(SMOKE.replace('robot = "point"', 'robot = "test_rover"'), "r.toml"))
     assert type(problem.robot).__name__ == "Rover" and problem.robot.identity.startswith("fake_firmtool_robot.Rover:1")

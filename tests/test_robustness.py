@@ -662,7 +662,7 @@ BAD_PATHS = {
     "roadmap_is_dev_zero": ("inspect", None, lambda p: Path("/dev/zero"), "not a regular file"),
     "roadmap_is_a_fifo": ("execute", None, _fifo, "not a regular file"),
     "roadmap_is_missing": ("execute", None, lambda p: p, "no such roadmap file"),
-    "roadmap_is_a_toml": ("solve", None, _file(TOML), "not a readable HDF5 roadmap"),
+    "roadmap_is_a_toml": ("solve", None, _file(TOML), "a scenario file, not a roadmap; build its roadmap first"),
 }
 
 

@@ -8,18 +8,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from firmtool.api.solution import Solution
-from firmtool.errors import InputError
+from firmtool.estimation.budgets import MAX_EXECUTION_STEPS, check_execution, check_push_size
+from firmtool.io import arguments
 from firmtool.online.policy import Policy
+from firmtool.online.replanning import ReplanSettings
 from firmtool.results import Results
 from firmtool.roadmap.nodes import START_INDEX
-from firmtool.sim.disturbances import as_disturbances
+from firmtool.sim.disturbances import PUSH, Disturbance, as_disturbances
 from firmtool.sim.environment import SimulatedSystem
 from firmtool.sim.episodes import run_episodes
 
 if TYPE_CHECKING:  # pragma: no cover
-    from firmtool.online.replanning import ReplanSettings
     from firmtool.progress import ProgressCallback
-    from firmtool.sim.disturbances import Disturbance
 
 # a user's disturbance: ``fn(step, state (n,), rng) -> new state (n,) or None`` (firmtool.sim.disturbances)
 DisturbanceFunction = Callable[[int, np.ndarray, np.random.Generator], "np.ndarray | None"]
@@ -29,7 +29,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
              start: np.ndarray | None = None,
              disturbances: Iterable["str | Disturbance | DisturbanceFunction"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
-             progress: "ProgressCallback | None" = None) -> Results:
+             progress: "ProgressCallback | None" = None, max_total_steps: float = MAX_EXECUTION_STEPS) -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
     Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
@@ -66,6 +66,9 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         (T + 1, n, n), ``controls`` (T, m)); they take ~8 (T + 1) (n^2 + 2n) bytes per episode.
     progress : callable, optional
         ``progress(stage, done, total)``, told of the episodes run (:mod:`firmtool.progress`).
+    max_total_steps : float
+        Refuse runs of more than this many control steps in the worst case (``episodes`` x the
+        scenario's ``execution.max_steps``), as ``firmtool execute --max-total-steps`` does.
 
     Returns
     -------
@@ -73,12 +76,18 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         Success rate with its Wilson interval, the prediction with its interval, the calibration
         check of the edges taken, compute per step and per decision, and the episodes.
     """
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise InputError(f"episodes: expected an integer >= 1, found {episodes!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed: expected an integer >= 0, found {seed!r}")
+    arguments.instance(solution, Solution, "solution", "a firmtool.Solution (from ft.solve(roadmap))")
+    arguments.optional_instance(replan, ReplanSettings, "replan", "a firmtool.ReplanSettings or None")
+    arguments.check_simulate(episodes=episodes, seed=seed, record=record, progress=progress, disturbances=disturbances)
     _, probabilities = solution._policy(policy)
     dists = as_disturbances(disturbances)
+    problem = solution.roadmap.problem
+    # the CLI's bounds, as a guard of the API: worst-case steps, and pushes within the configuration bounds
+    check_execution(problem, episodes, max_total_steps=max_total_steps,
+                    names=("episodes", "max_total_steps", "record"))
+    for d in dists:
+        if isinstance(d, Disturbance) and d.kind == PUSH:
+            check_push_size(problem, str(d), d.size)
     agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
     system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals

@@ -17,6 +17,7 @@ from firmtool.api.solution import Solution
 from firmtool.errors import InputError
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
+from firmtool.io import arguments
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_queries import query_images
 from firmtool.reports import BuildReport, QueryReport
@@ -53,6 +54,7 @@ def load_scenario(source: str | Path) -> Scenario:
     ScenarioError
         One line naming the file, the field and what was expected.
     """
+    arguments.path(source, "source")
     return _load_scenario_file(source)  # an existing path wins over a name (scenario.resolve_scenario)
 
 
@@ -220,7 +222,7 @@ class Roadmap:
         Path
             ``path``; :attr:`path` is set to it.
         """
-        path = Path(path)
+        path = arguments.path(path, "path")
         self._write(path, {})
         self.path = self._data.path = path
         return path
@@ -315,6 +317,8 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
     UserWarning
         When the roadmap was built with a validity checker and ``validity`` is not given.
     """
+    arguments.path(path, "path")
+    arguments.function(validity, "validity")
     data = RoadmapFile(path)
     recorded = pipeline.validity_of(data)
     if recorded and validity is None:  # said now, not first when simulate needs the problem

@@ -10,9 +10,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.errors import InputError, Unreachable
+from firmtool.errors import ArgumentTypeError, InputError, Unreachable
 from firmtool.estimation.calibration import predicted_interval
 from firmtool.graph import SolveStatus, policy_path
+from firmtool.io import arguments
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.reports import SolveReport
 from firmtool.roadmap.nodes import START_INDEX
 
@@ -202,12 +204,12 @@ class Solution:
         Path
         """
         rm = self.roadmap
-        target = Path(path) if path is not None else rm.path
+        target = arguments.path(path, "path", optional=True) or rm.path
         if target is None:
             raise InputError("Solution.save: the roadmap is in memory; give a path")
         group = self._group()
-        if rm.path is not None and target.resolve() == rm.path.resolve():
-            pipeline.write_policy(target, group)
+        if rm.path is not None and target.resolve() == rm.path.resolve():  # only over the edges it came from
+            pipeline.write_policy(target, group, source=rm._data)
         else:
             rm._write(target, {"policy": (group.arrays, group.attrs)})
         return target
@@ -244,13 +246,23 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         message (and its ``missing``) says what is not connected and where, as ``firmtool build``'s
         ``missing:`` lines do.
     """
-    if method not in ("value", "policy"):
-        raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
-    if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
-        raise InputError(f"failure_cost: expected a finite number > 0, found {failure_cost}")
+    _check_roadmap(roadmap)
+    arguments.choice(method, "method", ("value", "policy"))
+    arguments.number(failure_cost, "failure_cost", positive=True, optional=True)
+    arguments.function(progress, "progress")
     group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress)
     solution = Solution._from_group(roadmap, group)
     if not solution.start_reachable and not allow_unreachable:
         raise solution.unreachable_error()
     return solution
+
+
+def _check_roadmap(value: Any) -> None:
+    """Refuse (:class:`~firmtool.errors.ArgumentTypeError`) anything but a :class:`firmtool.Roadmap`.
+
+    The class lives in :mod:`firmtool.api.roadmap`, which imports this module (a Roadmap makes its
+    Solution), so it is told here by what it holds: the roadmap file it was read from or built into."""
+    if isinstance(value, Solution) or not isinstance(getattr(value, "_data", None), RoadmapFile):
+        raise ArgumentTypeError("roadmap: expected a firmtool.Roadmap (from ft.build or ft.open_roadmap), found "
+                                + ("None" if value is None else type(value).__name__))
 

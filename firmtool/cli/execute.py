@@ -188,7 +188,8 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     check_execution(rm.problem, episodes, record=save_episodes is not None, max_total_steps=max_total_steps)
     sol = rm.solution()
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
-                      replan=settings, record=save_episodes is not None, progress=console.progress())
+                      replan=settings, record=save_episodes is not None, progress=console.progress(),
+                      max_total_steps=max_total_steps)
     report = res.to_dict()
     if save_episodes is not None:
         write_episodes(save_episodes, res.episodes,

@@ -55,7 +55,7 @@ def run(scenario: str = typer.Argument(DEFAULT_SCENARIO, help=SCENARIO_HELP),
     sol.save()
     if not sol.start_reachable:
         raise sol.unreachable_error()
-    res = ft.simulate(sol, episodes, seed, record=False, progress=bar)
+    res = ft.simulate(sol, episodes, seed, record=False, progress=bar, max_total_steps=max_total_steps)
     report = {"build": rm.report.to_dict(), "solve": sol.to_dict(), "execute": res.to_dict()}
     emit(report, as_json, lambda r: "\n".join([build_human(r["build"]), solve_human(r["solve"]),
                                                  execute_human(r["execute"])]))

@@ -65,7 +65,7 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
-                            progress=console.progress())
+                            progress=console.progress(), max_total_steps=max_total_steps)
     sol = rm.solution()
     save_figure(make_figure(kind, sol, options), out, force=force, provenance=figure_provenance(sol, options))
     console.next_step(str(out))

@@ -15,6 +15,7 @@ from firmtool.cli.options import JsonOpt, QuietOpt, check_roadmap_argument, open
 from firmtool.cli.output import emit
 from firmtool.cli.queries import queries_of, query_human
 from firmtool.errors import InputError
+from firmtool.io.locking import writer_lock
 
 
 def solve_human(r: dict) -> str:
@@ -81,10 +82,12 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     if name or force or goal_radius is not None or goal_confidence is not None or start_covariance is not None:
         raise InputError("--name, --force, --goal-radius, --goal-confidence, --start-covariance: only with a query "
                          "(--goal, --start or --task)")
-    # the policy is written also when the goal is unreachable (inspect shows it), then the run fails
-    sol = ft.solve(open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
-                   allow_unreachable=True)
-    sol.save()
+    # from the first read to the write: the policy is the edges' it was solved from (issue 35); it is
+    # written also when the goal is unreachable (inspect shows it), then the run fails
+    with writer_lock(roadmap):
+        sol = ft.solve(open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
+                       allow_unreachable=True)
+        sol.save()
     if not sol.start_reachable:
         raise sol.unreachable_error()
     emit(sol.to_dict(), as_json, solve_human)

@@ -8,8 +8,9 @@ A world's obstacles are solids, each one of these kinds (``[[world.obstacles]] k
 - ``mesh`` (3-D worlds): ``vertices`` (V, 3) and ``triangles`` (T, 3) (0-based vertex indices), or
   ``file``: a Wavefront OBJ file of which only ``v x y z`` and triangular ``f i j k`` lines
   (1-based, ``i/...`` forms allowed) are read; a relative path is taken from the scenario file's
-  folder. A closed mesh (every edge shared by exactly two triangles) is a solid: a robot inside it
-  collides. An open one is a surface (a thin wall).
+  folder (for the scenario a roadmap stores: only a file inside the roadmap's folder), and the file
+  is read with bounds (:mod:`firmtool.io.mesh_file`). A closed mesh (every edge shared by exactly two
+  triangles) is a solid: a robot inside it collides. An open one is a surface (a thin wall).
 
 Each kind declares its keys (:attr:`Obstacle.fields`) for the scenario schema; a collision backend
 says which kinds it handles (:mod:`firmtool.geometry.registry`).
@@ -23,6 +24,7 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from firmtool.io import mesh_file
 from firmtool.io.schema import Field
 
 
@@ -195,25 +197,6 @@ def obstacle_from_values(kind: str, values: Mapping[str, Any]) -> Obstacle:
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) and 0-based triangles (T, 3) of a Wavefront OBJ file (``v`` and triangular
-    ``f`` lines; other lines are ignored). ValueError saying what is wrong otherwise."""
-    vertices: list[list[float]] = []
-    faces: list[list[int]] = []
-    text = path.read_text(encoding="utf-8")
-    for number, line in enumerate(text.splitlines(), 1):
-        parts = line.split("#", 1)[0].split()
-        if not parts:
-            continue
-        if parts[0] == "v":
-            if len(parts) < 4:
-                raise ValueError(f"line {number}: expected 'v x y z'")
-            vertices.append([float(x) for x in parts[1:4]])
-        elif parts[0] == "f":
-            idx = [int(p.split("/", 1)[0]) for p in parts[1:]]
-            if len(idx) != 3:
-                raise ValueError(f"line {number}: expected a triangle (3 vertices), found {len(idx)}")
-            if min(idx) < 1:
-                raise ValueError(f"line {number}: expected 1-based vertex indices >= 1")
-            faces.append([i - 1 for i in idx])
-    if not vertices or not faces:
-        raise ValueError("expected 'v' and 'f' lines")
-    return np.array(vertices, dtype=float), np.array(faces, dtype=np.int64)
+    ``f`` lines; other lines are ignored). ValueError saying what is wrong otherwise (bounded, and
+    quoting none of the file: :func:`firmtool.io.mesh_file.read_obj`)."""
+    return mesh_file.read_obj(path)

@@ -118,7 +118,7 @@ def write_bytes(path: str | Path, data: bytes | memoryview) -> None:
     view = memoryview(data).cast("B")
     with replacing(path) as tmp:
         try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_TRUNC | getattr(os, "O_CLOEXEC", 0))
+            fd = os.open(tmp, os.O_WRONLY | os.O_TRUNC | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0))
             try:
                 done = 0
                 while done < len(view):

@@ -11,11 +11,18 @@ left in place: deleting it on release races with a writer that has just opened i
 released by the kernel when its holder exits, however it exits (``kill -9`` included), so a stale
 lock cannot block anyone. It is re-entrant within a process (``build`` runs the stages, which
 take it too). Not available on Windows (no ``fcntl``): there the lock is a no-op.
+
+The sidecar is created without following links and an existing one is used only if it is a lock
+file of ours (:func:`open_lock_file`): a symlink or hard link planted there is refused, never
+written through.
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import re
+import stat
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -29,6 +36,10 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
 _held: dict[str, tuple[int, int]] = {}  # lock path -> (fd, depth) held by this process
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+# What a lock file of ours holds: the last holder's process id and a newline (or nothing yet).
+_LOCK_TEXT = re.compile(rb"[0-9]{0,20}\n?")
+_MAX_LOCK_BYTES = 32
 _guard = threading.Lock()
 
 
@@ -64,9 +75,9 @@ def writer_lock(path: str | Path, what: str = "roadmap") -> Iterator[None]:
     if not reentered:
         try:
             lp.parent.mkdir(parents=True, exist_ok=True)
-            fd = os.open(lp, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
         except OSError as exc:
             raise OutputError(f"{path}: cannot create the writer lock {lp.name} ({exc.strerror or exc})") from None
+        fd = open_lock_file(lp, path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -76,9 +87,9 @@ def writer_lock(path: str | Path, what: str = "roadmap") -> Iterator[None]:
                                 "ends (or stop it), then run the command again") from None
         except OSError:  # pragma: no cover - a file system without flock: go on unlocked
             pass
-        try:
+        try:  # a file we created, or a lock file of ours (open_lock_file checked it): never another file
             os.ftruncate(fd, 0)
-            os.write(fd, f"{os.getpid()}\n".encode())
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         except OSError:  # the pid is only informative
             pass
         with _guard:
@@ -93,6 +104,71 @@ def writer_lock(path: str | Path, what: str = "roadmap") -> Iterator[None]:
             else:
                 del _held[key]
                 os.close(fd)  # releases the flock
+
+
+def open_lock_file(lp: Path, path: str | Path) -> int:
+    """A descriptor of the lock file ``lp``, created here if it does not exist, else opened if it is a
+    lock file of ours: a regular file of this user, with no other name, holding at most a process id.
+
+    The lock file's folder is the output's, which someone else may have prepared: a symlink planted
+    at ``lp`` (to a file of the user's) or a hard link to another file must not make firmtool write
+    the pid into that file. So the file is created with ``O_CREAT | O_EXCL | O_NOFOLLOW`` (never
+    through a link); an existing one is opened with ``O_NOFOLLOW | O_NONBLOCK`` (a FIFO does not
+    block) and refused unless it is a firmtool lock file.
+
+    Raises
+    ------
+    OutputError
+        One line naming the lock file and what it is instead (exit 2); nothing is written to it.
+    """
+    flags = os.O_RDWR | getattr(os, "O_CLOEXEC", 0) | _NOFOLLOW
+    for _ in range(3):  # a lock file removed between the two opens is created on the next round
+        try:
+            return os.open(lp, flags | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            pass
+        except OSError as exc:
+            raise OutputError(f"{path}: cannot create the writer lock {lp.name} ({exc.strerror or exc})") from None
+        try:
+            fd = os.open(lp, flags | getattr(os, "O_NONBLOCK", 0))
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            raise OutputError(_refusal(path, lp, _open_failure(lp, exc))) from None
+        why = _not_ours(fd)
+        if why:
+            os.close(fd)
+            raise OutputError(_refusal(path, lp, why))
+        os.set_blocking(fd, True)
+        return fd
+    raise OutputError(f"{path}: cannot create the writer lock {lp.name} (it keeps disappearing)")  # pragma: no cover
+
+
+def _open_failure(lp: Path, exc: OSError) -> str:
+    if exc.errno == errno.ELOOP or os.path.islink(lp):
+        return "is a symbolic link"
+    if isinstance(exc, IsADirectoryError):
+        return "is a folder"
+    return f"cannot be opened ({exc.strerror or exc})"
+
+
+def _not_ours(fd: int) -> str:
+    """Why the open file ``fd`` is not a lock file of ours ("" if it is one)."""
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        return "is not a regular file"
+    if hasattr(os, "geteuid") and st.st_uid != os.geteuid():
+        return "belongs to another user"
+    if st.st_nlink != 1:
+        return "has other names (hard links)"
+    if st.st_size > _MAX_LOCK_BYTES or not _LOCK_TEXT.fullmatch(os.pread(fd, _MAX_LOCK_BYTES + 1, 0)):
+        return "holds something other than a process id"
+    return ""
+
+
+def _refusal(path: str | Path, lp: Path, why: str) -> str:
+    return (f"{path}: the writer lock {lp} {why}; firmtool writes only a lock file it created itself (remove "
+            "that file if it is not needed, then run the command again)")
 
 
 def _holder(fd: int) -> str:

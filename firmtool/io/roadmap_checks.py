@@ -16,6 +16,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from firmtool.errors import RoadmapError
+from firmtool.io.attributes import check_stage_attributes
 from firmtool.io.roadmap_format import GOAL, REGULAR, START, START_INDEX
 from firmtool.io.schema import MAX_STATE_DIM
 
@@ -277,8 +278,9 @@ _CHECKS = {"nodes": _check_nodes, "controllers": _check_controllers, "edges": _c
 
 
 def check_stage(path: Path, stage: str, stages: Stages, dims: dict[str, int]) -> np.ndarray | None:
-    """Check ``stage`` of ``stages`` (the stages before it checked already): its shapes against
-    ``dims`` (updated with the sizes first seen), then its values.
+    """Check ``stage`` of ``stages`` (the stages before it checked already): the attributes firmtool
+    reads (type, shape, range), its shapes against ``dims`` (updated with the sizes first seen), then
+    its values.
 
     Returns
     -------
@@ -291,5 +293,6 @@ def check_stage(path: Path, stage: str, stages: Stages, dims: dict[str, int]) ->
         One line naming the file and the dataset.
     """
     arrays, attrs = stages[stage]
+    check_stage_attributes(path, stage, attrs)  # firmtool.io.attributes: the attributes read, like the datasets
     check_shapes(path, stage, arrays, dims)
     return _CHECKS[stage](path, arrays, attrs, dims, stages)

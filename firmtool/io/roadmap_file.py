@@ -56,6 +56,8 @@ import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import FileBusyError, RoadmapError
+from firmtool.io import hdf5
+from firmtool.io.attributes import ROOT_ATTRIBUTES, check_attributes, check_stage_attributes
 from firmtool.io.memory_file import MemoryFile, as_target, readable, size_of
 from firmtool.io.roadmap_checks import check_edges, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
@@ -72,7 +74,6 @@ from firmtool.io.roadmap_format import (
     START,
     START_INDEX,
     nbytes,
-    read_table,
     short,
 )
 from firmtool.io.roadmap_write import (
@@ -157,21 +158,23 @@ class RoadmapFile:
         self.scenario_text = str(values["scenario_toml"])
         self.scenario_sha256 = str(values["scenario_sha256"])
         self.seed = int(values["seed"])
-        self.created = str(_attribute(p, attrs, "created", ""))
-        self.firmtool_version = str(_attribute(p, attrs, "firmtool_version", ""))
+        root = {key: _attribute(p, attrs, key, "") for key in ROOT_ATTRIBUTES}
+        check_attributes(p, "/", root, ROOT_ATTRIBUTES)
+        self.created, self.firmtool_version = str(root["created"]), str(root["firmtool_version"])
         if hashlib.sha256(self.scenario_text.encode()).hexdigest() != self.scenario_sha256:
             raise RoadmapError(f"{p}: the stored scenario text does not match its sha256 (file altered?)")
         # shapes and sizes first (metadata only), then the data: nothing large is read blindly
-        groups = {}
-        total = 0
+        # every object a hard link to data stored in this file (firmtool.io.hdf5), sized as the checks use it
+        groups: dict[str, tuple[h5py.Group, dict[str, h5py.Dataset]]] = {}
+        total = used = 0
         for name in STAGES:
-            if name not in f:
+            g = hdf5.member(f, name, "/", p, RoadmapError)
+            if g is None:
                 continue
-            g = f[name]
             if not isinstance(g, h5py.Group):
                 raise RoadmapError(f"{p}: '/{name}' is not a group")
-            for k in g:
-                d = g[k]
+            datasets = {}
+            for k, d in hdf5.members(g, f"/{name}", p, RoadmapError):
                 if not isinstance(d, h5py.Dataset):
                     raise RoadmapError(f"{p}: '/{name}/{k}' is not a dataset (file damaged or from another tool)")
                 if d.dtype.kind not in "biuf":
@@ -181,13 +184,16 @@ class RoadmapFile:
                 if total > MAX_READ_BYTES:
                     raise RoadmapError(f"{p}: '/{name}/{k}' of shape {d.shape} makes the roadmap larger than "
                                        f"{MAX_READ_BYTES / 2**30:.0f} GiB to read (file damaged)")
-            groups[name] = g
+                used += hdf5.working_bytes(d.shape)
+                if used > hdf5.MAX_WORKING_BYTES:
+                    raise RoadmapError(f"{p}: '/{name}/{k}' of shape {d.shape} makes the roadmap need more than "
+                                       f"{hdf5.MAX_WORKING_BYTES / 2**30:.0f} GiB to check (its elements are checked "
+                                       "as float64, whatever the stored dtype; file damaged)")
+                datasets[k] = d
+            groups[name] = (g, datasets)
         self.stages: dict[str, tuple[dict[str, np.ndarray], dict[str, Any]]] = {}
-        for name, g in groups.items():
-            try:
-                arrays = {k: g[k][()] for k in g.keys()}
-            except (OSError, KeyError, ValueError) as exc:
-                raise RoadmapError(f"{p}: group '/{name}' is unreadable ({short(exc)})") from None
+        for name, (g, datasets) in groups.items():
+            arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}
             self.stages[name] = (arrays, {k: _attribute(p, g.attrs, k, None, f"/{name}") for k in g.attrs})
 
     def has(self, stage: str) -> bool:
@@ -226,9 +232,10 @@ class RoadmapFile:
         return self.stages[stage][0]
 
     def attrs(self, stage: str) -> dict[str, Any]:
-        """The attributes of a stage that is present (values not checked)."""
+        """The attributes of a stage that is present (those firmtool reads checked: type, shape, range)."""
         if stage not in self.stages:
             raise RoadmapError(f"{self.path}: stage '{stage}' is missing; run '{STAGE_COMMANDS[stage]}' first")
+        check_stage_attributes(self.path, stage, self.stages[stage][1])
         return self.stages[stage][1]
 
     def stale_stages(self) -> list[str]:
@@ -296,6 +303,7 @@ def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any,
     variable-length string, whose size HDF5 tells only by reading it; the file's size bounds it)."""
     if key not in attrs:
         return default
+    hdf5.check_attribute_type(attrs, key, where, path, RoadmapError)  # no references or opaque data
     try:
         size = attrs.get_id(key).get_storage_size()
     except (KeyError, OSError, ValueError):
@@ -322,15 +330,17 @@ def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None) -> 
     if there is none. A cache that fails the checks of ``/edges`` (shapes, ranges, counts summing to
     the particles; node ids below ``nodes`` when given) is ignored: it only saves work."""
     try:
-        with h5py.File(readable(path), "r") as f:
-            if CACHE not in f or not isinstance(f[CACHE], h5py.Group):
+        with _open(path) as f:
+            g = hdf5.member(f, CACHE, "/", path, RoadmapError)  # a link or external storage: not read
+            if not isinstance(g, h5py.Group):
                 return {}
-            g = f[CACHE]
-            meta = {k: (g[k].shape, g[k].dtype) for k in g if isinstance(g[k], h5py.Dataset)}
-            if sum(nbytes(shape, dtype) for shape, dtype in meta.values()) > MAX_READ_BYTES:
+            datasets = {k: d for k, d in hdf5.members(g, f"/{CACHE}", path, RoadmapError)
+                        if isinstance(d, h5py.Dataset) and d.dtype.kind in "biuf"}
+            if sum(nbytes(d.shape, d.dtype) for d in datasets.values()) > MAX_READ_BYTES or \
+                    sum(hdf5.working_bytes(d.shape) for d in datasets.values()) > hdf5.MAX_WORKING_BYTES:
                 return {}
-            table = read_table(g)
-    except (OSError, ValueError, KeyError, TypeError):
+            table = {k: d[()] for k, d in datasets.items()}
+    except (OSError, ValueError, KeyError, TypeError):  # RoadmapError included: the cache only saves work
         return {}
     if "key" not in table:
         return {}
@@ -345,6 +355,15 @@ def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None) -> 
     return table
 
 
+def _open(path: str | Path | MemoryFile) -> h5py.File:
+    """``path`` opened read-only: a memory file's bytes, or a regular file (a FIFO or a device is
+    refused before HDF5 opens it, :func:`firmtool.io.hdf5.open_regular`)."""
+    target = as_target(path)
+    if isinstance(target, MemoryFile):
+        return h5py.File(readable(target), "r")
+    return hdf5.open_regular(target, "HDF5 roadmap file", RoadmapError)
+
+
 def is_roadmap_file(path: str | Path | MemoryFile) -> bool:
     """Whether ``path`` is an HDF5 file marked as a firmtool roadmap (any schema version).
 
@@ -353,8 +372,11 @@ def is_roadmap_file(path: str | Path | MemoryFile) -> bool:
     FileBusyError
         Another process holds the file open for writing (HDF5's file lock).
     """
+    target = as_target(path)
+    if not isinstance(target, MemoryFile) and hdf5.regular_file_error(target) is not None:
+        return False  # never open a FIFO or a device
     try:
-        with h5py.File(readable(path), "r") as f:
+        with h5py.File(readable(target), "r") as f:
             return f.attrs.get("encoding-type") == ENCODING_TYPE
     except (OSError, ValueError, KeyError, TypeError) as exc:
         if "unable to lock file" in str(exc):

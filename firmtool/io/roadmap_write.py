@@ -20,8 +20,18 @@ import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import RoadmapError
+from firmtool.io import hdf5
 from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
-from firmtool.io.roadmap_format import CACHE, ENCODING_TYPE, QUERIES, SCHEMA_VERSION, STAGES, read_table, short
+from firmtool.io.roadmap_format import (
+    CACHE,
+    ENCODING_TYPE,
+    MAX_READ_BYTES,
+    QUERIES,
+    SCHEMA_VERSION,
+    STAGES,
+    read_table,
+    short,
+)
 
 
 @contextmanager
@@ -36,21 +46,26 @@ def _atomic_copy(path: Path | MemoryFile, fresh: bool = False) -> Iterator[h5py.
     """
     edited = io.BytesIO()
     if path.exists() and not fresh:
-        try:
-            original = io.BytesIO(path.read_bytes())
+        try:  # a regular file of bounded size (never a FIFO), copied by value: no link or external storage kept
+            original = io.BytesIO(_image(path))
             src = h5py.File(original, "r")
         except OSError as exc:
             raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
         with src, h5py.File(edited, "w") as f:
-            for k, v in src.attrs.items():
-                f.attrs[k] = v
-            for name in src:
-                src.copy(src[name], f, name=name)
+            hdf5.copy_by_value(src, f, "/", path, RoadmapError)
             yield f
     else:
         with h5py.File(edited, "w") as f:
             yield f
     replace_bytes(path, edited.getbuffer())
+
+
+def _image(path: Path | MemoryFile) -> bytes:
+    """The bytes of the file to rewrite: a memory file's own, or a regular file's, at most
+    :data:`~firmtool.io.roadmap_format.MAX_READ_BYTES` (:func:`firmtool.io.hdf5.read_image`)."""
+    if isinstance(path, MemoryFile):
+        return path.read_bytes()
+    return hdf5.read_image(path, MAX_READ_BYTES, "HDF5 roadmap file", RoadmapError)
 
 
 def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int) -> None:
@@ -170,7 +185,8 @@ def write_edge_cache(path: str | Path | MemoryFile, arrays: Mapping[str, np.ndar
         _write_table(f, CACHE, arrays, attrs)
 
 
-def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, keep: tuple[str, ...] = ()) -> None:
+def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str,
+                    keep: tuple[str, ...] = ()) -> None:
     """Store a new scenario text (same seed) in an existing roadmap.
 
     The caller checked which stages stay valid under the new text (``keep``: they are stamped with

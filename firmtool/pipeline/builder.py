@@ -21,6 +21,7 @@ from firmtool.estimation import warmup
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.executors import Workers, default_workers
 from firmtool.graph import reachable_from
+from firmtool.io import arguments
 from firmtool.io.roadmap_file import RoadmapFile, restamp, update_scenario
 from firmtool.pipeline.design import design_into
 from firmtool.pipeline.estimate import estimate_into
@@ -37,7 +38,7 @@ from firmtool.pipeline.restart import check_same_scenario, previous_roadmap, sta
 from firmtool.pipeline.sample import add_nodes_stage, sample_into
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
 from firmtool.pipeline.solve import solve_stage
-from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, in_memory, locked
+from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, in_memory, kept, locked
 from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import BuildReport, ConnectivityReport, DensifyReport, DensifyRound, EstimateReport, FailedEdge
@@ -102,6 +103,10 @@ def build_request(scenario: Scenario | str | Path, output: str | Path | None, *,
         A scenario that is not valid, an output that must not be replaced, a ``p_min`` outside
         (0, 1], a checker that is not callable, workers this machine cannot run, an unknown executor.
     """
+    # each argument of its type first (one line naming it: firmtool.io.arguments); a Scenario is checked by its type
+    arguments.check_build(None if isinstance(scenario, Scenario) else scenario, workers=workers, output=output,
+                          fresh=fresh, p_min=p_min, max_nodes=max_nodes, add_nodes=add_nodes, progress=progress,
+                          checkpoint_seconds=checkpoint_seconds, force=force, validity=validity)
     scenario = as_scenario(scenario)
     checker = as_checker(validity)
     target = in_memory(scenario) if keep_in_memory else check_output(output if output else default_output(scenario),
@@ -144,7 +149,8 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
     validity : a user's vectorised validity checker (:func:`firmtool.problem.build_problem`), used
         by every stage; the roadmap records its identity.
 
-    The output is locked for the whole build (a second writer is refused).
+    The output is locked for the whole build (a second writer is refused), and a build that fails to
+    write (disk full) leaves the file it found as it was (:func:`firmtool.pipeline.target.kept`).
     """
     return build_roadmap(build_request(scenario, output, workers=workers, executor=executor, scheduler=scheduler,
                                        progress=progress, fresh=fresh, p_min=p_min, max_nodes=max_nodes,
@@ -157,7 +163,8 @@ def build_roadmap(request: BuildRequest) -> BuildReport:
     s = request.workers
     # one set of workers for every stage of the build (local processes start on first use, a dask
     # cluster is joined once)
-    with locked(request.target), Workers(s.workers, s.executor, s.scheduler) as session:
+    # kept: a full disk at any write of the build puts back the file it found (firmtool.io.previous)
+    with locked(request.target), kept(request.target), Workers(s.workers, s.executor, s.scheduler) as session:
         # a fresh install: compile the engine while sampling and designing (a user's validity checker
         # runs the numpy engine: nothing to compile)
         if request.validity is None and not warmup.engine_is_cached():

@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 from firmtool.errors import RunFailure
 from firmtool.estimation import warmup
+from firmtool.estimation.budgets import check_roadmap_nodes
 from firmtool.estimation.executors import Workers, parallel_design
 from firmtool.io.roadmap_file import RoadmapFile, write_stage
 from firmtool.pipeline.inputs import controllers_inputs
@@ -47,6 +48,7 @@ def design_into(path: str | RoadmapTarget, validity: Callable | None = None, ses
     problem = problem_of(roadmap, validity)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
+    check_roadmap_nodes(problem, str(path), int(centers.shape[0]))  # the file's node count, not the scenario's
     if session is not None and session.parallel:
         # a fresh install: the background compile does the design's functions first; the workers then
         # load them from the cache instead of each compiling them at once (no-op with a warm cache)

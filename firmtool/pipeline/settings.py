@@ -13,6 +13,7 @@ import dataclasses
 
 from firmtool.errors import InputError
 from firmtool.estimation.budgets import check_workers
+from firmtool.io import arguments
 from firmtool.problem import Problem
 
 # Seconds between checkpoints of the estimate stage (finished edges written to /edge_cache).
@@ -43,9 +44,12 @@ class WorkerSettings:
     requested: bool = False
 
 
-def check_executor(executor: str) -> None:
+def check_executor(executor: str, scheduler: str | None = None) -> None:
+    """Refuse an unknown executor, or a dask scheduler address dask cannot parse (one line naming
+    ``--executor`` or ``--scheduler``, not dask's own error deep inside the first stage)."""
     if executor not in EXECUTORS:
         raise InputError(f"--executor: expected 'process' or 'dask', found {executor!r}")
+    arguments.scheduler_address(scheduler)
 
 
 def worker_settings(workers: int | None, executor: str = "process", scheduler: str | None = None, *,
@@ -64,8 +68,9 @@ def worker_settings(workers: int | None, executor: str = "process", scheduler: s
     ------
     InputError
         A count that is not an integer >= 1, more than this machine's cores allow, or more than its
-        memory holds (:func:`firmtool.estimation.budgets.check_workers`); an unknown executor.
+        memory holds (:func:`firmtool.estimation.budgets.check_workers`); an unknown executor, a
+        scheduler address that is not one (:func:`firmtool.io.arguments.scheduler_address`).
     """
     count = check_workers(default if workers is None else workers, problem)
-    check_executor(executor)
+    check_executor(executor, scheduler)
     return WorkerSettings(workers=count, executor=executor, scheduler=scheduler, requested=workers is not None)

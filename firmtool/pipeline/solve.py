@@ -15,6 +15,7 @@ from firmtool.errors import RunFailure, Unreachable
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.edge_table import edge_costs
 from firmtool.graph import SolveStatus, policy_path, shortest_path_policy, solve_dp, success_probability
+from firmtool.io.consistency import check_unchanged
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, write_stage
 from firmtool.pipeline.inputs import policy_inputs
@@ -98,9 +99,15 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
 
 
-def write_policy(path: str | RoadmapTarget, group: PolicyGroup) -> None:
-    """Store a solved policy as the ``/policy`` group of the roadmap file at ``path`` (atomically)."""
+def write_policy(path: str | RoadmapTarget, group: PolicyGroup, source: RoadmapFile | None = None) -> None:
+    """Store a solved policy as the ``/policy`` group of the roadmap file at ``path`` (atomically).
+
+    ``source``: the roadmap the policy was solved from, read before the writer lock was taken (a
+    policy is written only over the nodes, controllers and edges it came from:
+    :func:`firmtool.io.consistency.check_unchanged`; a roadmap in memory has no other writer)."""
     with locked(path):
+        if source is not None and not isinstance(path, MemoryFile):
+            check_unchanged(path, source, ("nodes", "controllers", "edges"))
         write_stage(path, "policy", group.arrays, group.attrs)
 
 

@@ -2,7 +2,8 @@
 memory (:class:`~firmtool.io.memory_file.MemoryFile`: ``ft.build`` without an output writes nothing).
 
 Every stage takes a :data:`RoadmapTarget` and reads and writes it through :mod:`firmtool.io.roadmap_file`,
-whose functions take either; only the checks and the lock of a file are done here.
+whose functions take either; only the checks, the lock and the kept previous version of a file are
+done here.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 from firmtool.io.atomic import check_target
 from firmtool.io.locking import writer_lock
 from firmtool.io.memory_file import MemoryFile
+from firmtool.io.previous import keeping_previous
 from firmtool.io.roadmap_file import is_roadmap_file
 from firmtool.scenario import Scenario
 
@@ -43,4 +45,16 @@ def locked(target: str | Path | MemoryFile) -> Iterator[None]:
         yield
         return
     with writer_lock(target):
+        yield
+
+
+@contextlib.contextmanager
+def kept(target: str | Path | MemoryFile) -> Iterator[None]:
+    """Keep the roadmap file a command found until the block ends, and put it back if a write of the
+    block fails for a full disk (:func:`firmtool.io.previous.keeping_previous`); a roadmap in memory
+    is never half written (each write replaces its bytes whole)."""
+    if isinstance(target, MemoryFile):
+        yield
+        return
+    with keeping_previous(target):
         yield

@@ -39,6 +39,9 @@ from firmtool.progress import SAMPLE, ProgressCallback, report
 from firmtool.roadmap import membership
 
 SEGMENT_CHECK_SPACING = 0.5  # validity checks per robot radius of workspace motion along a segment
+# Candidates sample_nodes draws at most: this many per node asked for, plus a fixed number (the
+# sampling budget of firmtool.estimation.budgets counts them).
+ATTEMPTS_PER_NODE, MIN_ATTEMPTS = 200, 10_000
 
 
 def sample_nodes(problem: Problem, count: int, rng: np.random.Generator, *,
@@ -57,7 +60,7 @@ def sample_nodes(problem: Problem, count: int, rng: np.random.Generator, *,
     accepted = _Points(d, [] if existing is None else [np.asarray(existing)[:, :d]])
     first_new = accepted.count
     attempts = 0
-    max_attempts = max_attempts or 200 * count + 10_000
+    max_attempts = max_attempts or ATTEMPTS_PER_NODE * count + MIN_ATTEMPTS
     while accepted.count - first_new < count and attempts < max_attempts:
         batch = rng.uniform(lo, hi, size=(256, d))
         attempts += batch.shape[0]

@@ -1,7 +1,8 @@
 """The registry of robots by name (the scenario's ``model.robot``).
 
 Registry: :func:`register` (from Python), the entry-point group ``firmtool.robots`` (a separately
-installed package: ``[project.entry-points."firmtool.robots"] myrobot = "mypkg.robot:MyRobot"``),
+installed package: ``[project.entry-points."firmtool.robots"] myrobot = "mypkg.robot:MyRobot"``; read
+from installed distributions only, :mod:`firmtool.robots.installed`),
 and the built-in ``point``, ``arm`` and ``unicycle``, each registered by its own module of
 firmtool/robots (a new built-in robot is one new module there); :func:`get` looks a name up.
 """
@@ -10,10 +11,10 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
-from importlib import metadata
 from typing import Any
 
 from firmtool.errors import InputError
+from firmtool.robots import installed
 from firmtool.robots.base import Robot
 
 ENTRY_POINT_GROUP = "firmtool.robots"
@@ -65,8 +66,8 @@ def register(name: str, cls: type[Robot], *, replace: bool = False) -> type[Robo
 
 
 def _entry_points() -> dict[str, Any]:
-    try:
-        return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    try:  # installed distributions only, never a folder that is merely on sys.path (firmtool.robots.installed)
+        return installed.entry_points(ENTRY_POINT_GROUP)
     except Exception:  # noqa: BLE001 - a broken installed distribution must not break firmtool
         return {}
 
@@ -81,6 +82,7 @@ def get(name: str) -> type[Robot]:
         return _REGISTERED[name]
     ep = _entry_points().get(name)
     if ep is not None:
+        installed.check_origin(name, ep)  # its module from its distribution, not from the current folder
         try:
             cls = ep.load()
         except Exception as exc:  # noqa: BLE001 - report which package failed, in one line

@@ -14,8 +14,9 @@ import numpy as np
 from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
 from firmtool.geometry.registry import backends_for, get_backend
-from firmtool.geometry.shapes import KIND_FIELD, KINDS, Mesh, Obstacle, obstacle_from_values, read_obj
+from firmtool.geometry.shapes import KIND_FIELD, KINDS, Mesh, Obstacle, obstacle_from_values
 from firmtool.io.limits import MAX_SCENARIO_BYTES, data_limit_error, toml_nesting_error
+from firmtool.io.mesh_file import read_obj, stored_scenario_mesh_path
 from firmtool.io.schema import INVALID, Errors, Field, read_table, read_value, valid
 from firmtool.models import noise
 from firmtool.scenario.fields import (
@@ -263,10 +264,13 @@ def _read_mesh(errors: Errors, prefix: str, values: dict, path: str) -> bool:
             errors.add(f"{prefix}.file", "expected either file or vertices and triangles, not both")
             return False
         p = Path(values["file"])
+        folder = Path(path.rsplit(":scenario_toml", 1)[0]).parent
         if not p.is_absolute():
-            p = Path(path.rsplit(":scenario_toml", 1)[0]).parent / p
+            p = folder / p
         try:
-            values["vertices"], values["triangles"] = read_obj(p)
+            if path.endswith(":scenario_toml"):  # the text a roadmap stores: its meshes only beside the roadmap
+                p = stored_scenario_mesh_path(folder, values["file"])
+            values["vertices"], values["triangles"] = read_obj(p)  # bounded; errors quote no content
         except FileNotFoundError:
             errors.add(f"{prefix}.file", f"no such file {str(p)!r}")
             return False

@@ -1,0 +1,517 @@
+"""The corpus of untrusted inputs (issue 35): roadmaps, scenarios and folders someone else prepared.
+
+Every case is made by code here, in a fresh folder, from the built smoke roadmap or the smoke
+scenario (no binary file is committed): the generator is the corpus. A case names its class, makes
+its files, and says which command opens them and what must come of it: refused (exit 2, one line
+naming the object or field) or handled (exit 0). ``tests/test_untrusted.py`` runs each one in a
+child process with a 20 s timeout, and checks that nothing outside the case's files was read (the
+files a case points at but must not be read are FIFOs: reading one would block until the timeout),
+that no planted code ran (a marker file), and that no file but firmtool's own outputs changed.
+
+Classes (``Case.klass``):
+
+- ``hdf5``: objects stored outside the roadmap (external links, soft links and their cycles, virtual
+  datasets, external storage) and sizes declared far beyond what is stored;
+- ``lock``: the writer lock's sidecar planted as a symlink, a hard link, a FIFO, a folder, another
+  user's file or a file with other content;
+- ``mesh``: a mesh obstacle's side file that is a device, a FIFO, huge, too fine, or holds a secret,
+  in a scenario and in the scenario text a roadmap stores;
+- ``budget``: work far beyond what a build, a design or an execution may take;
+- ``attribute``: stage attributes missing, NaN, arrays, bogus texts;
+- ``option``: command-line values that reach a library call unchecked.
+
+The plugin, argument, stamp and disk-full classes need a process of their own or the API and are
+made in the test module.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import h5py
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "scenarios" / "smoke.toml"
+SECRET = "api_key=sk-live-5f3c9a1e"  # a secret a crafted side file holds: no message may show it
+
+
+@dataclass(frozen=True)
+class Case:
+    """One untrusted input.
+
+    name : unique, for the test id.
+    klass : the class (see the module's docstring).
+    make : ``make(folder, roadmap) -> argv``: writes the case's files into ``folder`` (``roadmap``
+        is a copy of the solved smoke roadmap there, ``folder / "r.h5"``) and returns the firmtool
+        command line that opens them.
+    phrases : what the one error line must hold (the object or field it names); empty for a case
+        that is handled (exit 0).
+    code : the exit code (2 refused, 0 handled).
+    outputs : names in ``folder`` that the command may create or change (firmtool's own outputs).
+    """
+
+    name: str
+    klass: str
+    make: Callable[[Path, Path], list[str]]
+    phrases: tuple[str, ...] = ()
+    code: int = 2
+    outputs: tuple[str, ...] = field(default=(".r.h5.lock",))
+
+
+# -- helpers -----------------------------------------------------------------------------------------
+
+def edit(roadmap: Path, fn: Callable[[h5py.File], None]) -> None:
+    with h5py.File(roadmap, "r+") as f:
+        fn(f)
+
+
+def fifo(folder: Path, name: str) -> Path:
+    """A FIFO nobody writes to: a reader that opens it blocks (the canary of 'nothing outside read')."""
+    path = folder / name
+    os.mkfifo(path)
+    return path
+
+
+def _args(command: str, roadmap: Path) -> list[str]:
+    return [command, str(roadmap)] + (["-n", "2"] if command == "execute" else [])
+
+
+def external_link(stage: str, command: str, phrase: str | None = None) -> Case:
+    """``/stage`` (or a dataset) replaced by an external link into a FIFO posing as an HDF5 file."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        target = fifo(folder, "other.h5")
+        edit(roadmap, lambda f: (f.__delitem__(stage), f.__setitem__(stage, h5py.ExternalLink(str(target), "/x"))))
+        return _args(command, roadmap)
+    return Case(f"external_link_{stage.replace('/', '_')}_{command}", "hdf5", make,
+                (f"'/{stage}' is an external link", phrase or "stored in the file itself"))
+
+
+def soft_link(stage: str, to: str, command: str) -> Case:
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        def fn(f: h5py.File) -> None:
+            if to != stage and to not in f:
+                f.copy(f[stage], to)
+            del f[stage]
+            f[stage] = h5py.SoftLink(f"/{to}")
+        edit(roadmap, fn)
+        return _args(command, roadmap)
+    kind = "cycle" if to == stage else "link"
+    return Case(f"soft_{kind}_{stage.replace('/', '_')}_{command}", "hdf5", make, (f"'/{stage}' is a soft link",))
+
+
+def external_storage(dataset: str, target: str, command: str) -> Case:
+    """A dataset whose raw bytes are stored in another file (``external=``): a FIFO, a device or a
+    file of the system."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        where = str(fifo(folder, "storage")) if target == "fifo" else target
+
+        def fn(f: h5py.File) -> None:
+            old = f[dataset]
+            shape, dtype = old.shape, old.dtype
+            del f[dataset]
+            size = int(np.prod(shape)) * dtype.itemsize
+            f.create_dataset(dataset, shape=shape, dtype=dtype, external=[(where, 0, size)])
+        edit(roadmap, fn)
+        return _args(command, roadmap)
+    label = target.strip("/").replace("/", "_")
+    return Case(f"external_storage_{dataset.replace('/', '_')}_{label}_{command}", "hdf5", make,
+                (f"'/{dataset}' keeps its data in external storage",))
+
+
+def virtual_dataset(dataset: str, command: str) -> Case:
+    """A virtual dataset mapping a dataset of another file (a FIFO posing as one)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        source = fifo(folder, "source.h5")
+
+        def fn(f: h5py.File) -> None:
+            old = f[dataset]
+            layout = h5py.VirtualLayout(shape=old.shape, dtype=old.dtype)
+            layout[...] = h5py.VirtualSource(str(source), "data", shape=old.shape, dtype=old.dtype)
+            del f[dataset]
+            f.create_virtual_dataset(dataset, layout)
+        edit(roadmap, fn)
+        return _args(command, roadmap)
+    return Case(f"virtual_{dataset.replace('/', '_')}_{command}", "hdf5", make, (f"'/{dataset}' is a virtual dataset",))
+
+
+def huge_declared(dataset: str, shape: tuple[int, ...], dtype: str, command: str, phrase: str) -> Case:
+    """A dataset declared huge but never written (chunked, compressed: a file of kilobytes)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        def fn(f: h5py.File) -> None:
+            if dataset in f:
+                del f[dataset]
+            f.create_dataset(dataset, shape=shape, dtype=dtype, chunks=(min(shape[0], 2**20),) + shape[1:],
+                             compression="gzip", fillvalue=0)
+        edit(roadmap, fn)
+        return _args(command, roadmap)
+    return Case(f"huge_{dataset.replace('/', '_')}_{dtype}_{command}", "hdf5", make, (f"'/{dataset}'", phrase))
+
+
+def reference_attribute(command: str) -> Case:
+    """A root attribute holding an object reference (what another file's reader might follow)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        edit(roadmap, lambda f: f.attrs.__setitem__("created", f["nodes"].ref))
+        return _args(command, roadmap)
+    return Case(f"reference_attribute_{command}", "hdf5", make, ("attribute 'created' of '/'", "not numbers or text"))
+
+
+def roadmap_is_fifo(command: str) -> Case:
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        roadmap.unlink()
+        fifo(folder, roadmap.name)
+        return _args(command, roadmap)
+    return Case(f"roadmap_is_a_fifo_{command}", "hdf5", make, ("not a regular file",))
+
+
+def cache_link(command: str, code: int, phrase: tuple[str, ...]) -> Case:
+    """An external link in the optional ``/edge_cache``: a reader ignores it (it only saves work),
+    a rewrite refuses to carry it over."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        target = fifo(folder, "cache.h5")
+
+        def fn(f: h5py.File) -> None:
+            if "edge_cache" in f:
+                del f["edge_cache"]
+            f["edge_cache"] = h5py.ExternalLink(str(target), "/edges")
+        edit(roadmap, fn)
+        return _args(command, roadmap)
+    return Case(f"external_link_edge_cache_{command}", "hdf5", make, phrase, code=code)
+
+
+def foreign_group_link(command: str) -> Case:
+    """A group firmtool does not know, holding an external link: a rewrite would copy it."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        target = fifo(folder, "notes.h5")
+
+        def fn(f: h5py.File) -> None:
+            g = f.create_group("notes")
+            g["more"] = h5py.ExternalLink(str(target), "/x")
+        edit(roadmap, fn)
+        return [command, str(roadmap), "--failure-cost", "50"]
+    return Case(f"foreign_group_external_link_{command}", "hdf5", make, ("'/notes/more' is an external link",))
+
+
+def foreign_group(kind: str, command: str, phrase: str) -> Case:
+    """A group firmtool does not know (a rewrite copies it): too many members, or datasets each within
+    the bound but too large together (declared, never written: a small file)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        def fn(f: h5py.File) -> None:
+            g = f.create_group("notes")
+            if kind == "members":
+                for i in range(300):
+                    g[f"n{i}"] = np.zeros(1)
+            else:
+                for name in ("a", "b"):
+                    g.create_dataset(name, shape=(2**27,), dtype="f8", chunks=(2**20,), compression="gzip")
+        edit(roadmap, fn)
+        return [command, str(roadmap), "--failure-cost", "50"]
+    return Case(f"foreign_group_{kind}_{command}", "hdf5", make, ("'/notes", phrase))
+
+
+def hdf5_cases() -> list[Case]:
+    cases = [external_link(stage, command) for stage, command in
+             (("edges", "inspect"), ("edges", "solve"), ("nodes", "design"), ("policy", "execute"),
+              ("controllers", "estimate"), ("edges/key", "inspect"), ("nodes/centers", "solve"))]
+    cases += [soft_link("policy", "policy", "execute"), soft_link("policy", "policy", "inspect"),
+              soft_link("edges", "edges_copy", "solve"), soft_link("nodes/centers", "centers_copy", "inspect")]
+    cases += [external_storage("edges/key", "/etc/passwd", "solve"), external_storage("edges/key", "fifo", "inspect"),
+              external_storage("nodes/centers", "/dev/zero", "execute"),
+              external_storage("edges/cost_mean", "fifo", "estimate"),
+              external_storage("policy/edge", "/etc/hostname", "execute")]
+    cases += [virtual_dataset("nodes/centers", "inspect"), virtual_dataset("edges/outcome_count", "solve")]
+    cases += [huge_declared("nodes/centers", (2**26, 12), "i1", "inspect", "to check"),
+              huge_declared("edges/extra", (3 * 2**28,), "i1", "solve", "to check"),
+              huge_declared("policy/extra", (2**31,), "f8", "execute", "to read")]
+    cases += [reference_attribute("inspect"), reference_attribute("solve")]
+    cases += [roadmap_is_fifo(c) for c in ("inspect", "execute", "solve", "design", "estimate", "plot")]
+    cases += [cache_link("inspect", 0, ()), cache_link("solve", 2, ("'/edge_cache' is an external link",)),
+              foreign_group_link("solve"), foreign_group("members", "solve", "more than 256 members"),
+              foreign_group("large", "solve", "too large to copy")]
+    return cases
+
+
+# -- the writer lock -------------------------------------------------------------------------------------
+
+IMPORTANT = "important.txt"
+
+
+def lock(kind: str, command: str = "solve") -> Case:
+    """The lock sidecar ``.r.h5.lock`` planted before a writer runs."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        important = folder / IMPORTANT
+        important.write_text("the user's own data\n")
+        lp = folder / ".r.h5.lock"
+        if kind == "symlink":
+            lp.symlink_to(important)
+        elif kind == "dangling_symlink":
+            lp.symlink_to(folder / "created_through_the_link")
+        elif kind == "hard_link":
+            os.link(important, lp)
+        elif kind == "fifo":
+            os.mkfifo(lp)
+        elif kind == "folder":
+            lp.mkdir()
+        elif kind == "other_user":
+            lp.write_text("")
+            os.chown(lp, 65534, 65534)  # needs root: the test skips this case otherwise
+        elif kind == "other_content":
+            lp.write_text(SECRET + "\n")
+        elif kind == "stale_pid":
+            lp.write_text("999999\n")
+        if command == "sample":
+            return ["sample", str(SMOKE), "-o", str(roadmap)]
+        return [command, str(roadmap)] + (["--failure-cost", "50"] if command == "solve" else [])
+    why = {"symlink": "is a symbolic link", "dangling_symlink": "is a symbolic link", "hard_link": "has other names",
+           "fifo": "is not a regular file", "folder": "is a folder", "other_user": "belongs to another user",
+           "other_content": "holds something other than a process id"}
+    if kind == "stale_pid":  # a lock file of ours left by a process that is gone: used, not refused
+        return Case(f"lock_{kind}_{command}", "lock", make, (), code=0, outputs=(".r.h5.lock", "r.h5"))
+    return Case(f"lock_{kind}_{command}", "lock", make, (".r.h5.lock", why[kind]), outputs=())
+
+
+def lock_cases() -> list[Case]:
+    cases = [lock(kind) for kind in ("symlink", "dangling_symlink", "hard_link", "fifo", "folder", "other_user",
+                                     "other_content", "stale_pid")]
+    cases += [lock("symlink", command) for command in ("design", "estimate", "sample")]
+    return cases
+
+
+# -- mesh side files -------------------------------------------------------------------------------------
+
+ROOM = """[scenario]
+name = "room"
+[model]
+robot = "point"
+dynamics = "double_integrator"
+dt = 0.1
+process_noise_std = 0.05
+[measurement]
+kind = "perfect"
+[world]
+bounds = [[0.0, 0.0, 0.0], [6.0, 5.0, 4.0]]
+robot_radius = 0.2
+collision_backend = "fcl"
+obstacles = [ {{ kind = "mesh", file = "{file}" }} ]
+[task]
+start = [1.0, 1.0, 1.0]
+goal = [5.0, 1.0, 2.0]
+[roadmap]
+nodes = 5
+"""
+CUBE = ("v 2 2 2\nv 3 2 2\nv 3 3 2\nv 2 3 2\nv 2 2 3\nv 3 2 3\nv 3 3 3\nv 2 3 3\n"
+        "f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8\n")
+
+
+def _mesh_file(folder: Path, kind: str) -> str:
+    """The mesh file of a case, made in ``folder``; returns the name the scenario gives."""
+    if kind in ("/dev/zero", "/dev/urandom", "/etc/passwd"):
+        return kind
+    path = folder / "mesh.obj"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "folder":
+        path.mkdir()
+    elif kind == "too_large":
+        with open(path, "wb") as fh:  # sparse: 17 MiB declared, nothing stored
+            fh.truncate(17 * 2**20)
+    elif kind == "too_many_vertices":
+        path.write_text("v 0 0 0\n" * 100_001 + "f 1 2 3\n")
+    elif kind == "too_many_triangles":
+        path.write_text("v 2 2 2\nv 3 2 2\nv 3 3 2\n" + "f 1 2 3\n" * 200_001)
+    elif kind == "secret":
+        path.write_text(CUBE + f"v {SECRET} 0 0\n")
+    elif kind == "secret_face":
+        path.write_text(CUBE + f"f {SECRET} 1 2\n")
+    elif kind == "binary":
+        path.write_bytes(b"v 0 0 0\n\xff\xfe\x00" + SECRET.encode())
+    elif kind == "link_outside":
+        path.symlink_to("/etc/passwd")
+    elif kind == "good":
+        path.write_text(CUBE)
+    return path.name
+
+
+def mesh(kind: str, phrase: str) -> Case:
+    """A scenario whose mesh obstacle names a side file of ``kind``; ``firmtool check`` opens it."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        scenario = folder / "room.toml"
+        scenario.write_text(ROOM.format(file=_mesh_file(folder, kind)))
+        return ["check", str(scenario)]
+    return Case(f"mesh_{kind.strip('/').replace('/', '_')}", "mesh", make, ("world.obstacles[0].file", phrase))
+
+
+def stored_mesh(kind: str, name: str | None, phrase: str) -> Case:
+    """The scenario text stored in a roadmap names a mesh file (``inspect`` parses it first)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        file = name if name is not None else _mesh_file(folder, kind)
+        text = ROOM.format(file=file)
+
+        def fn(f: h5py.File) -> None:
+            f.attrs["scenario_toml"] = text
+            f.attrs["scenario_sha256"] = hashlib.sha256(text.encode()).hexdigest()
+        edit(roadmap, fn)
+        return ["inspect", str(roadmap)]
+    return Case(f"stored_mesh_{kind}", "mesh", make, ("scenario_toml: world.obstacles[0].file", phrase))
+
+
+def mesh_cases() -> list[Case]:
+    cases = [mesh("/dev/zero", "found a character device"), mesh("/dev/urandom", "found a character device"),
+             mesh("fifo", "found a FIFO"), mesh("folder", "it is a directory"),
+             mesh("too_large", "at most 16 MiB"), mesh("too_many_vertices", "at most 100000 vertices"),
+             mesh("too_many_triangles", "at most 200000 triangles"), mesh("secret", "line 21"),
+             mesh("secret_face", "line 21"), mesh("binary", "not UTF-8")]
+    cases += [stored_mesh("absolute", "/etc/passwd", "only inside the roadmap's folder"),
+              stored_mesh("device", "/dev/zero", "only inside the roadmap's folder"),
+              stored_mesh("parent", "../secret.obj", "only inside the roadmap's folder"),
+              stored_mesh("link_outside", None, "leads outside it through a link"),
+              stored_mesh("fifo", None, "found a FIFO")]
+    return cases
+
+
+# -- budgets ---------------------------------------------------------------------------------------------
+
+def scenario_text(**replace: str) -> str:
+    text = SMOKE.read_text()
+    for old, new in replace.items():
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
+
+
+def scenario_case(name: str, klass: str, text: str, command: str, phrases: tuple[str, ...]) -> Case:
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        path = folder / f"{name}.toml"
+        path.write_text(text)
+        return [command, str(path)] + (["-o", str(folder / "out.h5")] if command in ("build", "sample") else [])
+    return Case(name, klass, make, phrases, outputs=(".out.h5.lock",))
+
+
+def many_nodes_file(count: int) -> Callable[[Path, Path], list[str]]:
+    """The roadmap with ``count`` valid sampled nodes and no later stage: ``design`` opens it."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        rng = np.random.default_rng(0)
+        # the smoke world: 4 x 3 with one box at (2.0, 1.2) half size (0.3, 0.7), robot radius 0.08
+        pts = rng.uniform([0.1, 0.1], [3.9, 2.9], size=(2 * count, 2))
+        clear = (np.abs(pts[:, 0] - 2.0) > 0.45) | (np.abs(pts[:, 1] - 1.2) > 0.85)
+        pts = pts[clear][:count]
+
+        def fn(f: h5py.File) -> None:
+            centers, kind = f["nodes/centers"][()], f["nodes/kind"][()]
+            for stage in ("policy", "edges", "controllers", "edge_cache"):
+                if stage in f:
+                    del f[stage]
+            del f["nodes/centers"], f["nodes/kind"]
+            f["nodes/centers"] = np.concatenate([centers[:2], pts])
+            f["nodes/kind"] = np.concatenate([kind[:2], np.zeros(pts.shape[0], dtype=kind.dtype)])
+        edit(roadmap, fn)
+        return ["design", str(roadmap)]
+    return make
+
+
+def budget_cases() -> list[Case]:
+    return [
+        scenario_case("nodes_200000_one_particle", "budget",
+                      scenario_text(**{"nodes = 10": "nodes = 200000", "particles = 100": "particles = 1"}), "check",
+                      ("roadmap.nodes", "expected at most 58 nodes")),
+        scenario_case("nodes_300000_no_separation", "budget",
+                      scenario_text(**{"nodes = 10": "nodes = 300000", "min_separation = 0.6": "min_separation = 0.0",
+                                       "particles = 100": "particles = 1"}), "check",
+                      ("roadmap.nodes", "sampling and designing 300000 nodes")),
+        scenario_case("nodes_200000_build", "budget",
+                      scenario_text(**{"nodes = 10": "nodes = 200000", "particles = 100": "particles = 1"}), "build",
+                      ("roadmap.nodes",)),
+        scenario_case("dt_1e12", "budget", scenario_text(**{"dt = 0.1": "dt = 1e12"}), "check", ("model.dt",)),
+        scenario_case("dt_1e12_build", "budget", scenario_text(**{"dt = 0.1": "dt = 1e12"}), "build", ("model.dt",)),
+        scenario_case("dt_10", "budget", scenario_text(**{"dt = 0.1": "dt = 10.0"}), "check", ("model.dt",)),
+        Case("roadmap_file_of_1e6_nodes", "budget", many_nodes_file(10**6), ("'/nodes/centers' holds", "nodes")),
+        Case("push_1e7", "budget", lambda folder, roadmap: ["execute", str(roadmap), "-n", "2", "-d", "push:10:1e7"],
+             ("--disturbance", "SIZE")),
+        Case("push_1e20", "budget", lambda folder, roadmap: ["execute", str(roadmap), "-n", "2", "-d", "push:10:1e20"],
+             ("--disturbance", "SIZE")),
+        Case("push_random_1e7", "budget",
+             lambda folder, roadmap: ["execute", str(roadmap), "-n", "2", "-d", "push:random:1e7:0.5"],
+             ("--disturbance", "SIZE")),
+        Case("push_1e7_no_replan", "budget", lambda folder, roadmap: ["execute", str(roadmap), "-n", "1", "--no-replan",
+                                                                 "-d", "push:0:1e7"], ("--disturbance",)),
+    ]
+
+
+# -- stage attributes ------------------------------------------------------------------------------------
+
+def attribute(group: str, key: str, value: object, command: str = "inspect") -> Case:
+    """An attribute of ``group`` set to ``value`` (None: deleted)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        def fn(f: h5py.File) -> None:
+            attrs = f[group].attrs if group != "/" else f.attrs
+            if value is None:
+                del attrs[key]
+            else:
+                attrs[key] = value
+        edit(roadmap, fn)
+        return _args(command, roadmap)
+    label = "missing" if value is None else type(value).__name__ if not isinstance(value, float) else repr(value)
+    where = f"'/{group.strip('/')}'" if group != "/" else "'/'"
+    return Case(f"attr_{group.strip('/') or 'root'}_{key}_{label}_{command}".replace(".", "_"), "attribute", make,
+                (f"attribute '{key}' of {where}",))
+
+
+def attribute_cases() -> list[Case]:
+    nan, arr = float("nan"), np.arange(3)
+    return [
+        attribute("policy", "status", None, "execute"), attribute("policy", "status", "BOGUS", "execute"),
+        attribute("policy", "status", nan), attribute("policy", "status", arr, "execute"),
+        attribute("policy", "iterations", None, "execute"), attribute("policy", "iterations", nan),
+        attribute("policy", "iterations", -1), attribute("policy", "iterations", arr),
+        attribute("policy", "iterations", "many", "execute"), attribute("policy", "iterations", 2.5),
+        attribute("policy", "residual", None, "execute"), attribute("policy", "residual", "small"),
+        attribute("policy", "residual", nan, "execute"), attribute("policy", "residual", -1.0),
+        attribute("policy", "method", None, "execute"), attribute("policy", "method", "newton"),
+        attribute("policy", "method", 5), attribute("policy", "failure_cost", None, "execute"),
+        attribute("policy", "failure_cost", "100"), attribute("policy", "interval_samples", 0),
+        attribute("nodes", "densify_rounds", nan), attribute("nodes", "densify_rounds", arr),
+        attribute("nodes", "densify_rounds", "two"), attribute("nodes", "densify_rounds", -1, "solve"),
+        attribute("nodes", "connect_budget", nan), attribute("nodes", "connect_budget", "x", "execute"),
+        attribute("nodes", "connect_added", -1), attribute("nodes", "connect_stop_reason", 5),
+        attribute("nodes", "validity_checker", arr, "solve"), attribute("nodes", "goals", "x"),
+        attribute("edges", "inputs_sha256", None, "solve"), attribute("edges", "inputs_sha256", 5, "solve"),
+        attribute("edges", "inputs_sha256", arr), attribute("edges", "seed", -1),
+        attribute("edges", "failed_edges", "x"), attribute("controllers", "node_radius", "wide"),
+        attribute("controllers", "node_radius", -1.0, "execute"), attribute("controllers", "covariance_tolerance", nan),
+        attribute("nodes", "scenario_sha256", arr, "execute"), attribute("/", "created", arr),
+        attribute("/", "firmtool_version", 7, "solve"),
+    ]
+
+
+# -- options ---------------------------------------------------------------------------------------------
+
+def option_cases() -> list[Case]:
+    return [
+        Case("scheduler_not_a_url_estimate", "option",
+             lambda folder, roadmap: ["estimate", str(roadmap), "--executor", "dask", "--scheduler", "not a url"],
+             ("--scheduler", "not a url")),
+        Case("scheduler_port_out_of_range_build", "option",
+             lambda folder, roadmap: ["build", str(SMOKE), "-o", str(folder / "b.h5"), "--executor", "dask",
+                                      "--scheduler", "tcp://host:99999"], ("--scheduler",)),
+    ]
+
+
+def cli_cases() -> list[Case]:
+    """Every case run through the command line in a child process."""
+    cases = hdf5_cases() + lock_cases() + mesh_cases() + budget_cases() + attribute_cases() + option_cases()
+    names = [c.name for c in cases]
+    assert len(set(names)) == len(names), sorted(n for n in names if names.count(n) > 1)
+    return cases
+
+
+def prepare(folder: Path, solved: Path) -> Path:
+    """``folder`` with a copy of the solved smoke roadmap as ``r.h5``; returns its path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    roadmap = folder / "r.h5"
+    shutil.copyfile(solved, roadmap)
+    return roadmap
