@@ -35,11 +35,14 @@ from pathlib import Path
 
 import typer
 
-from firmtool.cli import app
-from firmtool.scenario.docs import md_escape, reference_markdown, template
-
 DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
+# The checkout documents itself, even where another version of firmtool is installed (as docs/conf.py).
+sys.path.insert(0, str(ROOT))
+
+from firmtool.cli import app  # noqa: E402
+from firmtool.scenario.docs import md_escape, reference_markdown, template  # noqa: E402
+
 BLOCK = re.compile(r"(<!-- generated: (?P<spec>[^\n]*?) -->\n)(?P<body>.*?)(<!-- end generated -->)", re.S)
 
 
