@@ -2,12 +2,15 @@
 
 Build (warnings are errors, as in CI)::
 
-    pip install -e '.[docs]'
+    pip install '.[docs]'
+    python docs/generate.py
     sphinx-build -W -b html docs docs/_build/html
 
-Pages are Markdown (MyST); the API reference comes from the numpydoc docstrings (autodoc), the
-scenario reference and the command pages from firmtool's own schema and command line
-(``docs/_ext/firmtool_docs.py``), so that neither can drift from the code.
+Pages are Markdown (MyST); the API reference comes from the numpydoc docstrings (autodoc,
+``docs/_ext/firmtool_docs.py``); the scenario reference, the command pages and the other generated
+parts are written into the committed pages from firmtool's own schema and command line by
+``docs/generate.py`` (checked current by tests/test_generated_docs.py), so that none can drift from
+the code and all read on the repository page too.
 """
 
 from __future__ import annotations

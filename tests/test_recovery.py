@@ -77,8 +77,8 @@ def test_a_sweep_is_the_same_for_any_number_of_workers(smoke):
 def test_the_oracle_relocalises_right_after_the_disturbance(smoke):
     """In the sweep's oracle mode the policy is re-localised at the true state right after the step the
     push hit (a decision at that step), with the true state as its estimate."""
-    from firmtool.sim.disturbances import as_disturbances
     from firmtool.sim import SimulatedSystem, episode_seeds, run_episode
+    from firmtool.sim.disturbances import as_disturbances
     from firmtool.sim.sweep import oracle
 
     policy, system = Policy(smoke), SimulatedSystem(smoke.roadmap.problem)
@@ -152,7 +152,8 @@ def test_a_questioned_goal_arrival_waits_and_changes_nothing_else(smoke):
     """Pushes a few steps before the typical arrival, 40 episodes on common random numbers, with the
     goal check (the default, ``goal_check=0.1``) and without (0). An episode whose arrival the jump test never
     questions is the same episode either way; a questioned one declares no goal at that step.
-    (What the wait buys is measured in docs/online.md: smoke's goal is lit, its misses few.)"""
+    (What the wait buys is measured in benchmarks/README.md, "The online policy: measurements": smoke's
+    goal is lit, its misses few.)"""
     plain = ft.simulate(smoke, 20, 0, record=False)
     at = int(np.median([ep.steps for ep in plain.episodes])) - 4
     spec = [f"push:{at}:1.0"]
