@@ -83,7 +83,7 @@ FIGURES: tuple[DocFigure, ...] = (
     DocFigure("platt_lightdark.png",
               "Platt et al.'s light-dark problem: FIRM localises in the light, then goes to the goal",
               _roadmap("platt_lightdark") + (
-                  f"firmtool plot {ARTIFACTS}/platt_lightdark.h5 --episodes 100 --dpi 70 --force "
+                  f"firmtool plot {ARTIFACTS}/platt_lightdark.h5 --episodes 100 --dpi 64 --force "
                   f"-o {FIGURES_DIR}/platt_lightdark.png",)),
     DocFigure("custom_robot_3d.png",
               "a robot of your own (examples/custom_robot_3d.py): a 3-D flyer seen from above",
