@@ -7,9 +7,9 @@ import importlib.util
 import sys
 
 import pytest
+from conftest import ROOT
 from PIL import Image
 
-from conftest import ROOT
 from firmtool.estimation.edge_table import ENGINE_VERSION
 from firmtool.scenario import load_scenario
 
