@@ -387,23 +387,25 @@ def figure_format(path: str | Path) -> str:
     return fmt
 
 
-def _is_firmtool_png(head: bytes) -> bool:
-    """Whether a PNG's ``Software`` text (before its image data) names firmtool."""
-    if not head.startswith(_PNG_SIGNATURE):
-        return False
-    pos = len(_PNG_SIGNATURE)
-    while pos + 8 <= len(head):
-        length, kind = struct.unpack(">I4s", head[pos:pos + 8])
+def png_text(data: bytes) -> dict[str, str]:
+    """The tEXt chunks (keyword -> text) of a PNG's bytes before its image data (where matplotlib
+    writes them): the ``Software`` mark and a figure's provenance (:func:`figure_provenance`). Empty
+    for bytes that are not a PNG."""
+    if not data.startswith(_PNG_SIGNATURE):
+        return {}
+    out, pos = {}, len(_PNG_SIGNATURE)
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
         if kind == b"IDAT":
-            return False
-        data = head[pos + 8:pos + 8 + length]
-        if kind == b"tEXt" and data.startswith(b"Software\x00") and data[9:].startswith(b"firmtool"):
-            return True
+            break
+        if kind == b"tEXt":
+            key, _, value = data[pos + 8:pos + 8 + length].partition(b"\x00")
+            out[key.decode("latin-1")] = value.decode("latin-1")
         pos += 12 + length
-    return False
+    return out
 
 
-def is_firmtool_png(path: str | Path) -> bool:
+def is_firmtool_figure(path: str | Path) -> bool:
     """Whether ``path`` is a figure firmtool wrote (so that it may replace it): a PNG whose
     ``Software`` text names firmtool, a PDF whose ``Creator`` does, or an SVG whose creator does."""
     try:
@@ -419,14 +421,14 @@ def is_firmtool_png(path: str | Path) -> bool:
         return b"/Creator (firmtool" in tail
     if head.lstrip().startswith(b"<?xml") or b"<svg" in head[:4096]:
         return b"<dc:title>firmtool" in head
-    return _is_firmtool_png(head)
+    return png_text(head).get("Software", "").startswith("firmtool")
 
 
 def check_output(path: str | Path, force: bool = False) -> Path:
     """Refuse a figure output path whose extension is not .png, .pdf or .svg, one that is not a
     firmtool figure (unless ``force``), a folder, a device, or lies under a file
     (:func:`firmtool.io.atomic.check_target`)."""
-    checked = check_target(path, "figure", is_firmtool_png, force)
+    checked = check_target(path, "figure", is_firmtool_figure, force)
     figure_format(path)
     return checked
 

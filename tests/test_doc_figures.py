@@ -4,32 +4,14 @@ which must match the shipped scenario and this engine. A change that moves the n
 version, an edited scenario) fails here until `python docs/make_figures.py` has redrawn them."""
 
 import importlib.util
-import struct
 import sys
 
 import pytest
 from conftest import ROOT
 
 from firmtool.estimation.edge_table import ENGINE_VERSION
+from firmtool.figures import png_text
 from firmtool.scenario import load_scenario
-
-
-def png_text(path) -> dict[str, str]:
-    """The tEXt chunks of a PNG (keyword -> text), read by the format's own layout: length, type,
-    data, CRC; they come before the image data."""
-    data = path.read_bytes()
-    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path}: not a PNG"
-    out, pos = {}, 8
-    while pos + 8 <= len(data):
-        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
-        if kind == b"IDAT":
-            break
-        if kind == b"tEXt":
-            key, _, value = data[pos + 8:pos + 8 + length].partition(b"\x00")
-            out[key.decode("latin-1")] = value.decode("latin-1")
-        pos += 12 + length
-    return out
-
 
 spec = importlib.util.spec_from_file_location("make_figures", ROOT / "docs" / "make_figures.py")
 make_figures = importlib.util.module_from_spec(spec)
@@ -40,7 +22,7 @@ PLOTTED = [f for f in make_figures.FIGURES if f.command.startswith("firmtool plo
 
 @pytest.mark.parametrize("figure", PLOTTED, ids=[f.file for f in PLOTTED])
 def test_a_docs_figure_was_drawn_from_the_shipped_scenario_by_this_engine(figure):
-    text = png_text(ROOT / "docs" / "figures" / figure.file)
+    text = png_text((ROOT / "docs" / "figures" / figure.file).read_bytes())
     name = text.get("firmtool:scenario")
     assert name, f"{figure.file}: no provenance; redraw it: python docs/make_figures.py {figure.file[:-4]}"
     shipped = load_scenario(ROOT / "scenarios" / f"{name}.toml")
@@ -59,7 +41,7 @@ def test_provenance_is_written_by_plot(smoke_roadmap, tmp_path):
     r = CliRunner().invoke(app, ["plot", str(smoke_roadmap[0]), "-o", str(out), "--episodes", "2", "--seed", "3",
                                  "--dpi", "40"])
     assert r.exit_code == 0, r.output
-    text = png_text(out)
+    text = png_text(out.read_bytes())
     assert text["firmtool:scenario"] == "smoke" and text["firmtool:engine_version"] == str(ENGINE_VERSION)
     assert text["firmtool:scenario_sha256"] == load_scenario(ROOT / "scenarios" / "smoke.toml").sha256
     assert text["firmtool:episodes"] == "2 episodes, seed 3"
