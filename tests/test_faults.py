@@ -309,6 +309,11 @@ def test_sigint_at_random_moments_gives_one_line_and_130(tmp_path):
             # ended by the signal itself: before the interpreter installed its handler, or after it
             # removed it at exit (the command done); nothing printed, nothing half-written (checked below)
             outcomes.append("killed by SIGINT outside Python")
+        elif (not after_lock and "Fatal Python error: init_" in err and p.returncode in (1, -signal.SIGABRT)
+              and not _frames_in_package(err)):
+            # the interpreter itself failed to start (the signal came while it set up its own streams,
+            # "init_sys_streams"): no line of firmtool had run; Python reports a fatal error of its own
+            outcomes.append("interpreter start-up (Python's fatal error)")
         elif "KeyboardInterrupt" in err and p.returncode in (1, -signal.SIGINT):
             # the interpreter was still starting: firmtool's code had not run beyond the import of the
             # entry point, which installs the handler (module-level frames of these files only; the
