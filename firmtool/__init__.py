@@ -66,6 +66,7 @@ _EXPORTS = {
     "NumericalError": "firmtool.errors",
     "RunFailure": "firmtool.errors",
     "Unreachable": "firmtool.errors",
+    "StaleScenarioWarning": "firmtool.errors",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
@@ -73,7 +74,7 @@ __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
     from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
     from firmtool.errors import (FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError,
-                                 Unreachable)
+                                 StaleScenarioWarning, Unreachable)
     from firmtool.figures import plot
     from firmtool.graph import SolveStatus
     from firmtool.online.policy import Policy, PolicyStatus

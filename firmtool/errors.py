@@ -72,3 +72,9 @@ class Unreachable(RunFailure):
 class WriteFailure(RunFailure):
     """Writing an output failed in the environment (disk full, quota, I/O error); the previous file
     is intact and no temporary file is left (exit code 1)."""
+
+
+class StaleScenarioWarning(UserWarning):
+    """A roadmap's scenario file was modified after the roadmap was built from it: the roadmap (and
+    its policy) may hold the old plan (:func:`firmtool.open_roadmap` warns; the commands print it as
+    one ``warning:`` line)."""

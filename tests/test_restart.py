@@ -84,3 +84,46 @@ def test_a_scenario_where_a_roadmap_is_expected_and_the_reverse_say_so(tmp_path)
     res = runner.invoke(app, ["solve", str(junk)])
     # neither: the roadmap reader's own one line, not a guess
     assert res.exit_code == 2 and str(junk) in res.output and "scenario file" not in res.output
+
+
+def test_solve_execute_and_plot_warn_when_the_scenario_was_edited_after_the_build(tmp_path):
+    """Issue 42, 2: after editing the scenario TOML, solve/execute/plot ran the OLD plan without a
+    word. The roadmap remembers its scenario file by path and stat; the commands print one
+    ``warning:`` line when the file changed since, ft.open_roadmap a StaleScenarioWarning; a rebuild
+    renews the record."""
+    import os
+    import warnings
+
+    import pytest
+
+    import firmtool as ft
+
+    room = _scenario(tmp_path, "room")
+    out = tmp_path / "room.h5"
+    assert runner.invoke(app, ["build", str(room), "-o", str(out), "--workers", "1"]).exit_code == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ft.StaleScenarioWarning)
+        ft.open_roadmap(out)  # untouched: no warning
+    solved = runner.invoke(app, ["solve", str(out)])
+    assert solved.exit_code == 0 and "warning:" not in solved.output, solved.output
+
+    room.write_text(room.read_text() + "\n# edited\n")
+    for command in (["solve", str(out)], ["execute", str(out), "-n", "2"],
+                    ["plot", str(out), "-n", "0", "-o", str(tmp_path / "f.png"), "--force"]):
+        res = runner.invoke(app, command)
+        assert res.exit_code == 0, (command, res.output)
+        lines = [ln for ln in res.stderr.splitlines() if ln.startswith("warning:")]
+        assert len(lines) == 1, (command, res.stderr)
+        assert f"the scenario {room.resolve()} was modified after this roadmap was built" in lines[0]
+        assert f"firmtool build {room.resolve()} -o {out}" in lines[0]
+    with pytest.warns(ft.StaleScenarioWarning, match="was modified after this roadmap was built"):
+        ft.open_roadmap(out)
+
+    # a rebuild renews the record (the edit was a comment: nothing re-estimated), and the warning goes
+    assert runner.invoke(app, ["build", str(room), "-o", str(out), "--workers", "1"]).exit_code == 0
+    assert "warning:" not in runner.invoke(app, ["solve", str(out)]).stderr
+    # the record is a stat: nothing of the file is read; a file gone (or a FIFO in its place) is no warning
+    room.unlink()
+    os.mkfifo(room)
+    res = runner.invoke(app, ["solve", str(out)])
+    assert res.exit_code == 0 and "warning:" not in res.stderr, res.output

@@ -14,10 +14,10 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.api.solution import Solution
-from firmtool.errors import InputError
+from firmtool.errors import InputError, StaleScenarioWarning
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
-from firmtool.io import arguments
+from firmtool.io import arguments, scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_queries import query_images
 from firmtool.reports import BuildReport, QueryReport
@@ -233,7 +233,7 @@ class Roadmap:
         stages = {name: data.stages[name] for name in STAGES if data.has(name)}
         stages.update(replace)
         # one atomic write, built in memory: a failure names ``path``, never a temporary file
-        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages)
+        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source)
 
     # queries (firmtool.api.queries answers them)
     @property
@@ -316,6 +316,9 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
     -----
     UserWarning
         When the roadmap was built with a validity checker and ``validity`` is not given.
+    StaleScenarioWarning
+        When the scenario file the roadmap was built from was modified since (compared by its size
+        and modification time only: nothing outside the roadmap is read).
     """
     arguments.path(path, "path")
     arguments.function(validity, "validity")
@@ -325,6 +328,9 @@ def open_roadmap(path: str | Path, *, validity: Callable | None = None) -> Roadm
         warnings.warn(f"{path}: built with a Python validity checker ({recorded[:23]}); without it the roadmap "
                       "can be solved but not simulated or extended: open_roadmap(path, validity=checker)",
                       UserWarning, stacklevel=2)
+    stale = scenario_source.changed_since(data.scenario_source, path)
+    if stale is not None:
+        warnings.warn(f"{path}: {stale}", StaleScenarioWarning, stacklevel=2)
     return Roadmap(data, path=Path(path), validity=validity)
 
 

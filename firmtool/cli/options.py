@@ -89,9 +89,19 @@ def open_roadmap(path: Path) -> "Roadmap":
     """:func:`firmtool.open_roadmap` for a command. A command cannot pass a Python validity checker, so
     the warning meant for a script (a roadmap built with one was opened without it) is not printed:
     a stage that needs the checker refuses in one line instead (:func:`firmtool.pipeline.problem_of`),
-    and the DP, which needs no geometry, runs."""
+    and the DP, which needs no geometry, runs. A scenario file edited since the build is one
+    ``warning:`` line on stderr (:class:`firmtool.StaleScenarioWarning`)."""
     import firmtool.api as ft  # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
 
-    with warnings.catch_warnings():
+    from firmtool.errors import StaleScenarioWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", StaleScenarioWarning)
         warnings.filterwarnings("ignore", message=".*built with a Python validity checker", category=UserWarning)
-        return ft.open_roadmap(path)
+        roadmap = ft.open_roadmap(path)
+    for w in caught:  # one line each on stderr, before the command's own output
+        if issubclass(w.category, StaleScenarioWarning):
+            typer.echo(f"warning: {w.message}", err=True)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return roadmap

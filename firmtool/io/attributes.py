@@ -101,7 +101,10 @@ STAGE_ATTRIBUTES: dict[str, dict[str, Attribute]] = {
                "interval_samples": Attribute("int", low=1)},
 }
 # Root attributes read as text besides those the reader checks itself (schema_version, seed, the scenario).
-ROOT_ATTRIBUTES = {"created": Attribute("text"), "firmtool_version": Attribute("text")}
+# The scenario file's path and stat (firmtool.io.scenario_source): compared by stat only, never opened.
+ROOT_ATTRIBUTES = {"created": Attribute("text"), "firmtool_version": Attribute("text"),
+                   "scenario_file": Attribute("text"), "scenario_file_size": _COUNT,
+                   "scenario_file_mtime_ns": _COUNT}
 
 
 def check_attributes(path: str | Path, group: str, attrs: Mapping[str, Any],

@@ -58,6 +58,7 @@ from firmtool import __version__
 from firmtool.errors import FileBusyError, RoadmapError
 from firmtool.io import hdf5
 from firmtool.io.attributes import ROOT_ATTRIBUTES, check_attributes, check_stage_attributes
+from firmtool.io import scenario_source
 from firmtool.io.memory_file import MemoryFile, as_target, readable, size_of
 from firmtool.io.roadmap_checks import check_edges, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
@@ -98,6 +99,7 @@ class RoadmapFile:
     Attributes
     ----------
     path, schema_version, scenario_text, scenario_sha256, seed, created, firmtool_version
+    scenario_source : the scenario file's path and stat when built (:mod:`firmtool.io.scenario_source`), or None.
     stages : dict of stage name -> (arrays dict, attrs dict) for the stages present, as read (shapes
         and sizes checked, values not yet: use :meth:`require`).
     """
@@ -158,9 +160,10 @@ class RoadmapFile:
         self.scenario_text = str(values["scenario_toml"])
         self.scenario_sha256 = str(values["scenario_sha256"])
         self.seed = int(values["seed"])
-        root = {key: _attribute(p, attrs, key, "") for key in ROOT_ATTRIBUTES}
+        root = {key: _attribute(p, attrs, key, "") for key in ROOT_ATTRIBUTES if key in attrs}
         check_attributes(p, "/", root, ROOT_ATTRIBUTES)
-        self.created, self.firmtool_version = str(root["created"]), str(root["firmtool_version"])
+        self.created, self.firmtool_version = str(root.get("created", "")), str(root.get("firmtool_version", ""))
+        self.scenario_source = scenario_source.recorded(root)  # never opened: see firmtool.io.scenario_source
         if hashlib.sha256(self.scenario_text.encode()).hexdigest() != self.scenario_sha256:
             raise RoadmapError(f"{p}: the stored scenario text does not match its sha256 (file altered?)")
         # shapes and sizes first (metadata only), then the data: nothing large is read blindly

@@ -22,6 +22,7 @@ from firmtool import __version__
 from firmtool.errors import RoadmapError
 from firmtool.io import hdf5
 from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
+from firmtool.io.scenario_source import ScenarioSource
 from firmtool.io.roadmap_format import (
     CACHE,
     ENCODING_TYPE,
@@ -75,16 +76,20 @@ def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_s
 
 
 def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
-                  stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]) -> None:
+                  stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]],
+                  source: ScenarioSource | None = None) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
     Parameters
     ----------
     stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
         ``scenario_sha256`` stamp included; one without gets the stored scenario's).
+    source : the scenario file the roadmap was built from (:mod:`firmtool.io.scenario_source`), if known.
     """
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
+        for key, value in ({} if source is None else source.attributes()).items():
+            f.attrs[key] = value
         for name in STAGES:
             if name in stages:
                 arrays, attrs = stages[name]
@@ -199,6 +204,14 @@ def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_
         for stage in keep:
             if stage in f and isinstance(f[stage], h5py.Group):
                 f[stage].attrs["scenario_sha256"] = scenario_sha256
+
+
+def record_source(path: str | Path | MemoryFile, source: ScenarioSource) -> None:
+    """Store where the roadmap's scenario text came from (root attributes of
+    :mod:`firmtool.io.scenario_source`), atomically; the stages stay."""
+    with _atomic_copy(as_target(path)) as f:
+        for key, value in source.attributes().items():
+            f.attrs[key] = value
 
 
 def restamp(path: str | Path | MemoryFile, stages: tuple[str, ...]) -> None:

@@ -21,8 +21,9 @@ from firmtool.estimation import warmup
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.executors import Workers, default_workers
 from firmtool.graph import reachable_from
-from firmtool.io import arguments
+from firmtool.io import arguments, scenario_source
 from firmtool.io.roadmap_file import RoadmapFile, restamp, update_scenario
+from firmtool.io.roadmap_write import record_source
 from firmtool.pipeline.design import design_into
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.inputs import (
@@ -230,7 +231,7 @@ class _BuildRun:
             e = last or e
         else:
             del self.seconds["solve"]
-        rm = RoadmapFile(r.target)
+        rm = _record_source(r.target, RoadmapFile(r.target), r.scenario)
         nodes = rm.require("nodes", "centers")["centers"].shape[0]
         connectivity = roadmap_connectivity(rm, r.validity)
         steps, estimate_seconds = self.simulated_particle_steps, self.seconds["estimate"]
@@ -242,6 +243,17 @@ class _BuildRun:
                            workers=r.workers.workers, executor=r.workers.executor, seconds=self.seconds,
                            densify=densify, connectivity=connectivity, adaptive=e.adaptive,
                            notices=tuple(self.notices))
+
+
+def _record_source(target: RoadmapTarget, rm: RoadmapFile, scenario: Scenario) -> RoadmapFile:
+    """Remember the scenario file this roadmap was built from (its path and stat) so that solve,
+    execute and plot can say when it was edited since (:mod:`firmtool.io.scenario_source`); written
+    only when it differs from what the roadmap holds. Returns the roadmap as it now is."""
+    source = scenario_source.source_of(scenario.path, scenario.sha256) if scenario.path else None
+    if source is None or source == rm.scenario_source:
+        return rm
+    record_source(target, source)
+    return RoadmapFile(target)
 
 
 def _resumable(rm: RoadmapFile, scenario: Scenario, validity: str = "") -> RoadmapFile | None:
