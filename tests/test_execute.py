@@ -484,3 +484,17 @@ def test_wilson_interval_matches_the_closed_form():
             np.testing.assert_allclose(got[:, 0], np.clip(lo, 0, 1), rtol=1e-12, atol=1e-15)
             np.testing.assert_allclose(got[:, 1], np.clip(hi, 0, 1), rtol=1e-12, atol=1e-15)
             assert np.all(got[:, 0] <= k / nn) and np.all(k / nn <= got[:, 1])
+
+
+def test_wilson_interval_is_scipys_bit_for_bit():
+    """The interval is scipy's ``binomtest(k, n).proportion_ci(method="wilson")`` written out (without
+    the test's p-value search): the same bits, so that no reported interval moved."""
+    from scipy.stats import binomtest
+    rng = np.random.default_rng(5)
+    for confidence in (0.9, 0.95, 0.99):
+        for n in [1, 2, 3, 7, 40, 200, 400, 1000, *rng.integers(1, 50_000, 30).tolist()]:
+            for k in {0, 1, n // 3, n // 2, n - 1, n, *rng.integers(0, n + 1, 5).tolist()}:
+                if not 0 <= k <= n:
+                    continue
+                ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+                assert wilson_interval(int(k), int(n), confidence) == (float(ci.low), float(ci.high)), (k, n)

@@ -15,11 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import binomtest, fisher_exact
+from scipy.stats import fisher_exact
 
 from firmtool.estimation.edges import FAILURE
 from firmtool.graph import success_probability_samples
-from firmtool.results import Calibration, EdgeCheck, Episode
+from firmtool.results import Calibration, EdgeCheck, Episode, wilson_interval
 from firmtool.roadmap.nodes import START_INDEX
 
 CI_KEY = 0xC1B0  # stable key of the prediction-interval stream
@@ -154,8 +154,7 @@ def holm(p_values: np.ndarray) -> np.ndarray:
 
 
 def _wilson(k: int, n: int) -> tuple[float, float]:
-    ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=0.95, method="wilson")
-    return float(ci.low), float(ci.high)
+    return wilson_interval(k, n, 0.95)
 
 
 def edge_calibration(episodes: list[Episode], counts: EdgeCounts, min_traversals: int = MIN_EDGE_TRAVERSALS,
