@@ -1,10 +1,19 @@
-"""Shared fixtures: small scenario texts and a built smoke roadmap."""
+"""Shared fixtures: small scenario texts and a built smoke roadmap; the number of test workers."""
 
+import os
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+MAX_TEST_WORKERS = 4  # beyond, each worker's session fixtures (built roadmaps) cost more than it saves
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (pyproject's addopts): one worker per core this process may use, at most
+    :data:`MAX_TEST_WORKERS`."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, MAX_TEST_WORKERS))
 
 OPEN_WORLD = """
 [scenario]
