@@ -38,6 +38,7 @@ class EventKind(enum.StrEnum):
     REPLAN = "replan"  # a controller designed at run time replaced the running one
     REPLAN_FAILED = "replan_failed"  # a replan was due but no controller could be designed
     KEPT_CONTROLLER = "kept_controller"  # a replan was due but the running controller scored best
+    ROLLOUT = "rollout"  # rollout FIRM: a run-time controller beat the running one (value: its score)
     INNOVATION_ALARM = "innovation_alarm"  # the measurements contradicted the belief (value: the test statistic)
     RELOCALISING = "relocalising"  # after a jump, hypotheses and a probe motion began (value: the probe's steps)
     RELOCALISED = "relocalised"  # the probe ended; the belief is its leading mode (value: the mode's weight)

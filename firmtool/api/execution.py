@@ -10,7 +10,7 @@ import numpy as np
 from firmtool.api.solution import Solution
 from firmtool.estimation.budgets import MAX_EXECUTION_STEPS, check_execution, check_push_size
 from firmtool.io import arguments
-from firmtool.online.policy import Policy
+from firmtool.online.policy import ROLLOUT, Policy
 from firmtool.online.replanning import ReplanSettings
 from firmtool.results import Results
 from firmtool.roadmap.nodes import START_INDEX
@@ -48,8 +48,10 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         Episode ``i``'s true system draws from ``SeedSequence([seed, 0xE7EC, i])`` and the policy's
         own draws from its first spawned child (:func:`firmtool.sim.episode_seeds`): reproducible,
         and the same numbers as ``firmtool execute --seed``.
-    policy : {"firm", "shortest-path"}
-        The DP's policy, or the baseline that ignores uncertainty.
+    policy : {"firm", "shortest-path", "rollout"}
+        The DP's policy, the baseline that ignores uncertainty, or the DP's policy run as rollout
+        FIRM (:mod:`firmtool.online.rollout`: it never settles at a node it passes by; its
+        prediction is the base policy's, which its expected cost does not exceed).
     start : (config_dim,) or (n,) array, optional
         Start at this configuration or state instead of the start node (a start in no node gets an
         initial controller to the best nearby node).
@@ -79,7 +81,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     arguments.instance(solution, Solution, "solution", "a firmtool.Solution (from ft.solve(roadmap))")
     arguments.optional_instance(replan, ReplanSettings, "replan", "a firmtool.ReplanSettings or None")
     arguments.check_simulate(episodes=episodes, seed=seed, record=record, progress=progress, disturbances=disturbances)
-    _, probabilities = solution._policy(policy)
+    base = "firm" if policy == ROLLOUT else policy  # rollout FIRM is predicted by its base policy (a bound)
+    _, probabilities = solution._policy(base)
     dists = as_disturbances(disturbances)
     problem = solution.roadmap.problem
     # the CLI's bounds, as a guard of the API: worst-case steps, and pushes within the configuration bounds
@@ -94,7 +97,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     at_start_node = start is None
     return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
                         predicted=float(probabilities[START_INDEX]) if at_start_node else None,
-                        predicted_ci95=solution.success_probability_interval(policy) if at_start_node else None,
+                        predicted_ci95=solution.success_probability_interval(base) if at_start_node else None,
                         edge_counts=rm.edge_counts, system=system, progress=progress)
 
 

@@ -31,8 +31,10 @@ SolvedRoadmapArg = typer.Argument(..., help="Solved roadmap file.")
 EpisodesOpt = typer.Option(100, "--episodes", "-n", min=1, help="Closed-loop episodes to run.")
 SeedOpt = typer.Option(0, "--seed", min=0, help="Seed of the simulated true system.")
 PolicyOpt = typer.Option("firm", "--policy",
-                         help="'firm' (the DP's policy) or 'shortest-path' (the baseline "
-                              "that ignores uncertainty: shortest configuration-space path).")
+                         help="'firm' (the DP's policy), 'rollout' (the DP's policy as rollout FIRM: from the "
+                              "current belief it heads on to the next nodes of its path instead of settling at "
+                              "each) or 'shortest-path' (the baseline that ignores uncertainty: shortest "
+                              "configuration-space path).")
 DisturbanceOpt = typer.Option(
     None, "--disturbance", "-d",
     help="Inject a large disturbance into the simulated true system (the filter is not told): "
@@ -249,5 +251,5 @@ def exit_if_all_stuck(report: dict, roadmap: Path) -> None:
 
 
 def check_policy(name: str) -> None:
-    if name not in ("firm", "shortest-path"):
-        raise InputError(f"--policy: expected 'firm' or 'shortest-path', found {name!r}")
+    if name not in ("firm", "rollout", "shortest-path"):
+        raise InputError(f"--policy: expected 'firm', 'rollout' or 'shortest-path', found {name!r}")

@@ -61,6 +61,7 @@ starts a :class:`~firmtool.online.run.PolicyRun`, which coordinates the collabor
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -82,6 +83,19 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api import Solution
 
 
+ROLLOUT = "rollout"
+MODES = ("base", ROLLOUT)
+
+
+def with_mode(settings: ReplanSettings | None, mode: str) -> ReplanSettings:
+    """The settings a policy of ``mode`` runs with: ``"rollout"`` turns :attr:`ReplanSettings.rollout`
+    on, ``"base"`` keeps the settings as given (default ones without)."""
+    if mode not in MODES:
+        raise InputError(f"Policy mode: expected one of {', '.join(MODES)}, found {mode!r}")
+    settings = settings or ReplanSettings()
+    return dataclasses.replace(settings, rollout=True) if mode == ROLLOUT else settings
+
+
 def innovation_tests(settings: ReplanSettings, problem: Problem) -> tuple[bool, bool]:
     """Which innovation tests a policy runs, ``(window test, jump test)``: none with replanning or the
     tests off, nor with perfect measurements (no innovations)."""
@@ -100,8 +114,14 @@ class Policy:
     ----------
     solution : Solution
         A solved roadmap (:func:`firmtool.solve`, or :meth:`firmtool.Roadmap.solution`).
-    policy : {"firm", "shortest-path"}
-        The DP's policy, or the baseline that ignores uncertainty.
+    policy : {"firm", "shortest-path", "rollout"}
+        The DP's policy, or the baseline that ignores uncertainty; ``"rollout"`` is ``"firm"`` with
+        ``mode="rollout"``.
+    mode : {"base", "rollout"}
+        ``"base"``: the policy's stored edges, node to node (settling at each); ``"rollout"``: rollout
+        FIRM, every ``replan.rollout_every`` steps the best of the running controller and run-time
+        controllers to nearby nodes, scored from the current belief on the policy's cost-to-go
+        (:mod:`firmtool.online.rollout`).
     replan : ReplanSettings, optional
         Replanning settings (default: on, threshold 3, deadline ``dt`` on the work clock).
     rng : numpy Generator or int, optional
@@ -126,13 +146,17 @@ class Policy:
     >>> u = policy.act(); events = policy.observe(z)                  # doctest: +SKIP
     """
 
-    def __init__(self, solution: "Solution", *, policy: str = "firm", replan: ReplanSettings | None = None,
-                 rng: np.random.Generator | int | None = None, max_steps: int | None = None) -> None:
+    def __init__(self, solution: "Solution", *, policy: str = "firm", mode: str = "base",
+                 replan: ReplanSettings | None = None, rng: np.random.Generator | int | None = None,
+                 max_steps: int | None = None) -> None:
+        if policy == ROLLOUT:  # the FIRM policy run as rollout FIRM
+            policy, mode = "firm", ROLLOUT
+        replan = with_mode(replan, mode)
         edges, _ = solution._policy(policy)
         rm = solution.roadmap
         self._setup(rm.problem, rm.execution_design, edges, solution.cost_to_go, solution.failure_cost, replan,
                     rng, max_steps)
-        self.name: str | None = policy
+        self.name: str | None = ROLLOUT if replan.rollout and policy == "firm" else policy
 
     @classmethod
     def from_design(cls, problem: Problem, design_: Design, policy: np.ndarray, *,

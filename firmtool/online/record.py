@@ -29,6 +29,7 @@ class RunRecord:
     nodes : the nodes the belief entered, in order; edges : the policy edges taken, in order.
     traversals : list of :class:`Traversal`.
     replans, replan_failures : decisions that took a new controller, and that found none.
+    rollouts : rollout decisions that took a new controller (rollout FIRM).
     clean : the running controller is a policy edge run from its node, so far undisturbed.
     run_start : the step at which the running controller began.
     """
@@ -38,7 +39,7 @@ class RunRecord:
         self.nodes: list[int] = []
         self.edges: list[int] = []
         self.traversals: list[Traversal] = []
-        self.replans = self.replan_failures = 0
+        self.replans = self.replan_failures = self.rollouts = 0
         self.clean, self.run_start = False, 0
 
     def emit(self, out: list[Event], event: Event) -> None:

@@ -57,6 +57,8 @@ MAX_REPLANS_PER_EPISODE = 50  # then the current controller runs on without repl
 REPLAN_CANDIDATES = 8  # nearest nodes scored for an initial controller or a replan
 PROJECTION_SAMPLES = 256  # draws from the belief to find the most likely valid state
 RISK_PARTICLES = 32  # Monte Carlo particles per replan candidate (0: rank by the cost-to-go alone)
+ROLLOUT_PARTICLES = 64  # particles per option of a rollout decision, common to every option (firmtool.online.rollout)
+ROLLOUT_CANDIDATES = 2  # nodes ahead on the base policy's path scored per rollout decision
 RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at run time
 INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
 INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
@@ -196,6 +198,11 @@ class ReplanSettings:
         controller that was running goes on for ``ceil(t / dt)`` steps, ``t`` the decision's time on
         its clock (work: ``scored x candidate_seconds``, deterministic; wall: measured), before the
         new one takes over.
+    rollout : rollout FIRM (:mod:`firmtool.online.rollout`): every ``rollout_every`` steps a decision
+        from the current belief between the running controller and run-time controllers to the
+        ``rollout_candidates`` nodes the base policy visits after its target, ``rollout_particles``
+        common particles each; off (the
+        default): the base FIRM policy, which settles at every node.
     """
 
     enabled: bool = True
@@ -220,6 +227,10 @@ class ReplanSettings:
     clock: str = "work"
     candidate_seconds: float | None = None
     latency: str = "0"
+    rollout: bool = False
+    rollout_every: int = 1
+    rollout_particles: int = ROLLOUT_PARTICLES
+    rollout_candidates: int = ROLLOUT_CANDIDATES
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.threshold) and self.threshold > 0):
@@ -246,6 +257,9 @@ class ReplanSettings:
                 continue
             if not 0.0 < value < 1.0:
                 raise InputError(f"replan {name}: expected a probability in (0, 1), found {value}")
+        if self.rollout_every < 1 or self.rollout_particles < 1 or self.rollout_candidates < 1:
+            raise InputError(f"rollout_every, rollout_particles and rollout_candidates: expected integers >= 1, "
+                             f"found {self.rollout_every}, {self.rollout_particles}, {self.rollout_candidates}")
         if self.window < 1 or self.candidates < 1 or self.jump_window < 1 or self.goal_lookback < 1:
             raise InputError(f"replan window, jump_window, goal_lookback and candidates: expected integers >= 1, "
                              f"found {self.window}, {self.jump_window}, {self.goal_lookback}, {self.candidates}")

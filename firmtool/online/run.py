@@ -38,7 +38,8 @@ from firmtool.online.decision import Choice, KeepOrReplan
 from firmtool.online.probe import Probe
 from firmtool.online.record import RunRecord
 from firmtool.online.replanning import Replanner, ReplanSettings, latency_steps
-from firmtool.online.running import EdgeControllers, RunningController
+from firmtool.online.rollout import nodes_ahead, rollout_decision
+from firmtool.online.running import EdgeControllers, RunningController, remainder
 from firmtool.online.timing import Timing
 from firmtool.problem import Problem
 from firmtool.results import Event, EventKind
@@ -232,7 +233,10 @@ class PolicyRun:
                 self._begin(new)
                 return
             self.pending = (new, wait - 1)
-        elif (alarm or deviate) and self._replan(k, dev, alarm, jump, nu, out):
+        elif alarm or deviate:
+            if self._replan(k, dev, alarm, jump, nu, out):
+                return
+        elif self._rollout_due(k) and self._roll(k, out):
             return
         if total >= self.max_steps:  # before the controller's own end: the mission's budget is the reason
             self._timeout(out)
@@ -305,6 +309,36 @@ class PolicyRun:
             self.record.spoil()  # the filter was reset: no longer the edge the Monte Carlo ran
             P_now = fix.covariance
         return self._decide(k + 1, P_now, dev, alarm, out, t0, c0)
+
+    def _rollout_due(self, k: int) -> bool:
+        """Whether a rollout decision is taken after step ``k`` (rollout FIRM, every ``rollout_every``
+        steps of the running controller, while it has steps left and nothing else is pending)."""
+        s = self.parts.settings
+        return (s.rollout and self.pending is None and k + 2 < self.run.lc.steps
+                and (self.total - self.record.run_start) % s.rollout_every == 0)
+
+    def _roll(self, k: int, out: list[Event]) -> bool:
+        """A rollout decision after step ``k`` (:func:`firmtool.online.rollout.rollout_decision`); True
+        if a run-time controller took over. Its draws come from one seed of the policy's own stream,
+        common to every option it scores."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        run, xhat = self.run, self.belief.xhat[0]
+        P_now = run.lc.P[k + 1]
+        seed = int(self.rng.integers(2**63))
+        if not (self.parts.problem.perfect or self.parts.problem.is_valid(xhat[None])[0]):
+            return False  # an estimate in collision has no free way anywhere: the running controller goes on
+        replanner = self.parts.replanner
+        ahead = nodes_ahead(self.parts.edge_per_node, replanner.design.edge_target, self.parts.kinds, run.target,
+                            self.parts.settings.rollout_candidates)
+        decision = rollout_decision(replanner, xhat, P_now, remainder(run.lc, k + 1), ahead, seed)
+        self.timing.decided(time.perf_counter() - t0, time.thread_time() - c0, decision)
+        new = decision.controller
+        if new is None:
+            return False
+        self.record.rollouts += 1
+        self.record.emit(out, Event(self.total, EventKind.ROLLOUT, new.target, decision.score, decision.reason))
+        self._begin(new)
+        return True
 
     def relocalise(self, mean: np.ndarray, covariance: np.ndarray) -> list[Event]:
         """A belief from outside (checked by the policy) replaces the belief, and a decision follows
