@@ -127,3 +127,17 @@ def test_solve_execute_and_plot_warn_when_the_scenario_was_edited_after_the_buil
     os.mkfifo(room)
     res = runner.invoke(app, ["solve", str(out)])
     assert res.exit_code == 0 and "warning:" not in res.stderr, res.output
+
+
+def test_only_a_plain_local_path_is_looked_at(tmp_path):
+    """The path comes from the roadmap, maybe someone else's: a network path (``//host/...``), one
+    with control characters or a relative one is not even stat'ed; a real file is, by stat only."""
+    from firmtool.io.scenario_source import ScenarioSource, changed_since
+
+    real = tmp_path / "room.toml"
+    real.write_text("x")
+    assert changed_since(ScenarioSource(str(real), 0, 0), "r.h5") is not None  # size differs: modified
+    status = real.stat()
+    assert changed_since(ScenarioSource(str(real), status.st_size, status.st_mtime_ns), "r.h5") is None
+    for path in ("//server/share/room.toml", f"{real}\n", "room.toml", "\x1b[31m" + str(real), ""):
+        assert changed_since(ScenarioSource(path, 0, 0), "r.h5") is None, repr(path)

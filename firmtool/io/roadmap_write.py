@@ -22,7 +22,7 @@ from firmtool import __version__
 from firmtool.errors import RoadmapError
 from firmtool.io import hdf5
 from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
-from firmtool.io.scenario_source import ScenarioSource
+from firmtool.io.scenario_source import SOURCE_ATTRIBUTES, ScenarioSource
 from firmtool.io.roadmap_format import (
     CACHE,
     ENCODING_TYPE,
@@ -206,11 +206,14 @@ def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_
                 f[stage].attrs["scenario_sha256"] = scenario_sha256
 
 
-def record_source(path: str | Path | MemoryFile, source: ScenarioSource) -> None:
+def record_source(path: str | Path | MemoryFile, source: ScenarioSource | None) -> None:
     """Store where the roadmap's scenario text came from (root attributes of
-    :mod:`firmtool.io.scenario_source`), atomically; the stages stay."""
+    :mod:`firmtool.io.scenario_source`; None removes them), atomically; the stages stay."""
     with _atomic_copy(as_target(path)) as f:
-        for key, value in source.attributes().items():
+        for key in SOURCE_ATTRIBUTES:
+            if key in f.attrs:
+                del f.attrs[key]
+        for key, value in ({} if source is None else source.attributes()).items():
             f.attrs[key] = value
 
 

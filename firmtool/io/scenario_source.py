@@ -7,13 +7,16 @@ Why only ``stat``: the path is read from the roadmap, and a roadmap may come fro
 would read that file (or hang on a FIFO); a ``stat`` of a regular file reads nothing, follows no
 content and cannot block. Size and modification time tell "edited" from "untouched" for a file
 edited on this machine; a file touched without a change is reported as possibly edited (the
-message says so), and a rebuild records the new times.
+message says so), and a rebuild records the new times. Only a plain local path is looked at
+(printable, absolute, not ``//host/...``); a file on an automounted network folder is still one
+``stat`` (noted, not guarded: a user's own scenario may live there).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import shlex
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +25,7 @@ from firmtool.io.limits import LimitError, read_regular_file
 
 # root attributes of a roadmap (firmtool.io.attributes.ROOT_ATTRIBUTES)
 FILE, SIZE, MTIME = "scenario_file", "scenario_file_size", "scenario_file_mtime_ns"
+SOURCE_ATTRIBUTES = (FILE, SIZE, MTIME)
 MAX_PATH_CHARS = 4096  # PATH_MAX: a longer "path" is no path this machine can have
 
 
@@ -69,7 +73,7 @@ def changed_since(source: ScenarioSource | None, roadmap: str | Path) -> str | N
     """One sentence when the recorded scenario file was modified after the build (None if it was
     not, or if there is nothing to compare: no record, no such file on this machine, a record that
     names no absolute path). A ``stat`` only: nothing of the file is read."""
-    if source is None or len(source.path) > MAX_PATH_CHARS or "\0" in source.path or not os.path.isabs(source.path):
+    if source is None or not _plain_local_path(source.path):
         return None
     now = _regular_stat(source.path)
     if now is None:
@@ -77,7 +81,15 @@ def changed_since(source: ScenarioSource | None, roadmap: str | Path) -> str | N
     if (int(now.st_size), int(now.st_mtime_ns)) == (source.size, source.mtime_ns):
         return None
     return (f"the scenario {source.path} was modified after this roadmap was built from it; if its content "
-            f"changed, the roadmap still holds the old plan: 'firmtool build {source.path} -o {roadmap}' renews it")
+            f"changed, the roadmap still holds the old plan: 'firmtool build {shlex.quote(source.path)} -o "
+            f"{shlex.quote(str(roadmap))}' renews it")
+
+
+def _plain_local_path(path: str) -> bool:
+    """An absolute path of printable characters, of bounded length, not a network one (``//host``:
+    POSIX leaves its meaning to the system, and a stat there could reach another machine)."""
+    return (0 < len(path) <= MAX_PATH_CHARS and path.isprintable() and os.path.isabs(path)
+            and not path.startswith("//") and "\\" not in path)
 
 
 def _regular_stat(path: str) -> os.stat_result | None:

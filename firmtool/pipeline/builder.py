@@ -250,9 +250,9 @@ def _record_source(target: RoadmapTarget, rm: RoadmapFile, scenario: Scenario) -
     execute and plot can say when it was edited since (:mod:`firmtool.io.scenario_source`); written
     only when it differs from what the roadmap holds. Returns the roadmap as it now is."""
     source = scenario_source.source_of(scenario.path, scenario.sha256) if scenario.path else None
-    if source is None or source == rm.scenario_source:
+    if source == rm.scenario_source:
         return rm
-    record_source(target, source)
+    record_source(target, source)  # None: a scenario from no file (or edited since read): an old record goes
     return RoadmapFile(target)
 
 
