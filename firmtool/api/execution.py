@@ -51,7 +51,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     policy : {"firm", "shortest-path", "rollout"}
         The DP's policy, the baseline that ignores uncertainty, or the DP's policy run as rollout
         FIRM (:mod:`firmtool.online.rollout`: it never settles at a node it passes by; its
-        prediction is the base policy's, which its expected cost does not exceed).
+        prediction is the base policy's: the rollout property bounds its expected cost, not its
+        success; no edge calibration check: the edges it runs to their end are not a sample).
     start : (config_dim,) or (n,) array, optional
         Start at this configuration or state instead of the start node (a start in no node gets an
         initial controller to the best nearby node).
@@ -81,7 +82,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     arguments.instance(solution, Solution, "solution", "a firmtool.Solution (from ft.solve(roadmap))")
     arguments.optional_instance(replan, ReplanSettings, "replan", "a firmtool.ReplanSettings or None")
     arguments.check_simulate(episodes=episodes, seed=seed, record=record, progress=progress, disturbances=disturbances)
-    base = "firm" if policy == ROLLOUT else policy  # rollout FIRM is predicted by its base policy (a bound)
+    base = "firm" if policy == ROLLOUT else policy  # rollout FIRM: its base policy's prediction
     _, probabilities = solution._policy(base)
     dists = as_disturbances(disturbances)
     problem = solution.roadmap.problem
@@ -98,6 +99,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
                         predicted=float(probabilities[START_INDEX]) if at_start_node else None,
                         predicted_ci95=solution.success_probability_interval(base) if at_start_node else None,
-                        edge_counts=rm.edge_counts, system=system, progress=progress)
+                        # rollout FIRM leaves its edges for run-time controllers where it gains: the edges it
+                        # runs to their end are not a sample of the edges' Monte Carlo, so no calibration check
+                        edge_counts=None if policy == ROLLOUT else rm.edge_counts, system=system, progress=progress)
 
 

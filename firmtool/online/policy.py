@@ -333,6 +333,11 @@ class Policy:
         return self._now.record.replans
 
     @property
+    def rollouts(self) -> int:
+        """Rollout decisions that took a new controller (``mode="rollout"``; 0 otherwise)."""
+        return self._now.record.rollouts
+
+    @property
     def replan_failures(self) -> int:
         return self._now.record.replan_failures
 

@@ -11,10 +11,14 @@ policy's path (:func:`nodes_ahead`; the goal excluded, for the reason given ther
 going on with the running one. Each option is scored as a replan candidate is (eq. 12 for one controller: a Monte
 Carlo of :attr:`ReplanSettings.rollout_particles` particles from the belief on the edges' compiled
 step, cost to the landing plus the landing node's FIRM cost-to-go, ``J_F`` for a failure or a
-timeout), but with **common random numbers**: every option's particles start from the same true
-states and meet the same noise (one seed per decision), so the difference of two scores is
-measured with far less noise than either score. A new controller is taken only when its mean score
-beats the running controller's by more than the standard error of the paired differences; by the
+timeout), but on **common random numbers**: one seed per decision, so every option's particles
+start from the same true states and draw the same stream. The engines draw each step's noise for
+the particles still running, in order, so the noise is common until the first particle's run ends
+under either controller and only correlated after (particle-indexed streams in the compiled engine
+would make it common throughout; not done). Even so the paired difference of two scores is far less
+noisy than either score. A new controller is taken only when its mean score beats the running
+controller's by more than the standard error of the paired differences (approximate, for the same
+reason); by the
 rollout property (policy improvement over the base policy's cost-to-go) the result is, up to that
 Monte Carlo error, never worse in expected cost than the base policy, and it is faster because the
 belief never has to settle at a node it only passes by.

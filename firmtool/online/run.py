@@ -121,6 +121,7 @@ class PolicyRun:
         self.run: RunningController | None = None
         self.pending: tuple[RunningController, int] | None = None  # a decided controller waiting out its latency
         self.probe: Probe | None = None  # a re-localisation running (hypotheses, probe, step)
+        self.goal_wait_step = -1  # the last step at which a goal declaration waited
         self.awaiting = False
 
     def start(self, node: int) -> list[Event]:
@@ -275,6 +276,7 @@ class PolicyRun:
         wait, event = self.goal_check.waits(landed, in_ball, k, self.run, self.belief, self.total)
         if not wait:
             return False
+        self.goal_wait_step = self.total  # no rollout decision while a goal declaration waits
         if event is not None:
             self.record.emit(out, event)
         self.record.traversed(self.run.edge, landed, self.total)
@@ -314,7 +316,7 @@ class PolicyRun:
         """Whether a rollout decision is taken after step ``k`` (rollout FIRM, every ``rollout_every``
         steps of the running controller, while it has steps left and nothing else is pending)."""
         s = self.parts.settings
-        return (s.rollout and self.pending is None and k + 2 < self.run.lc.steps
+        return (s.rollout and self.pending is None and k + 2 < self.run.lc.steps and self.goal_wait_step != self.total
                 and (self.total - self.record.run_start) % s.rollout_every == 0)
 
     def _roll(self, k: int, out: list[Event]) -> bool:
@@ -322,21 +324,25 @@ class PolicyRun:
         if a run-time controller took over. Its draws come from one seed of the policy's own stream,
         common to every option it scores."""
         t0, c0 = time.perf_counter(), time.thread_time()
-        run, xhat = self.run, self.belief.xhat[0]
-        P_now = run.lc.P[k + 1]
-        seed = int(self.rng.integers(2**63))
+        run, xhat, s, replanner = self.run, self.belief.xhat[0], self.parts.settings, self.parts.replanner
+        ahead = nodes_ahead(self.parts.edge_per_node, replanner.design.edge_target, self.parts.kinds, run.target,
+                            s.rollout_candidates)
+        if ahead.size == 0:
+            return False  # the last edge before the goal: nothing to head on to, nothing to score
         if not (self.parts.problem.perfect or self.parts.problem.is_valid(xhat[None])[0]):
             return False  # an estimate in collision has no free way anywhere: the running controller goes on
-        replanner = self.parts.replanner
-        ahead = nodes_ahead(self.parts.edge_per_node, replanner.design.edge_target, self.parts.kinds, run.target,
-                            self.parts.settings.rollout_candidates)
-        decision = rollout_decision(replanner, xhat, P_now, remainder(run.lc, k + 1), ahead, seed)
-        self.timing.decided(time.perf_counter() - t0, time.thread_time() - c0, decision)
+        seed = int(self.rng.integers(2**63))
+        decision = rollout_decision(replanner, xhat, run.lc.P[k + 1], remainder(run.lc, k + 1), ahead, seed)
+        work = self.timing.decided(time.perf_counter() - t0, time.thread_time() - c0, decision)
         new = decision.controller
         if new is None:
             return False
         self.record.rollouts += 1
         self.record.emit(out, Event(self.total, EventKind.ROLLOUT, new.target, decision.score, decision.reason))
+        wait = latency_steps(work, self.parts.problem.model.dt) if s.latency == "measured" else 0
+        if wait > 0:
+            self.pending = (new, wait)  # the running controller goes on while the decision "computes"
+            return False
         self._begin(new)
         return True
 
