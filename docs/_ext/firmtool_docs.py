@@ -34,7 +34,7 @@ API_GROUPS = {
     "reports": ["SampleReport", "DesignReport", "EstimateReport", "BuildReport", "DensifyReport", "SolveReport",
                 "QueryReport", "FailedEdge", "RoadmapSummary"],
     "errors": ["FirmtoolError", "InputError", "ScenarioError", "RoadmapError", "NumericalError", "RunFailure",
-               "Unreachable"],
+               "Unreachable", "StaleScenarioWarning"],
 }
 # Classes whose members are documented with them.
 API_MEMBERS = {"Roadmap", "Solution", "Results", "Scenario", "Episode", "Policy", "SimulatedSystem"}
