@@ -35,13 +35,14 @@ def test_every_option_of_a_decision_is_scored_on_the_same_particles(smoke, monke
     """Common random numbers: the running controller and every candidate start from the same true
     states and get generators in the same state, so each is run on the same noise."""
     seen = []
-    real = rollout.simulate
+    from firmtool.online import replanning
+    real = replanning.simulate
 
     def spy(problem, lc, regions, x, xhat, rng):
         seen.append((x.copy(), xhat.copy(), rng.bit_generator.state["state"]["state"]))
         return real(problem, lc, regions, x, xhat, rng)
 
-    monkeypatch.setattr(rollout, "simulate", spy)
+    monkeypatch.setattr(replanning, "simulate", spy)
     policy = ft.Policy(smoke, mode="rollout", rng=3)
     policy.reset()
     replanner = policy.replanner

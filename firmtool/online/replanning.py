@@ -295,7 +295,7 @@ class Decision:
     work_seconds: float
 
 
-class _Budget:
+class DecisionBudget:
     """The deadline of one decision on its clock; ``fits()`` before each candidate, ``spent()`` after."""
 
     def __init__(self, settings: ReplanSettings, dt: float, candidate_seconds: float) -> None:
@@ -424,6 +424,14 @@ class Replanner:
 
     # -- scores ---------------------------------------------------------------------------------------
 
+    def lower_bounds(self, xhat: np.ndarray, P: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+        """(K,) the cheap score ``C_est + J(node)`` of controllers from the belief ``(xhat, P)`` to
+        ``nodes`` (K,): a lower bound of their Monte Carlo scores (module notes)."""
+        cost = self.problem.scenario.cost
+        iota = self.nominal_steps(xhat, nodes)
+        est = iota * (cost.alpha_time + cost.alpha_covariance * 0.5 * (np.trace(P) + self._trPs[nodes]))
+        return est + self.cost_to_go[nodes]
+
     def risk_score(self, lc: LocalController, xhat: np.ndarray, P: np.ndarray, M: int,
                    rng: np.random.Generator) -> float:
         """Eq. 12 for one controller, by a small Monte Carlo from the belief.
@@ -433,6 +441,14 @@ class Replanner:
         estimates (:func:`firmtool.estimation.edges.simulate`). Score: mean cost + mean of ``J(landing node)``,
         with ``J_F`` for a collision, a timeout or a node that cannot reach the goal.
         """
+        cost, J = self.particle_costs(lc, xhat, P, M, rng)
+        return float(cost.mean() + J.mean())
+
+    def particle_costs(self, lc: LocalController, xhat: np.ndarray, P: np.ndarray, M: int,
+                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """The Monte Carlo of :meth:`risk_score` per particle: ``(cost (M,), J (M,))``, the cost to the
+        landing and ``J(landing node)`` (``J_F`` for a collision, a timeout or a node that cannot reach
+        the goal). The true start states are the first draws of ``rng``."""
         problem = self.problem
         xh = np.repeat(xhat[None], M, axis=0)
         if problem.perfect:
@@ -444,7 +460,7 @@ class Replanner:
         land = out.outcome >= 0
         J = np.full(M, self.failure_cost)
         J[land] = self._J_or_fail[out.outcome[land]]
-        return float(out.cost(problem.scenario.cost).mean() + J.mean())
+        return out.cost(problem.scenario.cost), J
 
     def decide(self, xhat: np.ndarray, P: np.ndarray, rng: np.random.Generator | None,
                keep: LocalController | None = None) -> Decision:
@@ -454,7 +470,7 @@ class Replanner:
         Without ``rng`` or with ``risk_particles == 0`` there is no Monte Carlo: the first candidate
         in the order of the cheap score whose segment is free is taken.
         """
-        budget = _Budget(self.settings, self.problem.model.dt, self.candidate_seconds)
+        budget = DecisionBudget(self.settings, self.problem.model.dt, self.candidate_seconds)
         M = self.settings.risk_particles if rng is not None else 0
         keep_score = np.inf
         if keep is not None and M:
@@ -465,17 +481,15 @@ class Replanner:
                         deadline_hit=budget.hit, work_seconds=budget.seconds)
 
     def _best_node(self, xhat: np.ndarray, P: np.ndarray, rng: np.random.Generator | None, bound: float,
-                   budget: _Budget) -> tuple[RunningController | None, float, str]:
+                   budget: DecisionBudget) -> tuple[RunningController | None, float, str]:
         if self._tree is None:
             return None, np.inf, "no node can reach the goal"
-        problem, cost = self.problem, self.problem.scenario.cost
+        problem = self.problem
         d = problem.config_dim
         k = min(self.settings.candidates, self._usable.size)
         _, idx = self._tree.query(xhat[:d], k=k)
         nodes = self._usable[np.atleast_1d(idx)]
-        iota = self.nominal_steps(xhat, nodes)
-        est = iota * (cost.alpha_time + cost.alpha_covariance * 0.5 * (np.trace(P) + self._trPs[nodes]))
-        score = est + self.cost_to_go[nodes]
+        score = self.lower_bounds(xhat, P, nodes)
         M = self.settings.risk_particles if rng is not None else 0
         best, best_score, best_j, scored = None, bound, -1, 0
         late = ""

@@ -37,8 +37,7 @@ import numpy as np
 
 from firmtool.control.local import LocalController
 from firmtool.errors import NumericalError
-from firmtool.estimation.edges import simulate
-from firmtool.online.replanning import Decision, Replanner, _Budget
+from firmtool.online.replanning import Decision, Replanner, DecisionBudget
 from firmtool.roadmap.nodes import GOAL, segment_is_valid
 
 # A switch needs its mean gain over the running controller above this many standard errors of the
@@ -53,19 +52,8 @@ def particle_scores(replanner: Replanner, lc: LocalController, xhat: np.ndarray,
     the landing plus ``J(landing node)`` (``J_F`` for a failure, a timeout or a node that cannot reach
     the goal). ``seed`` fixes every draw (true start states, process and measurement noise): two
     controllers scored with one seed see the same particles."""
-    problem = replanner.problem
-    rng = np.random.default_rng(seed)
-    xh = np.repeat(xhat[None], M, axis=0)
-    if problem.perfect:
-        x = xh.copy()
-    else:
-        chol = np.linalg.cholesky(P + 1e-12 * np.eye(P.shape[0]))
-        x = xh + rng.standard_normal(xh.shape) @ chol.T
-    out = simulate(problem, lc, replanner.regions, x, xh, rng)
-    J = np.full(M, replanner.failure_cost)
-    land = out.outcome >= 0
-    J[land] = replanner._J_or_fail[out.outcome[land]]
-    return out.cost(problem.scenario.cost) + J
+    cost, J = replanner.particle_costs(lc, xhat, P, M, np.random.default_rng(seed))
+    return cost + J
 
 
 def nodes_ahead(edge_per_node: np.ndarray, edge_target: np.ndarray, kinds: np.ndarray, target: int,
@@ -100,17 +88,14 @@ def rollout_decision(replanner: Replanner, xhat: np.ndarray, P: np.ndarray, keep
     """
     s, problem = replanner.settings, replanner.problem
     M = s.rollout_particles
-    budget = _Budget(s, problem.model.dt, replanner.candidate_seconds)
+    budget = DecisionBudget(s, problem.model.dt, replanner.candidate_seconds)
     base = particle_scores(replanner, keep, xhat, P, M, seed)
     budget.spent()
     keep_score = float(base.mean())
     nodes = np.asarray(candidates, dtype=np.int64)
     if nodes.size == 0 or not np.isfinite(keep_score):
         return Decision(None, np.inf, keep_score, "no option", budget.scored, budget.hit, budget.seconds)
-    cost = problem.scenario.cost
-    iota = replanner.nominal_steps(xhat, nodes)
-    bound = iota * (cost.alpha_time + cost.alpha_covariance * 0.5 * (np.trace(P) + replanner._trPs[nodes]))
-    bound = bound + replanner.cost_to_go[nodes]
+    bound = replanner.lower_bounds(xhat, P, nodes)
     best, best_score, best_j, late = None, keep_score, -1, ""
     for i in np.argsort(bound, kind="stable"):
         if bound[i] >= best_score:
