@@ -56,6 +56,34 @@ IMPERFECT = 'kind = "imperfect"\nnoise = "constant"\nstd = {std}'
 PERFECT = 'kind = "perfect"'
 
 
+ROOM_3D = """[scenario]
+name = "room"
+[model]
+robot = "point"
+dynamics = "double_integrator"
+dt = 0.1
+process_noise_std = 0.05
+[measurement]
+kind = "perfect"
+[world]
+bounds = [[0.0, 0.0, 0.0], [6.0, 5.0, 4.0]]
+robot_radius = 0.2
+collision_backend = "fcl"
+obstacles = [OBSTACLES]
+[task]
+start = [1.0, 1.0, 1.0]
+goal = [5.0, 1.0, 2.0]
+[roadmap]
+nodes = 5
+"""
+
+
+def room_3d(obstacles: str) -> str:
+    """A 3-D room for the point robot, perfect measurements, python-fcl, with ``obstacles`` (the TOML
+    text of the obstacle tables, comma-separated)."""
+    return ROOM_3D.replace("OBSTACLES", obstacles)
+
+
 def open_world(dynamics="double_integrator", q=0.05, measurement=None, std=0.05, obstacles="[]") -> str:
     m = measurement if measurement is not None else IMPERFECT.format(std=std)
     return OPEN_WORLD.format(dynamics=dynamics, q=q, measurement=m, obstacles=obstacles)

@@ -22,6 +22,7 @@ from firmtool.geometry import FclCollisionBackend, backend_for_world  # noqa: E4
 from firmtool.geometry.shapes import Box, Capsule, Mesh, Sphere  # noqa: E402
 from firmtool.problem import build_problem  # noqa: E402
 from firmtool.scenario import parse_scenario  # noqa: E402
+from conftest import room_3d  # noqa: E402
 
 LO3, HI3 = np.zeros(3), np.array([6.0, 5.0, 4.0])
 BAND = 1e-6
@@ -140,36 +141,15 @@ def test_discs_and_planar_capsules_in_a_2d_world():
 
 # -- scenario keys of the obstacle kinds ---------------------------------------------------------------
 
-ROOM = """
-[scenario]
-name = "room"
-[model]
-robot = "point"
-dynamics = "double_integrator"
-dt = 0.1
-process_noise_std = 0.05
-[measurement]
-kind = "perfect"
-[world]
-bounds = [[0.0, 0.0, 0.0], [6.0, 5.0, 4.0]]
-robot_radius = 0.2
-collision_backend = "fcl"
-obstacles = [
-  {{ center = [3.0, 2.5, 2.0], half_size = [0.5, 2.5, 2.0] }},
-  {{ kind = "sphere", center = [1.0, 4.0, 3.0], radius = 0.4 }},
-  {{ kind = "capsule", start = [4.5, 0.5, 0.5], end = [5.5, 4.5, 0.5], radius = 0.2 }},
-  {extra}
-]
-[task]
-start = [1.0, 1.0, 1.0]
-goal = [5.0, 1.0, 2.0]
-[roadmap]
-nodes = 5
-"""
+ROOM_OBSTACLES = """
+  { center = [3.0, 2.5, 2.0], half_size = [0.5, 2.5, 2.0] },
+  { kind = "sphere", center = [1.0, 4.0, 3.0], radius = 0.4 },
+  { kind = "capsule", start = [4.5, 0.5, 0.5], end = [5.5, 4.5, 0.5], radius = 0.2 },
+  """
 
 
 def _room(extra="", **replace):
-    text = ROOM.format(extra=extra)
+    text = room_3d(ROOM_OBSTACLES + extra + "\n")
     for old, new in replace.items():
         text = text.replace(old, new)
     return text

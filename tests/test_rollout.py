@@ -126,3 +126,13 @@ def test_execute_runs_the_rollout_policy(smoke_roadmap):
     assert '"policy": "rollout"' in res.stdout
     bad = CliRunner().invoke(app, ["execute", str(smoke_roadmap[0]), "--policy", "greedy", "-n", "4"])
     assert bad.exit_code == 2 and "'firm', 'rollout' or 'shortest-path'" in bad.output
+
+
+def test_no_candidate_no_monte_carlo(smoke, monkeypatch):
+    """With no node ahead, the running controller is not scored either (no work, no decision)."""
+    policy = ft.Policy(smoke, mode="rollout")
+    policy.reset()
+    run = policy._now.run
+    monkeypatch.setattr(rollout, "particle_scores", lambda *a: pytest.fail("scored without a candidate"))
+    d = rollout.rollout_decision(policy.replanner, run.lc.x_ref[0], run.lc.P[0], run.lc, np.array([], int), 1)
+    assert d.controller is None and d.scored == 0

@@ -36,6 +36,8 @@ from typing import Callable
 import h5py
 import numpy as np
 
+from conftest import room_3d
+
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "scenarios" / "smoke.toml"
 SECRET = "api_key=sk-live-5f3c9a1e"  # a secret a crafted side file holds: no message may show it
@@ -284,26 +286,11 @@ def lock_cases() -> list[Case]:
 
 # -- mesh side files -------------------------------------------------------------------------------------
 
-ROOM = """[scenario]
-name = "room"
-[model]
-robot = "point"
-dynamics = "double_integrator"
-dt = 0.1
-process_noise_std = 0.05
-[measurement]
-kind = "perfect"
-[world]
-bounds = [[0.0, 0.0, 0.0], [6.0, 5.0, 4.0]]
-robot_radius = 0.2
-collision_backend = "fcl"
-obstacles = [ {{ kind = "mesh", file = "{file}" }} ]
-[task]
-start = [1.0, 1.0, 1.0]
-goal = [5.0, 1.0, 2.0]
-[roadmap]
-nodes = 5
-"""
+def _room(file: str) -> str:
+    """The 3-D room whose one obstacle is the mesh ``file``."""
+    return room_3d(f'{{ kind = "mesh", file = "{file}" }}')
+
+
 CUBE = ("v 2 2 2\nv 3 2 2\nv 3 3 2\nv 2 3 2\nv 2 2 3\nv 3 2 3\nv 3 3 3\nv 2 3 3\n"
         "f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8\n")
 
@@ -341,7 +328,7 @@ def mesh(kind: str, phrase: str) -> Case:
     """A scenario whose mesh obstacle names a side file of ``kind``; ``firmtool check`` opens it."""
     def make(folder: Path, roadmap: Path) -> list[str]:
         scenario = folder / "room.toml"
-        scenario.write_text(ROOM.format(file=_mesh_file(folder, kind)))
+        scenario.write_text(_room(_mesh_file(folder, kind)))
         return ["check", str(scenario)]
     return Case(f"mesh_{kind.strip('/').replace('/', '_')}", "mesh", make, ("world.obstacles[0].file", phrase))
 
@@ -350,7 +337,7 @@ def stored_mesh(kind: str, name: str | None, phrase: str) -> Case:
     """The scenario text stored in a roadmap names a mesh file (``inspect`` parses it first)."""
     def make(folder: Path, roadmap: Path) -> list[str]:
         file = name if name is not None else _mesh_file(folder, kind)
-        text = ROOM.format(file=file)
+        text = _room(file)
 
         def fn(f: h5py.File) -> None:
             f.attrs["scenario_toml"] = text

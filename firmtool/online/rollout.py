@@ -37,7 +37,7 @@ import numpy as np
 
 from firmtool.control.local import LocalController
 from firmtool.errors import NumericalError
-from firmtool.online.replanning import Decision, Replanner, DecisionBudget
+from firmtool.online.replanning import Decision, DecisionBudget, Replanner
 from firmtool.roadmap.nodes import GOAL, segment_is_valid
 
 # A switch needs its mean gain over the running controller above this many standard errors of the
@@ -89,11 +89,13 @@ def rollout_decision(replanner: Replanner, xhat: np.ndarray, P: np.ndarray, keep
     s, problem = replanner.settings, replanner.problem
     M = s.rollout_particles
     budget = DecisionBudget(s, problem.model.dt, replanner.candidate_seconds)
+    nodes = np.asarray(candidates, dtype=np.int64)
+    if nodes.size == 0:  # nothing to compare with: the running controller is not scored either
+        return Decision(None, np.inf, np.inf, "no option", budget.scored, budget.hit, budget.seconds)
     base = particle_scores(replanner, keep, xhat, P, M, seed)
     budget.spent()
     keep_score = float(base.mean())
-    nodes = np.asarray(candidates, dtype=np.int64)
-    if nodes.size == 0 or not np.isfinite(keep_score):
+    if not np.isfinite(keep_score):
         return Decision(None, np.inf, keep_score, "no option", budget.scored, budget.hit, budget.seconds)
     bound = replanner.lower_bounds(xhat, P, nodes)
     best, best_score, best_j, late = None, keep_score, -1, ""
