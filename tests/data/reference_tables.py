@@ -16,6 +16,9 @@ Two sets, both written on main at 4071a87 (before the redesign):
 Regenerate (only when a change of numbers is intended, and say why in the commit)::
 
     python tests/data/reference_tables.py [reduced|shipped]
+
+``--rounded [reduced|shipped]`` re-digests only the machine-dependent datasets (:data:`ROUNDED`),
+checking that everything else is reproduced bit for bit.
 """
 
 from __future__ import annotations
@@ -63,8 +66,25 @@ def _attr(value):
 VOLATILE = ("created", "firmtool_version", "seconds", "time", "elapsed", "wall", "path", "source")
 
 
+# Datasets whose last bits depend on the machine: the cost terms' means and covariances are sums of
+# the particles' control effort and of filter covariances, computed through BLAS and SIMD reductions
+# whose rounding differs between CPU kinds (found: an AMD EPYC and the Intel machine that recorded the
+# reference agree on every other dataset and differ there in the last bits). They are digested
+# rounded to 6 significant digits: a rounding boundary lies within a few ulps of a value with
+# probability ~1e-10, while a change of what is computed moves them far more.
+ROUNDED = {("edges", "cost_terms_mean"), ("edges", "cost_terms_cov")}
+ROUNDED_DIGITS = 6
+
+
+def rounded_digest(arr: np.ndarray) -> str:
+    """sha256 of the values of ``arr`` written with :data:`ROUNDED_DIGITS` significant digits."""
+    text = ",".join(f"{v:.{ROUNDED_DIGITS - 1}e}" for v in np.asarray(arr, dtype=float).ravel())
+    return f"rounded{ROUNDED_DIGITS}:" + hashlib.sha256(text.encode()).hexdigest()
+
+
 def digests(path: Path) -> dict:
-    """Per dataset of the stage groups: dtype, shape and sha256 of its bytes; per group its attributes."""
+    """Per dataset of the stage groups: dtype, shape and sha256 of its bytes (of its values rounded,
+    for the :data:`ROUNDED` ones); per group its attributes."""
     import h5py
 
     out: dict = {}
@@ -76,12 +96,12 @@ def digests(path: Path) -> dict:
             entry: dict = {"attrs": {k: _attr(v) for k, v in sorted(g.attrs.items())
                                      if not any(w in k for w in VOLATILE)}, "datasets": {}}
 
-            def visit(name, obj, entry=entry):
+            def visit(name, obj, entry=entry, group=group):
                 if isinstance(obj, h5py.Dataset):
-                    data = obj[()]
-                    arr = np.asarray(data)
-                    entry["datasets"][name] = [str(arr.dtype), list(arr.shape),
-                                               hashlib.sha256(np.ascontiguousarray(arr).tobytes()).hexdigest()]
+                    arr = np.asarray(obj[()])
+                    digest = rounded_digest(arr) if (group, name) in ROUNDED else \
+                        hashlib.sha256(np.ascontiguousarray(arr).tobytes()).hexdigest()
+                    entry["datasets"][name] = [str(arr.dtype), list(arr.shape), digest]
 
             g.visititems(visit)
             out[group] = entry
@@ -99,6 +119,27 @@ def record(name: str, kind: str) -> dict:
                 "digests": digests(path)}
 
 
+def redigest_rounded(kinds: list[str]) -> None:
+    """Replace the digests of the :data:`ROUNDED` datasets by their rounded digests, after checking
+    that every other number of the recorded reference is reproduced here bit for bit (the reference
+    itself is not re-recorded)."""
+    out = json.loads(FIXTURE.read_text())
+    for kind in kinds:
+        for name in SCENARIOS:
+            got, want = record(name, kind), out[kind][name]
+            assert got["policy"] == want["policy"] and got["success_probability"] == want["success_probability"], name
+            for group, entry in want["digests"].items():
+                assert entry["attrs"] == got["digests"][group]["attrs"], (name, group)
+                for dataset, digest in entry["datasets"].items():
+                    mine = got["digests"][group]["datasets"][dataset]
+                    if (group, dataset) in ROUNDED:
+                        entry["datasets"][dataset] = mine
+                    else:
+                        assert mine == digest, (kind, name, group, dataset)
+            print(kind, name, "re-digested", file=sys.stderr)
+        FIXTURE.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+
+
 def main(kinds: list[str]) -> None:
     out = json.loads(FIXTURE.read_text()) if FIXTURE.exists() else {}
     for kind in kinds:
@@ -110,4 +151,7 @@ def main(kinds: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["reduced", "shipped"])
+    if sys.argv[1:2] == ["--rounded"]:
+        redigest_rounded(sys.argv[2:] or ["reduced", "shipped"])
+    else:
+        main(sys.argv[1:] or ["reduced", "shipped"])
