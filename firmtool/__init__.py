@@ -29,8 +29,10 @@ _EXPORTS = {
     "build": "firmtool.api",
     "open_roadmap": "firmtool.api",
     "solve": "firmtool.api",
+    "update": "firmtool.api",
     "Query": "firmtool.api",
     "QueryReport": "firmtool.reports",
+    "UpdateReport": "firmtool.reports",
     "simulate": "firmtool.api",
     "plot": "firmtool.figures",
     "Roadmap": "firmtool.api",
@@ -72,7 +74,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
-    from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve
+    from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve, update
     from firmtool.errors import (FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError,
                                  StaleScenarioWarning, Unreachable)
     from firmtool.figures import plot
@@ -89,6 +91,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time 
         RoadmapSummary,
         SampleReport,
         SolveReport,
+        UpdateReport,
     )
     from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
     from firmtool.scenario import Scenario

@@ -245,6 +245,45 @@ class QueryReport(Report):
 
 
 @dataclasses.dataclass(frozen=True)
+class UpdateReport(Report):
+    """A roadmap brought to a changed world (:func:`firmtool.pipeline.update.update_world`): which
+    nodes and edges it kept, which it estimated again, and why.
+
+    Attributes
+    ----------
+    roadmap : the roadmap file updated.
+    changes : what changed in the world (``"added box"``, ``"removed sphere"``, ``"world.hi[0]"``).
+    nodes : nodes of the roadmap; retired_nodes : the nodes the new world put in collision (kept at
+    their indices without edges: every other edge keeps its random streams), all told.
+    edges : edges of the updated roadmap; kept_edges : of them, estimates kept from the old world;
+    estimated_edges : estimated in the new world (``new_edges`` were no edge before);
+    dropped_edges : edges of the old roadmap the new one lacks (an end retired, or its nominal now
+    in collision).
+    reasons : per reason, how many old edges were estimated again or dropped: ``"swept region meets
+    <change>"``, ``"landed in a retired node"``, ``"end node retired"``, ``"nominal in collision"``.
+    simulated_particle_steps : the update's Monte Carlo (its adaptive rounds included).
+    seconds : per part (``design``, ``estimate``, ``solve``) and ``total``.
+    start_success_probability : the DP's prediction from the start in the new world.
+    notices : what the estimate stage said (e.g. which engine ran).
+    """
+
+    roadmap: str
+    changes: tuple[str, ...]
+    nodes: int
+    retired_nodes: int
+    edges: int
+    kept_edges: int
+    estimated_edges: int
+    new_edges: int
+    dropped_edges: int
+    reasons: Mapping[str, int]
+    simulated_particle_steps: int
+    seconds: Mapping[str, float]
+    start_success_probability: float
+    notices: tuple[str, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
 class DensifyRound(Report):
     """The roadmap after a densification round: its size, the start's success probability, and the
     edges that round estimated (None for the first, which is the build's own estimate stage)."""

@@ -21,7 +21,8 @@ from firmtool.api.execution import DisturbanceFunction, simulate
 from firmtool.api.roadmap import Roadmap, build, load_scenario, open_roadmap
 from firmtool.api.queries import solve
 from firmtool.api.solution import POLICIES, Solution
+from firmtool.api.updates import update
 from firmtool.pipeline.query import Query
 
 __all__ = ["DisturbanceFunction", "POLICIES", "Query", "Roadmap", "Solution", "build", "load_scenario", "open_roadmap",
-           "simulate", "solve"]
+           "simulate", "solve", "update"]

@@ -20,7 +20,7 @@ from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.io import arguments, scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_queries import query_images
-from firmtool.reports import BuildReport, QueryReport
+from firmtool.reports import BuildReport, QueryReport, UpdateReport
 from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
@@ -80,8 +80,8 @@ class Roadmap:
     policy's edge indices (:attr:`Solution.policy`) are rows of them.
     """
 
-    def __init__(self, data: RoadmapFile, *, path: Path | None = None, report: BuildReport | QueryReport | None = None,
-                 validity: "Callable | None" = None) -> None:
+    def __init__(self, data: RoadmapFile, *, path: Path | None = None,
+                 report: BuildReport | QueryReport | UpdateReport | None = None, validity: "Callable | None" = None) -> None:
         self._data = data
         self._image = None  # the memory file it lives in (a query's, or a build's in memory): queries read it
         self.path = path

@@ -60,7 +60,7 @@ app = typer.Typer(cls=OneLineErrors,
 
 # in the order firmtool --help lists them
 COMMANDS = (scenarios.init, scenarios.check, stages.sample, stages.design, stages.estimate, stages.build,
-            solve.solve, execute.execute, show.plot, show.inspect, run.run, scenarios.scenarios)
+            stages.update, solve.solve, execute.execute, show.plot, show.inspect, run.run, scenarios.scenarios)
 for _command in COMMANDS:
     app.command()(_command)
 

@@ -66,11 +66,14 @@ def design(roadmap: Path = typer.Argument(..., help="Roadmap file with sampled n
 def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designed controllers."),
              workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
              scheduler: Optional[str] = SchedulerOpt, checkpoint_seconds: float = CheckpointOpt,
+             fresh: bool = typer.Option(False, "--fresh", metavar="",
+                                        help="Estimate every edge from scratch, reusing no stored estimate."),
              as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Estimate every edge by Monte Carlo (landing, failure, timeout counts; cost), in parallel.
 
     Edges already estimated with the same inputs (in the file, or saved by an interrupted run) are
-    reused, not estimated again.
+    reused, not estimated again, unless --fresh (the reference a world update equals bit for bit;
+    it also records the swept regions a roadmap estimated by an older firmtool lacks).
 
     Example: firmtool estimate artifacts/smoke.h5 --workers 2
     """
@@ -78,7 +81,8 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
     from firmtool.pipeline import estimate_stage
     check_roadmap_argument(roadmap)
     report = estimate_stage(roadmap, workers=workers, executor=executor, scheduler=scheduler,
-                            progress=console.progress(), checkpoint_seconds=checkpoint_seconds).to_dict()
+                            progress=console.progress(), checkpoint_seconds=checkpoint_seconds,
+                            fresh=fresh).to_dict()
     emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
                                      f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
                                      f"{r['simulated_particle_steps']:,} particle-steps in "
@@ -181,3 +185,41 @@ def exit_if_unreachable(report: dict) -> None:
         fail(f"{report['roadmap']}: no goal node is reachable from the start: {why}; raise roadmap.bridge_nodes "
               "or roadmap.nodes, or use --p-min to densify", 1)
 
+
+
+def update_human(r: dict) -> str:
+    s = r["seconds"]
+    why = "; ".join(f"{why}: {n}" for why, n in sorted(r["reasons"].items())) or "none"
+    return (f"updated {r['roadmap']} to the new world ({', '.join(r['changes']) or 'no change'}): "
+            f"{r['edges']} edges, {r['kept_edges']} kept, {r['estimated_edges']} estimated ({r['new_edges']} new), "
+            f"{r['dropped_edges']} dropped; {r['retired_nodes']} of {r['nodes']} nodes retired\n"
+            f"not kept: {why}\n"
+            f"time: design {console.seconds(s['design'])}, estimate {console.seconds(s['estimate'])}, "
+            f"solve {console.seconds(s['solve'])}; P(success) from the start {prob(r['start_success_probability'])}")
+
+
+@handles_errors
+def update(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated edges."),
+           scenario: str = typer.Argument(..., help="The scenario of the new world: the roadmap's, with another "
+                                                     "[world] (obstacles added, moved or removed; bounds)."),
+           workers: Optional[int] = WorkersOpt, executor: str = ExecutorOpt,
+           scheduler: Optional[str] = SchedulerOpt, as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
+    """Bring a built roadmap to a changed world, re-estimating only the edges the change can alter.
+
+    Nodes the new world puts in collision are retired with their edges; an edge is estimated again
+    only when a changed obstacle or bound comes within the robot's reach of the region its
+    particles swept, or its particles landed in a retired node. The result equals, bit for bit,
+    'firmtool estimate --fresh' and 'firmtool solve' on the updated node set. The file is replaced
+    whole at the end: an interrupted update leaves it as it was.
+
+    Example: firmtool update artifacts/point_lightdark.h5 point_lightdark_door.toml
+    """
+    # lazy: saves firmtool --help the library's import, 2.0 s (firmtool.cli.app)
+    import firmtool.api as ft
+    check_roadmap_argument(roadmap)
+    check_scenario_argument(scenario)
+    report = ft.update(roadmap, scenario, workers=workers, executor=executor, scheduler=scheduler,
+                       progress=console.progress()).report.to_dict()
+    emit(report, as_json, update_human)
+    print_notices(report)
+    console.next_step(str(roadmap), f"firmtool execute {roadmap}")

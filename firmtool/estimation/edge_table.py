@@ -93,7 +93,16 @@ def to_arrays(estimates: list[EdgeEstimate], keys: np.ndarray, spec: CostSpec) -
         "steps_mean": np.array([r.steps_mean for r in estimates]),
         "particle_steps": np.array([r.particle_steps for r in estimates], dtype=np.int64),
         "outcome_edge": table[:, 0], "outcome_code": table[:, 1], "outcome_count": table[:, 2],
+        **swept_arrays(estimates),
     }
+
+
+def swept_arrays(estimates: list[EdgeEstimate]) -> dict[str, np.ndarray]:
+    """``swept_lo``, ``swept_hi`` (E, D) of ``estimates``: their swept regions
+    (:attr:`~firmtool.estimation.edges.EdgeEstimate.swept`); none when one of them has none."""
+    if not estimates or any(r.swept is None for r in estimates):
+        return {}
+    return {"swept_lo": np.array([r.swept[0] for r in estimates]), "swept_hi": np.array([r.swept[1] for r in estimates])}
 
 
 def from_arrays(arrays: Mapping[str, np.ndarray]) -> dict[bytes, EdgeEstimate]:
@@ -108,6 +117,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray]) -> dict[bytes, EdgeEstimate]:
     edge = arrays["outcome_edge"][order]
     bounds = np.searchsorted(edge, np.arange(E + 1))
     code, count = arrays["outcome_code"][order], arrays["outcome_count"][order]
+    swept = (arrays["swept_lo"], arrays["swept_hi"]) if "swept_lo" in arrays and "swept_hi" in arrays else None
     out = {}
     for e in range(E):
         sl = slice(bounds[e], bounds[e + 1])
@@ -115,7 +125,8 @@ def from_arrays(arrays: Mapping[str, np.ndarray]) -> dict[bytes, EdgeEstimate]:
             source=int(arrays["source"][e]), target=int(arrays["target"][e]), particles=int(arrays["particles"][e]),
             outcomes=code[sl].copy(), counts=count[sl].copy(), terms_mean=arrays["cost_terms_mean"][e].copy(),
             terms_cov=arrays["cost_terms_cov"][e].copy(), steps_mean=float(arrays["steps_mean"][e]),
-            particle_steps=int(arrays["particle_steps"][e]))
+            particle_steps=int(arrays["particle_steps"][e]),
+            swept=None if swept is None else np.array([swept[0][e], swept[1][e]], dtype=float))
     return out
 
 

@@ -29,7 +29,9 @@ from firmtool.estimation.outcomes import (  # noqa: F401
     cost_terms,
     cost_weights,
     edge_seed_sequence,
+    empty_swept,
     goal_code,
+    grow_swept,
 )
 from firmtool.models.base import Model
 from firmtool.problem import Problem
@@ -97,6 +99,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
     effort = np.zeros(M)
     candidates = regions.covariance_candidates(lc.P[1:])  # (T, N), once per edge
     goal = regions.goal
+    swept = empty_swept(problem.scenario.world.dim)
     alive = np.arange(M)
     r, nz = model.F.shape[1], model.nz
     for k in range(lc.steps):
@@ -107,6 +110,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
         # collision test and the state-dependent sensor noise
         x_a, u = control_and_move(model, lc, k, x[alive], xhat[alive], noise[:, :r])
         pts = problem.points(x_a)
+        grow_swept(swept, pts)
         if perfect:
             xhat_a = x_a
         else:
@@ -134,7 +138,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
             done |= landed
         steps[alive[done]] = k + 1
         alive = alive[~done]
-    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort))
+    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort), swept=swept)
 
 
 @dataclass(frozen=True)
@@ -150,6 +154,9 @@ class EdgeEstimate:
     terms_cov: np.ndarray  # (3, 3) their sample covariance (ddof 1; zeros for one particle)
     steps_mean: float
     particle_steps: int
+    # (2, D) the swept region of its particles (:attr:`ParticleOutcomes.swept`, and the start
+    # candidates a region start tested); None for an estimate stored before regions were recorded
+    swept: np.ndarray | None = None
 
     def cost_mean(self, spec: CostSpec) -> float:
         return float(self.terms_mean @ cost_weights(spec))
@@ -163,7 +170,7 @@ REGION_DRAW_ROUNDS = 64  # rejection rounds of a region start (each draws 2 M ca
 
 
 def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
-                     start: str = "center") -> tuple[np.ndarray, np.ndarray]:
+                     start: str = "center", swept: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Start of every particle of an edge's Monte Carlo: (true states, estimates), each (M, n).
 
     ``"center"`` (the paper's eq. 8: the node's centre represents the node): the estimate at the
@@ -175,7 +182,8 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
     true state ``N(xhat, P_s)`` around it (the filter's error is independent of its estimate), kept
     only where the true state is valid (a robot arriving at a node is alive; without this a node
     near an obstacle would count starts inside it as failures). In execution, arrivals' rms offsets
-    follow this law closely (quantiles 0.52/0.91/1.38 vs 0.53/0.90/1.30 on point_perfect).
+    follow this law closely (quantiles 0.52/0.91/1.38 vs 0.53/0.90/1.30 on point_perfect). ``swept``
+    (2, D), if given, grows to hold the key points of every candidate tested (the test reads the world).
 
     From a start node whose start belief the task gives (``task.start_covariance``): the estimate at
     the start's mean and the true state drawn from that belief, in either mode.
@@ -204,6 +212,8 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
         xhat = v + z[np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius]
         x = xhat if chol_p is None else xhat + rng.standard_normal(xhat.shape) @ chol_p.T
         alive = problem.is_valid(x)  # a robot that arrived is alive: its true state is valid
+        if swept is not None:
+            grow_swept(swept, problem.points(x))
         xs.append(x[alive])
         xhats.append(xhat[alive])
         drawn += int(alive.sum())
@@ -270,12 +280,14 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
     out = []
     for b in range(first_block, first_block + blocks):
         results = []
+        swept = empty_swept(problem.scenario.world.dim)
         for j, first in enumerate(range(0, block_size, chunk)):
             M = min(chunk, block_size - first)
             rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
-            x, xhat = initial_ensemble(problem, design_, source, M, rng, start)
+            x, xhat = initial_ensemble(problem, design_, source, M, rng, start, swept)
             results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise,
                                     goal_code(design_, target)))
+            swept = join_swept(swept, results[-1].swept)
         outcome = np.concatenate([r.outcome for r in results])
         steps = np.concatenate([r.steps for r in results])
         terms = np.concatenate([r.terms for r in results])
@@ -283,13 +295,13 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
         cov = np.cov(terms, rowvar=False, ddof=1) if block_size > 1 else np.zeros((3, 3))
         out.append(EdgeEstimate(source=source, target=target, particles=block_size, outcomes=values, counts=counts,
                                 terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
-                                steps_mean=float(steps.mean()), particle_steps=int(steps.sum())))
+                                steps_mean=float(steps.mean()), particle_steps=int(steps.sum()), swept=swept))
     return out
 
 
 def merge_estimates(a: EdgeEstimate, b: EdgeEstimate) -> EdgeEstimate:
     """One estimate from the particles of two estimates of the same edge: counts added, means and
-    sample covariances pooled exactly (Chan et al.'s parallel update)."""
+    sample covariances pooled exactly (Chan et al.'s parallel update); swept regions joined."""
     n1, n2 = a.particles, b.particles
     n = n1 + n2
     outcomes = np.union1d(a.outcomes, b.outcomes)
@@ -301,4 +313,11 @@ def merge_estimates(a: EdgeEstimate, b: EdgeEstimate) -> EdgeEstimate:
     m2 = a.terms_cov * max(n1 - 1, 0) + b.terms_cov * max(n2 - 1, 0) + np.outer(delta, delta) * (n1 * n2 / n)
     return EdgeEstimate(source=a.source, target=a.target, particles=n, outcomes=outcomes, counts=counts,
                         terms_mean=mean, terms_cov=m2 / (n - 1), steps_mean=(a.steps_mean * n1 + b.steps_mean * n2) / n,
-                        particle_steps=a.particle_steps + b.particle_steps)
+                        particle_steps=a.particle_steps + b.particle_steps, swept=join_swept(a.swept, b.swept))
+
+
+def join_swept(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    """The region (2, D) that holds both swept regions; None if either is unknown."""
+    if a is None or b is None:
+        return None
+    return np.array([np.fmin(a[0], b[0]), np.fmax(a[1], b[1])])

@@ -33,10 +33,29 @@ class ParticleOutcomes:
     outcome: np.ndarray  # (M,) node id, FAILURE, TIMEOUT or GOAL_MISS
     steps: np.ndarray  # (M,) stopping time
     terms: np.ndarray  # (M, 3) cost terms: sum of tr(P_k), steps, control effort sum |u_k|^2
+    # (2, D) the swept region: lower and upper corners of the box around every key point of every
+    # particle at every step it was tested (:func:`grow_swept`); None where not recorded
+    swept: np.ndarray | None = None
 
     def cost(self, spec: CostSpec) -> np.ndarray:
         """Per-particle eq. 16 cost (+ control effort if weighted) under the weights of ``spec``."""
         return self.terms @ cost_weights(spec)
+
+
+def empty_swept(dim: int) -> np.ndarray:
+    """(2, D) a swept region that holds nothing yet: lower corner +inf, upper corner -inf."""
+    return np.array([np.full(dim, np.inf), np.full(dim, -np.inf)])
+
+
+def grow_swept(swept: np.ndarray, points: np.ndarray) -> None:
+    """Grow the swept region ``swept`` (2, D), in place, to hold ``points`` (..., D): the key points
+    whose collision test an edge's Monte Carlo ran (a world change that stays outside the region,
+    inflated by the robot's reach, cannot change one verdict: :mod:`firmtool.roadmap.world_change`).
+    NaN coordinates are skipped (a state that is not finite fails whatever the world)."""
+    flat = np.asarray(points, dtype=float).reshape(-1, swept.shape[1])
+    if flat.shape[0]:
+        np.fmin(swept[0], np.fmin.reduce(flat, axis=0), out=swept[0])
+        np.fmax(swept[1], np.fmax.reduce(flat, axis=0), out=swept[1])
 
 
 def cost_weights(spec: CostSpec) -> np.ndarray:

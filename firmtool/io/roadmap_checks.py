@@ -26,7 +26,7 @@ Stages = Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]
 
 # Shapes of the datasets of each stage, by dimension symbol (N nodes, n state, m input, nz measurement,
 # E designed edges, F estimated edges (E less any that failed), R outcome rows, C cost terms (3),
-# H sha256 bytes (32), U unreachable nodes): a damaged or foreign file is refused here with the
+# H sha256 bytes (32), U unreachable nodes, W the workspace's dimension): a damaged or foreign file is refused here with the
 # dataset's name, not deep inside a stage with an IndexError.
 _SHAPES: dict[str, dict[str, tuple[str, ...]]] = {
     "nodes": {"centers": ("N", "n"), "kind": ("N",)},
@@ -36,7 +36,7 @@ _SHAPES: dict[str, dict[str, tuple[str, ...]]] = {
     "edges": {"source": ("F",), "target": ("F",), "particles": ("F",), "cost_mean": ("F",), "cost_std": ("F",),
               "steps_mean": ("F",), "particle_steps": ("F",), "outcome_edge": ("R",), "outcome_code": ("R",),
               "outcome_count": ("R",), "key": ("F", "H"), "cost_terms_mean": ("F", "C"),
-              "cost_terms_cov": ("F", "C", "C")},
+              "cost_terms_cov": ("F", "C", "C"), "swept_lo": ("F", "W"), "swept_hi": ("F", "W")},
     "policy": {"cost_to_go": ("N",), "edge": ("N",), "next_node": ("N",), "success_probability": ("N",),
                "shortest_path_edge": ("N",), "shortest_path_success_probability": ("N",), "unreachable": ("U",)},
 }

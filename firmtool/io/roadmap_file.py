@@ -11,13 +11,16 @@ Layout (schema version 1)::
                       outcome_edge, outcome_code, outcome_count (sparse counts; code = node id,
                       -1 failure, -2 timeout, -3 goal miss), key (E, 32) uint8 sha256 of each edge's inputs,
                       cost_terms_mean (E, 3), cost_terms_cov (E, 3, 3) (sum tr P, steps,
-                      effort; weighted at solve time)                      attrs: inputs_sha256, seed
+                      effort; weighted at solve time), swept_lo, swept_hi (E, D) the box around
+                      every key point each edge's particles were tested at (a world update's test)
+                                                                           attrs: inputs_sha256, seed
     /policy           cost_to_go, edge, success_probability (N,)          attrs: status, iterations, ...
     /edge_cache       (optional, not a stage) the /edges datasets of estimates finished by an
                       interrupted estimate stage or superseded by a new design; reused by key
 
-``key``, ``cost_terms_*`` and ``/edge_cache`` were added within schema 1 (readers ignore what they do
-not know; files without them are read as before and their edges are not reused).
+``key``, ``cost_terms_*``, ``/edge_cache`` and ``swept_*`` were added within schema 1 (readers ignore
+what they do not know; files without them are read as before: their edges are not reused, and
+without ``swept_*`` a roadmap cannot be updated to a new world until ``firmtool estimate --fresh``).
 
 Every stage group carries ``encoding-type`` / ``encoding-version``, the hash of the inputs it was
 computed from (``inputs_sha256``: the build compares it with what the current code computes, to
@@ -288,7 +291,12 @@ class RoadmapFile:
                 raise RoadmapError(f"{p}: '/nodes/centers' row {out[0]} lies far outside the scenario's bounds "
                                    "(file damaged)")
             if is_valid is not None:
-                bad = np.flatnonzero(~np.asarray(is_valid(self.stages["nodes"][0]["centers"]), dtype=bool))
+                valid = np.asarray(is_valid(self.stages["nodes"][0]["centers"]), dtype=bool)
+                retired = self.stages["nodes"][1].get("retired")  # retired nodes (a world update's) may collide
+                if retired is not None and np.asarray(retired).size:
+                    index = np.asarray(retired).astype(np.int64).ravel()
+                    valid[index[(index >= 0) & (index < valid.size)]] = True
+                bad = np.flatnonzero(~valid)
                 if bad.size:
                     raise RoadmapError(f"{p}: '/nodes/centers' row {bad[0]} is in collision or out of bounds in the "
                                        "stored scenario (file damaged or from another scenario)")

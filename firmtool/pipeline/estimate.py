@@ -35,7 +35,7 @@ def estimate_stage(path: str | RoadmapTarget, *, workers: int | None = None, exe
                    scheduler: str | None = None,
                    progress: ProgressCallback | None = None,
                    checkpoint_seconds: float = CHECKPOINT_SECONDS, validity: Callable | None = None,
-                   session: Workers | None = None) -> EstimateReport:
+                   session: Workers | None = None, fresh: bool = False) -> EstimateReport:
     """Monte Carlo estimation of every edge, in parallel, then adaptive rounds; writes ``/edges``.
 
     A uniform first pass gives every edge ``estimation.particles`` particles; then, unless
@@ -63,18 +63,20 @@ def estimate_stage(path: str | RoadmapTarget, *, workers: int | None = None, exe
     validity : the roadmap's Python validity checker, if it was built with one.
     session : the :class:`firmtool.estimation.executors.Workers` of the calling command (a build keeps one for
         all its stages); ``workers`` and ``executor`` are then its own.
+    fresh : estimate every edge from scratch, reusing no stored estimate (the reference a world
+        update is compared with, bit for bit; it also records the swept regions an older file lacks).
     """
     with locked(path):
         roadmap = RoadmapFile(path)
         problem = problem_of(roadmap, validity)
         settings = worker_settings(workers, executor, scheduler, default=default_workers(), problem=problem)
         return estimate_into(path, roadmap, problem, settings, progress=progress,
-                             checkpoint_seconds=checkpoint_seconds, session=session)
+                             checkpoint_seconds=checkpoint_seconds, session=session, fresh=fresh)
 
 
 def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Problem, settings: WorkerSettings, *,
                   progress: ProgressCallback | None = None, checkpoint_seconds: float = CHECKPOINT_SECONDS,
-                  session: Workers | None = None) -> EstimateReport:
+                  session: Workers | None = None, fresh: bool = False) -> EstimateReport:
     """:func:`estimate_stage` on the roadmap read at ``path`` and its problem (:func:`problem_of`),
     with checked worker settings, under the caller's lock."""
     t0 = time.perf_counter()
@@ -85,7 +87,7 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
     notices = (notice,) if notice else ()
     keys = edge_keys(problem, d, engine=engine)
     table_hash = edges_inputs(roadmap, sc, keys)
-    if roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
+    if not fresh and roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
         warmup.stop()  # nothing to estimate: no compile to wait for
         e = roadmap.require("edges", "particle_steps", fresh=False)
         if "edges" in roadmap.stale_stages():  # the same inputs under a new scenario text (e.g. a comment)
@@ -93,8 +95,8 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
         return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0,
                                 settings.workers if settings.requested else 0, settings.executor,
                                 time.perf_counter() - t0, up_to_date=True, notices=notices)
-    known: dict[bytes, EdgeEstimate] = from_arrays(roadmap.table("edges"))
-    cache = read_edge_cache(path, nodes=d.centers.shape[0])
+    known: dict[bytes, EdgeEstimate] = {} if fresh else from_arrays(roadmap.table("edges"))
+    cache = {} if fresh else read_edge_cache(path, nodes=d.centers.shape[0])
     known.update(from_arrays(cache))
     todo = [e for e in range(E) if bytes(keys[e]) not in known]
     reused = E - len(todo)

@@ -223,16 +223,45 @@ def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design
     roadmap's estimated edges the query must estimate again."""
     table = base.table("edges")
     N0 = base_design.centers.shape[0]
-    keep = reusable_edges(table, ns.changed[:N0] | ns.retired[:N0], bool(ns.retired[:N0].any()))
+    unusable, goal_changed = ns.changed[:N0] | ns.retired[:N0], bool(ns.retired[:N0].any())
+    keep = reusable_edges(table, unusable, goal_changed)
+    return rekeyed_estimates(base, source, (base_problem, base_design, engine), (problem, d, engine), keep,
+                             lambda x: estimate_usable(x, unusable, goal_changed))
+
+
+def estimate_usable(x: EdgeEstimate, unusable: np.ndarray, goal_changed: bool) -> bool:
+    """:func:`reusable_edges` of one stored estimate (a cached one may hold more particle blocks than
+    the table's row: its own landings decide)."""
+    landed = x.outcomes[x.outcomes >= 0]
+    return not (unusable[x.source] or unusable[x.target] or unusable[landed].any()
+                or (goal_changed and bool(np.any(x.outcomes == GOAL_MISS))))
+
+
+def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, str], new: tuple[Any, Design, str],
+                      keep: np.ndarray, usable: Callable[[EdgeEstimate], bool] | None = None
+                      ) -> tuple[dict[str, np.ndarray] | None, int, int]:
+    """The kept rows of a roadmap's ``/edges`` (``keep`` (E0,) bool), with every particle block stored
+    of them (in ``/edges`` and in ``source``'s ``/edge_cache``), under their keys in a new roadmap,
+    as an ``/edge_cache`` table for its estimate stage to find; and how many of the new roadmap's
+    edges they cover, and how many of the edges estimated before must be estimated again.
+
+    ``old`` and ``new``: (problem, design, engine) of the roadmap and of the new one. A stored block
+    is taken only when its key is the old edge's (not a stale estimate), only for an edge the new
+    design has between the same two nodes, and only where ``usable`` (if given) says so of it: a
+    block stored in the cache may hold particles the table's row has not (more blocks).
+    If the two engines differ, nothing is taken (their draws differ)."""
+    (base_problem, base_design, base_engine), (problem, d, engine) = old, new
+    table = base.table("edges")
+    N0 = base_design.centers.shape[0]
     kept = {(int(s), int(t)) for s, t, k in zip(table["source"], table["target"], keep) if k}
     base_row = {(int(s), int(t)): e for e, (s, t) in enumerate(zip(base_design.edge_source, base_design.edge_target))}
     pairs = list(zip(d.edge_source.tolist(), d.edge_target.tolist()))
     rows = [(e, base_row[p]) for e, p in enumerate(pairs) if p in kept and p in base_row]
     estimated = {(int(s), int(t)) for s, t in zip(table["source"], table["target"])}
     again = sum(1 for p in pairs if p in estimated and p not in kept)  # estimated before, and again now
-    if not rows:
-        return None, 0, again
-    base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=engine)
+    if not rows or base_engine != engine:
+        return None, 0, again if base_engine == engine else len(estimated & set(pairs))
+    base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=base_engine)
     new_keys = edge_keys(problem, d, [e for e, _ in rows], engine=engine)
     of_edge = {(int(d.edge_source[e]), int(d.edge_target[e])): (bk, nk) for (e, _), bk, nk in
                zip(rows, base_keys, new_keys)}
@@ -245,7 +274,8 @@ def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design
         if pair not in of_edge or x.particles % B:
             continue
         bk, nk = of_edge[pair]
-        if bytes(blocks_key(bk, x.particles // B)) == key:  # an estimate of this very edge, not a stale one
+        # an estimate of this very edge, not a stale one, that the change leaves as it was
+        if bytes(blocks_key(bk, x.particles // B)) == key and (usable is None or usable(x)):
             estimates.append(x)
             keys.append(blocks_key(nk, x.particles // B))
             covered.add(pair)

@@ -60,6 +60,10 @@ class RobotGeometry(Protocol):
         """Validity of states (M, n) -> bool (M,) for sampling nodes and checking nominals."""
         ...
 
+    def world_reach(self) -> float:
+        """How far from its key points any of its world tests reaches (a world update's margin)."""
+        ...
+
 
 class GeometryDefaults:
     """The defaults of :class:`RobotGeometry` (see the module docs); :meth:`points` has none."""
@@ -108,3 +112,11 @@ class GeometryDefaults:
         """Validity of states (M, n) -> bool (M,) for sampling nodes and checking nominals (default:
         :meth:`points_valid` of :meth:`points`; a robot may keep a margin, as the unicycle does)."""
         return self.points_valid(self.points(X))
+
+    def world_reach(self) -> float:
+        """How far from its key points any test of this robot against the world reaches: the
+        ``world.robot_radius`` of its balls or capsules (a robot whose :meth:`is_valid` keeps a margin,
+        or whose :meth:`points_valid` tests another shape, says how far). A world update
+        (:mod:`firmtool.roadmap.world_change`) re-estimates an edge when a change comes this close to
+        the key points its particles were tested at."""
+        return float(self.scenario.world.robot_radius)

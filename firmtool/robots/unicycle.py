@@ -102,6 +102,10 @@ class UnicycleRobot(Robot):
         P = self.points(X)
         return ~self.collision().capsules_collide(P, P, self.scenario.world.robot_radius + self.reach)
 
+    def world_reach(self) -> float:
+        """The disc and the node orbit's margin that :meth:`is_valid` keeps (a region start tests it)."""
+        return float(self.scenario.world.robot_radius + self.reach)
+
     # -- periodic node stabilisers -------------------------------------------------------------------
 
     def _weights(self, problem):

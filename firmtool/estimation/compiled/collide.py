@@ -83,6 +83,22 @@ if numba is not None:
         return False
 
     @njit
+    def sweep(PX, PY, n_pts, na, swept):
+        """Grow ``swept`` (2, 2) (lower and upper corners) to hold the key points of particles ``:na``:
+        the swept region a world update tests (the twin of
+        :func:`firmtool.estimation.outcomes.grow_swept`; NaN coordinates skipped as it skips them)."""
+        for c in range(2):
+            P = PX if c == 0 else PY
+            lo_, hi_ = swept[0, c], swept[1, c]
+            for p in range(n_pts):
+                row = P[p]
+                for a in range(na):
+                    v = row[a]
+                    lo_ = v if v < lo_ else lo_
+                    hi_ = v if v > hi_ else hi_
+            swept[0, c], swept[1, c] = lo_, hi_
+
+    @njit
     def collision_gate(PX, PY, na, n_seg, seg_offset, world, self_collision, half, G):
         """``G[a] = 1`` where :func:`collides` could return True for particle a: a point outside the
         world's bounds, or any prefilter of an obstacle or self pair passing (the same comparisons, on

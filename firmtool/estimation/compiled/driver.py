@@ -17,7 +17,7 @@ from firmtool.estimation.compiled.locate import candidate_lists
 from firmtool.estimation.compiled.run import kernel
 from firmtool.estimation.compiled.select import supports
 from firmtool.estimation.compiled.step import sensor_group
-from firmtool.estimation.outcomes import TIMEOUT, ParticleOutcomes, cost_terms
+from firmtool.estimation.outcomes import TIMEOUT, ParticleOutcomes, cost_terms, empty_swept
 from firmtool.roadmap.membership import locate_data
 
 FIRST_SEGMENT_PAST_EDGE = 8  # the first segment: the edge and this many stabiliser steps
@@ -137,7 +137,8 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
         rng_state[:] = rng.bit_generator.random_raw(4)
         rng_state[0] |= np.uint64(rng_state.any() == 0)  # xoshiro's one forbidden state: all zero
     x_ref, u_ref, K_ = (np.ascontiguousarray(a, dtype=float) for a in (lc.x_ref, lc.u_ref, lc.K))
-    ensemble = (np.arange(M, dtype=np.int64), X, Xh, outcome, steps, effort)  # the kernel's argument groups
+    swept = empty_swept(2)
+    ensemble = (np.arange(M, dtype=np.int64), X, Xh, outcome, steps, effort, swept)  # the kernel's argument groups
     first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
     candidates = (np.zeros(T + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
     segment = 0
@@ -160,4 +161,4 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
         x[...] = X
     if Xh is not xhat:
         xhat[...] = Xh
-    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort))
+    return ParticleOutcomes(outcome=outcome, steps=steps, terms=cost_terms(lc, steps, effort), swept=swept)

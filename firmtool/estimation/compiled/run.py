@@ -13,7 +13,8 @@ without the disk cache, in each process (:func:`disk_cached` says which).
 The kernel's arguments come in groups (plain tuples: numba dispatches them faster than named ones),
 each unpacked by the names below where it is used:
 
-- ensemble ``(alive, x, xhat, outcome, steps, effort)``: the particles, updated in place
+- ensemble ``(alive, x, xhat, outcome, steps, effort, swept)``: the particles, updated in place, and
+  their swept region (2, 2) (:func:`firmtool.estimation.compiled.collide.sweep`)
 - draws ``(noise, rng_state)``: numpy's stream (empty: draw here) and the xoshiro256++ state
   (:mod:`firmtool.estimation.compiled.rng`)
 - model ``(A, B, F, H)``: the linear Gaussian model's matrices
@@ -40,7 +41,7 @@ from firmtool.jit import KERNEL_OPTIONS, importable, numba, specialise
 
 if numba is not None:
     from firmtool.estimation.compiled import goal as goal_module
-    from firmtool.estimation.compiled.collide import collides, collision_gate
+    from firmtool.estimation.compiled.collide import collides, collision_gate, sweep
     from firmtool.estimation.compiled.goal import every_particle
     from firmtool.estimation.compiled.rng import draw_noise, take_noise
     from firmtool.estimation.compiled.step import (
@@ -81,7 +82,7 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
     already compiled helpers; what is left is the loop that owns the live columns and the work arrays
     and the per-particle decisions that read and write a dozen of them (collision, goal, membership,
     compaction), which a helper would need as arguments."""
-    alive, x, xhat, outcome, steps, effort = ensemble
+    alive, x, xhat, outcome, steps, effort, swept = ensemble
     noise, rng_state = draws
     A, B, F, H = model
     x_ref, u_ref, K, L = controller
@@ -117,6 +118,7 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
         true_step(A, B, F, X, U, W, XN, TMP, na)
         X, XN = XN, X
         key_points(X, params, PX, PY, PHI, na)  # once per step: for the sensor noise and the collision test
+        sweep(PX, PY, n_pts, na, swept)
         if perfect:
             for j in range(n):
                 for a in range(na):

@@ -1,0 +1,264 @@
+"""A built roadmap brought to a changed world (obstacles added, moved or removed, bounds moved),
+re-estimating only the edges the change can alter (SLAP's re-evaluation of the affected edges;
+paper Sec. III-D: edges are independent of the rest of the space).
+
+:func:`update_world` takes the roadmap file and the new scenario, whose sections other than
+``[world]`` (and ``[cost]``, ``[execution]`` and the scenario's name and notes) must be the
+roadmap's, and ``[world]``'s robot radius, backend and dimension too: anything else changes what
+every edge's Monte Carlo computes, and is refused naming the field (build again). Then:
+
+- nodes: every node keeps its index (the random streams of an edge are keyed by its two node
+  indices: :func:`firmtool.estimation.outcomes.edge_seed_sequence`); a node the new world puts in
+  collision is *retired* (:attr:`firmtool.roadmap.design.Design.retired`: no edges, never landed in);
+  every other node keeps its stabiliser (designed from the model and the sensor, not the world);
+- edges: those :func:`firmtool.roadmap.design.connect` gives the node set in the new world (a
+  removed obstacle may free a pair, a new one block a nominal);
+- estimates: an old edge's stored particle blocks are kept (re-keyed to the new world) when the
+  change cannot alter them (:mod:`firmtool.roadmap.world_change`: no changed box meets its swept
+  region grown by the robot's reach, no particle landed in a retired node); every other edge is
+  estimated by the estimate stage as a fresh estimate would, its adaptive rounds finding the kept
+  blocks; then the DP.
+
+So the updated ``/edges`` and ``/policy`` are, bit for bit, those of ``firmtool estimate --fresh``
+and ``firmtool solve`` on the updated node set (tests/test_update.py). The new roadmap is computed
+in memory and replaces the file in one atomic rename: an interrupted update leaves the old one.
+Its stored queries were answered in the old world and are not carried over.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from firmtool.errors import InputError
+from firmtool.estimation.compiled import engine_choice
+from firmtool.estimation.edges import EdgeEstimate
+from firmtool.estimation.executors import Workers, default_workers
+from firmtool.io import scenario_source
+from firmtool.io.hashing import digest
+from firmtool.io.memory_file import MemoryFile, replace_bytes
+from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_edge_cache, write_stage
+from firmtool.io.roadmap_write import record_source
+from firmtool.pipeline.design import DESIGN_ARRAYS
+from firmtool.pipeline.estimate import estimate_into
+from firmtool.pipeline.inputs import VALIDITY_ATTR, as_scenario, controllers_inputs, nodes_inputs
+from firmtool.pipeline.query import rekeyed_estimates
+from firmtool.pipeline.reading import design_of, problem_of, retired_nodes
+from firmtool.pipeline.settings import worker_settings
+from firmtool.pipeline.solve import solve_policy, unreachable_failure, write_policy
+from firmtool.pipeline.target import kept, locked
+from firmtool.problem import Problem, build_problem
+from firmtool.progress import ProgressCallback
+from firmtool.reports import UpdateReport
+from firmtool.roadmap.design import Design, connect
+from firmtool.roadmap.nodes import GOAL, START_INDEX
+from firmtool.roadmap.world_change import WorldChange, meets, world_change
+from firmtool.scenario import Scenario
+
+# The sections an update may change besides [world]: they change no Monte Carlo (the cost's weights
+# apply at solve time, the execution settings only in simulation).
+FREE_SECTIONS = ("cost", "execution")
+FIXED_SECTIONS = ("model", "measurement", "task", "roadmap", "controller", "estimation")
+FIXED_WORLD = ("robot_radius", "collision_backend")
+
+
+def check_update(old: Scenario, new: Scenario) -> None:
+    """Refuse a new scenario that changes more than an update can reuse, naming the field.
+
+    Raises
+    ------
+    InputError
+        One line naming the new scenario's file and the first field that forces a rebuild.
+    """
+    rebuild = f"it changes every edge's Monte Carlo; build a new roadmap (firmtool build {new.path})"
+    if old.seed != new.seed:
+        raise InputError(f"{new.path}: scenario.seed: differs from the roadmap's ({old.seed}); {rebuild}")
+    for section in FIXED_SECTIONS:
+        if digest(getattr(old, section)) != digest(getattr(new, section)):
+            raise InputError(f"{new.path}: [{section}]: differs from the roadmap's; an update changes only [world] "
+                             f"(and {', '.join(f'[{s}]' for s in FREE_SECTIONS)}); {rebuild}")
+    if old.world.dim != new.world.dim:
+        raise InputError(f"{new.path}: world.bounds: a {new.world.dim}-D world, the roadmap's is {old.world.dim}-D; "
+                         f"{rebuild}")
+    for name in FIXED_WORLD:
+        if getattr(old.world, name) != getattr(new.world, name):
+            raise InputError(f"{new.path}: world.{name}: differs from the roadmap's ({getattr(old.world, name)}); "
+                             f"{rebuild}")
+
+
+@dataclasses.dataclass
+class _Update:
+    """The update's working state: both worlds' problems, designs and the change between them."""
+
+    base: RoadmapFile
+    base_problem: Problem
+    base_design: Design
+    problem: Problem
+    change: WorldChange
+
+
+def update_world(path: str | Path, scenario: Scenario | str | Path, *, workers: int | None = None,
+                 executor: str = "process", scheduler: str | None = None, progress: ProgressCallback | None = None,
+                 session: Workers | None = None) -> UpdateReport:
+    """Bring the roadmap file at ``path`` to the world of ``scenario`` (module notes); the file is
+    replaced whole when the update is done.
+
+    Parameters
+    ----------
+    path : a solved roadmap file whose edges hold swept regions (estimated by this firmtool).
+    scenario : the new scenario (a file, a shipped name or a :class:`~firmtool.scenario.Scenario`).
+    workers, executor, scheduler, progress, session : as for the estimate stage
+        (:func:`firmtool.pipeline.estimate.estimate_stage`).
+
+    Raises
+    ------
+    InputError
+        A scenario that changes more than ``[world]`` (the field named), a roadmap built with a
+        Python validity checker (the change cannot be bounded), a roadmap without swept regions
+        (estimate it once with ``--fresh``), a start or every goal node in collision in the new world.
+    RoadmapError
+        A roadmap without estimated edges.
+    Unreachable
+        After the update is written, if the goal cannot be reached from the start in the new world.
+    """
+    t0 = time.perf_counter()
+    sc = as_scenario(scenario)
+    with locked(path), kept(path):
+        base = RoadmapFile(path)
+        up = _prepare(base, sc)
+        d, retired_now = _updated_design(up)
+        seconds = {"design": time.perf_counter() - t0}
+        keep, reasons = _kept_rows(up, d, retired_now)
+        cache, kept_edges, _ = rekeyed_estimates(
+            base, base.path, (up.base_problem, up.base_design, engine_choice(up.base_problem)[0]),
+            (up.problem, d, engine_choice(up.problem)[0]), keep,
+            lambda x: _estimate_unchanged(x, up.change, retired_now, up.problem))
+        image = _image(base, sc, up.problem, d, cache)
+        rm = RoadmapFile(image)
+        settings = worker_settings(workers, executor, scheduler, default=default_workers(), problem=up.problem)
+        e = estimate_into(image, rm, problem_of(rm), settings, progress=progress, session=session)
+        seconds["estimate"] = e.seconds
+        t1 = time.perf_counter()
+        group = solve_policy(RoadmapFile(image))
+        write_policy(image, group)
+        source = scenario_source.source_of(sc.path, sc.sha256) if sc.path else None
+        if source is not None:
+            record_source(image, source)
+        seconds["solve"] = time.perf_counter() - t1
+        replace_bytes(Path(path), image.read_bytes())  # one atomic rename: the old file until it is done
+    seconds["total"] = time.perf_counter() - t0
+    J = group.arrays["cost_to_go"]
+    if not np.isfinite(J[START_INDEX]):  # written all the same (inspect shows it), as solve does
+        raise unreachable_failure(path, len(group.arrays["unreachable"]), J.size,
+                                  [f"the new world ({', '.join(up.change.what)}) cut every path to the goal"])
+    old_pairs = set(zip(up.base_design.edge_source.tolist(), up.base_design.edge_target.tolist()))
+    new_pairs = set(zip(d.edge_source.tolist(), d.edge_target.tolist()))
+    return UpdateReport(
+        roadmap=str(path), changes=up.change.what, nodes=int(d.centers.shape[0]),
+        retired_nodes=int(0 if d.retired is None else d.retired.sum()), edges=e.edges, kept_edges=e.reused_edges,
+        estimated_edges=e.estimated_edges, new_edges=len(new_pairs - old_pairs), dropped_edges=len(old_pairs - new_pairs),
+        reasons=dict(reasons), simulated_particle_steps=e.simulated_particle_steps, seconds=seconds,
+        start_success_probability=float(group.arrays["success_probability"][START_INDEX]), notices=tuple(e.notices))
+
+
+def _prepare(base: RoadmapFile, sc: Scenario) -> _Update:
+    """Both worlds' problems and the change, every refusal checked before any work."""
+    base_problem = problem_of(base)
+    if base_problem.validity is not None:
+        raise InputError(f"{base.path}: built with a Python validity checker, whose verdicts a world change cannot "
+                         "bound; build a new roadmap in the new world")
+    check_update(base_problem.scenario, sc)
+    table = base.require("edges", "source", "target", "outcome_code")
+    if "swept_lo" not in table or "swept_hi" not in table:
+        raise InputError(f"{base.path}: its edges hold no swept regions (estimated before firmtool recorded them); "
+                         f"estimate them once in the old world (firmtool estimate {base.path} --fresh), then update")
+    problem = build_problem(sc)  # the start and goal checked in the new world, named as fields of its file
+    return _Update(base=base, base_problem=base_problem, base_design=design_of(base), problem=problem,
+                   change=world_change(base_problem.scenario.world, sc.world))
+
+
+def _updated_design(up: _Update) -> tuple[Design, np.ndarray]:
+    """The node set in the new world (nodes in collision retired) and its edges; and (N,) bool the
+    nodes retired by this update."""
+    d0 = up.base_design
+    before = np.zeros(d0.centers.shape[0], dtype=bool) if d0.retired is None else d0.retired
+    invalid = ~np.asarray(up.problem.is_valid(d0.centers), dtype=bool)
+    retired_now = invalid & ~before
+    retired = before | invalid
+    where = up.problem.scenario.path
+    if retired[START_INDEX]:
+        raise InputError(f"{where}: world.obstacles: the roadmap's start node is in collision in the new world")
+    goals = d0.kinds == GOAL
+    if not np.any(goals & ~retired):
+        raise InputError(f"{where}: world.obstacles: every goal node of the roadmap is in collision in the new world; "
+                         f"build a new roadmap (firmtool build {where})")
+    src, dst, steps = connect(up.problem, d0.centers, d0.kinds, retired=retired if retired.any() else None)
+    d = dataclasses.replace(d0, edge_source=src, edge_target=dst, edge_steps=steps,
+                            retired=retired if retired.any() else None)
+    return d, retired_now
+
+
+def _estimate_unchanged(x: EdgeEstimate, change: WorldChange, retired_now: np.ndarray, problem: Problem) -> bool:
+    """Whether a stored estimate's particles would run as they ran in the new world: its swept region
+    (grown by the robot's reach) meets no changed box and none landed in a node retired now."""
+    if x.swept is None:
+        return False
+    landed = x.outcomes[x.outcomes >= 0]
+    if retired_now[landed].any():
+        return False
+    return not meets(x.swept[:1], x.swept[1:], change, problem.robot.world_reach()).any()
+
+
+def _kept_rows(up: _Update, d: Design, retired_now: np.ndarray) -> tuple[np.ndarray, collections.Counter]:
+    """(E0,) bool: the rows of the old ``/edges`` the change leaves as they were; and per reason the
+    old edges it does not keep (estimated again or dropped)."""
+    table = up.base.table("edges")
+    source, target = table["source"].astype(np.int64), table["target"].astype(np.int64)
+    hits = meets(table["swept_lo"], table["swept_hi"], up.change, up.problem.robot.world_reach())  # (E0, K)
+    code, edge = table["outcome_code"].astype(np.int64), table["outcome_edge"].astype(np.int64)
+    landed_retired = np.zeros(source.size, dtype=bool)
+    land = code >= 0
+    landed_retired[np.unique(edge[land][retired_now[code[land]]])] = True
+    retired = np.zeros(d.centers.shape[0], dtype=bool) if d.retired is None else d.retired
+    ends = retired[source] | retired[target]
+    new_pairs = set(zip(d.edge_source.tolist(), d.edge_target.tolist()))
+    designed = np.array([(int(s), int(t)) in new_pairs for s, t in zip(source, target)], dtype=bool)
+    reasons: collections.Counter = collections.Counter()
+    for e in range(source.size):
+        if ends[e]:
+            reasons["end node retired"] += 1
+        elif not designed[e]:
+            reasons["nominal in collision"] += 1
+        elif landed_retired[e]:
+            reasons["landed in a retired node"] += 1
+        elif hits[e].any():
+            reasons[f"swept region meets {up.change.what[int(np.argmax(hits[e]))]}"] += 1
+    keep = ~(ends | ~designed | landed_retired | hits.any(axis=1))
+    return keep, reasons
+
+
+def _image(base: RoadmapFile, sc: Scenario, problem: Problem, d: Design, cache: dict[str, np.ndarray] | None) -> MemoryFile:
+    """The updated roadmap in memory: its nodes (with the retired ones), controllers, and the kept
+    estimates as its cache for the estimate stage."""
+    image = MemoryFile(base.path)
+    create_roadmap(image, sc.text, sc.sha256, sc.seed)
+    attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, ""), "densify_rounds":
+                             int(base.attrs("nodes").get("densify_rounds", 0)), "start": START_INDEX,
+                             "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: "",
+                             "updated_from": base.scenario_sha256}
+    if d.retired is not None:
+        attrs["retired"] = np.flatnonzero(d.retired)
+    write_stage(image, "nodes", {"centers": d.centers, "kind": d.kinds}, attrs)
+    write_stage(image, "controllers", {k: getattr(d, k) for k in DESIGN_ARRAYS},
+                {"inputs_sha256": controllers_inputs(RoadmapFile(image)),
+                 "node_radius": problem.scenario.controller.node_radius,
+                 "covariance_tolerance": problem.scenario.controller.covariance_tolerance})
+    if cache:
+        write_edge_cache(image, cache, {"description": "the estimates an update kept from the old world"})
+    return image
+
