@@ -473,6 +473,10 @@ class RoadmapSummary(Report):
         (None without one; the command line cannot rebuild such a roadmap's problem).
     stale_stages : stages computed from another scenario text than the stored one (a build with
         the current scenario, or the stage's command, recomputes them).
+    retired_nodes : nodes kept at their index without edges (in collision after a world update, or
+        a query's old goal nodes); swept_regions : whether ``/edges`` holds the swept regions a world
+        update needs (``firmtool update``; None without edges); updated : brought to a new world
+        by ``firmtool update``.
     """
 
     roadmap: str
@@ -499,3 +503,6 @@ class RoadmapSummary(Report):
     validity_checker: str | None = None
     stale_stages: tuple[str, ...] = ()
     queries: tuple[str, ...] = ()
+    retired_nodes: int | None = None
+    swept_regions: bool | None = None
+    updated: bool = False

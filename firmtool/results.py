@@ -48,6 +48,7 @@ class EventKind(enum.StrEnum):
     GOAL = "goal"  # the policy declared arrival and the true state is in the goal
     GOAL_MISS = "goal_miss"  # the policy declared arrival but the true state is not in the goal
     STUCK = "stuck"
+    WORLD_UPDATE = "world_update"  # the policy was told of a changed world (value: the edges it blocked)
 
 
 @dataclass

@@ -66,7 +66,7 @@ def test_good_specs_parse(spec, expected):
 
 
 @pytest.mark.parametrize("spec, match", [
-    ("shove:3:1", "expected 'push' or 'kidnap'"), ("push:3", "push:STEP:SIZE"), ("push:x:1", "STEP must be an integer"),
+    ("shove:3:1", "expected 'push', 'kidnap', 'obstacle' or 'obstacle-unseen'"), ("push:3", "push:STEP:SIZE"), ("push:x:1", "STEP must be an integer"),
     ("push:3:-1", "SIZE must be > 0"), ("push:-2:1", "STEP must be >= 0"), ("push:random:1:2", "0 < RATE <= 1"),
     ("kidnap:random", "kidnap:random:RATE"), ("kidnap:1:2", "kidnap:STEP"), ("push:3:nan", "finite"),
 ])

@@ -12,9 +12,11 @@ import numpy as np
 from firmtool import pipeline
 from firmtool.errors import ArgumentTypeError, InputError, Unreachable
 from firmtool.estimation.calibration import predicted_interval
+from firmtool.estimation.edge_table import edge_costs
 from firmtool.graph import SolveStatus, policy_path
 from firmtool.io import arguments
 from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.online.world import EdgeTable
 from firmtool.reports import SolveReport
 from firmtool.roadmap.nodes import START_INDEX
 
@@ -172,6 +174,19 @@ class Solution:
         if name == "shortest-path":
             return self.shortest_path_policy, self.shortest_path_success_probabilities
         raise InputError(f"policy: expected one of {', '.join(POLICIES)}, found {name!r}")
+
+    def _world_edges(self) -> EdgeTable:
+        """What :meth:`firmtool.Policy.update_world` re-solves on: the estimated edges (in policy index
+        order) with their costs under the solve's weights, probabilities and swept regions."""
+        rm = self.roadmap
+        data = rm._data
+        edges = data.require("edges", "source", "target")
+        table = data.table("edges")
+        landing, fail, timeout, _ = pipeline.edge_probabilities(data)
+        swept = (table["swept_lo"], table["swept_hi"]) if "swept_lo" in table and "swept_hi" in table else (None, None)
+        return EdgeTable(source=edges["source"].astype(np.int64), target=edges["target"].astype(np.int64),
+                         cost=edge_costs(table, rm.scenario.cost), landing=landing.tocsr(), failure=fail + timeout,
+                         swept_lo=swept[0], swept_hi=swept[1], goals=rm.goals, failure_cost=self.failure_cost)
 
     def path(self, policy: str = "firm") -> list[int]:
         """The policy's nominal node sequence from the start: each chosen edge's target in turn,

@@ -40,8 +40,9 @@ DisturbanceOpt = typer.Option(
     help="Inject a large disturbance into the simulated true system (the filter is not told): "
          "push:STEP:SIZE (true configuration moved SIZE scenario units in a random direction at "
          "control step STEP), push:random:SIZE:RATE (pushes at random steps, probability RATE per "
-         "step), kidnap:STEP (true state jumps to a random valid state at rest), kidnap:random:RATE. "
-         "Repeatable.")
+         "step), kidnap:STEP (true state jumps to a random valid state at rest), kidnap:random:RATE, "
+         "obstacle:STEP:CX,CY:HX,HY (a box appears in the true world at step STEP and the policy is told, as "
+         "by a map update), obstacle-unseen:STEP:CX,CY:HX,HY (the same box, the policy not told). Repeatable.")
 NoReplanOpt = typer.Option(False, "--no-replan", metavar="",
                            help="Follow the stored controllers only: no real-time replanning.")
 ReplanThresholdOpt = typer.Option(

@@ -32,6 +32,9 @@ def summarize(path: str | Path) -> RoadmapSummary:
     if rm.has("nodes"):
         c = rm.require("nodes", "centers", fresh=False)["centers"]
         out["nodes"], out["state_dim"] = int(c.shape[0]), int(c.shape[1])
+        retired = rm.attrs("nodes").get("retired")
+        out["retired_nodes"] = 0 if retired is None else int(np.asarray(retired).size)
+        out["updated"] = "updated_from" in rm.attrs("nodes")
         checker = str(rm.attrs("nodes").get("validity_checker", ""))
         if checker:  # built with a Python validity checker: the command line cannot rebuild it
             out["validity_checker"] = checker
@@ -43,6 +46,7 @@ def summarize(path: str | Path) -> RoadmapSummary:
         out["particles"] = int(e["particles"].sum())
         out["particle_steps"] = int(e["particle_steps"].sum())
         out["estimated_edges"] = int(e["particles"].size)
+        out["swept_regions"] = "swept_lo" in rm.table("edges")
         out["densify_rounds"] = int(rm.attrs("nodes").get("densify_rounds", 0)) if rm.has("nodes") else 0
     cache = read_edge_cache(path, nodes=out.get("nodes"))
     if cache:  # an interrupted estimate stage (or a superseded design) left estimates to reuse

@@ -66,7 +66,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from collections.abc import Iterable, Mapping
+from typing import Any
+
 from firmtool.errors import InputError
+from firmtool.geometry.shapes import Obstacle
 from firmtool.online.arrival import Arrival
 from firmtool.online.decision import KeepOrReplan
 from firmtool.online.record import Traversal
@@ -74,6 +78,7 @@ from firmtool.online.replanning import Replanner, ReplanSettings, mission_false_
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
 from firmtool.online.timing import TimingSummary
 from firmtool.online.running import EdgeControllers
+from firmtool.online.world import Worlds
 from firmtool.problem import Problem
 from firmtool.results import Event
 from firmtool.roadmap.design import Design
@@ -157,6 +162,7 @@ class Policy:
         self._setup(rm.problem, rm.execution_design, edges, solution.cost_to_go, solution.failure_cost, replan,
                     rng, max_steps)
         self.name: str | None = ROLLOUT if replan.rollout and policy == "firm" else policy
+        self._worlds = Worlds(rm.problem, rm.execution_design.centers, solution._world_edges)
 
     @classmethod
     def from_design(cls, problem: Problem, design_: Design, policy: np.ndarray, *,
@@ -193,6 +199,7 @@ class Policy:
         self._rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
         self._parts: Prepared | None = None
         self._now: PolicyRun | None = None  # the run since the last reset
+        self._worlds = Worlds(problem, design_.centers, None)  # update_world's answers (problem follows them)
 
     def prepare(self) -> None:
         """Build what every run shares, once: the node regions, the replanner, the jump test's
@@ -201,25 +208,61 @@ class Policy:
         robot's first control period."""
         if self._parts is not None:
             return
-        problem, design_, s = self.problem, self.design, self.settings
-        regions = design_.regions(problem)
-        replanner = Replanner(problem, design_, regions, self.edge_per_node, self._cost_to_go, self.failure_cost, s)
+        self._parts = self._build(self.problem, self.edge_per_node, self._cost_to_go, self.design.regions(self.problem))
+        if self.settings.enabled and self.settings.risk_particles > 0:  # the engine compiled now, not in a replan
+            self._parts.controllers.warm_up(self.edge_per_node)
+
+    def _build(self, problem: Problem, edge_per_node: np.ndarray, cost_to_go: np.ndarray,
+               regions: NodeRegions) -> Prepared:
+        """The collaborators of runs in ``problem``'s world under the policy ``edge_per_node``."""
+        design_, s = self.design, self.settings
+        replanner = Replanner(problem, design_, regions, edge_per_node, cost_to_go, self.failure_cost, s)
         jump_false_alarm = (s.jump_false_alarm if s.jump_false_alarm is not None
-                            else mission_false_alarm(design_, self.edge_per_node, START_INDEX))
-        controllers = EdgeControllers(problem, design_, regions)
+                            else mission_false_alarm(design_, edge_per_node, START_INDEX))
         window_test, jump_test = innovation_tests(s, problem)
         c = problem.scenario.cost
-        self._parts = Prepared(problem=problem, kinds=design_.kinds, edge_per_node=self.edge_per_node, settings=s,
-                               weights=(c.alpha_covariance, c.alpha_time, c.alpha_control),
-                               regions=regions, replanner=replanner, decisions=KeepOrReplan(problem, replanner, s),
-                               arrival=Arrival(regions, design_.kinds), controllers=controllers,
-                               jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test)
-        if s.enabled and s.risk_particles > 0:  # compile (or load) the Monte Carlo engine now, not in a replan
-            controllers.warm_up(self.edge_per_node)
+        return Prepared(problem=problem, kinds=design_.kinds, edge_per_node=edge_per_node, settings=s,
+                        weights=(c.alpha_covariance, c.alpha_time, c.alpha_control),
+                        regions=regions, replanner=replanner, decisions=KeepOrReplan(problem, replanner, s),
+                        arrival=Arrival(regions, design_.kinds), controllers=EdgeControllers(problem, design_, regions),
+                        jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test)
 
     def _prepared(self) -> Prepared:
         self.prepare()
         return self._parts
+
+    def update_world(self, obstacles: Iterable[Mapping[str, Any] | Obstacle], *, bounds: Any = None) -> list[Event]:
+        """Tell the policy the world changed: its obstacles are now ``obstacles`` (scenario tables such
+        as ``{"center": [x, y], "half_size": [hx, hy]}``, or :class:`~firmtool.geometry.shapes.Obstacle`
+        objects; ``bounds``: ``[lo, hi]``, None for the roadmap's).
+
+        The edges the change can touch are blocked at once, without a Monte Carlo, and the DP is
+        solved again on the others (:mod:`firmtool.online.world`); the replanner tests the new world
+        from now on; while a controller runs, a decision is taken at once from the current belief.
+        Predictions are approximate until ``firmtool update`` re-estimates the blocked edges. The
+        world stays until the next call (each world's answer is kept: a return to it costs nothing).
+
+        Returns
+        -------
+        list of Event
+            ``world_update`` (value: the edges blocked), then the decision's events.
+
+        Raises
+        ------
+        InputError
+            Between :meth:`act` and :meth:`observe`; obstacles the scenario's rules refuse; a roadmap
+            without swept regions.
+        """
+        if self._now is not None and self._now.awaiting:
+            raise InputError("Policy.update_world: observe() the measurement of the previous control first")
+        regions = self._prepared().regions
+        self._parts, update = self._worlds.answer(
+            obstacles, bounds, lambda u: self._build(u.problem, u.policy, u.cost_to_go, regions))
+        self.problem, self.edge_per_node, self._cost_to_go = update.problem, update.policy, update.cost_to_go
+        if self._now is None:
+            return []
+        return self._now.world_changed(self._parts, int(update.blocked.sum()),
+                                       ", ".join(update.changes) or "the roadmap's own world")
 
     def __repr__(self) -> str:
         where = f"at node {self.node}" if self.status is not PolicyStatus.RUNNING else self.controller

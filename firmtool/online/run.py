@@ -346,6 +346,22 @@ class PolicyRun:
         self._begin(new)
         return True
 
+    def world_changed(self, parts: Prepared, blocked: int, detail: str) -> list[Event]:
+        """The policy's world changed (:meth:`firmtool.online.Policy.update_world`): its collaborators
+        are ``parts`` from now on, and while a controller runs (no probe) a decision is taken at once
+        from the current belief, the running controller scored in the new world against run-time
+        controllers to the nodes of the re-solved policy."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        self.parts = parts
+        out: list[Event] = []
+        self.record.emit(out, Event(self.total, EventKind.WORLD_UPDATE, self.run.target if self.run else -1,
+                                    float(blocked), detail))
+        if self.status is not PolicyStatus.RUNNING or self.probe is not None or self.run is None:
+            return out
+        self.pending = None  # a controller decided in the old world is moot
+        self._decide(self.k, self.belief.P, 0.0, False, out, t0, c0)
+        return out
+
     def relocalise(self, mean: np.ndarray, covariance: np.ndarray) -> list[Event]:
         """A belief from outside (checked by the policy) replaces the belief, and a decision follows
         (:meth:`firmtool.online.Policy.relocalise`)."""

@@ -11,6 +11,11 @@ Specification strings (``firmtool execute --disturbance SPEC``, repeatable)::
     kidnap:STEP               at step STEP, the true state jumps to a uniformly drawn valid
                               configuration at rest (facing anywhere)
     kidnap:random:RATE        the same jump at random steps, probability RATE per step
+    obstacle:STEP:C:H         at step STEP a box of centre C and half sizes H (comma-separated, one
+                              number per world axis: obstacle:30:5.0,1.5:0.3,1.0) appears in the true
+                              world, and the policy is told (Policy.update_world, as a map update
+                              would tell a robot) once it has observed that step
+    obstacle-unseen:STEP:C:H  the same box, the policy not told (it meets it only by colliding)
 
 STEP counts control steps from the start of the episode (0 = before the first step). A push is
 drawn among the directions whose straight segment from the current configuration stays free of
@@ -44,7 +49,8 @@ from firmtool.models.angles import on_turn_of
 from firmtool.problem import Problem
 from firmtool.roadmap.nodes import segment_is_valid
 
-PUSH, KIDNAP = "push", "kidnap"
+PUSH, KIDNAP, OBSTACLE, OBSTACLE_UNSEEN = "push", "kidnap", "obstacle", "obstacle-unseen"
+KINDS = (PUSH, KIDNAP, OBSTACLE, OBSTACLE_UNSEEN)
 DISTURBANCE_KEY = 0xD157
 PUSH_DRAWS = 64  # directions tried for a collision-free push
 KIDNAP_DRAWS = 10_000  # configurations tried for a valid kidnap destination
@@ -52,20 +58,35 @@ KIDNAP_DRAWS = 10_000  # configurations tried for a valid kidnap destination
 SPEC_HELP = ("push:STEP:SIZE (true state pushed SIZE scenario units in a random position direction at "
              "step STEP), push:random:SIZE:RATE (pushes at random steps, probability RATE per step), "
              "kidnap:STEP (true state jumps to a random valid state at rest, the filter is not told), "
-             "kidnap:random:RATE. Repeatable.")
+             "kidnap:random:RATE, obstacle:STEP:CX,CY:HX,HY (a box appears in the true world at step STEP, the "
+             "policy is told), obstacle-unseen:STEP:CX,CY:HX,HY (the policy is not told). Repeatable.")
 
 
 @dataclass(frozen=True)
 class Disturbance:
-    """One disturbance specification: a kind, a fixed step or a per-step rate, and a push size."""
+    """One disturbance specification: a kind, a fixed step or a per-step rate, a push size, or the
+    box an obstacle disturbance adds."""
 
-    kind: str  # PUSH or KIDNAP
+    kind: str  # one of KINDS
     step: int | None = None  # fixed step, or None for random times
     rate: float = 0.0  # probability per step when ``step`` is None
     size: float = 0.0  # push length (scenario units)
+    center: tuple[float, ...] = ()  # an obstacle's box
+    half_size: tuple[float, ...] = ()
+
+    @property
+    def changes_world(self) -> bool:
+        return self.kind in (OBSTACLE, OBSTACLE_UNSEEN)
+
+    def box(self) -> dict:
+        """An obstacle disturbance's box as a scenario table."""
+        return {"center": list(self.center), "half_size": list(self.half_size)}
 
     def __str__(self) -> str:
         when = f"{self.step}" if self.step is not None else "random"
+        if self.changes_world:
+            return f"{self.kind}:{when}:{','.join(f'{v:g}' for v in self.center)}:" \
+                   f"{','.join(f'{v:g}' for v in self.half_size)}"
         if self.kind == PUSH:
             return f"push:{when}:{self.size:g}" + ("" if self.step is not None else f":{self.rate:g}")
         return f"kidnap:{when}" + ("" if self.step is not None else f":{self.rate:g}")
@@ -94,8 +115,11 @@ def parse_disturbance(spec: str) -> Disturbance:
     """
     parts = spec.strip().split(":")
     kind = parts[0].lower()
-    if kind not in (PUSH, KIDNAP):
-        raise InputError(f"--disturbance {spec!r}: expected 'push' or 'kidnap' first (format: {SPEC_HELP})")
+    if kind not in KINDS:
+        raise InputError(f"--disturbance {spec!r}: expected 'push', 'kidnap', 'obstacle' or 'obstacle-unseen' first "
+                         f"(format: {SPEC_HELP})")
+    if kind in (OBSTACLE, OBSTACLE_UNSEEN):
+        return _obstacle(spec, kind, parts)
     expected = {(PUSH, False): 3, (PUSH, True): 4, (KIDNAP, False): 2, (KIDNAP, True): 3}
     random_times = len(parts) > 1 and parts[1].lower() == "random"
     if len(parts) != expected[(kind, random_times)]:
@@ -116,6 +140,23 @@ def parse_disturbance(spec: str) -> Disturbance:
         if size <= 0:
             raise InputError(f"--disturbance {spec!r}: SIZE must be > 0")
     return Disturbance(kind=kind, step=step, rate=rate, size=size)
+
+
+def _obstacle(spec: str, kind: str, parts: list[str]) -> Disturbance:
+    """``obstacle[-unseen]:STEP:CX,CY[,CZ]:HX,HY[,HZ]`` (its dimension is checked against the world
+    when the box is added)."""
+    if len(parts) != 4:
+        raise InputError(f"--disturbance {spec!r}: expected {kind}:STEP:CX,CY:HX,HY")
+    step = int(_number(parts[1], spec, "STEP", int))
+    if step < 0:
+        raise InputError(f"--disturbance {spec!r}: STEP must be >= 0")
+    center = tuple(_number(v, spec, "a centre coordinate") for v in parts[2].split(","))
+    half = tuple(_number(v, spec, "a half size") for v in parts[3].split(","))
+    if len(center) != len(half) or len(center) not in (2, 3):
+        raise InputError(f"--disturbance {spec!r}: expected as many half sizes as centre coordinates (2 or 3)")
+    if min(half) <= 0:
+        raise InputError(f"--disturbance {spec!r}: the half sizes must be > 0")
+    return Disturbance(kind=kind, step=step, center=center, half_size=half)
 
 
 def parse_disturbances(specs: list[str] | tuple[str, ...] | None) -> tuple[Disturbance, ...]:

@@ -3,7 +3,7 @@
 It holds the true state, moves it with the control and process noise, measures it with the noise of
 the TRUE state (paper eq. 14: R at the true state, not at the nominal), says whether the state
 violates a constraint, and takes disturbances (push, kidnap, a user's callable) that the filter is
-never told of. Each step is the Monte Carlo's (:func:`firmtool.estimation.edges.simulate`) on one particle:
+never told of, and changes of its world (an obstacle that appears). Each step is the Monte Carlo's (:func:`firmtool.estimation.edges.simulate`) on one particle:
 ``x' = f(x, u) + F w``, the robot's points once for both the collision test and the sensing noise,
 ``z = h(x') + sqrt(R(x')) v``, with ``(w, v)`` one row of standard normals drawn together, process
 noise first.
@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.errors import InputError
-from firmtool.problem import Problem
+from firmtool.errors import InputError, ScenarioError
+from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import Design
 from firmtool.roadmap.nodes import NodeRegions
 from firmtool.sim import disturbances as dist_mod
@@ -44,6 +44,7 @@ class SimulatedSystem:
 
     def __init__(self, problem: Problem, design: Design | None = None) -> None:
         self.problem, self.design = problem, design
+        self._base_problem = problem  # the world it was made with (set_world changes problem)
         model = problem.model
         self._r = model.F.shape[1]
         self._width = self._r + (0 if problem.perfect else model.nz)
@@ -141,6 +142,29 @@ class SimulatedSystem:
             self._regions = (design, design.regions(self.problem))
         regions = self._regions[1]
         return bool(regions.true_arrival(np.array([node]), self.state, angles=self.problem.robot.angle_coordinates)[0])
+
+    @property
+    def obstacles(self) -> list[dict]:
+        """The true world's obstacles, as scenario tables."""
+        return [o.to_table() for o in self.problem.scenario.world.obstacles]
+
+    def set_world(self, obstacles: list[dict] | None) -> None:
+        """The true world's obstacles from now on (scenario tables; None: the world the system was
+        made with): a world-changing disturbance (``obstacle:STEP:...``) and its end with the episode.
+
+        Raises
+        ------
+        InputError
+            Obstacles the scenario's rules refuse, or that cover the task's start or goal.
+        """
+        if obstacles is None:
+            self.problem = self._base_problem
+            return
+        try:
+            scenario = self._base_problem.scenario.replace(world={"obstacles": list(obstacles)})
+            self.problem = build_problem(scenario, validity=self._base_problem.validity)
+        except ScenarioError as exc:
+            raise InputError(f"disturbance: the new world: {exc.field}: {exc.expected}") from None
 
     def set_state(self, state: np.ndarray) -> float:
         """Put the true state at ``state`` (n,) (a user's disturbance); returns how far the configuration moved."""

@@ -112,11 +112,24 @@ class _Disturber:
                          if scheduled else [])
         self.applied = 0
         self.steps: list[int] = []  # steps at which a disturbance hit
+        self.world_changed = self.policy_told = False  # an obstacle appeared in the true world; the policy knows
+        self.told: list[list[dict]] = []  # new worlds the policy is to be told of, once it observed the step
 
     def before(self, now: int, system: SimulatedSystem, events: list[Event]) -> None:
-        """Move the true state by the disturbances due before step ``now`` (the policy is not told)."""
+        """Move the true state by the disturbances due before step ``now``, or change the true world
+        (the policy is not told here: :attr:`told`)."""
         while self.schedule and self.schedule[0][0] <= now:
             _, dist = self.schedule.pop(0)
+            if dist.changes_world:
+                system.set_world(system.obstacles + [dist.box()])
+                self.world_changed = True
+                self.applied += 1
+                self.steps.append(now)
+                events.append(Event(now, EventKind.DISTURBANCE, -1, 0.0, str(dist)))
+                if dist.kind == dist_mod.OBSTACLE:
+                    self.told.append(system.obstacles)
+                    self.policy_told = True
+                continue
             moved = system.disturb(dist, np.random.default_rng(np.random.SeedSequence([*self.key, self.applied + 1])))
             self.applied += 1
             self.steps.append(now)
@@ -153,6 +166,7 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     rng = np.random.default_rng(seeds.system)
     world = system.design if system.design is not None else policy.design  # whose goal regions judge
     disturber = _Disturber(disturbances, tuple(seeds.disturbances), policy.max_steps)
+    own_world = [o.to_table() for o in policy.problem.scenario.world.obstacles]  # restored after a told change
     mean, covariance = policy.start_belief(start)
     x0 = system.reset(mean, covariance, rng)  # drawn from the start belief (drawn either way: the same streams)
     true_start = system.problem.true_start
@@ -181,6 +195,8 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
             ep.events.append(Event(policy.steps, EventKind.COLLISION, policy.target, detail=policy.controller))
             break
         events = policy.observe(z)
+        while disturber.told and not policy.done:  # a map update, once the policy observed the step
+            events = events + policy.update_world(disturber.told.pop(0))
         ep.events.extend(events)
         _judge_questioned(policy, system, world, events, judged)
         if after_disturbance is not None and disturber.steps and disturber.steps[-1] == now and not policy.done:
@@ -190,6 +206,10 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     ep.traversals = [(e, o) for e, o, first, last in traversals if not disturber.hit(first, last)]
     ep.disturbances = len(disturber.steps)
     _fill(ep, policy)
+    if disturber.world_changed:  # the next episode starts in the worlds the system and the policy were made with
+        system.set_world(None)
+        if disturber.policy_told:
+            policy.update_world(own_world)
     if record:
         history = policy.history
         ep.states = np.array(states)

@@ -1,0 +1,168 @@
+"""A changed world while the policy runs: the policy edges a new obstacle can touch are blocked at
+once, without a Monte Carlo, and the DP is solved again on the edges that remain (SLAP's
+response to a closed door; issue 36).
+
+An edge is *blocked* when a changed box of the world (:func:`firmtool.roadmap.world_change.world_change`)
+meets its swept region grown by the robot's reach (:func:`firmtool.roadmap.world_change.meets`), or
+one of its ends is in collision in the new world: its estimate may be wrong there, and the only
+safe answer without re-estimating it is not to plan through it. Every other edge's estimate holds
+in the new world exactly (the argument of :mod:`firmtool.roadmap.world_change`), so the re-solved
+policy is the DP of the new world on the unblocked edges; its predictions are approximate only in
+leaving out what the blocked edges would still give after a re-estimate (``firmtool update``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse
+
+from firmtool.errors import InputError, ScenarioError
+from firmtool.geometry.shapes import Obstacle
+from firmtool.graph import solve_dp
+from firmtool.io.hashing import digest
+from firmtool.problem import Problem, build_problem
+from firmtool.roadmap.world_change import WorldChange, meets, world_change
+
+
+@dataclass(frozen=True, eq=False)  # arrays: compared by identity
+class EdgeTable:
+    """What a re-solve of the DP needs of a roadmap's estimated edges (one row per policy edge index).
+
+    Attributes
+    ----------
+    source, target : (E,) int64; cost : (E,) the mean edge cost under the solve's weights.
+    landing : (E, N) sparse landing probabilities; failure : (E,) failure and timeout probabilities.
+    swept_lo, swept_hi : (E, D) the swept regions (None: not recorded, no online update possible).
+    goals : the goal nodes; failure_cost : J_F.
+    """
+
+    source: np.ndarray
+    target: np.ndarray
+    cost: np.ndarray
+    landing: scipy.sparse.csr_matrix
+    failure: np.ndarray
+    swept_lo: np.ndarray | None
+    swept_hi: np.ndarray | None
+    goals: np.ndarray
+    failure_cost: float
+
+
+def blocked_edges(table: EdgeTable, change: WorldChange, reach: float, node_valid: np.ndarray) -> np.ndarray:
+    """(E,) bool: the edges a world change may alter (its boxes meet their grown swept regions) or
+    whose source or target node is no longer valid (``node_valid`` (N,) bool)."""
+    assert table.swept_lo is not None and table.swept_hi is not None
+    hit = meets(table.swept_lo, table.swept_hi, change, reach).any(axis=1)
+    return hit | ~node_valid[table.source] | ~node_valid[table.target]
+
+
+def resolve(table: EdgeTable, blocked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The DP (eq. 12) on the edges that are not ``blocked``: the policy (N,) as indices into the whole
+    table (-1: none) and the cost-to-go (N,) (inf where the goal cannot be reached any more)."""
+    keep = np.flatnonzero(~blocked)
+    N = table.landing.shape[1]
+    res = solve_dp(N, table.goals, table.source[keep], table.cost[keep], table.landing[keep],
+                   table.failure[keep], table.failure_cost)
+    policy = np.where(res.policy >= 0, keep[np.maximum(res.policy, 0)], -1).astype(np.int64)
+    return policy, np.asarray(res.cost_to_go, dtype=float)
+
+
+@dataclass(frozen=True, eq=False)
+class WorldUpdate:
+    """The policy's answer to a changed world.
+
+    Attributes
+    ----------
+    problem : the problem in the new world (its collision tests see the new obstacles).
+    policy : (N,) the re-solved policy (edge per node, -1: none); cost_to_go : (N,) its cost-to-go.
+    blocked : (E,) bool, the edges left out; changes : what changed (:attr:`WorldChange.what`).
+    """
+
+    problem: Problem
+    policy: np.ndarray
+    cost_to_go: np.ndarray
+    blocked: np.ndarray
+    changes: tuple[str, ...]
+
+
+def obstacle_tables(obstacles: Iterable[Mapping[str, Any] | Obstacle]) -> list[dict[str, Any]]:
+    """Obstacles as scenario tables (``{"center": ..., "half_size": ...}``, ``{"kind": "sphere", ...}``):
+    tables as given, :class:`~firmtool.geometry.shapes.Obstacle` objects by their keys."""
+    out = []
+    for o in obstacles:
+        if isinstance(o, Obstacle):
+            out.append(o.to_table())
+        elif isinstance(o, Mapping):
+            out.append(dict(o))
+        else:
+            raise InputError(f"update_world: obstacles: expected scenario tables or Obstacle objects, found "
+                             f"{type(o).__name__}")
+    return out
+
+
+def world_update(base: Problem, table: EdgeTable, centers: np.ndarray, obstacles: Iterable[Mapping[str, Any] | Obstacle],
+                 bounds: Any = None) -> WorldUpdate:
+    """The policy's response to the world ``obstacles`` (and ``bounds``, a ``[lo, hi]`` pair; None:
+    the roadmap's) on a roadmap estimated in ``base``'s world: the problem there, the edges to block
+    (against the roadmap's own world, whose estimates the table holds) and the DP on the rest.
+
+    Raises
+    ------
+    InputError
+        A roadmap without swept regions, or an obstacle the scenario's rules refuse (named as the
+        field of ``world``); the task's start or goal in collision in the new world.
+    """
+    if table.swept_lo is None or table.swept_hi is None:
+        raise InputError("update_world: the roadmap's edges hold no swept regions (estimated before firmtool recorded "
+                         "them); estimate them once with 'firmtool estimate ROADMAP --fresh'")
+    world: dict[str, Any] = {"obstacles": obstacle_tables(obstacles)}
+    if bounds is not None:
+        world["bounds"] = np.asarray(bounds, dtype=float).tolist()
+    try:
+        scenario = base.scenario.replace(world=world)
+        problem = build_problem(scenario, validity=base.validity)
+    except ScenarioError as exc:
+        raise InputError(f"update_world: {exc.field}: {exc.expected}") from None
+    change = world_change(base.scenario.world, scenario.world)
+    blocked = blocked_edges(table, change, problem.robot.world_reach(), np.asarray(problem.is_valid(centers), bool))
+    policy, cost_to_go = resolve(table, blocked)
+    return WorldUpdate(problem=problem, policy=policy, cost_to_go=cost_to_go, blocked=blocked, changes=change.what)
+
+
+class Worlds:
+    """A policy's answers to world updates, one per world (computed on its first update).
+
+    Parameters
+    ----------
+    base : the problem of the world the roadmap's edges were estimated in.
+    centers : (N, n) the node centres (checked in each new world).
+    edges : () -> :class:`EdgeTable`, read on the first update (None: a policy made from its parts,
+        which cannot be updated).
+    """
+
+    def __init__(self, base: Problem, centers: np.ndarray, edges: Callable[[], EdgeTable] | None) -> None:
+        self.base, self.centers, self._edges = base, centers, edges
+        self._table: EdgeTable | None = None
+        self._answers: dict[str, tuple[Any, WorldUpdate]] = {}
+
+    def answer(self, obstacles: Iterable[Mapping[str, Any] | Obstacle], bounds: Any,
+               build: Callable[[WorldUpdate], Any]) -> tuple[Any, WorldUpdate]:
+        """``(build(update), update)`` of the world ``obstacles`` / ``bounds`` (:func:`world_update`)."""
+        tables = obstacle_tables(obstacles)
+        key = digest(tables, None if bounds is None else np.asarray(bounds, dtype=float)).hex()
+        hit = self._answers.get(key)
+        if hit is None:
+            if self._table is None:
+                if self._edges is None:
+                    raise InputError("Policy.update_world: a policy made from its parts has no edge table to re-solve")
+                self._table = self._edges()
+            update = world_update(self.base, self._table, self.centers, tables, bounds)
+            hit = self._answers[key] = (build(update), update)
+        return hit
+
+    def forget(self) -> None:
+        """Drop the answers (each next update computes its own: a benchmark's uncached time)."""
+        self._answers.clear()
