@@ -208,12 +208,13 @@ class Policy:
         robot's first control period."""
         if self._parts is not None:
             return
-        self._parts = self._build(self.problem, self.edge_per_node, self._cost_to_go, self.design.regions(self.problem))
+        self._parts = self._build(self.problem, self.edge_per_node, self._cost_to_go, self.design.regions(self.problem),
+                                  False)
         if self.settings.enabled and self.settings.risk_particles > 0:  # the engine compiled now, not in a replan
             self._parts.controllers.warm_up(self.edge_per_node)
 
     def _build(self, problem: Problem, edge_per_node: np.ndarray, cost_to_go: np.ndarray,
-               regions: NodeRegions) -> Prepared:
+               regions: NodeRegions, world_updated: bool) -> Prepared:
         """The collaborators of runs in ``problem``'s world under the policy ``edge_per_node``."""
         design_, s = self.design, self.settings
         replanner = Replanner(problem, design_, regions, edge_per_node, cost_to_go, self.failure_cost, s)
@@ -225,7 +226,8 @@ class Policy:
                         weights=(c.alpha_covariance, c.alpha_time, c.alpha_control),
                         regions=regions, replanner=replanner, decisions=KeepOrReplan(problem, replanner, s),
                         arrival=Arrival(regions, design_.kinds), controllers=EdgeControllers(problem, design_, regions),
-                        jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test)
+                        jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test,
+                        world_updated=world_updated)
 
     def _prepared(self) -> Prepared:
         self.prepare()
@@ -257,7 +259,7 @@ class Policy:
             raise InputError("Policy.update_world: observe() the measurement of the previous control first")
         regions = self._prepared().regions
         self._parts, update = self._worlds.answer(
-            obstacles, bounds, lambda u: self._build(u.problem, u.policy, u.cost_to_go, regions))
+            obstacles, bounds, lambda u: self._build(u.problem, u.policy, u.cost_to_go, regions, bool(u.changes)))
         self.problem, self.edge_per_node, self._cost_to_go = update.problem, update.policy, update.cost_to_go
         if self._now is None:
             return []

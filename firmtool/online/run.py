@@ -69,6 +69,9 @@ class Prepared:
     regions, replanner, decisions, arrival, controllers : the roadmap's collaborators.
     jump_false_alarm : the jump test's per-step false-alarm probability.
     window_test, jump_test : which innovation tests run.
+    world_updated : the world changed since the roadmap was solved (:meth:`firmtool.online.Policy.update_world`):
+        a node the re-solved policy has no edge from (its edges blocked) is left by a run-time
+        controller to the best node, not declared stuck.
     """
 
     problem: Problem
@@ -84,6 +87,7 @@ class Prepared:
     jump_false_alarm: float
     window_test: bool
     jump_test: bool
+    world_updated: bool = False
 
 
 class PolicyRun:
@@ -262,12 +266,28 @@ class PolicyRun:
             self.record.emit(out, Event(total, EventKind.GOAL, node))
             return
         edge = int(self.parts.edge_per_node[node])
+        if edge < 0 and self.parts.world_updated and self._leave_dead_end(node, out):
+            return
         if edge < 0:
             self.status = PolicyStatus.STUCK
             self.record.emit(out, Event(total, EventKind.STUCK, node, detail="no policy edge"))
             return
         self.record.edges.append(edge)
         self._begin(self.parts.controllers[edge])
+
+    def _leave_dead_end(self, node: int, out: list[Event]) -> bool:
+        """At ``node``, whose edges a world update blocked: a run-time controller from the belief to the
+        best node of the new policy (as from a start in no node); True if one runs."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        decision = self.parts.replanner.decide(self.belief.xhat[0], self.belief.P, self.rng)
+        self.timing.decided(time.perf_counter() - t0, time.thread_time() - c0, decision)
+        if decision.controller is None:
+            return False
+        self.record.replans += 1
+        self.record.emit(out, Event(self.total, EventKind.REPLAN, decision.controller.target,
+                                    detail=f"from node {node}, whose edges the world update blocked: {decision.reason}"))
+        self._begin(decision.controller)
+        return True
 
     def _goal_waits(self, landed: int, in_ball: bool, k: int, out: list[Event]) -> bool:
         """Whether the arrival at ``landed`` waits before the goal is declared (:meth:`GoalCheck.waits
