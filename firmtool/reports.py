@@ -421,7 +421,9 @@ class SolveReport(Report):
     failure_cost : J_F the policy was solved with.
     method : ``"value"`` or ``"policy"`` iteration.
     start_cost_to_go : J at the start node, None when the goal is unreachable from it.
-    start_success_probability : success probability of the policy from the start node.
+    start_success_probability : success probability of the policy from the start node (whenever).
+    deadline_steps, deadline_success_probability : with a deadline (:mod:`firmtool.deadline`): its
+        steps, and P(goal within them) from the start under the time-indexed policy (None without).
     shortest_path_start_success_probability : the same for the shortest-path baseline.
     unreachable_nodes : nodes (goal excluded) that cannot reach the goal.
     path : the policy's most likely node sequence from the start.
@@ -448,6 +450,8 @@ class SolveReport(Report):
     start_success_probability_ci95: tuple[float, float] | None = None
     shortest_path_start_success_probability_ci95: tuple[float, float] | None = None
     path_task_points: tuple[tuple[float, ...], ...] = ()
+    deadline_steps: int | None = None
+    deadline_success_probability: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -83,7 +83,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     arguments.optional_instance(replan, ReplanSettings, "replan", "a firmtool.ReplanSettings or None")
     arguments.check_simulate(episodes=episodes, seed=seed, record=record, progress=progress, disturbances=disturbances)
     base = "firm" if policy == ROLLOUT else policy  # rollout FIRM: its base policy's prediction
-    _, probabilities = solution._policy(base)
+    predicted, interval = _prediction(solution, base)
     dists = as_disturbances(disturbances)
     problem = solution.roadmap.problem
     # the CLI's bounds, as a guard of the API: worst-case steps, and pushes within the configuration bounds
@@ -97,10 +97,17 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals
     at_start_node = start is None
     return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
-                        predicted=float(probabilities[START_INDEX]) if at_start_node else None,
-                        predicted_ci95=solution.success_probability_interval(base) if at_start_node else None,
+                        predicted=predicted if at_start_node else None,
+                        predicted_ci95=interval if at_start_node else None,
                         # rollout FIRM leaves its edges for run-time controllers where it gains: the edges it
                         # runs to their end are not a sample of the edges' Monte Carlo, so no calibration check
                         edge_counts=None if policy == ROLLOUT else rm.edge_counts, system=system, progress=progress)
 
 
+def _prediction(solution: Solution, base: str) -> tuple[float | None, tuple[float, float] | None]:
+    """The policy ``base``'s predicted success from the start and its interval; with a deadline the
+    time-indexed policy's P(goal within T) (no interval: the Dirichlet draws are of the untimed DP)."""
+    if solution.deadline is not None:
+        return (solution.deadline_success_probability if base == "firm" else None), None
+    _, probabilities = solution._policy(base)
+    return float(probabilities[START_INDEX]), solution.success_probability_interval(base)

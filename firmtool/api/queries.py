@@ -32,7 +32,8 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
           progress: "ProgressCallback | None" = None, goal: Any = None, goal_radius: float | None = None,
           goal_confidence: float | None = None, start: Any = None, start_covariance: Any = None,
           name: str | None = None, queries: Sequence[Query] | None = None,
-          workers: int | None = None, allow_unreachable: bool = False) -> Solution | list[Solution]:
+          workers: int | None = None, allow_unreachable: bool = False,
+          deadline: int | None = None) -> Solution | list[Solution]:
     """Solve the roadmap (:func:`firmtool.api.solution.solve`), or answer new queries on it.
 
     With ``goal`` / ``goal_radius`` / ``goal_confidence`` / ``start`` / ``start_covariance`` (the
@@ -50,6 +51,9 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     name : the stored name of a query given by keyword (see :class:`firmtool.Query`).
     allow_unreachable : return the solutions also when a goal cannot be reached from its start
         (see :func:`firmtool.api.solution.solve`).
+    deadline : steps within which the goal is to be reached (default: the scenario's
+        ``task.deadline_steps``): the time-indexed policy of :mod:`firmtool.deadline` too (see
+        :func:`firmtool.api.solution.solve`).
 
     Raises
     ------
@@ -63,7 +67,9 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
                    start_covariance=start_covariance, name=name)
     if queries is None and not single.task():
         return _solution.solve(roadmap, failure_cost=failure_cost, method=method, progress=progress,
-                               allow_unreachable=allow_unreachable)
+                               allow_unreachable=allow_unreachable, deadline=deadline)
+    if deadline is not None:
+        raise InputError("deadline: a query is solved with its scenario's task.deadline_steps")
     if failure_cost is not None or method != "value":
         raise InputError("failure_cost, method: a query is solved with the scenario's J_F by value iteration")
     if queries is not None and single.task():

@@ -54,6 +54,9 @@ class Solution:
     failure_cost : J_F it was solved with.
     method : ``"value"`` or ``"policy"`` iteration.
     seconds : wall time of the solve (0 for a policy read from a file).
+    deadline_policy, deadline_success : (T + 1, N), with a deadline of T steps
+        (:mod:`firmtool.deadline`): the edge to take at node i with t steps left, and P(goal within t
+        steps) under it; None without a deadline.
     """
 
     roadmap: Roadmap
@@ -69,6 +72,8 @@ class Solution:
     failure_cost: float
     method: str
     seconds: float = 0.0
+    deadline_policy: np.ndarray | None = None
+    deadline_success: np.ndarray | None = None
     _inputs_sha256: str = dataclasses.field(default="", repr=False)
     _intervals: dict = dataclasses.field(default_factory=dict, repr=False)
     _interval_attrs: dict = dataclasses.field(default_factory=dict, repr=False)
@@ -91,6 +96,8 @@ class Solution:
                    unreachable_nodes=np.asarray(a["unreachable"], dtype=np.int64),
                    iterations=int(at["iterations"]), residual=float(at["residual"]),
                    failure_cost=float(at["failure_cost"]), method=str(at["method"]), seconds=group.seconds,
+                   deadline_policy=None if "deadline_edge" not in a else np.asarray(a["deadline_edge"], np.int64),
+                   deadline_success=None if "deadline_success" not in a else np.asarray(a["deadline_success"]),
                    _inputs_sha256=str(at.get("inputs_sha256", "")),
                    _intervals={name: (float(at[key][0]), float(at[key][1])) for name, key in _INTERVAL_ATTRS.items()
                                if key in at},
@@ -108,7 +115,20 @@ class Solution:
                  "residual": self.residual, "failure_cost": self.failure_cost, "method": self.method,
                  **{key: np.asarray(self._intervals[name]) for name, key in _INTERVAL_ATTRS.items()
                     if name in self._intervals}, **self._interval_attrs}
+        if self.deadline is not None:
+            arrays.update(deadline_edge=self.deadline_policy, deadline_success=self.deadline_success)
+            attrs.update(deadline_steps=self.deadline, deadline_success_probability=self.deadline_success_probability)
         return pipeline.PolicyGroup(arrays=arrays, attrs=attrs, seconds=self.seconds)
+
+    @property
+    def deadline(self) -> int | None:
+        """The deadline in steps the solve was given (None: none)."""
+        return None if self.deadline_policy is None else int(self.deadline_policy.shape[0] - 1)
+
+    @property
+    def deadline_success_probability(self) -> float | None:
+        """P(goal within the deadline) from the start node under the time-indexed policy (None: no deadline)."""
+        return None if self.deadline_success is None else float(self.deadline_success[-1, START_INDEX])
 
     # summaries
     @property
@@ -231,7 +251,8 @@ class Solution:
 
 
 def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = "value",
-          progress: "ProgressCallback | None" = None, allow_unreachable: bool = False) -> Solution:
+          progress: "ProgressCallback | None" = None, allow_unreachable: bool = False,
+          deadline: int | None = None) -> Solution:
     """Solve the constrained graph DP (paper eq. 12) and the success probabilities (Sec. III-E).
 
     Timeouts count as failures. Nothing is written (:meth:`Solution.save` stores the policy).
@@ -249,6 +270,11 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     allow_unreachable : bool
         Return the solution also when the goal cannot be reached from the start (then
         ``start_reachable`` is False, ``success_probability`` 0 and ``start_cost_to_go`` inf).
+    deadline : int, optional
+        Steps within which the goal is to be reached (default: the scenario's ``task.deadline_steps``,
+        none without one): the DP over (node, steps left) too (:mod:`firmtool.deadline`), whose
+        time-indexed policy :class:`firmtool.Policy` follows and whose P(goal within T) is
+        :attr:`Solution.deadline_success_probability`; execution ends at the deadline.
 
     Returns
     -------
@@ -265,7 +291,11 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     arguments.choice(method, "method", ("value", "policy"))
     arguments.number(failure_cost, "failure_cost", positive=True, optional=True)
     arguments.function(progress, "progress")
-    group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress)
+    if deadline is not None and (isinstance(deadline, bool) or not isinstance(deadline, (int, np.integer))
+                                 or deadline < 1):
+        raise InputError(f"deadline: expected a number of steps >= 1, found {deadline!r}")
+    group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress,
+                                  deadline=deadline)
     solution = Solution._from_group(roadmap, group)
     if not solution.start_reachable and not allow_unreachable:
         raise solution.unreachable_error()

@@ -31,6 +31,10 @@ def solve_human(r: dict) -> str:
     if r.get("path_task_points"):
         lines.append("  in the task space: " + " -> ".join("(" + ", ".join(f"{v:.2f}" for v in q) + ")"
                                                           for q in r["path_task_points"]))
+    if r.get("deadline_steps") is not None:
+        lines.append(f"within the deadline of {r['deadline_steps']} steps: success probability "
+                     f"{prob(r['deadline_success_probability'])} (the time-indexed policy; without a deadline "
+                     f"{prob(r['start_success_probability'])})")
     if r["unreachable_nodes"]:
         lines.append(f"{len(r['unreachable_nodes'])} nodes cannot reach the goal: {items(r['unreachable_nodes'])}")
     return "\n".join(lines)
@@ -55,6 +59,10 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
           force: bool = typer.Option(False, "--force", metavar="", help="Replace a stored query of the same name."),
           workers: Optional[int] = typer.Option(None, "--workers", "-w", min=1,
                                                 help="Worker processes for a query's Monte Carlo (default 1)."),
+          deadline: Optional[int] = typer.Option(None, "--deadline", min=1,
+                                                 help="Reach the goal within this many steps (default: the "
+                                                      "scenario's task.deadline_steps): the policy over node and "
+                                                      "steps left, which execute follows and ends at."),
           as_json: bool = JsonOpt, quiet: bool = QuietOpt) -> None:
     """Solve the constrained graph DP (eq. 12) and the success probability of every node; or, with
     --goal / --start / --task, answer new queries on the built roadmap (its nodes, stabilisers and
@@ -76,6 +84,8 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
         raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
+    if deadline is not None and (goal or task is not None or start is not None):
+        raise InputError("--deadline: a query is solved with its scenario's task.deadline_steps")
     if goal or task is not None or start is not None:
         return _queries(roadmap, queries_of(goal or [], name or [], goal_radius, goal_confidence, start,
                                             start_covariance, task), failure_cost, method, force, workers, as_json)
@@ -86,7 +96,7 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     # written also when the goal is unreachable (inspect shows it), then the run fails
     with writer_lock(roadmap):
         sol = ft.solve(open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
-                       allow_unreachable=True)
+                       allow_unreachable=True, deadline=deadline)
         sol.save()
     if not sol.start_reachable:
         raise sol.unreachable_error()

@@ -53,8 +53,9 @@ def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = N
     sc = problem.scenario
     if engine is None:
         engine = engine_for(problem)
-    parts = [ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task, sc.controller,
-             sc.estimation.particles, sc.estimation.chunk, robot_identity(problem), validity_identity(problem)]
+    parts = [ENGINE_VERSION, engine, sc.seed, sc.model, sc.measurement, sc.world, sc.task.without_deadline(),
+             sc.controller, sc.estimation.particles, sc.estimation.chunk, robot_identity(problem),
+             validity_identity(problem)]
     if sc.estimation.start != "center":  # keys of centre starts are those of the files written before the option
         parts.append(f"start={sc.estimation.start}")
     base = digest(*parts)
@@ -94,7 +95,20 @@ def to_arrays(estimates: list[EdgeEstimate], keys: np.ndarray, spec: CostSpec) -
         "particle_steps": np.array([r.particle_steps for r in estimates], dtype=np.int64),
         "outcome_edge": table[:, 0], "outcome_code": table[:, 1], "outcome_count": table[:, 2],
         **swept_arrays(estimates),
+        **histogram_arrays(estimates),
     }
+
+
+def histogram_arrays(estimates: list[EdgeEstimate]) -> dict[str, np.ndarray]:
+    """``steps_edge``, ``steps_code``, ``steps_value``, ``steps_count`` (H,): the step histograms of
+    ``estimates`` as rows (:attr:`~firmtool.estimation.edges.EdgeEstimate.step_histogram`); none when
+    one of them has none."""
+    if not estimates or any(r.step_histogram is None for r in estimates):
+        return {}
+    h = np.concatenate([r.step_histogram for r in estimates], axis=1)
+    edge = np.repeat(np.arange(len(estimates)), [r.step_histogram.shape[1] for r in estimates])
+    return {"steps_edge": edge.astype(np.int64), "steps_code": h[0].astype(np.int64),
+            "steps_value": h[1].astype(np.int64), "steps_count": h[2].astype(np.int64)}
 
 
 def swept_arrays(estimates: list[EdgeEstimate]) -> dict[str, np.ndarray]:
@@ -102,7 +116,8 @@ def swept_arrays(estimates: list[EdgeEstimate]) -> dict[str, np.ndarray]:
     (:attr:`~firmtool.estimation.edges.EdgeEstimate.swept`); none when one of them has none."""
     if not estimates or any(r.swept is None for r in estimates):
         return {}
-    return {"swept_lo": np.array([r.swept[0] for r in estimates]), "swept_hi": np.array([r.swept[1] for r in estimates])}
+    return {"swept_lo": np.array([r.swept[0] for r in estimates]),
+            "swept_hi": np.array([r.swept[1] for r in estimates])}
 
 
 def from_arrays(arrays: Mapping[str, np.ndarray]) -> dict[bytes, EdgeEstimate]:
@@ -118,6 +133,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray]) -> dict[bytes, EdgeEstimate]:
     bounds = np.searchsorted(edge, np.arange(E + 1))
     code, count = arrays["outcome_code"][order], arrays["outcome_count"][order]
     swept = (arrays["swept_lo"], arrays["swept_hi"]) if "swept_lo" in arrays and "swept_hi" in arrays else None
+    histograms = _histograms(arrays, E)
     out = {}
     for e in range(E):
         sl = slice(bounds[e], bounds[e + 1])
@@ -126,8 +142,21 @@ def from_arrays(arrays: Mapping[str, np.ndarray]) -> dict[bytes, EdgeEstimate]:
             outcomes=code[sl].copy(), counts=count[sl].copy(), terms_mean=arrays["cost_terms_mean"][e].copy(),
             terms_cov=arrays["cost_terms_cov"][e].copy(), steps_mean=float(arrays["steps_mean"][e]),
             particle_steps=int(arrays["particle_steps"][e]),
-            swept=None if swept is None else np.array([swept[0][e], swept[1][e]], dtype=float))
+            swept=None if swept is None else np.array([swept[0][e], swept[1][e]], dtype=float),
+            step_histogram=None if histograms is None else histograms[e])
     return out
+
+
+def _histograms(arrays: Mapping[str, np.ndarray], E: int) -> list[np.ndarray] | None:
+    """Per edge its step histogram (3, H_e) from a table's ``steps_*`` rows, or None without them."""
+    names = ("steps_edge", "steps_code", "steps_value", "steps_count")
+    if any(n not in arrays for n in names):
+        return None
+    edge = np.asarray(arrays["steps_edge"], dtype=np.int64)
+    order = np.argsort(edge, kind="stable")
+    rows = np.vstack([np.asarray(arrays[n], dtype=np.int64)[order] for n in names[1:]])
+    bounds = np.searchsorted(edge[order], np.arange(E + 1))
+    return [rows[:, bounds[e]:bounds[e + 1]].copy() for e in range(E)]
 
 
 def edge_costs(arrays: Mapping[str, np.ndarray], spec: CostSpec) -> np.ndarray:

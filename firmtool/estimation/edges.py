@@ -157,6 +157,9 @@ class EdgeEstimate:
     # (2, D) the swept region of its particles (:attr:`ParticleOutcomes.swept`, and the start
     # candidates a region start tested); None for an estimate stored before regions were recorded
     swept: np.ndarray | None = None
+    # (3, H) the step histogram per outcome: rows outcome code, steps taken, particles (sorted by code,
+    # then steps; a deadline's DP reads it, firmtool.deadline); None for an estimate stored before
+    step_histogram: np.ndarray | None = None
 
     def cost_mean(self, spec: CostSpec) -> float:
         return float(self.terms_mean @ cost_weights(spec))
@@ -293,10 +296,27 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
         terms = np.concatenate([r.terms for r in results])
         values, counts = np.unique(outcome, return_counts=True)
         cov = np.cov(terms, rowvar=False, ddof=1) if block_size > 1 else np.zeros((3, 3))
+        histogram = step_histogram(outcome, steps)
         out.append(EdgeEstimate(source=source, target=target, particles=block_size, outcomes=values, counts=counts,
                                 terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
-                                steps_mean=float(steps.mean()), particle_steps=int(steps.sum()), swept=swept))
+                                steps_mean=float(steps.mean()), particle_steps=int(steps.sum()), swept=swept,
+                                step_histogram=histogram))
     return out
+
+
+def step_histogram(outcome: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(3, H) int64: the distinct (outcome code, steps) pairs of particles (M,) and their counts, sorted."""
+    pairs, counts = np.unique(np.stack([outcome, steps]).astype(np.int64), axis=1, return_counts=True)
+    return np.vstack([pairs, counts[None]])
+
+
+def join_histograms(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    """The step histogram (3, H) of the particles of both; None if either is unknown."""
+    if a is None or b is None:
+        return None
+    both = np.concatenate([a, b], axis=1)
+    pairs, index = np.unique(both[:2], axis=1, return_inverse=True)
+    return np.vstack([pairs, np.bincount(index.ravel(), weights=both[2], minlength=pairs.shape[1]).astype(np.int64)[None]])
 
 
 def merge_estimates(a: EdgeEstimate, b: EdgeEstimate) -> EdgeEstimate:
@@ -313,7 +333,8 @@ def merge_estimates(a: EdgeEstimate, b: EdgeEstimate) -> EdgeEstimate:
     m2 = a.terms_cov * max(n1 - 1, 0) + b.terms_cov * max(n2 - 1, 0) + np.outer(delta, delta) * (n1 * n2 / n)
     return EdgeEstimate(source=a.source, target=a.target, particles=n, outcomes=outcomes, counts=counts,
                         terms_mean=mean, terms_cov=m2 / (n - 1), steps_mean=(a.steps_mean * n1 + b.steps_mean * n2) / n,
-                        particle_steps=a.particle_steps + b.particle_steps, swept=join_swept(a.swept, b.swept))
+                        particle_steps=a.particle_steps + b.particle_steps, swept=join_swept(a.swept, b.swept),
+                        step_histogram=join_histograms(a.step_histogram, b.step_histogram))
 
 
 def join_swept(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:

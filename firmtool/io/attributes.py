@@ -98,7 +98,8 @@ STAGE_ATTRIBUTES: dict[str, dict[str, Attribute]] = {
                "failure_cost": Attribute("number", positive=True, required=True),
                "method": Attribute("choice", required=True, choices=SOLVE_METHODS),
                "interval_method": Attribute("text"), "interval_prior": Attribute("number", low=0.0),
-               "interval_samples": Attribute("int", low=1)},
+               "interval_samples": Attribute("int", low=1), "deadline_steps": Attribute("int", low=1),
+               "deadline_success_probability": Attribute("number", low=0.0)},
 }
 # Root attributes read as text besides those the reader checks itself (schema_version, seed, the scenario).
 # The scenario file's path and stat (firmtool.io.scenario_source): compared by stat only, never opened.

@@ -3,7 +3,9 @@
 Two canonical forms, each kept exactly as stored files depend on it:
 
 - :func:`digest`, the edge keys' (:mod:`firmtool.estimation.edge_table`) and the problem's task cache:
-  dataclasses by class name and field, arrays by dtype, shape and bytes, mappings by sorted key;
+  dataclasses by class name and field, arrays by dtype, shape and bytes, mappings by sorted key; a
+  field added later with ``metadata={"digest": "when set"}`` only when it is not None (so that the
+  keys of everything written before it stay);
 - :func:`inputs_hash`, a stage's ``inputs_sha256`` attribute (:mod:`firmtool.io.roadmap_file`):
   strings by ``repr`` and arrays by dtype, shape and bytes.
 
@@ -24,8 +26,11 @@ def _feed(h: "hashlib._Hash", obj: Any) -> None:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         h.update(type(obj).__name__.encode())
         for f in dataclasses.fields(obj):
+            value = getattr(obj, f.name)
+            if value is None and f.metadata.get("digest") == "when set":
+                continue
             h.update(f.name.encode())
-            _feed(h, getattr(obj, f.name))
+            _feed(h, value)
     elif isinstance(obj, np.ndarray):
         a = np.ascontiguousarray(obj)
         h.update(f"{a.dtype}{a.shape}".encode() + a.tobytes())

@@ -26,8 +26,9 @@ Stages = Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]
 
 # Shapes of the datasets of each stage, by dimension symbol (N nodes, n state, m input, nz measurement,
 # E designed edges, F estimated edges (E less any that failed), R outcome rows, C cost terms (3),
-# H sha256 bytes (32), U unreachable nodes, W the workspace's dimension): a damaged or foreign file is refused here with the
-# dataset's name, not deep inside a stage with an IndexError.
+# H sha256 bytes (32), U unreachable nodes, W the workspace's dimension, Q step histogram rows, T the
+# deadline's steps + 1): a damaged or foreign file is refused here with the dataset's name, not deep
+# inside a stage with an IndexError.
 _SHAPES: dict[str, dict[str, tuple[str, ...]]] = {
     "nodes": {"centers": ("N", "n"), "kind": ("N",)},
     "controllers": {"u_eq": ("N", "m"), "K": ("N", "m", "n"), "S": ("N", "n", "n"), "L": ("N", "n", "nz"),
@@ -36,15 +37,18 @@ _SHAPES: dict[str, dict[str, tuple[str, ...]]] = {
     "edges": {"source": ("F",), "target": ("F",), "particles": ("F",), "cost_mean": ("F",), "cost_std": ("F",),
               "steps_mean": ("F",), "particle_steps": ("F",), "outcome_edge": ("R",), "outcome_code": ("R",),
               "outcome_count": ("R",), "key": ("F", "H"), "cost_terms_mean": ("F", "C"),
-              "cost_terms_cov": ("F", "C", "C"), "swept_lo": ("F", "W"), "swept_hi": ("F", "W")},
+              "cost_terms_cov": ("F", "C", "C"), "swept_lo": ("F", "W"), "swept_hi": ("F", "W"),
+              "steps_edge": ("Q",), "steps_code": ("Q",), "steps_value": ("Q",), "steps_count": ("Q",)},
     "policy": {"cost_to_go": ("N",), "edge": ("N",), "next_node": ("N",), "success_probability": ("N",),
-               "shortest_path_edge": ("N",), "shortest_path_success_probability": ("N",), "unreachable": ("U",)},
+               "shortest_path_edge": ("N",), "shortest_path_success_probability": ("N",), "unreachable": ("U",),
+               "deadline_edge": ("T", "N"), "deadline_success": ("T", "N")},
 }
 # Datasets holding indices or counts: integers, not floats that would be truncated silently.
 _INTEGER = {("nodes", "kind"), ("controllers", "edge_source"), ("controllers", "edge_target"),
             ("controllers", "edge_steps"), ("edges", "source"), ("edges", "target"), ("edges", "particles"),
             ("edges", "particle_steps"), ("edges", "outcome_edge"), ("edges", "outcome_code"),
-            ("edges", "outcome_count"), ("edges", "key"), ("policy", "edge"), ("policy", "next_node"),
+            ("edges", "outcome_count"), ("edges", "key"), ("edges", "steps_edge"), ("edges", "steps_code"),
+            ("edges", "steps_value"), ("edges", "steps_count"), ("policy", "edge"), ("policy", "deadline_edge"), ("policy", "next_node"),
             ("policy", "shortest_path_edge"), ("policy", "unreachable")}
 # Magnitude bound of stored real numbers (node centres, gains): that of any number in a scenario.
 MAX_MAGNITUDE = 1e12
@@ -180,6 +184,23 @@ def check_edges(p: Path, arrays: Mapping[str, np.ndarray], dims: dict[str, int],
         e = int(bad[0])
         _fail(at("outcome_count"), f"counts {per_edge[e]:.0f} outcomes for edge {e}, which has {int(particles[e])} "
                                    "particles")
+    if all(f"steps_{n}" in arrays for n in ("edge", "code", "value", "count")):
+        _check_histograms(at, arrays, N, F, particles)
+
+
+def _check_histograms(at: Any, arrays: Mapping[str, np.ndarray], N: int | None, F: int, particles: np.ndarray) -> None:
+    """The step histograms' rows: an edge, an outcome code, a step count >= 1, a count; per edge the
+    particles of its outcome counts."""
+    _index(at("steps_edge"), arrays["steps_edge"], 0, F, "F")
+    _index(at("steps_code"), arrays["steps_code"], -3, None if N is None else N, "N")
+    _index(at("steps_value"), arrays["steps_value"], 1, 2**31)
+    _index(at("steps_count"), arrays["steps_count"], 0, None)
+    edge, count = arrays["steps_edge"], arrays["steps_count"]
+    per_edge = np.bincount(edge, weights=count.astype(float), minlength=F) if edge.size else np.zeros(F)
+    bad = np.flatnonzero(per_edge != particles)
+    if bad.size:
+        _fail(at("steps_count"), f"counts {per_edge[int(bad[0])]:.0f} particles' steps for edge {int(bad[0])}, which "
+                                 f"has {int(particles[int(bad[0])])} particles")
 
 
 def _check_edges_stage(p: Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any], dims: dict[str, int],
@@ -246,9 +267,17 @@ def _check_policy(p: Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str,
             acting = (arrays["edge"] >= 0) | goal
             if np.any(np.isfinite(J) != acting):
                 _fail(at("cost_to_go"), "is infinite for a node with an edge, or finite for one without")
-    for name in ("success_probability", "shortest_path_success_probability"):
+    for name in ("success_probability", "shortest_path_success_probability", "deadline_success"):
         if name in arrays:
             _finite(at(name), arrays[name], low=0.0, high=1.0)
+    if "deadline_edge" in arrays:  # the time-indexed policy (firmtool.deadline): rows t = 0 .. T steps left
+        e = np.asarray(arrays["deadline_edge"])
+        _index(at("deadline_edge"), e, -1, F, "F")
+        if source is not None and e.size:
+            node = np.broadcast_to(np.arange(e.shape[1]), e.shape)
+            chosen = e >= 0
+            if np.any(source[e[chosen]] != node[chosen]):
+                _fail(at("deadline_edge"), "gives a node an edge that leaves another node")
     if "unreachable" in arrays:
         _index(at("unreachable"), arrays["unreachable"], 0, N, "N")
     if "failure_cost" in attrs:

@@ -74,7 +74,7 @@ from firmtool.geometry.shapes import Obstacle
 from firmtool.online.arrival import Arrival
 from firmtool.online.decision import KeepOrReplan
 from firmtool.online.record import Traversal
-from firmtool.online.replanning import Replanner, ReplanSettings, mission_false_alarm
+from firmtool.online.replanning import DEADLINE_FALSE_ALARMS, Replanner, ReplanSettings, mission_false_alarm
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
 from firmtool.online.timing import TimingSummary
 from firmtool.online.running import EdgeControllers
@@ -162,6 +162,9 @@ class Policy:
         self._setup(rm.problem, rm.execution_design, edges, solution.cost_to_go, solution.failure_cost, replan,
                     rng, max_steps)
         self.name: str | None = ROLLOUT if replan.rollout and policy == "firm" else policy
+        if solution.deadline is not None:  # the mission ends at the deadline; FIRM's edges by the steps left
+            self._timed = solution.deadline_policy if policy == "firm" else None
+            self.max_steps = min(self.max_steps, solution.deadline) if max_steps is None else self.max_steps
         self._worlds = Worlds(rm.problem, rm.execution_design.centers, solution._world_edges)
 
     @classmethod
@@ -200,6 +203,7 @@ class Policy:
         self._parts: Prepared | None = None
         self._now: PolicyRun | None = None  # the run since the last reset
         self._worlds = Worlds(problem, design_.centers, None)  # update_world's answers (problem follows them)
+        self._timed: np.ndarray | None = None  # a deadline's time-indexed policy (T + 1, N)
 
     def prepare(self) -> None:
         """Build what every run shares, once: the node regions, the replanner, the jump test's
@@ -220,6 +224,8 @@ class Policy:
         replanner = Replanner(problem, design_, regions, edge_per_node, cost_to_go, self.failure_cost, s)
         jump_false_alarm = (s.jump_false_alarm if s.jump_false_alarm is not None
                             else mission_false_alarm(design_, edge_per_node, START_INDEX))
+        if self._timed is not None and s.jump_false_alarm is None:  # a deadline's budget
+            jump_false_alarm = min(jump_false_alarm, DEADLINE_FALSE_ALARMS / (self._timed.shape[0] - 1))
         window_test, jump_test = innovation_tests(s, problem)
         c = problem.scenario.cost
         return Prepared(problem=problem, kinds=design_.kinds, edge_per_node=edge_per_node, settings=s,
@@ -227,7 +233,7 @@ class Policy:
                         regions=regions, replanner=replanner, decisions=KeepOrReplan(problem, replanner, s),
                         arrival=Arrival(regions, design_.kinds), controllers=EdgeControllers(problem, design_, regions),
                         jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test,
-                        world_updated=world_updated)
+                        world_updated=world_updated, timed_policy=None if world_updated else self._timed)
 
     def _prepared(self) -> Prepared:
         self.prepare()

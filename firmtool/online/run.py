@@ -72,6 +72,8 @@ class Prepared:
     world_updated : the world changed since the roadmap was solved (:meth:`firmtool.online.Policy.update_world`):
         a node the re-solved policy has no edge from (its edges blocked) is left by a run-time
         controller to the best node, not declared stuck.
+    timed_policy : (T + 1, N) with a deadline of T steps (:mod:`firmtool.deadline`): the edge at a node
+        with t steps left (where it has none, the untimed policy's); None without a deadline.
     """
 
     problem: Problem
@@ -88,6 +90,7 @@ class Prepared:
     window_test: bool
     jump_test: bool
     world_updated: bool = False
+    timed_policy: np.ndarray | None = None
 
 
 class PolicyRun:
@@ -266,6 +269,11 @@ class PolicyRun:
             self.record.emit(out, Event(total, EventKind.GOAL, node))
             return
         edge = int(self.parts.edge_per_node[node])
+        timed = self.parts.timed_policy
+        if timed is not None:  # a deadline: the edge for the steps left
+            left = timed.shape[0] - 1 - self.total
+            if left >= 0 and timed[left, node] >= 0:
+                edge = int(timed[left, node])
         if edge < 0 and self.parts.world_updated and self._leave_dead_end(node, out):
             return
         if edge < 0:
@@ -292,9 +300,10 @@ class PolicyRun:
     def _goal_waits(self, landed: int, in_ball: bool, k: int, out: list[Event]) -> bool:
         """Whether the arrival at ``landed`` waits before the goal is declared (:meth:`GoalCheck.waits
         <firmtool.online.arrival.GoalCheck.waits>`); a wait ends the edge's traversal as its Monte Carlo
-        counts it (what follows is not it)."""
+        counts it (what follows is not it). It never waits into the mission's last step: a declaration
+        then is the only arrival left (a deadline's prediction counts the arrival at the landing)."""
         wait, event = self.goal_check.waits(landed, in_ball, k, self.run, self.belief, self.total)
-        if not wait:
+        if not wait or self.total + 1 >= self.max_steps:
             return False
         self.goal_wait_step = self.total  # no rollout decision while a goal declaration waits
         if event is not None:

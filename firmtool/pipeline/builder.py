@@ -299,8 +299,10 @@ def _restamp_policy(out: RoadmapTarget) -> None:
     a = rm.attrs("policy")
     try:
         cost = problem_of(rm, need_validity=False).scenario.cost
+        deadline = a.get("deadline_steps")
         same = a.get("inputs_sha256") == policy_inputs(str(rm.attrs("edges").get("inputs_sha256")),
-                                                       float(a.get("failure_cost")), str(a.get("method")), cost)
+                                                       float(a.get("failure_cost")), str(a.get("method")), cost,
+                                                       None if deadline is None else int(deadline))
     except (TypeError, ValueError):
         return
     if same:

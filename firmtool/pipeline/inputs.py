@@ -60,7 +60,7 @@ def nodes_inputs(scenario: Scenario, validity: str = "") -> str:
     """Identity of what the sampled nodes depend on: every section but the cost weights, the
     estimation and execution settings and the name (changing those keeps the nodes), the robot's
     code and the identity of a user's validity checker (``validity``, "" without one)."""
-    parts = (scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task,
+    parts = (scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task.without_deadline(),
              scenario.roadmap, scenario.controller, robots.get(scenario.model.robot).code_identity(), validity)
     return digest(*parts).hex()
 
@@ -85,6 +85,9 @@ def edges_inputs(roadmap: RoadmapFile, scenario: Scenario, keys: np.ndarray) -> 
     return table_hash
 
 
-def policy_inputs(edges_sha256: str, failure_cost: float, method: str, cost: object) -> str:
-    """Identity of the solve stage's inputs (``edges_sha256``: the ``inputs_sha256`` of ``/edges``)."""
-    return inputs_hash(edges_sha256, failure_cost, method, digest(cost).hex())
+def policy_inputs(edges_sha256: str, failure_cost: float, method: str, cost: object, deadline: int | None = None) -> str:
+    """Identity of the solve stage's inputs (``edges_sha256``: the ``inputs_sha256`` of ``/edges``; a
+    deadline only when there is one, so that every policy solved before deadlines keeps its hash)."""
+    if deadline is None:
+        return inputs_hash(edges_sha256, failure_cost, method, digest(cost).hex())
+    return inputs_hash(edges_sha256, failure_cost, method, digest(cost).hex(), "deadline", int(deadline))

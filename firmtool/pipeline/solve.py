@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from firmtool.deadline import StepRows, smallest_feasible_deadline, solve_deadline
 from firmtool.errors import RunFailure, Unreachable
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.edge_table import edge_costs
@@ -48,7 +49,7 @@ class PolicyGroup:
 
 
 def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, method: str = "value",
-                 progress: ProgressCallback | None = None) -> PolicyGroup:
+                 progress: ProgressCallback | None = None, deadline: int | None = None) -> PolicyGroup:
     """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
     baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
 
@@ -59,6 +60,16 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     method : ``"value"`` (value iteration) or ``"policy"`` (policy iteration).
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), told of the solve's steps
         (the DP, the success probabilities, the shortest-path baseline).
+    deadline : steps within which the goal is to be reached (default: the scenario's
+        ``task.deadline_steps``; None: none): then also the DP over (node, steps left)
+        (:mod:`firmtool.deadline`), its time-indexed policy ``deadline_edge`` and ``deadline_success``
+        (T + 1, N), and the start's P(goal within T) (attribute ``deadline_success_probability``).
+
+    Raises
+    ------
+    RunFailure
+        A deadline within which the goal cannot be reached from the start (the message gives the
+        least one that can), or a roadmap whose edges hold no step histograms.
     """
     t0 = time.perf_counter()
     steps = Counter(progress, SOLVE, 3).start()
@@ -91,12 +102,40 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
+    deadline = problem.scenario.task.deadline_steps if deadline is None else int(deadline)
+    timed = _deadline_arrays(roadmap, N, goals, cost, JF, deadline) if deadline is not None else ({}, {})
+    arrays.update(timed[0])
     attrs = {"inputs_sha256": policy_inputs(str(roadmap.attrs("edges")["inputs_sha256"]), JF, method,
-                                            problem.scenario.cost),
+                                            problem.scenario.cost, deadline), **timed[1],
              "status": res.status.name, "iterations": res.iterations, "residual": res.residual,
              "failure_cost": JF, "method": method, **intervals, "interval_method": INTERVAL_METHOD,
              "interval_prior": PRIOR, "interval_samples": INTERVAL_SAMPLES}
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
+
+
+def _deadline_arrays(roadmap: RoadmapFile, N: int, goals: np.ndarray, cost: np.ndarray, JF: float,
+                     deadline: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The time-indexed policy's datasets and attributes (:func:`solve_policy`'s ``deadline``)."""
+    table = roadmap.table("edges")
+    if any(f"steps_{n}" not in table for n in ("edge", "code", "value", "count")):
+        raise RunFailure(f"{roadmap.path}: its edges hold no step histograms (estimated before firmtool recorded "
+                         f"them), which a deadline's DP needs; estimate them once: firmtool estimate {roadmap.path} "
+                         "--fresh")
+    if deadline < 1:
+        raise RunFailure(f"{roadmap.path}: deadline: expected a number of steps >= 1, found {deadline}")
+    rows = StepRows.from_counts(table["steps_edge"], table["steps_code"], table["steps_value"], table["steps_count"],
+                                table["particles"])
+    source = table["source"].astype(np.int64)
+    res = solve_deadline(N, goals, source, cost, rows, JF, deadline)
+    if res.success[deadline, START_INDEX] <= 0:
+        least = smallest_feasible_deadline(N, goals, source, cost, rows, JF, START_INDEX, 10**9)
+        advice = (f"the least deadline that can is {least} steps" if least is not None else
+                  "the goal cannot be reached from the start at all")
+        raise RunFailure(f"{roadmap.path}: deadline {deadline}: no chain of edges reaches the goal from the start "
+                         f"within {deadline} steps; {advice}")
+    return ({"deadline_edge": res.policy, "deadline_success": res.success},
+            {"deadline_steps": int(deadline),
+             "deadline_success_probability": float(res.success[deadline, START_INDEX])})
 
 
 def write_policy(path: str | RoadmapTarget, group: PolicyGroup, source: RoadmapFile | None = None) -> None:
@@ -129,7 +168,10 @@ def solve_report(roadmap_path: str | Path | MemoryFile | None, group: PolicyGrou
                        tuple(tuple(float(v) for v in task_points[j]) for j in path),
                        start_success_probability_ci95=_interval_or_none(at.get("success_probability_ci95")),
                        shortest_path_start_success_probability_ci95=_interval_or_none(
-                           at.get("shortest_path_success_probability_ci95")))
+                           at.get("shortest_path_success_probability_ci95")),
+                       deadline_steps=None if "deadline_steps" not in at else int(at["deadline_steps"]),
+                       deadline_success_probability=None if "deadline_success_probability" not in at else
+                       float(at["deadline_success_probability"]))
 
 
 def _interval_or_none(value: Any) -> tuple[float, float] | None:

@@ -83,6 +83,9 @@ TASK_FIELDS = (
     Field("goal_confidence", "number", 0.95, check=_open_probability,
           doc="with goal_radius: the probability under the belief that the true task point lies in the "
               "goal ball, required to declare arrival"),
+    Field("deadline_steps", "integer", None, bound="positive",
+          doc="the mission's deadline in control steps: solve maximises reaching the goal within it (the DP over "
+              "node and steps left) and execution ends there (default: none)"),
 )
 # Old spellings still read: [task] goal_center is goal (with goal_radius), as the arm took it.
 TASK_ALIASES = {"goal_center": "goal"}

@@ -325,6 +325,7 @@ def _read_task(errors: Errors, data: dict, robot_cls: type | None, world: WorldS
     if not valid(*values.values()) or len(errors.items) > before:
         return None
     return TaskSpec(start=start, goal=goal, goal_radius=radius, goal_confidence=values["goal_confidence"],
-                    start_covariance=values["start_covariance"], true_start=values["true_start"])
+                    start_covariance=values["start_covariance"], true_start=values["true_start"],
+                    deadline_steps=values["deadline_steps"])
 
 

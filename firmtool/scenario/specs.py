@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -117,11 +117,19 @@ class TaskSpec:
     goal_confidence: float = 0.95
     start_covariance: np.ndarray | None = None
     true_start: np.ndarray | None = None
+    # the mission's deadline in control steps (alpha-T reachability; firmtool.deadline); None: none.
+    # Hashed only when set: the keys of every roadmap written before it stay.
+    deadline_steps: int | None = field(default=None, metadata={"digest": "when set"})
 
     @property
     def goal_ball(self) -> bool:
         """Whether the goal is a ball in the task space (``goal_radius`` given)."""
         return self.goal_radius is not None
+
+    def without_deadline(self) -> "TaskSpec":
+        """The task less its deadline: what the nodes and the edges' Monte Carlo depend on (a deadline
+        changes only the DP and the mission's end, so a roadmap is re-solved, never re-estimated)."""
+        return dataclasses.replace(self, deadline_steps=None) if self.deadline_steps is not None else self
 
 
 @dataclass(frozen=True)
