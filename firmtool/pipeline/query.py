@@ -44,12 +44,12 @@ from firmtool.estimation.edges import GOAL_MISS, EdgeEstimate
 from firmtool.estimation.executors import Workers
 from firmtool.io.hashing import digest
 from firmtool.io.memory_file import MemoryFile
-from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, read_edge_cache, write_edge_cache, write_stage
+from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache
 from firmtool.io.roadmap_queries import QUERY_NAME, query_images
 from firmtool.io.roadmap_write import write_queries
-from firmtool.pipeline.design import DESIGN_ARRAYS
 from firmtool.pipeline.estimate import estimate_into
-from firmtool.pipeline.inputs import VALIDITY_ATTR, controllers_inputs, nodes_inputs, problem_checker_identity
+from firmtool.pipeline.images import node_set_image
+from firmtool.pipeline.inputs import problem_checker_identity
 from firmtool.pipeline.reading import design_of, problem_of, retired_nodes
 from firmtool.pipeline.sample import check_start_apart_from_goals
 from firmtool.pipeline.settings import WorkerSettings
@@ -367,22 +367,10 @@ def _check_start(problem: Any, ns: _NodeSet, where: str) -> None:
 def _write_image(base: RoadmapFile, sc: Scenario, problem: Any, d: Design, ns: _NodeSet,
                  cache: dict[str, np.ndarray] | None, name: str) -> MemoryFile:
     """The query's roadmap in memory: nodes and controllers, and the reused estimates as its cache."""
-    image = MemoryFile(f"{base.path}#{name}")
-    create_roadmap(image, sc.text, sc.sha256, sc.seed)
-    identity = problem_checker_identity(problem)
-    attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, identity), "densify_rounds": 0, "start": START_INDEX,
-                             "goals": np.flatnonzero(ns.kinds == GOAL), VALIDITY_ATTR: identity,
-                             "query_of": base.scenario_sha256}
-    if ns.retired.any():
-        attrs["retired"] = np.flatnonzero(ns.retired)
-    write_stage(image, "nodes", {"centers": ns.centers, "kind": ns.kinds}, attrs)
-    write_stage(image, "controllers", {k: getattr(d, k) for k in DESIGN_ARRAYS},
-                {"inputs_sha256": controllers_inputs(RoadmapFile(image)),
-                 "node_radius": problem.scenario.controller.node_radius,
-                 "covariance_tolerance": problem.scenario.controller.covariance_tolerance})
-    if cache:
-        write_edge_cache(image, cache, {"description": "the roadmap's estimates a query reuses"})
-    return image
+    d = dataclasses.replace(d, centers=ns.centers, kinds=ns.kinds, retired=ns.retired if ns.retired.any() else None)
+    return node_set_image(f"{base.path}#{name}", sc, problem, d, validity=problem_checker_identity(problem),
+                          node_attrs={"query_of": base.scenario_sha256}, cache=cache,
+                          cache_description="the roadmap's estimates a query reuses")
 
 
 def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]], *, force: bool = False) -> None:

@@ -31,7 +31,6 @@ import collections
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -42,13 +41,13 @@ from firmtool.estimation.executors import Workers, default_workers
 from firmtool.io import scenario_source
 from firmtool.io.hashing import digest
 from firmtool.io.memory_file import MemoryFile, replace_bytes
-from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_edge_cache, write_stage
+from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.io.roadmap_write import record_source
-from firmtool.pipeline.design import DESIGN_ARRAYS
 from firmtool.pipeline.estimate import estimate_into
-from firmtool.pipeline.inputs import VALIDITY_ATTR, as_scenario, controllers_inputs, nodes_inputs
+from firmtool.pipeline.images import node_set_image
+from firmtool.pipeline.inputs import as_scenario
 from firmtool.pipeline.query import rekeyed_estimates
-from firmtool.pipeline.reading import design_of, problem_of, retired_nodes
+from firmtool.pipeline.reading import design_of, problem_of
 from firmtool.pipeline.settings import worker_settings
 from firmtool.pipeline.solve import solve_policy, unreachable_failure, write_policy
 from firmtool.pipeline.target import kept, locked
@@ -245,20 +244,7 @@ def _kept_rows(up: _Update, d: Design, retired_now: np.ndarray) -> tuple[np.ndar
 def _image(base: RoadmapFile, sc: Scenario, problem: Problem, d: Design, cache: dict[str, np.ndarray] | None) -> MemoryFile:
     """The updated roadmap in memory: its nodes (with the retired ones), controllers, and the kept
     estimates as its cache for the estimate stage."""
-    image = MemoryFile(base.path)
-    create_roadmap(image, sc.text, sc.sha256, sc.seed)
-    attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, ""), "densify_rounds":
-                             int(base.attrs("nodes").get("densify_rounds", 0)), "start": START_INDEX,
-                             "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: "",
-                             "updated_from": base.scenario_sha256}
-    if d.retired is not None:
-        attrs["retired"] = np.flatnonzero(d.retired)
-    write_stage(image, "nodes", {"centers": d.centers, "kind": d.kinds}, attrs)
-    write_stage(image, "controllers", {k: getattr(d, k) for k in DESIGN_ARRAYS},
-                {"inputs_sha256": controllers_inputs(RoadmapFile(image)),
-                 "node_radius": problem.scenario.controller.node_radius,
-                 "covariance_tolerance": problem.scenario.controller.covariance_tolerance})
-    if cache:
-        write_edge_cache(image, cache, {"description": "the estimates an update kept from the old world"})
-    return image
-
+    return node_set_image(str(base.path), sc, problem, d, validity="", cache=cache,
+                          node_attrs={"updated_from": base.scenario_sha256,
+                                      "densify_rounds": int(base.attrs("nodes").get("densify_rounds", 0))},
+                          cache_description="the estimates an update kept from the old world")
