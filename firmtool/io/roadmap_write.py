@@ -157,6 +157,11 @@ def _write_table(f: h5py.File, name: str, arrays: Mapping[str, np.ndarray], attr
         g.create_dataset(k, data=np.asarray(v))
 
 
+# The datasets of an edge table whose values are its rows (re-indexed when tables are joined): the
+# outcome counts' and the step histograms' edge of each row.
+ROW_INDEXES = ("outcome_edge", "steps_edge")
+
+
 def concat_edge_tables(*tables: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """One edge table from several (per-edge arrays stacked, outcome rows re-indexed); only the
     datasets every table has are kept. Tables without edge keys are skipped (they cannot be reused)."""
@@ -168,7 +173,7 @@ def concat_edge_tables(*tables: Mapping[str, np.ndarray]) -> dict[str, np.ndarra
     offset = 0
     for t in tables:
         for k in names:
-            out[k].append(np.asarray(t[k]) + offset if k == "outcome_edge" else np.asarray(t[k]))
+            out[k].append(np.asarray(t[k]) + offset if k in ROW_INDEXES else np.asarray(t[k]))
         offset += int(np.asarray(t["source"]).size)
     return {k: np.concatenate(v) for k, v in out.items()}
 
