@@ -8,7 +8,7 @@ and on a user's robot nobody tuned for (``--robots flyer``: the 3-D flyer of exa
 For each robot: the typical episode length L (median steps of successful undisturbed episodes), then
 a disturbance at every ``--every``-th step from 0 to L (default 10; the unicycle's episodes are
 ~2000 steps, so it takes every 100th), each with ``--episodes`` episodes in each mode (``--modes``:
-replan, none, oracle, informed; see firmtool/sim/sweep.py), on common random numbers (episode i draws the same
+replan, none, oracle, informed, rollout; see firmtool/sim/sweep.py), on common random numbers (episode i draws the same
 noise in every condition), next to undisturbed baselines of twice as many episodes. ``--roadmaps DIR`` reads DIR/<scenario>.h5 (built
 and solved) instead of building in memory. Results (JSON) give per point the success rate with its
 Wilson 95% interval, replans, and the collisions within 5 steps of the disturbance.
@@ -65,9 +65,10 @@ def sweep_robot(robot: str, args) -> dict:
     return out
 
 
-COLORS = {"replan": "tab:blue", "none": "tab:red", "oracle": "tab:green", "informed": "tab:purple"}
+COLORS = {"replan": "tab:blue", "none": "tab:red", "oracle": "tab:green", "informed": "tab:purple",
+          "rollout": "tab:orange"}
 LABELS = {"replan": "replanning", "none": "no replanning", "oracle": "replanning, oracle (told the true state)",
-          "informed": "replanning, told when and how large (pushes)"}
+          "informed": "replanning, told when and how large (pushes)", "rollout": "rollout FIRM, replanning"}
 
 
 def summary(result: dict, margin: float = 0.10) -> list[str]:
@@ -110,7 +111,7 @@ def plot(results: list[dict], path: Path) -> None:
             ax = axes[row][col]
             for mode, b in base.items():
                 color = COLORS[mode]
-                if mode in ("replan", "none"):  # the oracles' undisturbed episodes are the replanning ones
+                if mode in ("replan", "none", "rollout"):  # the oracles' undisturbed episodes are the replanning ones
                     ax.axhspan(*b["ci95"], color=color, alpha=0.12, lw=0)
                     ax.axhline(b["rate"], color=color, lw=0.8, ls=":")
                 sel = sorted((p for p in pts if p["kind"] == kind and p["size"] == size and p["mode"] == mode),
@@ -154,7 +155,7 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--sizes", type=float, nargs="+", default=None, help="push sizes (default per robot)")
     ap.add_argument("--no-kidnap", action="store_true")
     ap.add_argument("--modes", nargs="+", default=["replan", "none", "oracle", "informed"],
-                    choices=["replan", "none", "oracle", "informed"])
+                    choices=["replan", "none", "oracle", "informed", "rollout"])
     ap.add_argument("--roadmaps", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=None, help="JSON file")
     ap.add_argument("--plot", type=Path, default=None, help="PNG file")

@@ -65,6 +65,11 @@ FIGURES: tuple[DocFigure, ...] = (
               _roadmap("arm8_lightdark") + (
                   f"firmtool plot {ARTIFACTS}/arm8_lightdark.h5 --kind calibration --episodes 400 --seed 1 "
                   f"--dpi 80 --force -o {FIGURES_DIR}/calibration_arm8_lightdark.png",)),
+    DocFigure("rollout_arm8_lightdark.png",
+              "the same episode of the arm under FIRM (settling at every node) and rollout FIRM (heading on)",
+              _roadmap("arm8_lightdark") + (
+                  f"firmtool plot {ARTIFACTS}/arm8_lightdark.h5 --policy firm-rollout --episodes 30 --seed 1 "
+                  f"--dpi 70 --force -o {FIGURES_DIR}/rollout_arm8_lightdark.png",)),
     DocFigure("point_lightdark.png",
               "a double-integrator point robot in a light-dark world: FIRM and the shortest path",
               _roadmap("point_lightdark") + (

@@ -480,7 +480,7 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
         (``record=True``).
     ax : matplotlib Axes, optional
         Where to draw (default: the Axes of a new 6 x 6 inch pyplot figure).
-    policy : {"firm", "shortest-path"}, optional
+    policy : {"firm", "shortest-path", "rollout"}, optional (rollout FIRM: its base policy's path)
         Default: the policy of ``results``, else ``"firm"``.
     episode : int, optional
         Index of the episode of ``results`` to draw (default: the first success, else the first).
@@ -497,7 +497,7 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
     name = policy or (results.policy if results is not None and results.policy else "firm")
     if results is not None and results.policy is not None and results.policy != name:
         raise InputError(f"plot: the results are of policy {results.policy!r}, not {name!r}")
-    edges, probabilities = solution._policy(name)
+    edges, probabilities = solution._policy("firm" if name == "rollout" else name)  # rollout: its base's path
     drawn, label, executed, runs = None, None, None, None
     if results is not None:
         executed = (results.success_rate, *results.success_rate_ci95)
@@ -527,6 +527,17 @@ def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" =
     return ax
 
 
+def _common_success(results: Sequence[Results | None]) -> int | None:
+    """The first episode recorded and successful under every policy (common seeds: the same noise
+    and start), or None."""
+    if len(results) < 2 or any(r is None for r in results):
+        return None
+    for i in range(min(len(r.episodes) for r in results)):
+        if all(r.episodes[i].recorded and r.episodes[i].outcome == Outcome.SUCCESS for r in results):
+            return i
+    return None
+
+
 def plot_policies(solution: Solution, results: Sequence[Results | None], policies: Sequence[str], *,
                   dpi: int = 120, unit: str = "m") -> "Figure":
     """Panels side by side, one :func:`plot` per policy (``firmtool plot``), on a bare matplotlib
@@ -544,8 +555,9 @@ def plot_policies(solution: Solution, results: Sequence[Results | None], policie
     ratio = (sc.world.hi[1] - sc.world.lo[1]) / (sc.world.hi[0] - sc.world.lo[0])  # panels are drawn to scale
     fig = Figure(figsize=(6.0 * len(policies), 4.7 * ratio + 2.3), dpi=dpi, layout="constrained")
     axes = fig.subplots(1, len(policies), squeeze=False)[0]
+    common = _common_success(results)  # the same episode in every panel, where one succeeded in all
     for ax, res, name in zip(axes, results, policies):
-        plot(solution, res, ax, policy=name, unit=unit, legend=False)
+        plot(solution, res, ax, policy=name, unit=unit, legend=False, episode=common)
     legend_below(fig, axes[0])
     fig.suptitle(f"{sc.name} ({sc.measurement.kind} measurements)")
     return fig

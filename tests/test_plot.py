@@ -169,3 +169,23 @@ def test_ellipses_are_thinned_by_distance_and_the_start_belief_is_drawn(smoke_ro
     lo, hi = np.array(sol.roadmap.scenario.world.lo), np.array(sol.roadmap.scenario.world.hi)
     spacing = ELLIPSE_SPACING * np.linalg.norm(hi - lo)
     assert (np.linalg.norm(np.diff(centres, axis=0), axis=1)[:-1] >= spacing - 1e-9).all()
+
+
+def test_firm_and_rollout_side_by_side_draw_the_same_episode(smoke_roadmap):
+    """``--policy firm-rollout``: two panels, each drawing the first episode that succeeded under both
+    policies (common seeds: the same noise and start), titled with its index."""
+    import firmtool as ft
+    from firmtool.figures import _common_success, plot_policies
+
+    roadmap, _ = smoke_roadmap
+    sol = ft.open_roadmap(roadmap).solution()
+    results = [ft.simulate(sol, 6, seed=2, policy=name) for name in ("firm", "rollout")]
+    i = _common_success(results)
+    assert i is not None and all(r.episodes[i].outcome.value == "success" for r in results)
+    assert not any(all(r.episodes[j].outcome.value == "success" for r in results) for j in range(i))  # the first
+    fig = plot_policies(sol, results, ["firm", "rollout"], dpi=40)
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert len(titles) == 2 and all(f"episode {i} of seed 2" in t for t in titles), titles
+    r = CliRunner().invoke(app, ["plot", str(roadmap), "--policy", "firm-rollout", "--episodes", "3", "--dpi", "40",
+                                 "-o", str(roadmap.with_name("fr.png"))])
+    assert r.exit_code == 0, r.output

@@ -28,7 +28,9 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
          output: Optional[Path] = typer.Option(None, "--output", "-o", help="Image file: PNG, PDF or SVG by its "
                                                                            "extension (default: a PNG next to the "
                                                                            "roadmap)."),
-         policy_name: str = typer.Option("both", "--policy", help="'both' (side by side), 'firm' or 'shortest-path'."),
+         policy_name: str = typer.Option("both", "--policy", help="'both' (FIRM and the shortest path side by side), "
+                                         "'firm', 'shortest-path', 'rollout' (rollout FIRM), or 'firm-rollout' (FIRM "
+                                         "and rollout FIRM side by side, the same episode in both)."),
          seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
          episodes: int = typer.Option(20, "--episodes", "-n", min=0,
                                       help="Episodes run per policy: the panel shows their success rate and draws "
@@ -53,9 +55,10 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     from firmtool.estimation.budgets import check_execution
     from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, figure_provenance, make_figure, save_figure
     check_roadmap_argument(roadmap)
-    names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"]}
+    names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"],
+             "rollout": ["rollout"], "firm-rollout": ["firm", "rollout"]}
     if policy_name not in names:
-        raise InputError(f"--policy: expected 'both', 'firm' or 'shortest-path', found {policy_name!r}")
+        raise InputError(f"--policy: expected one of {', '.join(repr(n) for n in names)}, found {policy_name!r}")
     if kind not in FIGURE_KINDS:
         raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run

@@ -1,8 +1,9 @@
 """Recovery at any moment: success rate against the time of a disturbance, with and without replanning.
 
 A sweep runs, for every disturbance time ``t`` of a grid (a push of each size, and a kidnap), the
-same episodes in up to four modes, next to undisturbed baselines: ``"replan"`` (the policy with
-replanning), ``"none"`` (without), ``"oracle"`` (with replanning, and told the truth: right after
+same episodes in up to five modes, next to undisturbed baselines: ``"replan"`` (the policy with
+replanning), ``"none"`` (without), ``"rollout"`` (rollout FIRM, :mod:`firmtool.online.rollout`, with
+replanning), ``"oracle"`` (with replanning, and told the truth: right after
 the step the disturbance hit, the policy is re-localised at the true state with the covariance of a
 settled filter there, :meth:`~firmtool.online.Policy.relocalise`) and ``"informed"`` (with
 replanning, told WHEN a push hit and how large it was, not where it sent the robot: right after the
@@ -300,7 +301,7 @@ def typical_steps(policy: Policy, episodes: int, seed: int) -> float:
     return float(np.median(steps)) if steps else math.nan
 
 
-MODES = ("replan", "none", "oracle", "informed")
+MODES = ("replan", "none", "oracle", "informed", "rollout")
 
 
 def policies_of(solution, replan: ReplanSettings | None = None, modes=MODES) -> dict[str, Policy]:
@@ -311,5 +312,5 @@ def policies_of(solution, replan: ReplanSettings | None = None, modes=MODES) -> 
         if mode not in MODES:
             raise InputError(f"sweep mode: expected one of {', '.join(MODES)}, found {mode!r}")
         settings = ReplanSettings(**{**asdict(base), "enabled": False}) if mode == "none" else base
-        out[mode] = Policy(solution, replan=settings)
+        out[mode] = Policy(solution, replan=settings, mode="rollout" if mode == "rollout" else "base")
     return out
