@@ -302,9 +302,10 @@ def typical_steps(policy: Policy, episodes: int, seed: int) -> float:
 
 
 MODES = ("replan", "none", "oracle", "informed", "rollout")
+DEFAULT_MODES = ("replan", "none", "oracle", "informed")  # rollout FIRM's only when asked for
 
 
-def policies_of(solution, replan: ReplanSettings | None = None, modes=MODES) -> dict[str, Policy]:
+def policies_of(solution, replan: ReplanSettings | None = None, modes=DEFAULT_MODES) -> dict[str, Policy]:
     """One policy per mode (``replan`` the settings of the modes with replanning)."""
     base = replan or ReplanSettings()
     out = {}
