@@ -259,8 +259,8 @@ class UpdateReport(Report):
     estimated_edges : estimated in the new world (``new_edges`` were no edge before);
     dropped_edges : edges of the old roadmap the new one lacks (an end retired, or its nominal now
     in collision).
-    reasons : per reason, how many old edges were estimated again or dropped: ``"swept region meets
-    <change>"``, ``"landed in a retired node"``, ``"end node retired"``, ``"nominal in collision"``.
+    reasons : per reason, how many old edges were estimated again or dropped: "swept region meets"
+        and the change, "landed in a retired node", "end node retired", "nominal in collision".
     simulated_particle_steps : the update's Monte Carlo (its adaptive rounds included).
     seconds : per part (``design``, ``estimate``, ``solve``) and ``total``.
     start_success_probability : the DP's prediction from the start in the new world.
