@@ -131,8 +131,8 @@ def solve_deadline(n_nodes: int, goals: np.ndarray, edge_source: np.ndarray, edg
     return DeadlineResult(policy=policy, cost_to_go=J, success=S)
 
 
-def smallest_feasible_deadline(n_nodes: int, goals: np.ndarray, edge_source: np.ndarray, edge_cost: np.ndarray,
-                               rows: StepRows, failure_cost: float, start: int, limit: int) -> int | None:
+def smallest_feasible_deadline(n_nodes: int, goals: np.ndarray, edge_source: np.ndarray, rows: StepRows,
+                               start: int, limit: int) -> int | None:
     """The least deadline at which the goal can be reached from ``start`` with a positive probability:
     the least step count of a chain of landings from ``start`` to a goal (a shortest path over the
     histograms' step counts); None if none is at most ``limit``."""

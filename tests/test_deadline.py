@@ -154,9 +154,9 @@ def test_a_long_deadline_is_the_untimed_solve_and_a_short_one_is_refused(smoke):
     np.testing.assert_array_equal(mid.policy, untimed.policy)  # the untimed policy is the same
     assert np.all(np.diff(ft.solve(rm, deadline=120).deadline_success[:, 0]) >= -1e-12)  # more time never hurts
     t = RoadmapFile(smoke).table("edges")
-    least = smallest_feasible_deadline(rm.nodes.shape[0], rm.goals, t["source"], t["cost_mean"],
+    least = smallest_feasible_deadline(rm.nodes.shape[0], rm.goals, t["source"],
                                        StepRows.from_counts(t["steps_edge"], t["steps_code"], t["steps_value"],
-                                                            t["steps_count"], t["particles"]), 100.0, 0, 10**6)
+                                                            t["steps_count"], t["particles"]), 0, 10**6)
     assert ft.solve(rm, deadline=least).deadline_success_probability > 0
     with pytest.raises(RunFailure, match=f"the least deadline that can is {least} steps"):
         ft.solve(rm, deadline=least - 1)

@@ -128,7 +128,7 @@ def _deadline_arrays(roadmap: RoadmapFile, N: int, goals: np.ndarray, cost: np.n
     source = table["source"].astype(np.int64)
     res = solve_deadline(N, goals, source, cost, rows, JF, deadline)
     if res.success[deadline, START_INDEX] <= 0:
-        least = smallest_feasible_deadline(N, goals, source, cost, rows, JF, START_INDEX, 10**9)
+        least = smallest_feasible_deadline(N, goals, source, rows, START_INDEX, 10**9)
         advice = (f"the least deadline that can is {least} steps" if least is not None else
                   "the goal cannot be reached from the start at all")
         raise RunFailure(f"{roadmap.path}: deadline {deadline}: no chain of edges reaches the goal from the start "
