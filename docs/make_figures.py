@@ -93,6 +93,9 @@ FIGURES: tuple[DocFigure, ...] = (
     DocFigure("custom_robot_3d.png",
               "a robot of your own (examples/custom_robot_3d.py): a 3-D flyer seen from above",
               (f"python examples/custom_robot_3d.py {FIGURES_DIR}/custom_robot_3d.png",)),
+    DocFigure("arm7_shelf.png",
+              "your arm from its URDF (examples/urdf_arm.py): arm7_shelf's tip paths in 3-D",
+              (f"python examples/urdf_arm.py {FIGURES_DIR}/arm7_shelf.png",)),
 )
 
 

@@ -152,7 +152,7 @@ def test_every_builtin_robot_has_a_template():
     assert set(builtin_robots()) <= set(template_robots())
 
 
-@pytest.mark.parametrize("robot", ["point", "arm", "unicycle"])
+@pytest.mark.parametrize("robot", ["point", "arm", "unicycle", "urdf"])
 def test_init_writes_a_template_that_checks_builds_and_solves(robot, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     r = runner.invoke(app, ["init", f"my_{robot}", "--robot", robot])

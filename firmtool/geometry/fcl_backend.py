@@ -29,6 +29,7 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.geometry.backends import _check_capsules, _check_world, nonadjacent_pairs, outside_workspace
+from firmtool.geometry.distance3d import segment_box_distance_sq, segment_point_distance_sq
 from firmtool.geometry.shapes import Box, Capsule, Mesh, Obstacle, Sphere
 
 MIN_LENGTH = 1e-12  # robot segments shorter than this are spheres
@@ -96,6 +97,15 @@ class FclCollisionBackend:
         self._objects = objects
         self._box_lo = np.array(box_lo, dtype=float).reshape(-1, self.dim)
         self._box_hi = np.array(box_hi, dtype=float).reshape(-1, self.dim)
+        # 3-D worlds of axis-aligned boxes and spheres: capsules of their own radii are decided in numpy
+        # (firmtool.geometry.distance3d), the rest through fcl
+        self._vectorised = self.dim == 3 and all(isinstance(o, (Box, Sphere)) for o in self.obstacles)
+        if self._vectorised:  # (K,) is a sphere, (K, 3) centres, (K, 3) boxes' half sizes, (K,) spheres' radii
+            self._solids = (np.array([isinstance(o, Sphere) for o in self.obstacles], dtype=bool),
+                            np.array([o.center for o in self.obstacles], dtype=float).reshape(-1, 3),
+                            np.array([o.half_size if isinstance(o, Box) else (0.0, 0.0, 0.0) for o in self.obstacles],
+                                     dtype=float).reshape(-1, 3),
+                            np.array([o.radius if isinstance(o, Sphere) else 0.0 for o in self.obstacles], dtype=float))
         self._manager = None
         if objects:
             self._manager = fcl.DynamicAABBTreeCollisionManager()
@@ -154,25 +164,63 @@ class FclCollisionBackend:
         self._manager.collide(obj, data, fcl.defaultCollisionCallback)
         return bool(data.result.is_collision)
 
-    def _screen(self, starts: np.ndarray, ends: np.ndarray, r: float, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-        """bool (M,): configurations some exact test could find in collision (see the module docs)."""
-        lo, hi = np.minimum(starts, ends) - r, np.maximum(starts, ends) + r  # (M, L, D)
+    def _screen(self, starts: np.ndarray, ends: np.ndarray, r: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+        """bool (M,): configurations some exact test could find in collision (see the module docs);
+        ``r`` (L,) the capsules' radii."""
+        rr = r[:, None]
+        lo, hi = np.minimum(starts, ends) - rr, np.maximum(starts, ends) + rr  # (M, L, D)
         near = np.zeros(starts.shape[0], dtype=bool)
         if self._box_lo.shape[0]:
             near |= ((lo[:, :, None, :] <= self._box_hi) & (hi[:, :, None, :] >= self._box_lo)).all(-1).any(axis=(1, 2))
         if pa.size:
-            near |= ((lo[:, pa] - r <= hi[:, pb]) & (hi[:, pa] + r >= lo[:, pb])).all(-1).any(axis=1)
+            rb = r[pb][:, None]
+            near |= ((lo[:, pa] - rb <= hi[:, pb]) & (hi[:, pa] + rb >= lo[:, pb])).all(-1).any(axis=1)
         return near
 
     def capsules_collide(self, starts: np.ndarray, ends: np.ndarray, radius: float) -> np.ndarray:
         """See :class:`~firmtool.geometry.backends.CollisionBackend`. Returns bool (M,)."""
-        fcl = self._fcl
         starts, ends, r = _check_capsules(starts, ends, radius, self.dim)
+        return self._collide(starts, ends, np.full(starts.shape[1], r))
+
+    def capsules_collide_radii(self, starts: np.ndarray, ends: np.ndarray, radii: np.ndarray) -> np.ndarray:
+        """:meth:`capsules_collide` with a radius per capsule: ``radii`` (L,) positive (a URDF arm's
+        links, :mod:`firmtool.robots.urdf_arm`). Returns bool (M,)."""
+        starts, ends, _ = _check_capsules(starts, ends, 1.0, self.dim)
+        r = np.asarray(radii, dtype=float).reshape(-1)
+        if r.shape != (starts.shape[1],) or not (np.all(np.isfinite(r)) and np.all(r > 0)):
+            raise InputError(f"radii: expected {starts.shape[1]} positive finite radii, found {r.shape}")
+        if self._vectorised and not self.self_collision:
+            return self._collide_vectorised(starts, ends, r)
+        return self._collide(starts, ends, r)
+
+    def _collide_vectorised(self, starts: np.ndarray, ends: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """:meth:`_collide` in numpy for a 3-D world of axis-aligned boxes and spheres: the exact
+        distance of every capsule whose bounding box meets an obstacle's (module docs' screen)."""
+        out = outside_workspace(starts, ends, r[:, None], self.lo, self.hi)
+        if not self.obstacles:
+            return out
+        rr = r[:, None]
+        lo, hi = np.minimum(starts, ends) - rr, np.maximum(starts, ends) + rr  # (M, L, 3)
+        near = ((lo[:, :, None, :] <= self._box_hi) & (hi[:, :, None, :] >= self._box_lo)).all(-1)  # (M, L, K)
+        near &= ~out[:, None, None]
+        m, l, k = np.nonzero(near)
+        if m.size == 0:
+            return out
+        sphere, centre, extent, radius = self._solids
+        a, b = starts[m, l], ends[m, l]
+        d2 = np.where(sphere[k], segment_point_distance_sq(a, b, centre[k]),
+                      segment_box_distance_sq(a, b, centre[k] - extent[k], centre[k] + extent[k]))
+        hit = d2 < (r[l] + radius[k]) ** 2
+        out[m[hit]] = True
+        return out
+
+    def _collide(self, starts: np.ndarray, ends: np.ndarray, r: np.ndarray) -> np.ndarray:
+        fcl = self._fcl
         M, L = starts.shape[:2]
         out = np.zeros(M, dtype=bool)
         if L == 0 or M == 0:
             return out
-        out |= outside_workspace(starts, ends, r, self.lo, self.hi)
+        out |= outside_workspace(starts, ends, r[:, None], self.lo, self.hi)
         pa, pb = nonadjacent_pairs(L) if self.self_collision else (np.zeros(0, np.intp), np.zeros(0, np.intp))
         todo = np.flatnonzero(~out)
         todo = todo[self._screen(starts[todo], ends[todo], r, pa, pb)]
@@ -184,7 +232,7 @@ class FclCollisionBackend:
         S, E = _pad3(starts), _pad3(ends)
         request = fcl.CollisionRequest()
         for m in todo:
-            objs = [fcl.CollisionObject(*self._segment_geometry(S[m, l], E[m, l], r)) for l in range(L)]
+            objs = [fcl.CollisionObject(*self._segment_geometry(S[m, l], E[m, l], float(r[l]))) for l in range(L)]
             hit = False
             if self._manager is not None:
                 hit = any(self._hits_obstacles(o) for o in objs)
@@ -195,3 +243,8 @@ class FclCollisionBackend:
                         break
             out[m] = hit
         return out
+
+    def shapes_collide(self, objects: Sequence) -> bool:
+        """Whether any of the fcl ``objects`` (``fcl.CollisionObject``) meets an obstacle: the exact
+        test of a robot's own shapes (a URDF link's boxes, cylinders and meshes)."""
+        return self._manager is not None and any(self._hits_obstacles(o) for o in objects)

@@ -156,8 +156,12 @@ class Problem:
 
     def states_valid(self, X: np.ndarray, points: np.ndarray) -> np.ndarray:
         """The validity the Monte Carlo and execution test on the TRUE states ``X`` (M, n), given
-        their key points ``points`` (M, P, D): the scenario's geometry, and the user's checker."""
+        their key points ``points`` (M, P, D): the scenario's geometry, the robot's state limits
+        (:meth:`~firmtool.robots.RobotGeometry.state_limits`) and the user's checker."""
         ok = self.points_valid(points)
+        limits = None if self.robot is None else self.robot.state_limits()
+        if limits is not None:
+            ok = ok & np.all((X >= limits[0]) & (X <= limits[1]), axis=1)
         if self.validity is not None:
             ok = ok & self.validity(X)
         return ok

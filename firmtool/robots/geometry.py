@@ -64,6 +64,10 @@ class RobotGeometry(Protocol):
         """How far from its key points any of its world tests reaches (a world update's margin)."""
         ...
 
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Bounds ``(lo, hi)`` (n,) on the true state it must keep (a URDF arm's joint limits), or None."""
+        ...
+
 
 class GeometryDefaults:
     """The defaults of :class:`RobotGeometry` (see the module docs); :meth:`points` has none."""
@@ -120,3 +124,10 @@ class GeometryDefaults:
         (:mod:`firmtool.roadmap.world_change`) re-estimates an edge when a change comes this close to
         the key points its particles were tested at."""
         return float(self.scenario.world.robot_radius)
+
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Bounds ``(lo, hi)`` (n,) on the true state that the robot must keep, +-inf where free, or
+        None (the default: none). Leaving them is a failure like a collision, in the Monte Carlo of
+        every engine and in execution (:meth:`firmtool.problem.Problem.states_valid`); a robot that
+        has them includes them in its :meth:`is_valid` too."""
+        return None

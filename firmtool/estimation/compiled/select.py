@@ -39,6 +39,8 @@ def supports(problem) -> str | None:
     hooks = None if robot is None else robot.compiled_kinematics()
     if hooks is None:
         return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
+    if robot.state_limits() is not None:
+        return f"robot {problem.scenario.model.robot!r} has state limits, which the compiled engine does not test"
     if type(problem.model) is not LinearGaussianModel:
         return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
     if problem.validity is not None:
