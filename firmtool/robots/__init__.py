@@ -1,7 +1,8 @@
 """Robots as plugins: the :class:`Robot` interface and the registry of robots by name.
 
-Built in: ``point`` (:mod:`firmtool.robots.point`), ``arm`` (:mod:`firmtool.robots.arm`) and
-``unicycle`` (:mod:`firmtool.robots.unicycle`), each one module through the same interface as a
+Built in: ``point`` (:mod:`firmtool.robots.point`), ``arm`` (:mod:`firmtool.robots.arm`),
+``unicycle`` (:mod:`firmtool.robots.unicycle`) and ``urdf`` (:mod:`firmtool.robots.urdf_arm`, any serial arm
+from its URDF file; :func:`urdf` reads one), each one module through the same interface as a
 user's robot. A user registers a robot from Python with :func:`register`, or ships one in a
 package through the entry-point group ``firmtool.robots``; scenario files name it in
 ``[model] robot``. See :mod:`firmtool.robots.base` for the interface, one small protocol per
@@ -23,7 +24,8 @@ from firmtool.robots.registry import ENTRY_POINT_GROUP, get, names, register
 from firmtool.robots.relocalisation import Relocalising
 from firmtool.robots.stabilisers import NodeStabilisers
 from firmtool.robots.task import TaskSpace
+from firmtool.robots.urdf_arm import urdf  # a URDF's chain, read and checked as robot = "urdf" reads it
 
 __all__ = ["ENTRY_POINT_GROUP", "CompiledKinematics", "Drawable", "Field", "JumpAnswers", "LinearRobot",
            "NodeStabilisers", "Nominals", "Relocalising", "Robot", "RobotGeometry", "RobotModel", "TaskSpace", "get",
-           "names", "register"]
+           "names", "register", "urdf"]
