@@ -103,7 +103,15 @@ def _background(ax, problem: Problem, unit: str = DEFAULT_UNIT):
     noise = problem.model.noise
     lx = getattr(noise, "light_x", None)  # a light-dark law of the sensing x: shade the field
     image = None
-    if not problem.perfect and lx is not None:
+    field = None if problem.robot is None or lx is None else \
+        problem.robot.sensing_field(np.stack(np.meshgrid(np.linspace(lo[0], hi[0], 200), np.linspace(lo[1], hi[1], 150)),
+                                             axis=-1).reshape(-1, 2))
+    if not problem.perfect and field is not None:  # a sensing coordinate the robot maps over the plane
+        std = np.sqrt(noise.variance(field[0])).reshape(150, 200)
+        image = ax.imshow(std, extent=(lo[0], hi[0], lo[1], hi[1]), origin="lower", aspect="auto", cmap="Greys",
+                          alpha=0.55, vmin=0.0, vmax=float(std.max()) * 1.2, zorder=0)
+        ax.plot(*field[1], "*", color="gold", ms=16, mec="k", zorder=8, label="light")
+    elif not problem.perfect and lx is not None:
         xs = np.linspace(lo[0], hi[0], 400)
         std = np.sqrt(noise.variance(xs))
         image = ax.imshow(std[None, :], extent=(lo[0], hi[0], lo[1], hi[1]), origin="lower", aspect="auto",

@@ -370,3 +370,15 @@ def test_a_bad_urdf_in_a_scenario_is_one_line_exit_2(tmp_path):
     assert r.output.strip().count("\n") == 0 and not (tmp_path / "x.h5").exists()
     with pytest.raises(ScenarioError):
         build_problem(ft.load_scenario(tmp_path / "s.toml"))
+
+
+def test_plot_shades_the_distance_to_the_light(small_arm, tmp_path):
+    folder, out, _ = small_arm
+    robot = build_problem(ft.load_scenario(folder / "scenario.toml")).robot
+    xy = np.array([[0.5, 0.4], [0.5, 0.0], [-0.5, 0.4]])
+    coord, light = robot.sensing_field(xy)
+    np.testing.assert_allclose(coord, [0.0, 0.4, 1.0])
+    np.testing.assert_allclose(light, [0.5, 0.4])
+    r = CliRunner().invoke(app, ["plot", str(out), "-o", str(tmp_path / "p.png"), "--episodes", "2", "--dpi", "40"])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "p.png").stat().st_size > 10_000

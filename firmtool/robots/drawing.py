@@ -27,6 +27,10 @@ class Drawable(Protocol):
         """Draw the robot at ``state`` (n,) on a matplotlib Axes."""
         ...
 
+    def sensing_field(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The sensing coordinate at points (N, 2) of the x-y plane and the light's (2,), or None."""
+        ...
+
 
 class DrawingDefaults:
     """The defaults of :class:`Drawable` (see the module docs)."""
@@ -59,3 +63,10 @@ class DrawingDefaults:
                                         head_length=0.9 * r, length_includes_head=True, color=color, zorder=7))
         else:
             ax.plot(pts[:, 0], pts[:, 1], "-o", color=color, lw=lw, ms=3, zorder=6, label=label)
+
+    def sensing_field(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """What a figure shades as the sensing field: the sensing coordinate at points ``xy`` (N, 2)
+        of the workspace's x-y plane (N,), and where to mark the light (2,); None (the default) when
+        the coordinate is the workspace's x, which the figure shades with the light's line at
+        ``light_x``."""
+        return None

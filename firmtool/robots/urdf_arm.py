@@ -206,6 +206,13 @@ class UrdfArm(LinearRobot):
             out[m] = backend.shapes_collide(objects)
         return out
 
+    def sensing_field(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The tip's distance to ``light`` over the x-y plane at the light's height, and the light."""
+        light = self.scenario.model.light
+        if light is None:
+            return None
+        return np.hypot(xy[:, 0] - light[0], xy[:, 1] - light[1]), np.asarray(light[:2], dtype=float)
+
     # -- task ----------------------------------------------------------------------------------------
 
     def task_jacobian(self, X: np.ndarray) -> np.ndarray:
