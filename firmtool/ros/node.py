@@ -77,6 +77,7 @@ class PolicyNode(ros.Node):
         self.settings = replan_settings(self)
         self.base, self.problem = base, solution.roadmap.problem
         self.state, self.episode, self.goal = IDLE, None, None  # goal: a query's point, None: the roadmap's
+        self._offset = 0  # control periods of the run before the running policy took over (a new goal)
         self.world: tuple[list, Any] | None = None  # the last world update taken
         self._pending_world: list[tuple[list, Any]] = []
         self._query: tuple[np.ndarray, Future] | None = None
@@ -161,7 +162,7 @@ class PolicyNode(ros.Node):
         p = self.policy
         rng = (np.random.default_rng(episode_seeds(request.seed, request.episode).policy)
                if request.episode is not None else None)
-        self.episode = request.episode
+        self.episode, self._offset = request.episode, 0
         self._say({"kind": "reset", "detail": "resume" if request.resume else "start"})
         if request.resume and self.state != IDLE:
             events = p.reset(p.mean, p.covariance, rng=rng)
@@ -191,8 +192,9 @@ class PolicyNode(ros.Node):
         if self.cmd_vel_pub is not None:
             self.cmd_vel_pub.publish(ros.twist_message(self.problem.robot.velocity_command(np.zeros(p.problem.model.m))))
         goal = None if self.goal is None else [float(v) for v in self.goal]
-        self._say({"kind": "done", "status": p.status.value, "step": p.steps, "node": p.node, "cost": p.cost,
-                   "goal": goal})
+        # step: control periods since the reset (a new goal's policy counts its own from where it took over)
+        self._say({"kind": "done", "status": p.status.value, "step": self._offset + p.steps, "policy_step": p.steps,
+                   "node": p.node, "cost": p.cost, "goal": goal})
         self._publish_belief()
 
     def _observe(self, z: np.ndarray) -> None:
@@ -313,6 +315,7 @@ class PolicyNode(ros.Node):
             self._drop(MessageError("goal_pose", f"no controller from the current belief to the new goal's "
                                                  f"roadmap ({policy.status.value})"), "goal_refused")
             return
+        self._offset += old.steps if self.state != IDLE else 0
         self.policy, self.solution, self.goal = policy, sol, goal
         self._say({"kind": "goal_accepted", "goal": goal.tolist(), "detail": repr(sol)})
         self._events(events)
