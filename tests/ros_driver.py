@@ -18,7 +18,7 @@ from firmtool.ros.confine import inside_private_namespace
 
 try:
     import rclpy
-    from geometry_msgs.msg import PoseStamped
+    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
     from nav_msgs.msg import Path
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from std_msgs.msg import Float64MultiArray, String
@@ -63,7 +63,6 @@ class Probe:
                               RELIABLE)
         n.create_subscription(Path, "/firmtool/plan", self._plan, QoSProfile(
             depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL))
-        from geometry_msgs.msg import PoseWithCovarianceStamped
         n.create_subscription(PoseWithCovarianceStamped, "/firmtool/belief", self._belief, qos_profile_sensor_data)
         self.measurement = n.create_publisher(Float64MultiArray, "/firmtool/measurement", qos_profile_sensor_data)
         self.goal = n.create_publisher(PoseStamped, "/goal_pose", RELIABLE)

@@ -46,14 +46,27 @@ def confined(tmp_path: Path, probe: str, timeout: float = 400, **args) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+@pytest.fixture(scope="module", autouse=True)
+def numpy_engine():
+    """The numpy Monte Carlo engine in this module, here and in the nodes (the environment passes to
+    them): a fresh venv (CI's) then compiles no kernel for these tests, ~30 s of the extra's 3 minutes,
+    and ft.simulate runs the engine the nodes run."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FIRMTOOL_ENGINE", "numpy")
+        yield
+
+
 @pytest.fixture(scope="module")
 def lightdark(tmp_path_factory):
-    """point_lightdark built small (30 nodes, 60 particles: seconds), solved and saved."""
+    """point_lightdark built small (30 nodes, 60 particles: seconds), solved and saved; the new goal's
+    query answered once, so that what it loads is loaded (the node answers it in a fraction of a second)."""
     sc = ft.load_scenario("point_lightdark").replace(estimation={"particles": 60, "adaptive_particles": 0},
                                                      roadmap={"nodes": 30})
     out = tmp_path_factory.mktemp("ros") / "point_lightdark.h5"
-    sol = ft.solve(ft.build(sc, workers=1, output=out))
+    rm = ft.build(sc, workers=1, output=out)
+    sol = ft.solve(rm)
     sol.save()
+    ft.solve(rm, goal=NEW_GOAL)
     return out, sol
 
 
