@@ -67,6 +67,12 @@ def _distributions(module: str) -> set[str]:
     return {_normalise(d) for d in _module_distributions().get(module, [])}
 
 
+def _named_distributions(module: str) -> set[str]:
+    """Where ``module`` is not installed, the distributions that would provide it by name: its own
+    name, and for ROS 2 packages (rclpy, std_msgs, ...) the wheel's, ``ros-`` and the package name."""
+    return {_normalise(module), _normalise(f"ros-{module}")}
+
+
 def _guard_names_extra(path: Path, parents: list[ast.AST], extra: str) -> bool:
     """Whether the import sits in a ``try`` whose ImportError handler names ``firmtool[extra]``."""
     text = path.read_text()
@@ -85,8 +91,11 @@ def test_every_runtime_import_is_declared():
     for module, path, node, parents in _imports(ROOT / "firmtool"):
         dists = _distributions(module)
         where = f"{path.relative_to(ROOT)}:{node.lineno} imports {module}"
-        if not dists:
-            problems.append(f"{where}, which no installed distribution provides")
+        if not dists:  # an optional extra that is not installed here, guarded by a handler naming it
+            extras = [e for e, names in EXTRAS.items() if _named_distributions(module) & names and e != "test"]
+            if not any(_guard_names_extra(path, parents, e) for e in extras):
+                problems.append(f"{where}, which no installed distribution provides (nor an extra guarded by an "
+                                f"ImportError handler naming it)")
         elif not dists & RUNTIME:
             extras = [e for e, names in EXTRAS.items() if dists & names and e != "test"]
             if not extras:
@@ -105,7 +114,7 @@ def test_test_and_example_imports_are_declared_for_the_test_extra(folder):
     # an optional extra's module (benchmarks/peers: pomdp-py) only behind an ImportError handler naming it
     problems = [f"{path.relative_to(ROOT)}:{node.lineno} imports {module} ({', '.join(sorted(_distributions(module))) or 'not installed'})"
                 for module, path, node, parents in _imports(ROOT / folder) if not _distributions(module) & allowed
-                and not any((_distributions(module) or {_normalise(module)}) & EXTRAS[e]  # not installed: its name
+                and not any((_distributions(module) or _named_distributions(module)) & EXTRAS[e]  # not installed: its name
                             and _guard_names_extra(path, parents, e) for e in EXTRAS if e != "test")]
     assert not problems, "\n".join(problems)
 
@@ -117,6 +126,27 @@ def test_a_missing_extra_is_one_line_naming_it(monkeypatch):
     with pytest.raises(InputError, match=re.escape("pip install 'firmtool[dask]'")) as info:
         list(run_edges(None, [0], workers=1, executor="dask"))
     assert "\n" not in str(info.value)
+
+
+def test_the_ros_commands_without_the_extra_are_one_line(monkeypatch, smoke_roadmap):
+    from typer.testing import CliRunner
+
+    from firmtool.cli import app
+    for name in [m for m in sys.modules if m == "rclpy" or m.startswith(("rclpy.", "firmtool.ros."))]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # import rclpy raises ImportError
+    res = CliRunner().invoke(app, ["ros", str(smoke_roadmap[0])])
+    assert res.exit_code == 2, res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and "pip install 'firmtool[ros]'" in lines[0], res.output
+
+
+def test_importing_firmtool_and_its_cli_imports_no_ros():
+    import subprocess
+    code = ("import sys, firmtool, firmtool.cli.app, firmtool.ros, firmtool.ros.checks, firmtool.ros.confine; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'std_msgs', 'geometry_msgs')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
 
 
 def test_shipped_scenarios_are_the_repository_files():

@@ -42,7 +42,7 @@ import sys
 import typer
 
 from firmtool import __version__
-from firmtool.cli import execute, run, scenarios, show, solve, stages
+from firmtool.cli import execute, ros, run, scenarios, show, solve, stages
 from firmtool.cli.exits import OneLineErrors
 from firmtool.io import interrupts
 
@@ -60,9 +60,11 @@ app = typer.Typer(cls=OneLineErrors,
 
 # in the order firmtool --help lists them
 COMMANDS = (scenarios.init, scenarios.check, stages.sample, stages.design, stages.estimate, stages.build,
-            stages.update, solve.solve, execute.execute, show.plot, show.inspect, run.run, scenarios.scenarios)
+            stages.update, solve.solve, execute.execute, show.plot, show.inspect, run.run, scenarios.scenarios,
+            ros.ros, ros.ros_sim)
 for _command in COMMANDS:
-    app.command()(_command)
+    # the ROS commands pass the arguments after their own to ROS (--ros-args ...)
+    app.command(**(ros.COMMAND_SETTINGS if _command in (ros.ros, ros.ros_sim) else {}))(_command)
 
 
 def _print_version(value: bool) -> None:

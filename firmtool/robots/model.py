@@ -81,6 +81,10 @@ class RobotModel(Protocol):
         """Robot-specific input checks of the assembled problem (ScenarioError)."""
         ...
 
+    def velocity_command(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The control as a body velocity command, or None when it is none (an acceleration, a torque)."""
+        ...
+
 
 class ModelDefaults:
     """The defaults of :class:`RobotModel`: no ``[model]`` keys of its own, the scenario's noise law,
@@ -112,6 +116,13 @@ class ModelDefaults:
         Record problems in ``errors`` (``errors.add("model.KEY", "expected ...")``) and return the
         values to keep (derived ones may be added)."""
         return values
+
+    def velocity_command(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The control ``u`` (m,) as a body velocity command: ``(linear (3,), angular (3,))`` in m/s
+        and rad/s, what a ROS ``geometry_msgs/Twist`` on ``cmd_vel`` carries (:mod:`firmtool.ros`);
+        None (the default) when the control is no velocity (an acceleration, a joint torque), and the
+        ROS node then publishes no ``cmd_vel``."""
+        return None
 
     @property
     def name(self) -> str:

@@ -40,6 +40,15 @@ class PointRobot(LinearRobot):
     def dof(self) -> int:
         return self.world_dim
 
+    def velocity_command(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """With single-integrator dynamics the control is the velocity in the world frame (a holonomic
+        base's ``cmd_vel`` linear x, y[, z]); with a double integrator it is an acceleration: None."""
+        if self.scenario.model.dynamics != "single_integrator":
+            return None
+        linear = np.zeros(3)
+        linear[:self.world_dim] = np.asarray(u, dtype=float)[:self.world_dim]
+        return linear, np.zeros(3)
+
     def points(self, X: np.ndarray) -> np.ndarray:
         """The point itself: states (M, n) -> (M, 1, D)."""
         return np.asarray(X)[:, None, :self.world_dim]

@@ -93,6 +93,11 @@ class UnicycleRobot(Robot):
         J[:, 0, 0] = J[:, 1, 1] = 1.0
         return J
 
+    def velocity_command(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """``u = (v, omega)``: forward speed and turn rate, a differential drive's ``cmd_vel``."""
+        v, omega = np.asarray(u, dtype=float)[:2]
+        return np.array([v, 0.0, 0.0]), np.array([0.0, 0.0, omega])
+
     def heading(self, X: np.ndarray) -> np.ndarray:
         """The heading, the state's third coordinate: states (M, 3) -> (M,)."""
         return np.asarray(X, dtype=float)[:, 2]

@@ -1,0 +1,173 @@
+"""The ROS tests' driver, run by tests/test_ros.py INSIDE a private network namespace (only loopback,
+firmtool.ros.confine): it starts the node processes, plays a probe (a third ROS node in this process)
+and prints one JSON line of what it saw. It refuses to run outside such a namespace.
+
+    python tests/ros_driver.py PROBE ARGS_JSON      # PROBE: episodes | goal | malformed
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import sys
+import time
+
+from firmtool.ros.confine import inside_private_namespace
+
+try:
+    import rclpy
+    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+    from nav_msgs.msg import Path
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from std_msgs.msg import Float64MultiArray, String
+except ImportError:  # the test skips before it gets here: pip install 'firmtool[ros]'
+    sys.exit("ros_driver: needs the ros extra: pip install 'firmtool[ros]'")
+
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def start(*args: str, log: str) -> subprocess.Popen:
+    """A firmtool command as a process of its own (the same interpreter), output to ``log``."""
+    return subprocess.Popen([sys.executable, "-m", "firmtool", *args], stdout=subprocess.PIPE,
+                            stderr=open(log, "w"), text=True)
+
+
+def stop(proc: subprocess.Popen) -> int:
+    """Ctrl-C, as a user stops a node (firmtool's commands then say `error: interrupted` and exit 130);
+    killed if it does not end."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
+class Probe:
+    """A ROS node of the test: records ``/firmtool/events``, controls and plans; publishes requests."""
+
+    def __init__(self) -> None:
+        rclpy.init()
+        self.node = rclpy.create_node("firmtool_test_probe")
+        self.events: list[dict] = []
+        self.controls: list[list[float]] = []
+        self.plans: list[list[list[float]]] = []
+        self.beliefs = 0
+        n = self.node
+        n.create_subscription(String, "/firmtool/events", lambda m: self.events.append(json.loads(m.data)), RELIABLE)
+        n.create_subscription(Float64MultiArray, "/firmtool/control", lambda m: self.controls.append(list(m.data)),
+                              RELIABLE)
+        n.create_subscription(Path, "/firmtool/plan", self._plan, QoSProfile(
+            depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL))
+        n.create_subscription(PoseWithCovarianceStamped, "/firmtool/belief", self._belief, qos_profile_sensor_data)
+        self.measurement = n.create_publisher(Float64MultiArray, "/firmtool/measurement", qos_profile_sensor_data)
+        self.goal = n.create_publisher(PoseStamped, "/goal_pose", RELIABLE)
+        self.world = n.create_publisher(String, "/firmtool/world_update", RELIABLE)
+        self.reset = n.create_publisher(String, "/firmtool/reset", RELIABLE)
+
+    def _plan(self, msg) -> None:
+        self.plans.append([[p.pose.position.x, p.pose.position.y] for p in msg.poses])
+
+    def _belief(self, msg) -> None:
+        self.beliefs += 1
+
+    def spin_until(self, condition, seconds: float) -> bool:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            if condition():
+                return True
+            rclpy.spin_once(self.node, timeout_sec=0.02)
+        return condition()
+
+    def matched(self) -> bool:
+        return self.measurement.get_subscription_count() > 0 and self.reset.get_subscription_count() > 0 and \
+            self.node.count_publishers("/firmtool/events") > 0
+
+    def send_goal(self, x: float, y: float, frame: str = "map") -> None:
+        msg = PoseStamped()
+        msg.header.frame_id = frame
+        msg.pose.position.x, msg.pose.position.y = float(x), float(y)
+        msg.pose.orientation.w = 1.0
+        self.goal.publish(msg)
+
+    def send_measurement(self, values: list[float]) -> None:
+        self.measurement.publish(Float64MultiArray(data=[float(v) for v in values]))
+
+    def kinds(self) -> list[str]:
+        return [e["kind"] for e in self.events]
+
+
+def episodes(args: dict) -> dict:
+    """Both nodes, the simulator playing ``episodes`` episodes; its summary."""
+    node = start("ros", args["roadmap"], "--ros-args", "-p", "autostart:=false", log=args["log"] + ".node")
+    sim = start("ros-sim", args["roadmap"], "--episodes", str(args["episodes"]), "--seed", str(args["seed"]),
+                *args.get("sim_options", []), "--json", log=args["log"] + ".sim")
+    out, _ = sim.communicate(timeout=args.get("timeout", 300))
+    return {"summary": json.loads(out.strip().splitlines()[-1]), "sim_rc": sim.returncode, "node_rc": stop(node)}
+
+
+def goal(args: dict) -> dict:
+    """Both nodes in timed mode; a goal on goal_pose once the run is under way."""
+    probe = Probe()
+    node = start("ros", args["roadmap"], "--rate", "20", "--ros-args", "-p", "autostart:=false",
+                 log=args["log"] + ".node")
+    sim = start("ros-sim", args["roadmap"], "--timed", "--rate", "20", "--seed", str(args["seed"]), "--json",
+                log=args["log"] + ".sim")
+    probe.spin_until(lambda: probe.beliefs >= args["after_steps"], 60)
+    sent_at = probe.beliefs
+    probe.send_goal(*args["goal"])
+    out, _ = sim.communicate(timeout=120)
+    probe.spin_until(lambda: False, 0.3)  # the last events
+    rc = stop(node)
+    return {"summary": json.loads(out.strip().splitlines()[-1]), "events": probe.events, "plans": probe.plans,
+            "sent_at": sent_at, "node_rc": rc}
+
+
+def malformed(args: dict) -> dict:
+    """The policy node alone, the probe as the robot: bad messages, then a good one, then silence."""
+    probe = Probe()
+    node = start("ros", args["roadmap"], "--timeout", str(args["gap"]), "--ros-args", "-p", "autostart:=false",
+                 log=args["log"] + ".node")
+    probe.spin_until(probe.matched, 60)
+    probe.spin_until(lambda: False, 0.3)
+    probe.reset.publish(String(data="{}"))
+    probe.spin_until(lambda: len(probe.controls) >= 1, 10)
+    sent = [("measurement.data", [1.0]), ("measurement.data", [math.nan, 1.0])]
+    for _, values in sent:
+        probe.send_measurement(values)
+        probe.spin_until(lambda: False, 0.05)
+    probe.send_goal(100.0, 100.0)                       # outside the world
+    probe.send_goal(1.0, 1.0, frame="odom")             # another frame
+    probe.world.publish(String(data="{not json"))
+    probe.world.publish(String(data='[{"center": [5.0], "half_size": [0.2, 0.2]}]'))  # the scenario's rules refuse
+    probe.reset.publish(String(data='{"episode": 1}'))  # a seed is needed too
+    probe.spin_until(lambda: len([e for e in probe.events if e["kind"].endswith(("dropped", "refused"))]) >= 6, 10)
+    before = len(probe.controls)
+    probe.send_measurement(args["good"])                # the node still runs: it answers this one
+    probe.spin_until(lambda: len(probe.controls) > before, 10)
+    answered = len(probe.controls) > before
+    t0 = time.monotonic()                               # now silence: the watchdog must stop the robot
+    probe.spin_until(lambda: "stopped" in probe.kinds(), 10)
+    stopped_after = time.monotonic() - t0
+    probe.spin_until(lambda: False, 0.3)
+    return {"events": probe.events, "controls": probe.controls, "answered": answered,
+            "stopped_after": stopped_after, "node_rc": stop(node)}
+
+
+def main() -> int:
+    if not inside_private_namespace():
+        print("ros_driver: refusing to start ROS nodes outside a private network namespace "
+              "(run it through firmtool.ros.confine.confined_command)", file=sys.stderr)
+        return 3
+    probe, args = sys.argv[1], json.loads(sys.argv[2])
+    result = {"episodes": episodes, "goal": goal, "malformed": malformed}[probe](args)
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""The ROS 2 nodes (issue 41) end to end: two processes over Fast DDS, always inside a private network
+namespace holding only loopback (:func:`confined`, the one helper every ROS test goes through).
+
+Skipped where the ``ros`` extra is not installed or a namespace cannot be made (not root). The
+message checks without ROS are in the last tests, which always run.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import firmtool as ft
+from firmtool.ros import checks
+from firmtool.ros.confine import confined_command, confinement_problem, environment
+
+ROOT = Path(__file__).resolve().parents[1]
+DRIVER = ROOT / "tests" / "ros_driver.py"
+EPISODES, SEED = 20, 0
+NEW_GOAL = [8.5, 5.0]  # east of the wall: reachable from the start through the right gap
+
+needs_ros = pytest.mark.skipif(importlib.util.find_spec("rclpy") is None,
+                               reason="the ros extra is not installed (pip install 'firmtool[ros]')")
+needs_namespace = pytest.mark.skipif(confinement_problem() is not None,
+                                     reason=f"no private network namespace: {confinement_problem()}")
+
+
+def confined(tmp_path: Path, probe: str, timeout: float = 400, **args) -> dict:
+    """Run the driver's ``probe`` in a new network namespace with only loopback, and the ROS settings
+    that keep DDS on it (firmtool.ros.confine); its JSON result. Every ROS test runs through here."""
+    domain = 10 + os.getpid() % 90  # a domain per worker: concurrent runs share no shared-memory port
+    env = environment(tmp_path, domain)
+    env["OPENBLAS_NUM_THREADS"] = "1"
+    args.setdefault("log", str(tmp_path / probe))
+    cmd = confined_command([sys.executable, str(DRIVER), probe, json.dumps(args)])
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout, cwd=tmp_path)
+    logs = "".join(f"\n--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(tmp_path.glob(f"{probe}.*")))
+    assert res.returncode == 0, f"driver: {res.stderr[-3000:]}{logs}"
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module", autouse=True)
+def numpy_engine():
+    """The numpy Monte Carlo engine in this module, here and in the nodes (the environment passes to
+    them): a fresh venv (CI's) then compiles no kernel for these tests, ~30 s of the extra's 3 minutes,
+    and ft.simulate runs the engine the nodes run."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FIRMTOOL_ENGINE", "numpy")
+        yield
+
+
+@pytest.fixture(scope="module")
+def lightdark(tmp_path_factory):
+    """point_lightdark built small (30 nodes, 60 particles: seconds), solved and saved; the new goal's
+    query answered once, so that what it loads is loaded (the node answers it in a fraction of a second)."""
+    sc = ft.load_scenario("point_lightdark").replace(estimation={"particles": 60, "adaptive_particles": 0},
+                                                     roadmap={"nodes": 30})
+    out = tmp_path_factory.mktemp("ros") / "point_lightdark.h5"
+    rm = ft.build(sc, workers=1, output=out)
+    sol = ft.solve(rm)
+    sol.save()
+    ft.solve(rm, goal=NEW_GOAL)
+    return out, sol
+
+
+@needs_ros
+@needs_namespace
+def test_twenty_episodes_over_dds_are_ft_simulates(lightdark, tmp_path):
+    path, sol = lightdark
+    got = confined(tmp_path, "episodes", roadmap=str(path), episodes=EPISODES, seed=SEED)
+    summary = got["summary"]
+    assert got["sim_rc"] == 0 and got["node_rc"] == 130 and summary["episodes"] == EPISODES
+    res = ft.simulate(sol, EPISODES, SEED, record=False)
+    assert abs(summary["success_rate"] - res.success_rate) <= 0.10
+    # lock-step: the same draws on both sides, so every episode is ft.simulate's
+    for r, ep in zip(summary["outcomes"], res.episodes):
+        assert (r["outcome"], r["steps"]) == (str(ep.outcome), ep.steps), (r, ep.outcome, ep.steps)
+        if r["cost"] is not None:
+            assert np.isclose(r["cost"], ep.cost, rtol=1e-9)
+    # every measurement but an episode's last was answered by a control, and timed
+    assert summary["latency_ms"]["count"] == sum(ep.steps for ep in res.episodes) - EPISODES
+
+
+@needs_ros
+@needs_namespace
+def test_a_goal_sent_mid_run_is_taken(lightdark, tmp_path):
+    path, _ = lightdark
+    got = confined(tmp_path, "goal", roadmap=str(path), seed=SEED, after_steps=15, goal=NEW_GOAL)
+    kinds = [e["kind"] for e in got["events"]]
+    assert "goal_received" in kinds and "goal_accepted" in kinds, kinds
+    accepted = next(e for e in got["events"] if e["kind"] == "goal_accepted")
+    assert accepted["goal"] == NEW_GOAL
+    assert np.allclose(got["plans"][-1][-1], NEW_GOAL)  # the plan now ends at the new goal
+    outcome = got["summary"]["outcomes"][0]
+    if outcome["outcome"] in ("success", "goal_miss"):  # the run ended at the new goal, judged by its query
+        done = next(e for e in got["events"] if e["kind"] == "done")
+        assert done["goal"] == NEW_GOAL and done["step"] == outcome["steps"]  # steps counted across the switch
+
+
+@needs_ros
+@needs_namespace
+def test_malformed_messages_are_dropped_and_a_gap_stops_the_robot(lightdark, tmp_path):
+    path, _ = lightdark
+    got = confined(tmp_path, "malformed", roadmap=str(path), gap=0.4, good=[1.0, 1.0])
+    refused = [(e["kind"], e.get("field")) for e in got["events"] if e["kind"].endswith(("dropped", "refused"))]
+    assert refused.count(("dropped", "measurement.data")) == 2
+    assert ("goal_refused", "goal_pose.pose.position") in refused
+    assert ("goal_refused", "goal_pose.header.frame_id") in refused
+    assert refused.count(("world_update_refused", "world_update.data")) == 2  # bad JSON; an obstacle refused
+    assert ("dropped", "reset.data") in refused
+    assert got["answered"], "the node stopped answering after the bad messages"
+    stopped = [e for e in got["events"] if e["kind"] == "stopped"]
+    assert len(stopped) == 1 and 0.3 < got["stopped_after"] < 5.0
+    assert got["controls"][-1] == [0.0, 0.0]  # the stop: a zero control
+    assert got["node_rc"] == 130
+
+
+# -- the checks, without ROS --------------------------------------------------------------------------
+
+def test_a_measurement_of_the_wrong_length_or_nan_names_the_field():
+    with pytest.raises(checks.MessageError, match="measurement.data: expected 2 values, found 3"):
+        checks.finite_vector([1, 2, 3], 2, "measurement.data")
+    with pytest.raises(checks.MessageError, match="NaN or inf at index 1") as info:
+        checks.finite_vector([1, float("nan")], 2, "measurement.data")
+    assert info.value.field == "measurement.data"
+
+
+def test_a_goal_outside_the_world_is_refused():
+    with pytest.raises(checks.MessageError, match="inside the world"):
+        checks.point_in_world([11.0, 1.0], [0, 0], [10, 6], "goal_pose.pose.position")
+    assert checks.point_in_world([1.0, 5.0], [0, 0], [10, 6], "g").tolist() == [1.0, 5.0]
+
+
+def test_requests_are_read_or_refused():
+    assert checks.reset_request("") == checks.ResetRequest()
+    assert checks.reset_request('{"episode": 3, "seed": 1}') == checks.ResetRequest(3, 1)
+    for bad in ('{"episode": 3}', '[1]', '{"episode": -1, "seed": 0}', '{"go": 1}'):
+        with pytest.raises(checks.MessageError, match="reset.data"):
+            checks.reset_request(bad)
+    assert checks.world_update('[{"center": [1, 2], "half_size": [0.1, 0.1]}]')[1] is None
+    assert checks.world_update('{"obstacles": [], "bounds": [[0, 0], [5, 5]]}') == ([], [[0, 0], [5, 5]])
+    with pytest.raises(checks.MessageError, match="world_update.data"):
+        checks.world_update('{"boxes": []}')
+
+
+def test_events_are_json_with_nan_as_null():
+    rec = checks.event_record(ft.Event(3, ft.EventKind.NODE, 4))
+    assert json.loads(checks.to_json(rec)) == {"kind": "node", "step": 3, "node": 4, "value": None, "detail": ""}
+
+
+def test_the_belief_of_the_task_point_and_which_robots_measure_a_position(lightdark):
+    _, sol = lightdark
+    problem = sol.roadmap.problem
+    P = np.diag([0.1, 0.2, 0.3, 0.4])
+    point, cov, heading, _ = checks.task_belief(problem, np.array([1.0, 2.0, 0.5, 0.0]), P)
+    assert point.tolist() == [1.0, 2.0] and np.allclose(cov, np.diag([0.1, 0.2])) and heading is None
+    assert checks.measures_position(problem)
+    assert problem.robot.velocity_command(np.zeros(2)) is None  # a double integrator: accelerations
+    full = np.array(checks.pose_covariance(cov, 0.0)).reshape(6, 6)
+    assert full[0, 0] == 0.1 and full[1, 1] == 0.2 and full[2, 2] == 0.0
