@@ -212,3 +212,75 @@ def test_planar_backends_refuse_other_kinds_and_meshes_need_3d():
                                             'triangles = [[0, 0, 0]] }, {')
     with pytest.raises(ScenarioError, match=r"world\.obstacles\[0\]\.kind: 'mesh' needs a 3-D world"):
         parse_scenario(mesh.replace("robot_radius = 0.08", 'robot_radius = 0.08\ncollision_backend = "fcl"'), "s.toml")
+
+
+def _point_turned_box(p, box):
+    """Distance from points (K, 3) to a turned box: the axis-aligned one in the box's own frame."""
+    local = (p - np.array(box.center)) @ box.rotation()
+    return point_box(local, 0.0, np.array(box.half_size))
+
+
+def _point_cylinder(p, cyl):
+    """Distance from points (K, 3) to a solid cylinder (closed form in its frame: radial, axial)."""
+    local = (p - np.array(cyl.center)) @ cyl.rotation()
+    radial = np.maximum(np.hypot(local[:, 0], local[:, 1]) - cyl.radius, 0.0)
+    axial = np.maximum(np.abs(local[:, 2]) - 0.5 * cyl.length, 0.0)
+    return np.hypot(radial, axial)
+
+
+def test_turned_boxes_and_cylinders_decide_by_their_distances():
+    """Sphere robots against a box turned by rpy and a turned cylinder (python-fcl), against the
+    closed-form distances in the shapes' own frames; their bounding boxes hold them."""
+    from firmtool.geometry.shapes import Cylinder
+
+    rng = np.random.default_rng(7)
+    r = 0.15
+    box = Box((2.0, 2.5, 1.5), (0.8, 0.3, 0.5), rpy=(0.3, -0.5, 0.9))
+    cyl = Cylinder((4.3, 2.0, 2.2), 0.35, 1.6, rpy=(1.2, 0.4, -0.3))
+    fcl = FclCollisionBackend([box, cyl], LO3, HI3, self_collision=False)
+    p = rng.uniform(LO3 + r, HI3 - r, size=(8000, 3))
+    d = np.minimum(_point_turned_box(p, box), _point_cylinder(p, cyl))
+    hits = _check(fcl.capsules_collide(*_spheres(p), r), d, r)
+    assert hits > 200  # both shapes, many times (286 with this seed)
+    # the bounding boxes are the extremes of the shapes' own points: the box's corners, the rims' circles
+    corners = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)]) * box.half_size
+    rim = np.linspace(0, 2 * np.pi, 20001)
+    circle = np.column_stack([cyl.radius * np.cos(rim), cyl.radius * np.sin(rim), np.zeros(rim.size)])
+    rims = np.vstack([circle + [0, 0, -0.5 * cyl.length], circle + [0, 0, 0.5 * cyl.length]])
+    for o, local in ((box, corners), (cyl, rims)):
+        points = local @ o.rotation().T + np.array(o.center)
+        lo, hi = o.aabb()
+        np.testing.assert_allclose(points.min(axis=0), lo, atol=1e-7)
+        np.testing.assert_allclose(points.max(axis=0), hi, atol=1e-7)
+
+
+def test_numpy_narrow_phase_of_turned_boxes_is_fcls():
+    """Capsules of their own radii (the URDF arm's) against turned and axis-aligned boxes and a
+    sphere: the numpy narrow phase decides as python-fcl does."""
+    boxes = [Box((2.0, 2.5, 1.5), (0.8, 0.3, 0.5), rpy=(0.3, -0.5, 0.9)), Box((4.0, 1.0, 1.0), (0.3, 0.4, 0.6)),
+             Sphere((4.5, 3.5, 2.5), 0.5)]
+    fcl = FclCollisionBackend(boxes, LO3, HI3, self_collision=False)
+    assert fcl._vectorised
+    rng = np.random.default_rng(8)
+    M, L = 3000, 2
+    centre = rng.choice([np.array(o.center) for o in boxes], size=(M, L))
+    starts = np.clip(centre + rng.normal(scale=0.6, size=(M, L, 3)), LO3 + 0.2, HI3 - 0.2)
+    ends = np.clip(starts + rng.normal(scale=0.4, size=(M, L, 3)), LO3 + 0.2, HI3 - 0.2)
+    radii = np.array([0.05, 0.12])
+    got = fcl.capsules_collide_radii(starts, ends, radii)
+    want = fcl._collide(starts, ends, radii)
+    assert 0.2 < want.mean() < 0.8
+    assert (got != want).sum() <= 2  # only at contact within fcl's tolerance
+
+
+def test_turned_boxes_only_in_3d_and_cylinders_are_read():
+    with pytest.raises(ScenarioError, match=r"world.obstacles\[0\].rpy: only in 3-D worlds"):
+        parse_scenario(room_3d("").replace("[[0.0, 0.0, 0.0], [6.0, 5.0, 4.0]]", "[[0.0, 0.0], [6.0, 5.0]]")
+                       .replace("obstacles = [", 'obstacles = [{ center = [1.0, 1.0], half_size = [0.2, 0.2], '
+                                                 'rpy = [0.0, 0.0, 0.3] },'), "room.toml")
+    sc = parse_scenario(_room('{ kind = "cylinder", center = [1.0, 1.0, 1.0], radius = 0.2, length = 1.0, '
+                              'rpy = [1.5708, 0.0, 0.0] }, { center = [5.0, 4.0, 3.0], half_size = [0.2, 0.3, 0.4], '
+                              'rpy = [0.0, 0.0, 0.5] }'), "room.toml")
+    cyl, turned = sc.world.obstacles[3], sc.world.obstacles[4]
+    assert cyl.kind == "cylinder" and cyl.rpy == (1.5708, 0.0, 0.0) and turned.rpy == (0.0, 0.0, 0.5)
+    assert cyl.to_table()["length"] == 1.0 and "rpy" not in sc.world.obstacles[0].to_table()

@@ -1,5 +1,5 @@
-"""python-fcl collision backend: capsule robots in 2-D or 3-D worlds of boxes, spheres, capsules and
-triangle meshes (name ``"fcl"``); the general backend, and the oracle of the planar ones.
+"""python-fcl collision backend: capsule robots in 2-D or 3-D worlds of boxes, spheres, capsules,
+cylinders and triangle meshes (name ``"fcl"``); the general backend, and the oracle of the planar ones.
 
 Obstacles become fcl objects in a ``DynamicAABBTreeCollisionManager`` (broadphase): ``fcl.Box``,
 ``fcl.Sphere``, ``fcl.Capsule`` (its local z axis rotated onto the segment, centred at its
@@ -30,7 +30,7 @@ import numpy as np
 from firmtool.errors import InputError
 from firmtool.geometry.backends import _check_capsules, _check_world, nonadjacent_pairs, outside_workspace
 from firmtool.geometry.distance3d import segment_box_distance_sq, segment_point_distance_sq
-from firmtool.geometry.shapes import Box, Capsule, Mesh, Obstacle, Sphere
+from firmtool.geometry.shapes import Box, Capsule, Cylinder, Mesh, Obstacle, Sphere
 
 MIN_LENGTH = 1e-12  # robot segments shorter than this are spheres
 PLANAR_DEPTH = 1.0  # extent along z of a 2-D world's boxes
@@ -100,12 +100,15 @@ class FclCollisionBackend:
         # 3-D worlds of axis-aligned boxes and spheres: capsules of their own radii are decided in numpy
         # (firmtool.geometry.distance3d), the rest through fcl
         self._vectorised = self.dim == 3 and all(isinstance(o, (Box, Sphere)) for o in self.obstacles)
-        if self._vectorised:  # (K,) is a sphere, (K, 3) centres, (K, 3) boxes' half sizes, (K,) spheres' radii
+        if self._vectorised:  # (K,) is a sphere, (K, 3) centres, (K, 3) boxes' half sizes, (K,) spheres' radii,
+            # (K, 3, 3) boxes' rotations
             self._solids = (np.array([isinstance(o, Sphere) for o in self.obstacles], dtype=bool),
                             np.array([o.center for o in self.obstacles], dtype=float).reshape(-1, 3),
                             np.array([o.half_size if isinstance(o, Box) else (0.0, 0.0, 0.0) for o in self.obstacles],
                                      dtype=float).reshape(-1, 3),
-                            np.array([o.radius if isinstance(o, Sphere) else 0.0 for o in self.obstacles], dtype=float))
+                            np.array([o.radius if isinstance(o, Sphere) else 0.0 for o in self.obstacles], dtype=float),
+                            np.array([o.rotation() if isinstance(o, Box) else np.eye(3) for o in self.obstacles],
+                                     dtype=float).reshape(-1, 3, 3))
         self._manager = None
         if objects:
             self._manager = fcl.DynamicAABBTreeCollisionManager()
@@ -133,7 +136,11 @@ class FclCollisionBackend:
             if self.dim == 2:
                 size = np.append(size, depth)
             R = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+            if o.rpy is not None:
+                R = o.rotation()
             return fcl.Box(*size), fcl.Transform(R, _pad3(o.center))
+        if isinstance(o, Cylinder):
+            return fcl.Cylinder(float(o.radius), float(o.length)), fcl.Transform(o.rotation(), _pad3(o.center))
         if angle != 0.0:
             raise InputError(f"obstacle angles: only boxes rotate, found a {o.kind}")
         if isinstance(o, Sphere):
@@ -206,10 +213,12 @@ class FclCollisionBackend:
         m, l, k = np.nonzero(near)
         if m.size == 0:
             return out
-        sphere, centre, extent, radius = self._solids
-        a, b = starts[m, l], ends[m, l]
-        d2 = np.where(sphere[k], segment_point_distance_sq(a, b, centre[k]),
-                      segment_box_distance_sq(a, b, centre[k] - extent[k], centre[k] + extent[k]))
+        sphere, centre, extent, radius, rotation = self._solids
+        a, b = starts[m, l] - centre[k], ends[m, l] - centre[k]
+        # in each box's own frame (R' (p - c)), where it is the axis-aligned [-h, h]
+        a_box, b_box = np.einsum("nji,nj->ni", rotation[k], a), np.einsum("nji,nj->ni", rotation[k], b)
+        d2 = np.where(sphere[k], segment_point_distance_sq(a, b, 0.0),
+                      segment_box_distance_sq(a_box, b_box, -extent[k], extent[k]))
         hit = d2 < (r[l] + radius[k]) ** 2
         out[m[hit]] = True
         return out

@@ -96,4 +96,4 @@ register_backend("numpy", "firmtool.geometry.backends:NumpyCollisionBackend", di
 register_backend("numba", "firmtool.geometry._numba:NumbaCollisionBackend", dimensions=(2,),
                  obstacle_kinds=("box",))
 register_backend("fcl", "firmtool.geometry.fcl_backend:FclCollisionBackend", dimensions=(2, 3),
-                 obstacle_kinds=("box", "sphere", "capsule", "mesh"))
+                 obstacle_kinds=("box", "sphere", "capsule", "cylinder", "mesh"))

@@ -2,9 +2,12 @@
 
 A world's obstacles are solids, each one of these kinds (``[[world.obstacles]] kind = ...``):
 
-- ``box`` (the default kind): ``center`` (D,), ``half_size`` (D,): an axis-aligned box;
+- ``box`` (the default kind): ``center`` (D,), ``half_size`` (D,): an axis-aligned box, or in a 3-D
+  world one turned by ``rpy`` (roll, pitch, yaw: URDF's convention);
 - ``sphere``: ``center`` (D,), ``radius``: a ball (a disc in a 2-D world);
 - ``capsule``: ``start`` (D,), ``end`` (D,), ``radius``: the points within ``radius`` of a segment;
+- ``cylinder`` (3-D worlds): ``center``, ``radius``, ``length`` and ``rpy`` (its axis along its own
+  z, as a URDF cylinder);
 - ``mesh`` (3-D worlds): ``vertices`` (V, 3) and ``triangles`` (T, 3) (0-based vertex indices), or
   ``file``: a Wavefront OBJ file of which only ``v x y z`` and triangular ``f i j k`` lines
   (1-based, ``i/...`` forms allowed) are read; a relative path is taken from the scenario file's
@@ -53,26 +56,79 @@ class Obstacle:
         return table
 
 
+def rpy_rotation(rpy) -> np.ndarray:
+    """The rotation (3, 3) of roll, pitch and yaw about the fixed x, y and z axes, in that order
+    (URDF's ``rpy``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
+    r, p, y = (float(v) for v in rpy)
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
 @dataclass(frozen=True)
 class Box(Obstacle):
-    """An axis-aligned box."""
+    """A box: axis-aligned, or in a 3-D world turned by ``rpy``."""
 
     center: tuple[float, ...]
     half_size: tuple[float, ...]
+    rpy: tuple[float, float, float] | None = None
 
     kind: ClassVar[str] = "box"
     fields: ClassVar[tuple[Field, ...]] = (
         Field("center", "array", shape=("D",), unit="workspace", doc="centre of the box"),
         Field("half_size", "array", shape=("D",), bound="positive", unit="workspace", doc="half its size along each axis"),
+        Field("rpy", "array", None, shape=(3,), unit="rad",
+              doc="3-D worlds: the box turned by roll, pitch, yaw about the world's x, y, z (URDF's rpy)",
+              example=[0.0, 0.0, 0.4]),
     )
 
     @property
     def dim(self) -> int:
         return len(self.center)
 
+    def rotation(self) -> np.ndarray:
+        """Its rotation (D, D): the identity unless turned by ``rpy``."""
+        return np.eye(self.dim) if self.rpy is None else rpy_rotation(self.rpy)
+
     def aabb(self) -> tuple[np.ndarray, np.ndarray]:
         c, h = np.array(self.center), np.array(self.half_size)
+        if self.rpy is not None:
+            h = np.abs(self.rotation()) @ h  # the turned box's extent along each world axis
         return c - h, c + h
+
+
+@dataclass(frozen=True)
+class Cylinder(Obstacle):
+    """A solid cylinder (3-D worlds): its axis along its own z, turned by ``rpy`` (URDF's cylinder)."""
+
+    center: tuple[float, ...]
+    radius: float
+    length: float
+    rpy: tuple[float, float, float] | None = None
+
+    kind: ClassVar[str] = "cylinder"
+    dimensions: ClassVar[tuple[int, ...]] = (3,)
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("center", "array", shape=("D",), unit="workspace", doc="centre of the cylinder", example=[1.0, 1.0, 0.5]),
+        Field("radius", "number", bound="positive", unit="workspace", doc="its radius", example=0.1),
+        Field("length", "number", bound="positive", unit="workspace", doc="its length along its axis", example=1.0),
+        Field("rpy", "array", None, shape=(3,), unit="rad",
+              doc="the cylinder turned by roll, pitch, yaw (default: its axis along z)", example=[1.5708, 0.0, 0.0]),
+    )
+
+    @property
+    def dim(self) -> int:
+        return 3
+
+    def rotation(self) -> np.ndarray:
+        return np.eye(3) if self.rpy is None else rpy_rotation(self.rpy)
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        u = self.rotation()[:, 2]  # the axis: half the length along it, the rim's radius across it
+        ext = 0.5 * self.length * np.abs(u) + self.radius * np.sqrt(np.maximum(1.0 - u * u, 0.0))
+        c = np.array(self.center)
+        return c - ext, c + ext
 
 
 Rectangle = Box  # the planar name this kind had before worlds became D-dimensional
@@ -181,7 +237,7 @@ class Mesh(Obstacle):
         return np.abs(winding) > 0.5
 
 
-KINDS: dict[str, type[Obstacle]] = {cls.kind: cls for cls in (Box, Sphere, Capsule, Mesh)}
+KINDS: dict[str, type[Obstacle]] = {cls.kind: cls for cls in (Box, Sphere, Capsule, Cylinder, Mesh)}
 
 KIND_FIELD = Field("kind", "string", "box", choices=tuple(KINDS), doc="the obstacle's kind")
 
@@ -191,8 +247,8 @@ def obstacle_from_values(kind: str, values: Mapping[str, Any]) -> Obstacle:
     cls = KINDS[kind]
     if cls is Mesh:
         return Mesh(vertices=values["vertices"], triangles=values["triangles"], file=values.get("file"))
-    return cls(**{f.name: (tuple(float(x) for x in values[f.name]) if f.type == "array" else values[f.name])
-                  for f in cls.fields})
+    return cls(**{f.name: (tuple(float(x) for x in values[f.name]) if f.type == "array" and values[f.name] is not None
+                           else values[f.name]) for f in cls.fields})
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:

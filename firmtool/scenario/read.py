@@ -243,6 +243,8 @@ def _read_obstacle(errors: Errors, prefix: str, item: Any, D: int | None, path: 
     values = read_table(errors, prefix, item, cls.fields, {"D": D} if D else {}, known_extra=("kind",))
     if D is not None and D not in cls.dimensions:
         errors.add(f"{prefix}.kind", f"{kind!r} needs a {'/'.join(map(str, cls.dimensions))}-D world, this one is {D}-D")
+    if kind == "box" and D is not None and D != 3 and values.get("rpy") is not None:
+        errors.add(f"{prefix}.rpy", f"only in 3-D worlds (this one is {D}-D)")
     if len(errors.items) > before or D is None:
         return None
     if cls is Mesh and not _read_mesh(errors, prefix, values, path):
