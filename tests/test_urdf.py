@@ -214,6 +214,9 @@ def _urdf_error(tmp_path, text: str, files: dict[str, bytes] | None = None, tip:
     (('filename="part.stl"', 'filename="../part.stl"'), "link 'l3' collision 0: '../part.stl': expected a path"),
     (('filename="part.stl"', 'filename="package://other/part.stl"'), "only files beside the URDF"),
     (('<limit lower="-1.5" upper="1.0"/>', ''), "joint 'bend': expected <limit"),
+    (('<parent link="base"/><child link="l1"/>', '<parent link="l3"/><child link="l1"/>'), "form a cycle"),
+    (('<link name="l2">', '<link>'), "not a URDF yourdfpy can read (KeyError"),
+    (('<box size="0.1 0.04 0.03"/>', '<box size="0.1 0.04"/>'), "link 'l2' collision 0: expected a box of 3 sizes"),
     (('<?xml version="1.0"?>', '<?xml version="1.0"?><!DOCTYPE r [<!ENTITY x SYSTEM "file:///etc/passwd">]>'),
      "document type or entity declaration"),
 ])

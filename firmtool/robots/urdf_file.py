@@ -161,8 +161,9 @@ def _parse(data: bytes, what: str):
     try:
         # URDF.load's own parse step, without its file handling (firmtool read the bytes above)
         return yourdfpy.URDF._parse_robot(xml_element=root)
-    except (ValueError, TypeError, AttributeError) as exc:
-        raise UrdfError(what, f"not a URDF yourdfpy can read ({type(exc).__name__})") from None
+    except Exception as exc:  # a malformed element fails inside yourdfpy in many ways  # noqa: BLE001
+        raise UrdfError(what, f"not a URDF yourdfpy can read ({type(exc).__name__}: a missing or malformed "
+                              "attribute)") from None
 
 
 def _chain_joints(robot, base_link: str, tip_link: str) -> list:
@@ -171,14 +172,21 @@ def _chain_joints(robot, base_link: str, tip_link: str) -> list:
     for role, name in (("base_link", base_link), ("tip_link", tip_link)):
         if name not in links:
             raise UrdfError(f"link {name!r}", f"no such link (the {role}); the file has {len(links)} links")
-    by_child = {j.child: j for j in robot.joints}
-    joints, link = [], tip_link
+    by_child: dict[str, object] = {}
+    for j in robot.joints:
+        if j.child in by_child:
+            raise UrdfError(f"joint {j.name!r}", f"link {j.child!r} is the child of two joints (a URDF is a tree)")
+        by_child[j.child] = j
+    joints, link, seen = [], tip_link, {tip_link}
     while link != base_link:
         joint = by_child.get(link)
         if joint is None:
             raise UrdfError(f"link {tip_link!r}", f"the tip_link is not in the chain below {base_link!r}")
         joints.append(joint)
         link = joint.parent
+        if link in seen:
+            raise UrdfError(f"joint {joint.name!r}", f"the joints above {tip_link!r} form a cycle (a URDF is a tree)")
+        seen.add(link)
     return joints[::-1]
 
 
@@ -239,7 +247,9 @@ def _shape(collision, folder: Path, what: str, hasher) -> tuple[LinkShape, np.nd
     g = collision.geometry
     pose = np.eye(4) if collision.origin is None else np.asarray(collision.origin, dtype=float)
     if g.box is not None:
-        size = np.asarray(g.box.size, dtype=float)
+        size = np.asarray(g.box.size, dtype=float).reshape(-1)
+        if size.shape != (3,):
+            raise UrdfError(what, f"expected a box of 3 sizes, found {size.size}")
         local = 0.5 * size * np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
         shape, margin = LinkShape("box", pose, size), 0.0
     elif g.cylinder is not None:
