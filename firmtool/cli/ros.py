@@ -46,7 +46,7 @@ def ros_sim(ctx: typer.Context,
                                               "'firmtool execute' does) or a scenario (goals reported as declared)."),
             episodes: int = typer.Option(1, "--episodes", "-n", min=1, help="Episodes to play."),
             seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
-            lockstep: bool = typer.Option(True, "--lockstep/--timed",
+            lockstep: bool = typer.Option(True, "--lockstep/--timed", metavar="",
                                           help="Lock-step: the next measurement as soon as the control came (the "
                                                "episodes repeat 'firmtool execute''s); timed: one step per period."),
             rate: Optional[float] = RateOpt,
