@@ -21,7 +21,7 @@ says which kinds it handles (:mod:`firmtool.geometry.registry`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
 
@@ -72,7 +72,9 @@ class Box(Obstacle):
 
     center: tuple[float, ...]
     half_size: tuple[float, ...]
-    rpy: tuple[float, float, float] | None = None
+    # added after roadmaps were keyed on boxes without it: hashed only when set, so that an
+    # axis-aligned box keys every stage as before (firmtool.io.hashing)
+    rpy: tuple[float, float, float] | None = field(default=None, metadata={"digest": "when set"})
 
     kind: ClassVar[str] = "box"
     fields: ClassVar[tuple[Field, ...]] = (

@@ -13,9 +13,10 @@ Two sets, both written on main at 4071a87 (before the redesign):
   suite;
 - ``shipped``: the shipped scenarios as they ship (minutes on 2 cores), for ``pytest -m slow``.
 
-Regenerate (only when a change of numbers is intended, and say why in the commit)::
+Regenerate (only when a change of numbers is intended, and say why in the commit), with the BLAS
+kernels the reference was recorded with (tests/test_tables_unchanged.py says why)::
 
-    python tests/data/reference_tables.py [reduced|shipped]
+    OPENBLAS_CORETYPE=Haswell python tests/data/reference_tables.py [reduced|shipped]
 
 ``--rounded [reduced|shipped]`` re-digests only the machine-dependent datasets (:data:`ROUNDED`),
 checking that everything else is reproduced bit for bit.
