@@ -136,10 +136,6 @@ class UrdfArm(LinearRobot):
     def dof(self) -> int:
         return self.arm.chain.dof
 
-    def check_observation(self, H: np.ndarray, n: int) -> None:
-        if H.shape[1] != n:
-            raise ScenarioError(self.scenario.path, "measurement.H", f"expected shape (nz, {n}) but found {H.shape}")
-
     # -- geometry ------------------------------------------------------------------------------------
 
     def points(self, X: np.ndarray) -> np.ndarray:
