@@ -235,7 +235,7 @@ def test_tip_not_in_the_chain_and_unknown_links(tmp_path):
 def test_a_mesh_of_ten_million_triangles_is_refused_before_it_is_read(tmp_path):
     _stl(tmp_path / "part.stl", _tetra(), declared=10**7)
     message = _urdf_error(tmp_path, MIXED)
-    assert f"10000000 triangles, more than {MAX_LINK_TRIANGLES}" in message
+    assert f"10000000 triangles declared, more than {MAX_LINK_TRIANGLES}" in message
     with (tmp_path / "part.stl").open("r+b") as f:  # a sparse 600 MB file: refused by its size
         f.truncate(600 * 2**20)
     assert "at most" in _urdf_error(tmp_path, MIXED)
@@ -385,3 +385,20 @@ def test_plot_shades_the_distance_to_the_light(small_arm, tmp_path):
     r = CliRunner().invoke(app, ["plot", str(out), "-o", str(tmp_path / "p.png"), "--episodes", "2", "--dpi", "40"])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "p.png").stat().st_size > 10_000
+
+
+def test_an_stl_mesh_obstacle_is_a_solid(tmp_path):
+    """A world's mesh obstacle from a binary STL (through trimesh): a closed cube is a solid, read as
+    the OBJ cube is."""
+    c, h = np.array([0.5, 0.0, 0.5]), 0.1
+    corner = lambda i: c + h * np.array([(i >> 2) & 1, (i >> 1) & 1, i & 1]) * 2 - h  # noqa: E731
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    tris = np.array([[corner(q[0]), corner(q[i]), corner(q[i + 1])] for q in quads for i in (1, 2)])
+    _stl(tmp_path / "cube.stl", tris)
+    (tmp_path / "three.urdf").write_text(SMALL_ARM)
+    text = SMALL_SCENARIO.replace('obstacles = [{ center = [0.45, 0.0, 0.3], half_size = [0.08, 0.25, 0.3] }]',
+                                  'obstacles = [{ kind = "mesh", file = "cube.stl" }]')
+    (tmp_path / "s.toml").write_text(text)
+    mesh = ft.load_scenario(tmp_path / "s.toml").world.obstacles[0]
+    assert mesh.kind == "mesh" and mesh.closed and mesh.vertices.shape == (8, 3) and mesh.triangles.shape == (12, 3)
+    assert mesh.contains(np.array([c, c + 0.2])).tolist() == [True, False]

@@ -10,7 +10,7 @@ A world's obstacles are solids, each one of these kinds (``[[world.obstacles]] k
   z, as a URDF cylinder);
 - ``mesh`` (3-D worlds): ``vertices`` (V, 3) and ``triangles`` (T, 3) (0-based vertex indices), or
   ``file``: a Wavefront OBJ file of which only ``v x y z`` and triangular ``f i j k`` lines
-  (1-based, ``i/...`` forms allowed) are read; a relative path is taken from the scenario file's
+  (1-based, ``i/...`` forms allowed) are read, or an STL or PLY file (through trimesh, the urdf extra); a relative path is taken from the scenario file's
   folder (for the scenario a roadmap stores: only a file inside the roadmap's folder), and the file
   is read with bounds (:mod:`firmtool.io.mesh_file`). A closed mesh (every edge shared by exactly two
   triangles) is a solid: a robot inside it collides. An open one is a surface (a thin wall).
@@ -198,7 +198,8 @@ class Mesh(Obstacle):
               example=[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
         Field("triangles", "integer_array", None, shape=(None, 3), doc="vertex indices of each triangle (T, 3), 0-based",
               example=[[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]),
-        Field("file", "string", None, doc="a Wavefront OBJ file (v and triangular f lines) instead of vertices/triangles",
+        Field("file", "string", None, doc="a mesh file instead of vertices/triangles: Wavefront OBJ (v and triangular f "
+                                          "lines), or STL/PLY (with trimesh, the urdf extra)",
               example="meshes/chair.obj"),
     )
 

@@ -17,6 +17,7 @@ scenario text, so a file someone else wrote makes firmtool open a path of their 
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -59,6 +60,56 @@ def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     except UnicodeDecodeError as exc:
         raise MeshFileError(f"not UTF-8 text (byte {exc.start})") from None
     return _parse(text)
+
+
+def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and 0-based triangles (T, 3) of a mesh file: STL and PLY (by their suffix) through
+    trimesh (the urdf extra), read with the same bounds: the regular-file
+    reader and :data:`MAX_MESH_BYTES`, a binary STL's declared triangle count checked before it is
+    parsed, at most :data:`MAX_MESH_VERTICES` vertices and :data:`MAX_MESH_TRIANGLES` triangles.
+
+    Raises
+    ------
+    FileNotFoundError, MeshFileError, OSError
+        As :func:`read_obj` (which reads every other name, as Wavefront OBJ); MeshFileError also for
+        STL/PLY without trimesh.
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".stl", ".ply"):  # any other name is read as OBJ, as before STL and PLY were read
+        return read_obj(path)
+    try:
+        data = read_regular_file(path, MAX_MESH_BYTES)
+    except LimitError as exc:
+        raise MeshFileError(exc.message) from None
+    return parse_mesh_bytes(data, suffix)
+
+
+def parse_mesh_bytes(data: bytes, suffix: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and triangles (T, 3) of an STL, PLY or OBJ file's bytes (``suffix`` with its dot)
+    read through trimesh with :func:`read_mesh`'s bounds (a binary STL's declared count first);
+    MeshFileError otherwise, quoting none of the bytes."""
+    suffix = suffix.lower()
+    if suffix == ".stl" and len(data) >= 84 and data[:5].lower() != b"solid":
+        declared = int.from_bytes(data[80:84], "little")
+        if declared > MAX_MESH_TRIANGLES:
+            raise MeshFileError(f"{declared} triangles declared, more than {MAX_MESH_TRIANGLES}")
+    try:
+        import trimesh
+    except ImportError:
+        raise MeshFileError("reading STL and PLY needs trimesh: pip install 'firmtool[urdf]'") from None
+    try:
+        # process=True merges an STL's per-triangle vertices, so that a closed surface is seen as closed (a solid)
+        mesh = trimesh.load(io.BytesIO(data), file_type=suffix.lstrip("."), force="mesh", process=True)
+        V, T = np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
+    except Exception as exc:  # trimesh raises many kinds for a file it cannot read  # noqa: BLE001
+        raise MeshFileError(f"not a mesh trimesh reads as {suffix.lstrip('.')!r} ({type(exc).__name__})") from None
+    if V.shape[0] > MAX_MESH_VERTICES or T.shape[0] > MAX_MESH_TRIANGLES:
+        raise MeshFileError(f"expected at most {MAX_MESH_VERTICES} vertices and {MAX_MESH_TRIANGLES} triangles, "
+                            f"found {V.shape[0]} and {T.shape[0]}")
+    if V.ndim != 2 or V.shape[1:] != (3,) or T.ndim != 2 or T.shape[1:] != (3,) or T.shape[0] == 0 \
+            or not np.all(np.isfinite(V)):
+        raise MeshFileError("expected finite vertices and at least one triangle")
+    return V, T
 
 
 def _parse(text: str) -> tuple[np.ndarray, np.ndarray]:

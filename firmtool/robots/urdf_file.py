@@ -27,7 +27,6 @@ often the capsules collide where the shapes do not).
 from __future__ import annotations
 
 import hashlib
-import io
 import math
 import os
 import re
@@ -39,11 +38,12 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.io.limits import LimitError, read_regular_file
+from firmtool.io.mesh_file import MAX_MESH_TRIANGLES, MeshFileError, parse_mesh_bytes
 from firmtool.models.serial_chain import FIXED, PRISMATIC, REVOLUTE, Chain, enclosing_capsule
 
 MAX_URDF_BYTES = 4 * 2**20  # the Panda's URDF is 15 KB, a humanoid's ~200 KB
 MAX_MESH_BYTES = 16 * 2**20
-MAX_LINK_TRIANGLES = 200_000  # a collision mesh is a coarse hull; far more is a visual mesh by mistake
+MAX_LINK_TRIANGLES = MAX_MESH_TRIANGLES  # a collision mesh is a coarse hull; far more is a visual mesh by mistake
 SHIPPED_PREFIX = "package://firmtool/"  # URDFs shipped with firmtool (scenarios/robots/)
 CIRCLE_SIDES = 16
 KINDS = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC, "fixed": FIXED}
@@ -215,28 +215,13 @@ def _joint(joint) -> tuple[int, np.ndarray, np.ndarray, tuple[float, float] | No
 
 def _mesh(geometry_mesh, folder: Path, what: str, hasher) -> tuple[np.ndarray, np.ndarray]:
     """A collision mesh's scaled vertices and triangles, read with the module's bounds."""
-    try:
-        import trimesh
-    except ImportError:
-        raise InputError("reading a URDF's meshes needs the urdf extra: pip install 'firmtool[urdf]'") from None
-
     path = resolve(folder, str(geometry_mesh.filename), what)
     data = _read(path, MAX_MESH_BYTES, what)
     hasher.update(data)
-    suffix = path.suffix.lower().lstrip(".")
-    if suffix == "stl" and len(data) >= 84 and not data[:5].lower() == b"solid":
-        declared = int.from_bytes(data[80:84], "little")
-        if declared > MAX_LINK_TRIANGLES:
-            raise UrdfError(what, f"{path.name}: {declared} triangles, more than {MAX_LINK_TRIANGLES}")
     try:
-        mesh = trimesh.load(io.BytesIO(data), file_type=suffix, force="mesh", process=False)
-        V, T = np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
-    except Exception as exc:  # trimesh raises many kinds for a file it cannot read  # noqa: BLE001
-        raise UrdfError(what, f"{path.name}: not a mesh trimesh reads as {suffix!r} ({type(exc).__name__})") from None
-    if T.shape[0] > MAX_LINK_TRIANGLES:
-        raise UrdfError(what, f"{path.name}: {T.shape[0]} triangles, more than {MAX_LINK_TRIANGLES}")
-    if V.shape[0] == 0 or T.shape[0] == 0 or not np.all(np.isfinite(V)):
-        raise UrdfError(what, f"{path.name}: expected finite vertices and at least one triangle")
+        V, T = parse_mesh_bytes(data, path.suffix)
+    except MeshFileError as exc:
+        raise UrdfError(what, f"{path.name}: {exc}") from None
     scale = np.ones(3) if geometry_mesh.scale is None else np.broadcast_to(np.asarray(geometry_mesh.scale, float), 3)
     return V * scale, T
 

@@ -16,7 +16,7 @@ from firmtool.errors import InputError, ScenarioError
 from firmtool.geometry.registry import backends_for, get_backend
 from firmtool.geometry.shapes import KIND_FIELD, KINDS, Mesh, Obstacle, obstacle_from_values
 from firmtool.io.limits import MAX_SCENARIO_BYTES, data_limit_error, toml_nesting_error
-from firmtool.io.mesh_file import read_obj, stored_scenario_mesh_path
+from firmtool.io.mesh_file import read_mesh, stored_scenario_mesh_path
 from firmtool.io.schema import INVALID, Errors, Field, read_table, read_value, valid
 from firmtool.models import noise
 from firmtool.scenario.fields import (
@@ -272,12 +272,12 @@ def _read_mesh(errors: Errors, prefix: str, values: dict, path: str) -> bool:
         try:
             if path.endswith(":scenario_toml"):  # the text a roadmap stores: its meshes only beside the roadmap
                 p = stored_scenario_mesh_path(folder, values["file"])
-            values["vertices"], values["triangles"] = read_obj(p)  # bounded; errors quote no content
+            values["vertices"], values["triangles"] = read_mesh(p)  # bounded; errors quote no content
         except FileNotFoundError:
             errors.add(f"{prefix}.file", f"no such file {str(p)!r}")
             return False
         except (OSError, UnicodeDecodeError, ValueError) as exc:
-            errors.add(f"{prefix}.file", f"expected a Wavefront OBJ file of v and triangular f lines: {p}: {exc}")
+            errors.add(f"{prefix}.file", f"expected a mesh file (OBJ of v and triangular f lines, STL or PLY): {p}: {exc}")
             return False
     for key in ("vertices", "triangles"):
         if values[key] is None:
