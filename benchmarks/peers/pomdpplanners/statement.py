@@ -59,6 +59,7 @@ SAFETY = {
     "transition_var": 0.05,              # x' = x + a + w, w ~ N(0, 0.05 I)
     "observation_var": 1.0,              # z = x' + v, v ~ N(0, 1.0 I); halved within beacon_radius
     "near_factor": 0.5,                  # the package's factor (fixed in its code)
+    "hazard_reward": -500.0,             # the package's obstacle_reward (default -10, which pays for ending in a hazard)
     "horizon": 30,
     "discount": 0.95,
 }
@@ -77,6 +78,7 @@ def make_env(statement: dict = SAFETY):
         state_transition_cov_matrix=np.eye(2) * s["transition_var"],
         observation_cov_matrix=np.eye(2) * s["observation_var"],
         obstacle_hit_probability=1.0,
+        obstacle_reward=s["hazard_reward"],
         grid_size=s["grid_size"],
         goal_state_radius=s["goal_radius"],
         beacon_radius=s["beacon_radius"],
