@@ -153,10 +153,13 @@ class NearBeacon(NoiseModel):
 
     form: ClassVar[str] = "near_beacon"
     fields: ClassVar[tuple[Field, ...]] = (
-        Field("std", "number", bound="positive", unit="measurement", doc="noise std away from every beacon"),
+        Field("std", "number", bound="positive", unit="measurement", doc="noise std away from every beacon",
+              example=1.0),
         Field("radius", "number", bound="positive", unit="workspace",
-              doc="reach of a beacon: the variance is near_factor std^2 where the sensing coordinate is below it"),
-        Field("near_factor", "number", bound="positive", unit="1", doc="factor of the variance within radius"),
+              doc="reach of a beacon: the variance is near_factor std^2 where the sensing coordinate is within it",
+              example=1.5),
+        Field("near_factor", "number", bound="positive", unit="1", doc="factor of the variance within radius",
+              example=0.5),
     )
 
     def variance(self, sensing: np.ndarray) -> np.ndarray:
