@@ -11,6 +11,9 @@ Forms, each ONE registered class (``d = s - light_x``):
 - ``lightdark_std`` (:class:`LightDarkStd`, paper eq. 14): ``std = eta |d| + sigma_b``;
 - ``lightdark_variance`` (:class:`LightDarkVariance`, Platt et al.): ``var = a d^2 + c``;
 - ``constant`` (:class:`ConstantNoise`): ``std`` everywhere;
+- ``near_beacon`` (:class:`NearBeacon`): ``var = std^2`` where the sensing coordinate ``s`` is at
+  above ``radius``, ``near_factor std^2`` within it: for a robot whose sensing coordinate is
+  its distance to the nearest beacon (POMDPPlanners' light-dark sensing; benchmarks/peers/pomdpplanners);
 - ``callable`` (:class:`CallableNoise`): a user's vectorised function ``s (M, nz) -> var (M, nz)``,
   given from Python (a robot's model), not in a scenario file.
 
@@ -126,6 +129,45 @@ class ConstantNoise(NoiseModel):
 
 
 @dataclass(frozen=True)
+class NearBeacon(NoiseModel):
+    """A step in the distance to the nearest beacon: ``var = near_factor std^2`` if ``s <= radius``,
+    else ``std^2``.
+
+    The sensing coordinate ``s`` is the distance the robot reports (a robot whose
+    ``sensing_from_points`` gives its distance to the nearest beacon); no compiled twin: the numpy
+    engine runs it.
+
+    Attributes
+    ----------
+    std : float
+        Noise std away from every beacon.
+    radius : float
+        Beacons' reach: below it the variance is ``near_factor std^2``.
+    near_factor : float
+        Factor of the variance within ``radius`` (POMDPPlanners: 0.5).
+    """
+
+    std: float
+    radius: float
+    near_factor: float
+
+    form: ClassVar[str] = "near_beacon"
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("std", "number", bound="positive", unit="measurement", doc="noise std away from every beacon",
+              example=1.0),
+        Field("radius", "number", bound="positive", unit="workspace",
+              doc="reach of a beacon: the variance is near_factor std^2 where the sensing coordinate is within it",
+              example=1.5),
+        Field("near_factor", "number", bound="positive", unit="1", doc="factor of the variance within radius",
+              example=0.5),
+    )
+
+    def variance(self, sensing: np.ndarray) -> np.ndarray:
+        s = np.asarray(sensing, dtype=float)
+        return np.where(s <= self.radius, self.near_factor, 1.0) * self.std**2
+
+
+@dataclass(frozen=True)
 class CallableNoise(NoiseModel):
     """A user's law: ``fn(sensing (M, nz)) -> variance (M, nz)``, vectorised, positive.
 
@@ -184,5 +226,5 @@ def make(form: str, **params: float) -> NoiseModel:
     return cls(**{f.name: float(params.get(f.name, 0.0)) for f in cls.fields})  # type: ignore[call-arg]
 
 
-for _cls in (LightDarkStd, LightDarkVariance, ConstantNoise, CallableNoise):
+for _cls in (LightDarkStd, LightDarkVariance, ConstantNoise, NearBeacon, CallableNoise):
     register(_cls.form, _cls)
