@@ -52,7 +52,7 @@ class Arrival:
         goal = self.regions.goal  # a goal ball's region of beliefs: tested at every step
         if goal is not None and bool(goal.contains(belief.xhat, belief.P)[0]):
             return (run.target if self.kinds[run.target] == GOAL else self.goal_code), True
-        if k + 1 >= run.land_from and run.cand[k].any():
+        if k + 1 >= run.land_from and run.cand.any(k):
             return self.locate(belief.xhat, run.cand[k]), False
         return -1, False
 

@@ -35,7 +35,7 @@ from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
 EPS = float(np.finfo(float).eps)
 
 
-def _glr_add(A, H, L, S_inv, gamma, basis, Phi, d, C, stats, lo, hi, work, wv):
+def _glr_add(A, H, L, S_inv, gamma, basis, Phi, d, C, stats, lo, hi, older, work, wv):
     """Advance the onsets ``lo:hi`` of the buffers by one step, the onset ``hi - 1`` new (``Phi`` set to
     ``basis``, ``d`` and ``C`` to zero first), and write their statistics ``stats[lo:hi]``.
 
@@ -85,6 +85,11 @@ def _glr_add(A, H, L, S_inv, gamma, basis, Phi, d, C, stats, lo, hi, work, wv):
             for c in range(p):
                 P[r, c] = AP[r, c] - LG[r, c]  # (I - L H) A Phi: its part of the error after the update
         stats[i] = _statistic(C[i], d[i], chol, y, p)
+    best = older
+    for i in range(older + 1, hi - lo):
+        if stats[lo + i] > stats[lo + best]:
+            best = i
+    return best
 
 
 def _product(M, X, out, rows, inner, cols):
@@ -167,5 +172,5 @@ def warm() -> None:
     n, nz, p = 2, 1, 1
     e = np.eye(n)
     glr_add(e, e[:nz].copy(), e[:, :nz].copy(), np.eye(nz), np.zeros(nz), e[:, :p].copy(), np.zeros((2, n, p)),
-            np.zeros((2, p)), np.zeros((2, p, p)), np.zeros(2), 0, 1, *work_arrays(n, nz, p))
+            np.zeros((2, p)), np.zeros((2, p, p)), np.zeros(2), 0, 1, 0, *work_arrays(n, nz, p))
     _warm = True

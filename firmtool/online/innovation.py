@@ -38,17 +38,23 @@ class InnovationWindow:
         self.nis = np.zeros(window)
         self.nus = np.zeros((window, nz))
         self.filled = 0
+        self._sum = 0.0
 
     def clear(self) -> None:
         """Start a new window (after a replan decision)."""
         self.filled = 0
+        self._sum = 0.0
         self.nis[:] = 0.0
         self.nus[:] = 0.0
 
     def add(self, nu: np.ndarray, S_inv: np.ndarray) -> bool:
         """Add one innovation (nz,) with its inverse covariance; True when the test rejects."""
         slot = self.filled % self.window
-        self.nis[slot] = nu @ S_inv @ nu
+        new = float(nu @ S_inv @ nu)
+        # the window's sum recursively (the new square in, the one it replaces out), summed afresh once
+        # per turn of the window so that rounding cannot build up
+        self._sum = float(self.nis.sum()) + new - self.nis[slot] if slot == 0 else self._sum + new - self.nis[slot]
+        self.nis[slot] = new
         self.nus[slot] = nu
         self.filled += 1
         if self.filled >= self.window:
@@ -57,8 +63,8 @@ class InnovationWindow:
 
     @property
     def statistic(self) -> float:
-        """The windowed sum of normalised innovation squares."""
-        return float(self.nis.sum())
+        """The windowed sum of normalised innovation squares (kept by :meth:`add`)."""
+        return self._sum
 
     @property
     def innovations(self) -> np.ndarray:
@@ -200,14 +206,11 @@ class JumpTest:
         self._count += 1
         if self._work is None:  # the scratch of the compiled recursion, once (n and nz are the model's)
             self._work = work_arrays(A.shape[0], H.shape[0], self.basis.shape[1])
-        # every onset's recursion and statistic in one compiled call (firmtool.online.glr); the window's
-        # onsets and the older ones are solved each on its own, so the window's statistics are those
-        # of a test that keeps only them
-        glr_add(_c(A), _c(H), _c(L), _c(S_inv), _c(gamma), self.basis, self._Phi, self._d, self._C, self._stats,
-                lo, hi + 1, *self._work)
+        # every onset's recursion and statistic in one compiled call (firmtool.online.glr); each onset is
+        # solved on its own, so the window's statistics are those of a test that keeps only them
+        self.best = glr_add(_c(A), _c(H), _c(L), _c(S_inv), _c(gamma), self.basis, self._Phi, self._d, self._C,
+                            self._stats, lo, hi + 1, max(0, hi + 1 - lo - self.window), *self._work)
         self._views()
-        older = self.older
-        self.best = older + int(np.argmax(self.statistics[older:]))
         self.statistic = float(self.statistics[self.best])
         return self.statistic > self.limit
 
