@@ -66,25 +66,24 @@ def _glr_add(A, H, L, S_inv, gamma, basis, Phi, d, C, stats, lo, hi, older, work
     chol = work[2 * n + 2 * nz:]
     y = wv[nz:nz + p]
     for i in range(lo, hi):
-        P = Phi[i]
+        P, Ci, di = Phi[i], C[i], d[i]
         _product(A, P, AP, n, n, p)  # the jump's part of the predicted error
         _product(H, AP, G, nz, n, p)  # its part of this innovation
         _product(S_inv, G, SG, nz, nz, p)
         _product(L, G, LG, n, nz, p)
-        for a in range(p):
-            acc = 0.0
-            for r in range(nz):
-                acc += G[r, a] * w[r]
-            d[i, a] += acc
-            for b in range(p):
-                acc = 0.0
-                for r in range(nz):
-                    acc += G[r, a] * SG[r, b]
-                C[i, a, b] += acc
+        # d += G' w and C += G' S^-1 G as row updates (contiguous inner loops: they vectorise)
+        for r in range(nz):
+            wr = w[r]
+            for a in range(p):
+                g = G[r, a]
+                di[a] += g * wr
+                if g != 0.0:
+                    for b in range(p):
+                        Ci[a, b] += g * SG[r, b]
         for r in range(n):
             for c in range(p):
                 P[r, c] = AP[r, c] - LG[r, c]  # (I - L H) A Phi: its part of the error after the update
-        stats[i] = _statistic(C[i], d[i], chol, y, p)
+        stats[i] = _statistic(Ci, di, chol, y, p)
     best = older
     for i in range(older + 1, hi - lo):
         if stats[lo + i] > stats[lo + best]:
@@ -139,10 +138,12 @@ def _statistic(C, d, W, y, p):
             W[q, k] /= piv
             y[q] -= W[q, k] * z
         for q in range(k + 1, p):
-            lq = W[q, k]
-            for s in range(k + 1, q + 1):
-                W[q, s] -= lq * W[s, k]
-                W[s, q] = W[q, s]
+            W[k, q] = W[q, k]  # column k as a contiguous row for the update below
+        for q in range(k + 1, p):  # the trailing block, both triangles (row updates: they vectorise)
+            lq = W[k, q]
+            if lq != 0.0:
+                for s in range(k + 1, p):
+                    W[q, s] -= lq * W[k, s]
     return out
 
 
