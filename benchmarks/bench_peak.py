@@ -138,6 +138,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--matmul", type=int, default=512)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--result", action="store_true", help="also print RESULT key=value lines (benchmarks/compare.py)")
     args = ap.parse_args(argv)
     one_blas_thread()
     cases = {(rb, M): engine_case(rb, args.edges, M) for rb in args.robots for M in args.particles}
@@ -185,6 +186,13 @@ def main(argv=None) -> dict:
             print(f"{row['robot']:9s} {row['particles']:5d} particles/edge ({row['engine']} engine): "
                   f"{row['particle_steps_per_s'] / 1e6:.2f} M particle-steps/s, fraction of peak "
                   f"{row['fraction_of_peak']:.3f} [{row['fraction_range'][0]:.3f}, {row['fraction_range'][1]:.3f}]{extra}")
+    if args.result:
+        tokens = [f"peak_gflops={out['peak_gflops']}"]
+        for row in rows:
+            key = f"{row['robot']}_{row['particles']}"
+            tokens += [f"{key}_Mps={row['particle_steps_per_s'] / 1e6}", f"{key}_fraction={row['fraction_of_peak']}"]
+            tokens += [f"{key}_ratio={row[k]}" for k in row if k.startswith("ratio_to_")]
+        print("RESULT " + " ".join(tokens))
     return out
 
 
