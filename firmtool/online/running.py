@@ -6,6 +6,11 @@ controller designed at run time from the current belief (initial controller, rep
 :class:`~firmtool.control.local.LocalController` the node-membership candidates of every step, the
 covariance trace of the cost, the scale of the deviation test and the inverse innovation covariances
 of the innovation test.
+
+Its control law :meth:`RunningController.control` is one compiled call (:func:`feedback`), not four
+numpy calls on (1, n) arrays (issue 39: the point robot's act 8.9 -> 3.5 us mean, in one run), and
+:meth:`StepCandidates.any` answers the membership test's "any candidate at this step?" from a list
+made once per block of steps.
 """
 
 from __future__ import annotations

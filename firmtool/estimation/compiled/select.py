@@ -7,6 +7,9 @@ or ``numba`` use the compiled kernel whenever numba is importable and the kernel
 the problem's Monte Carlo (:func:`supports`: the robot's compiled hooks, a linear model, a compiled
 noise form, planar box geometry of numpy/numba, no user's validity checker), and the numpy path
 otherwise (:func:`engine_choice`).
+
+:func:`engine_for` remembers the answer per problem object and value of the environment variable
+(issue 39: the checks cost ~0.35 ms of every arm edge at 200 particles).
 """
 
 from __future__ import annotations
