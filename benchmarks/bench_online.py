@@ -70,6 +70,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--push", default="push:random:1.0:0.05")
     ap.add_argument("--roadmaps", type=Path, default=None, help="folder of built and solved roadmaps")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--result", action="store_true", help="also print RESULT key=value lines (benchmarks/compare.py)")
     args = ap.parse_args(argv)
     one_blas_thread()
     out = [online(s, args.episodes, args.repeat, args.push, args.roadmaps) for s in args.scenario]
@@ -89,6 +90,12 @@ def main(argv=None) -> dict:
                   f"{f(m['candidate_us_mean'] and m['candidate_us_mean'] / 1e3, 2)} ms per scored candidate "
                   f"(CPU {f(m['candidate_cpu_us_mean'] and m['candidate_cpu_us_mean'] / 1e3, 2)} ms) "
                   f"({f(m['scored_mean'], 1)} per decision)")
+    if args.result:
+        for r in out:
+            m = r["median"]
+            print("RESULT " + " ".join(f"{r['scenario']}_{k}={m[k]}" for k in ("step_time_us_mean", "step_time_us_p99",
+                                                                              "act_time_us_mean", "observe_time_us_mean")
+                                       if m[k] is not None))
     return {"online": out}
 
 

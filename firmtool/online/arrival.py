@@ -36,6 +36,8 @@ class Arrival:
     def __init__(self, regions: NodeRegions, kinds: np.ndarray) -> None:
         self.regions, self.kinds = regions, kinds
         self.goal_code = first_goal(kinds)  # a goal ball's landing on an edge to a regular node
+        if regions.goal is not None:  # its compiled prefilter compiled (or loaded) now, not in a control period
+            regions.goal.surely_outside(np.ascontiguousarray(regions.centers[0], dtype=float))
 
     def locate(self, xhat: np.ndarray, candidates: np.ndarray) -> int:
         """The node whose region holds the estimate ``xhat`` (1, n), or -1 (:meth:`NodeRegions.locate_one`:
@@ -52,7 +54,7 @@ class Arrival:
         goal = self.regions.goal  # a goal ball's region of beliefs: tested at every step
         if goal is not None and bool(goal.contains(belief.xhat, belief.P)[0]):
             return (run.target if self.kinds[run.target] == GOAL else self.goal_code), True
-        if k + 1 >= run.land_from and run.cand[k].any():
+        if k + 1 >= run.land_from and run.cand.any(k):
             return self.locate(belief.xhat, run.cand[k]), False
         return -1, False
 

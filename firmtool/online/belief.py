@@ -7,6 +7,11 @@ Each step is the filter of the Monte Carlo that estimated the edges
 So executed frequencies are comparable with the estimated probabilities. What replaces the belief
 (a jump's correction, a re-localisation's mode, a belief from outside) is the caller's; this class
 only keeps it, with the record of a run's beliefs and controls when asked.
+
+For a :class:`~firmtool.models.linear.LinearGaussianModel` the update is one compiled call
+(:func:`linear_update`): the same products as ``model.f`` / ``model.h`` and the gain's, in row order,
+instead of five numpy calls on (1, n) arrays (~8 of the point robot's ~100 us step before issue 39;
+the estimates agree with numpy's to rounding, the reference episodes at rtol 1e-9).
 """
 
 from __future__ import annotations
@@ -14,6 +19,36 @@ from __future__ import annotations
 import numpy as np
 
 from firmtool.control.local import LocalController
+from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
+from firmtool.models.linear import LinearGaussianModel
+
+
+def _linear_update(A, B, H, L, xprev, u, z, xhat, nu):
+    """``xhat = A xprev + B u + L nu`` with ``nu = z - H (A xprev + B u)`` (written into ``nu``):
+    :meth:`BeliefFilter.update` for a linear model, each product a row sum in column order."""
+    n, m, nz = A.shape[0], B.shape[1], H.shape[0]
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += A[i, j] * xprev[j]
+        acc2 = 0.0
+        for j in range(m):
+            acc2 += B[i, j] * u[j]
+        xhat[i] = acc + acc2
+    for i in range(nz):
+        acc = 0.0
+        for j in range(n):
+            acc += H[i, j] * xhat[j]
+        nu[i] = z[i] - acc
+    for i in range(n):
+        acc = 0.0
+        for j in range(nz):
+            acc += L[i, j] * nu[j]
+        xhat[i] += acc
+
+
+linear_update = cached_njit(**KERNEL_OPTIONS)(_linear_update) if numba is not None else _linear_update
+_compiled: list[bool] = []  # whether this process called linear_update yet
 
 
 class BeliefFilter:
@@ -35,6 +70,14 @@ class BeliefFilter:
 
     def __init__(self, model, perfect: bool, mean: np.ndarray, covariance: np.ndarray, record: bool) -> None:
         self.model, self.perfect = model, perfect
+        self._linear = None
+        if type(model) is LinearGaussianModel:  # the compiled update's matrices, contiguous once
+            self._linear = A, B, H = tuple(np.ascontiguousarray(M, dtype=float) for M in (model.A, model.B, model.H))
+            if not _compiled:  # compiled (or loaded) here, once per process, not in a control period
+                n, nz = A.shape[0], H.shape[0]
+                linear_update(A, B, H, np.zeros((n, nz)), np.zeros(n), np.zeros(B.shape[1]), np.zeros(nz),
+                              np.zeros(n), np.zeros(nz))
+                _compiled.append(True)
         self.xhat, self.P = mean[None].copy(), covariance
         self.xhat_prev: np.ndarray | None = None
         self.u: np.ndarray | None = None
@@ -58,6 +101,12 @@ class BeliefFilter:
         nu = None
         if self.perfect:
             xhat = z[None].copy()
+        elif self._linear is not None:
+            A, B, H = self._linear
+            xhat, nu = np.empty((1, A.shape[0])), np.empty(H.shape[0])  # kept by callers: fresh each step
+            L = lc.L[k]
+            linear_update(A, B, H, L if L.flags.c_contiguous else np.ascontiguousarray(L), self.xhat_prev[0],
+                          self.u[0], z, xhat[0], nu)
         else:  # as firmtool.estimation.edges.filter_update, on the measurement given
             pred = self.model.f(self.xhat_prev, self.u)
             innovation = z[None] - self.model.h(pred)

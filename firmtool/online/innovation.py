@@ -15,6 +15,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from firmtool.control.local import LocalController
+from firmtool.online.glr import glr_add, warm, work_arrays
 
 
 class InnovationWindow:
@@ -37,17 +38,23 @@ class InnovationWindow:
         self.nis = np.zeros(window)
         self.nus = np.zeros((window, nz))
         self.filled = 0
+        self._sum = 0.0
 
     def clear(self) -> None:
         """Start a new window (after a replan decision)."""
         self.filled = 0
+        self._sum = 0.0
         self.nis[:] = 0.0
         self.nus[:] = 0.0
 
     def add(self, nu: np.ndarray, S_inv: np.ndarray) -> bool:
         """Add one innovation (nz,) with its inverse covariance; True when the test rejects."""
         slot = self.filled % self.window
-        self.nis[slot] = nu @ S_inv @ nu
+        new = float(nu @ S_inv @ nu)
+        # the window's sum recursively (the new square in, the one it replaces out), summed afresh once
+        # per turn of the window so that rounding cannot build up
+        self._sum = float(self.nis.sum()) + new - self.nis[slot] if slot == 0 else self._sum + new - self.nis[slot]
+        self.nis[slot] = new
         self.nus[slot] = nu
         self.filled += 1
         if self.filled >= self.window:
@@ -56,8 +63,8 @@ class InnovationWindow:
 
     @property
     def statistic(self) -> float:
-        """The windowed sum of normalised innovation squares."""
-        return float(self.nis.sum())
+        """The windowed sum of normalised innovation squares (kept by :meth:`add`)."""
+        return self._sum
 
     @property
     def innovations(self) -> np.ndarray:
@@ -104,6 +111,11 @@ def reset_belief(model, lc: LocalController, k: int, xhat_prev: np.ndarray, u: n
     return pred[0] + L @ nu, 0.5 * (P + P.T)
 
 
+def _c(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous float array (no copy when it is one: the compiled recursion's layout)."""
+    return a if a.flags.c_contiguous and a.dtype == np.float64 else np.ascontiguousarray(a, dtype=float)
+
+
 class JumpTest:
     """Generalised likelihood ratio test for a jump of the true configuration (Willsky and Jones, "A
     generalized likelihood ratio approach to the detection and estimation of jumps in linear systems",
@@ -139,25 +151,33 @@ class JumpTest:
     """
 
     def __init__(self, basis: np.ndarray, window: int, false_alarm: float, kept: int | None = None) -> None:
-        self.basis = np.asarray(basis, dtype=float)
+        self.basis = np.ascontiguousarray(basis, dtype=float)
         n, p = self.basis.shape
         self.window = window
         self.kept = window if kept is None else max(window, int(kept))
-        self.statistics = np.zeros(0)  # (k,) every kept onset's, oldest first
         self.limit = float(chi2.isf(false_alarm / window, p))
-        self.Phi = np.zeros((0, n, p))
-        self.d = np.zeros((0, p))
-        self.C = np.zeros((0, p, p))
-        self.onset = np.zeros(0, dtype=np.int64)
+        # the onsets' buffers, twice the kept count, the live ones oldest first from _start
+        # (firmtool.online.glr: no allocation per step; the public arrays are views of them)
+        K = 2 * self.kept
+        self._Phi, self._d, self._C = np.zeros((K, n, p)), np.zeros((K, p)), np.zeros((K, p, p))
+        self._onset, self._stats = np.zeros(K, dtype=np.int64), np.zeros(K)
+        self._work: tuple[np.ndarray, np.ndarray] | None = None
+        self._start = self._count = 0
+        self._views()
         self.best = -1
         self.statistic = 0.0
+        warm()  # compiled here, not in the first control period
+
+    def _views(self) -> None:
+        """The public arrays: the live onsets' part of the buffers, oldest first."""
+        lo, hi = self._start, self._start + self._count
+        self.Phi, self.d, self.C = self._Phi[lo:hi], self._d[lo:hi], self._C[lo:hi]
+        self.onset, self.statistics = self._onset[lo:hi], self._stats[lo:hi]
 
     def clear(self) -> None:
         """Forget every onset (after the belief was corrected or replanned)."""
-        n, p = self.basis.shape
-        self.Phi, self.d, self.C = np.zeros((0, n, p)), np.zeros((0, p)), np.zeros((0, p, p))
-        self.onset = np.zeros(0, dtype=np.int64)
-        self.statistics = np.zeros(0)
+        self._start = self._count = 0
+        self._views()
         self.best, self.statistic = -1, 0.0
 
     @property
@@ -174,27 +194,23 @@ class JumpTest:
         """Take in one step's innovation ``gamma`` (nz,), with the step's linearisation ``A`` (n, n),
         ``H`` (nz, n), the filter gain ``L`` (n, nz) and the inverse innovation covariance; a jump
         before this step (onset ``step``) is a new candidate. True when the test rejects."""
-        keep = max(0, self.onset.size + 1 - self.kept)
-        self.Phi = np.concatenate([self.Phi[keep:], self.basis[None]])
-        self.d = np.concatenate([self.d[keep:], np.zeros((1, self.d.shape[1]))])
-        self.C = np.concatenate([self.C[keep:], np.zeros((1,) + self.C.shape[1:])])
-        self.onset = np.append(self.onset[keep:], step)
-        APhi = A @ self.Phi  # (k, n, p): the jump's part of the predicted error
-        G = H @ APhi  # (k, nz, p): its part of this innovation
-        GtS = np.swapaxes(G, 1, 2) @ S_inv  # (k, p, nz)
-        self.d = self.d + GtS @ gamma
-        self.C = self.C + GtS @ G
-        self.Phi = APhi - L @ G  # (I - L H) A Phi: its part of the error after the update
-        # the window's onsets and the older ones solved apart: the window's then as a test that keeps
-        # only them solves them, whatever else is kept, and the older ones, which have seen more
-        # measurements, seldom need the fallback's eigendecompositions (solved together, one new
-        # onset with an unseen direction sent them all there: the arm's observe step +55%; apart,
-        # +7-15%)
-        older = self.older
-        sol = np.concatenate([_least_squares(self.C[:older], self.d[:older]),
-                              _least_squares(self.C[older:], self.d[older:])])
-        self.statistics = np.einsum("ij,ij->i", self.d, sol)
-        self.best = older + int(np.argmax(self.statistics[older:]))
+        if self._count == self.kept:  # the oldest onset goes
+            self._start += 1
+            self._count -= 1
+        lo, hi = self._start, self._start + self._count
+        if hi == self._onset.size:  # the buffers' end: the live onsets back to the front (every kept steps)
+            for buf in (self._Phi, self._d, self._C, self._onset, self._stats):
+                buf[:self._count] = buf[lo:hi]
+            self._start, lo, hi = 0, 0, self._count
+        self._onset[hi] = step
+        self._count += 1
+        if self._work is None:  # the scratch of the compiled recursion, once (n and nz are the model's)
+            self._work = work_arrays(A.shape[0], H.shape[0], self.basis.shape[1])
+        # every onset's recursion and statistic in one compiled call (firmtool.online.glr); each onset is
+        # solved on its own, so the window's statistics are those of a test that keeps only them
+        self.best = glr_add(_c(A), _c(H), _c(L), _c(S_inv), _c(gamma), self.basis, self._Phi, self._d, self._C,
+                            self._stats, lo, hi + 1, max(0, hi + 1 - lo - self.window), *self._work)
+        self._views()
         self.statistic = float(self.statistics[self.best])
         return self.statistic > self.limit
 
@@ -225,19 +241,6 @@ class JumpTest:
         Phi = self.Phi[b]
         cov = Phi @ C_inv @ Phi.T
         return Phi @ nu, 0.5 * (cov + cov.T), int(self.onset[b])
-
-
-def _least_squares(C: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(k, p) the solutions of ``C_i x = d_i``, ``C`` (k, p, p) symmetric, ``d`` (k, p); where a
-    ``C_i`` is singular (a direction no measurement has seen yet: that onset can wait), the
-    least-squares solutions (lstsq's cutoff)."""
-    try:
-        return np.linalg.solve(C, d[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        # every onset at once: one lstsq per onset in a Python loop was most of a unicycle's observe
-        # step (its heading is unseen for a step or two after every onset): 270 -> 120 us for 20 onsets
-        cutoff = np.finfo(float).eps * C.shape[-1]
-        return (np.linalg.pinv(C, rcond=cutoff, hermitian=True) @ d[..., None])[..., 0]
 
 
 class JumpTests:
@@ -283,8 +286,22 @@ class JumpTests:
         self.prior = np.asarray(prior, dtype=float)
         if not (np.all(np.isfinite(self.prior)) and np.all(self.prior > 0)):
             raise ValueError(f"jump prior: positive finite variances expected, found {self.prior}")
-        self.fired: str | None = None
+        self._fired: str | None = None
+        self._fired_due = False  # a rejection whose fired family is not worked out yet
         self.rejecting: str | None = None  # the family whose statistic is furthest past its bound
+
+    @property
+    def fired(self) -> str | None:
+        """The family that explains the data best after a rejection (None without one): worked out when
+        first asked, from the tests as :meth:`add` left them (its evidence, two eigen-solves per onset,
+        cost the arm ~340 us in each rejecting step, while only a decision reads it)."""
+        if self._fired_due:
+            self._fired, self._fired_due = self._likeliest(self.tests, None), False
+        return self._fired
+
+    @fired.setter
+    def fired(self, value: str | None) -> None:
+        self._fired, self._fired_due = value, False
 
     def clear(self) -> None:
         for t in self.tests.values():
@@ -300,7 +317,7 @@ class JumpTests:
         if not any(rejects):
             self.fired = self.rejecting = None
             return False
-        self.fired = self._likeliest(self.tests, None)
+        self._fired_due = True  # self.fired, when asked
         self.rejecting = max(self.tests, key=lambda name: self.tests[name].statistic / self.tests[name].limit)
         return True
 

@@ -161,8 +161,7 @@ class PolicyRun:
         t0 = time.perf_counter()
         run, k, belief = self.run, self.k, self.belief
         if self.probe is None:
-            lc = run.lc
-            u = lc.u_ref[k] - (belief.xhat - lc.x_ref[k]) @ lc.K[k].T  # as firmtool.estimation.edges.control_and_move
+            u = run.control(belief.xhat, k)
             trP = run.trP[k]
         else:  # re-localising: the probe's next control, open loop
             u = self.probe.control()

@@ -199,9 +199,11 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     task = scenario.task
     goal_region = None
     if goal_disc is not None:
+        hooks = robot.compiled_kinematics()  # the goal test's prefilter (GoalRegion.surely_outside)
+        fast = None if hooks is None else (hooks.task_point, hooks.params, np.zeros(hooks.work_size))
         goal_region = GoalRegion(center=goal_disc[0], radius=goal_disc[1], confidence=task.goal_confidence,
                                  perfect=scenario.perfect, task_point=robot.task_point,
-                                 task_jacobian=robot.task_jacobian)
+                                 task_jacobian=robot.task_jacobian, compiled_task_point=fast)
     for name, value in (("task.start_covariance", task.start_covariance), ("task.true_start", task.true_start)):
         if value is not None and scenario.perfect:
             raise ScenarioError(scenario.path, name, "only read with imperfect measurements (with perfect ones "

@@ -386,6 +386,10 @@ class NodeRegions:
         by_norm = np.argsort(self._P_norm2, kind="stable")
         object.__setattr__(self, "_by_norm", by_norm)
         object.__setattr__(self, "_sorted_norm", np.sqrt(self._P_norm2[by_norm]))
+        # the same rows in that order, so that a window of nodes is a view, not a gather per call (the
+        # engine asks once per segment of every edge; issue 39)
+        object.__setattr__(self, "_P_upper_sorted", np.ascontiguousarray(self._P_upper[by_norm]))
+        object.__setattr__(self, "_P_norm2_sorted", np.ascontiguousarray(self._P_norm2[by_norm]))
 
     @property
     def count(self) -> int:
@@ -428,8 +432,8 @@ class NodeRegions:
         if a >= b:
             return out
         cols = self._by_norm[a:b]
-        norm2 = self._P_norm2[cols]
-        dist2 = own[:, None] + norm2[None, :] - 2.0 * U @ self._P_upper[cols].T
+        norm2 = self._P_norm2_sorted[a:b]
+        dist2 = own[:, None] + norm2[None, :] - 2.0 * U @ self._P_upper_sorted[a:b].T
         out[:, cols] = dist2 <= (tol**2) * norm2[None, :]
         return out
 
