@@ -402,3 +402,16 @@ def test_an_stl_mesh_obstacle_is_a_solid(tmp_path):
     mesh = ft.load_scenario(tmp_path / "s.toml").world.obstacles[0]
     assert mesh.kind == "mesh" and mesh.closed and mesh.vertices.shape == (8, 3) and mesh.triangles.shape == (12, 3)
     assert mesh.contains(np.array([c, c + 0.2])).tolist() == [True, False]
+
+
+def test_a_declaration_in_another_encoding_and_too_many_mesh_bytes_are_refused(tmp_path, monkeypatch):
+    _stl(tmp_path / "part.stl", _tetra())
+    bomb = MIXED.replace('<?xml version="1.0"?>', '<?xml version="1.0" encoding="UTF-16"?>'
+                         '<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;">]>').replace(
+                         '<robot name="mixed">', '<robot name="&b;">')
+    (tmp_path / "r.urdf").write_bytes(bomb.encode("utf-16"))
+    with pytest.raises(InputError, match="expected UTF-8 text"):
+        urdf(tmp_path / "r.urdf", "base", "end")
+    from firmtool.robots import urdf_file
+    monkeypatch.setattr(urdf_file, "MAX_TOTAL_MESH_BYTES", (tmp_path / "part.stl").stat().st_size - 1)
+    assert "meshes hold more than" in _urdf_error(tmp_path, MIXED)

@@ -43,6 +43,7 @@ from firmtool.models.serial_chain import FIXED, PRISMATIC, REVOLUTE, Chain, encl
 
 MAX_URDF_BYTES = 4 * 2**20  # the Panda's URDF is 15 KB, a humanoid's ~200 KB
 MAX_MESH_BYTES = 16 * 2**20
+MAX_TOTAL_MESH_BYTES = 64 * 2**20  # all of a URDF's mesh elements together (one file named twice counts twice)
 MAX_LINK_TRIANGLES = MAX_MESH_TRIANGLES  # a collision mesh is a coarse hull; far more is a visual mesh by mistake
 SHIPPED_PREFIX = "package://firmtool/"  # URDFs shipped with firmtool (scenarios/robots/)
 CIRCLE_SIDES = 16
@@ -148,7 +149,11 @@ def _parse(data: bytes, what: str):
         from lxml import etree
     except ImportError:
         raise InputError("reading a URDF needs the urdf extra: pip install 'firmtool[urdf]'") from None
-    if re.search(rb"<!\s*(DOCTYPE|ENTITY)", data, flags=re.IGNORECASE):
+    try:  # UTF-8 only: a declaration in another encoding (UTF-16) would pass the byte check below
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise UrdfError(what, f"expected UTF-8 text (byte {exc.start})") from None
+    if re.search(r"<!\s*(DOCTYPE|ENTITY)", text, flags=re.IGNORECASE):
         raise UrdfError(what, "a document type or entity declaration: refused (a URDF needs none)")
     parser = etree.XMLParser(resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False,
                              remove_blank_text=True, remove_comments=True)
@@ -156,6 +161,8 @@ def _parse(data: bytes, what: str):
         root = etree.fromstring(data, parser=parser)
     except etree.XMLSyntaxError as exc:
         raise UrdfError(what, f"not well-formed XML (line {exc.lineno})") from None
+    if root.getroottree().docinfo.internalDTD is not None:  # belt and braces: no DTD, so no entity
+        raise UrdfError(what, "a document type or entity declaration: refused (a URDF needs none)")
     if root.tag != "robot":
         raise UrdfError(what, f"expected a <robot> element at the top, found <{root.tag}>")
     try:
@@ -213,11 +220,24 @@ def _joint(joint) -> tuple[int, np.ndarray, np.ndarray, tuple[float, float] | No
     return kind, origin, axis / max(np.linalg.norm(axis), 1e-300), limits
 
 
+class _Reads:
+    """The digest of everything a URDF reads, and the bytes its meshes read so far (bounded)."""
+
+    def __init__(self, data: bytes) -> None:
+        self.sha, self.mesh_bytes = hashlib.sha256(data), 0
+
+    def add(self, data: bytes, what: str) -> None:
+        self.mesh_bytes += len(data)
+        if self.mesh_bytes > MAX_TOTAL_MESH_BYTES:
+            raise UrdfError(what, f"the URDF's meshes hold more than {MAX_TOTAL_MESH_BYTES} bytes in all")
+        self.sha.update(data)
+
+
 def _mesh(geometry_mesh, folder: Path, what: str, hasher) -> tuple[np.ndarray, np.ndarray]:
     """A collision mesh's scaled vertices and triangles, read with the module's bounds."""
     path = resolve(folder, str(geometry_mesh.filename), what)
     data = _read(path, MAX_MESH_BYTES, what)
-    hasher.update(data)
+    hasher.add(data, what)
     try:
         V, T = parse_mesh_bytes(data, path.suffix)
     except MeshFileError as exc:
@@ -270,7 +290,7 @@ def read_urdf(path: str | Path, base_link: str, tip_link: str, base: np.ndarray 
     """
     path = Path(path)
     data = _read(path, MAX_URDF_BYTES, "")
-    hasher = hashlib.sha256(data)
+    hasher = _Reads(data)
     robot = _parse(data, "")
     joints = _chain_joints(robot, base_link, tip_link)
     kinds, origins, axes, lo, hi, limited, names = [], [], [], [], [], [], []
@@ -312,4 +332,4 @@ def read_urdf(path: str | Path, base_link: str, tip_link: str, base: np.ndarray 
         raise UrdfError(f"link {tip_link!r}", f"no link between {base_link!r} and it has collision geometry")
     return UrdfChain(robot.name or "", chain, tuple(names), np.array(lo), np.array(hi), np.array(limited, dtype=bool),
                      tuple(with_geometry), np.array(frames, dtype=np.int64), np.array(capsules, dtype=float),
-                     np.array(radii, dtype=float), tuple(shapes), hasher.hexdigest())
+                     np.array(radii, dtype=float), tuple(shapes), hasher.sha.hexdigest())

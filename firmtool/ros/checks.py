@@ -55,12 +55,22 @@ def point_in_world(point: Sequence[float], lo: Sequence[float], hi: Sequence[flo
     return p
 
 
+#: the longest JSON message read (a world update of a thousand obstacles is ~100 KB)
+MAX_JSON_CHARS = 1_000_000
+
+
 def read_json(text: str, field: str) -> Any:
-    """``text`` parsed as JSON, or :class:`MessageError` (``field``: what JSON says went wrong)."""
+    """``text`` parsed as JSON, or :class:`MessageError` (``field``: what JSON says went wrong); a text
+    longer than :data:`MAX_JSON_CHARS` or nested too deep for the parser is refused the same way (a
+    message must never stop the node)."""
+    if isinstance(text, str) and len(text) > MAX_JSON_CHARS:
+        raise MessageError(field, f"expected at most {MAX_JSON_CHARS} characters of JSON, found {len(text)}")
     try:
         return json.loads(text)
     except (json.JSONDecodeError, TypeError) as exc:
         raise MessageError(field, f"expected JSON ({exc.msg if hasattr(exc, 'msg') else exc})") from None
+    except RecursionError:
+        raise MessageError(field, "expected JSON nested less deeply") from None
 
 
 @dataclass(frozen=True)

@@ -287,14 +287,19 @@ class PolicyNode(ros.Node):
             return
         if self._query is not None:
             self._query[1].cancel()
-        self._query = (goal, self._queries.submit(self._answer, goal))
+        self._query = (goal, self._queries.submit(self._answer, goal, self.world))
         self._say({"kind": "goal_received", "goal": goal.tolist(), "detail": "answering the query on the roadmap"})
 
-    def _answer(self, goal: np.ndarray):
-        """In the worker thread: the query's solution and its prepared policy (the expensive part)."""
+    def _answer(self, goal: np.ndarray, world):
+        """In the worker thread: the query's solution and its prepared policy (the expensive part), in
+        ``world``, the world the main thread had taken when the goal came (passed, not read here)."""
         import firmtool.api as ft  # the query machinery loads on the first goal only
         sol = ft.solve(self.base, goal=goal.tolist())
-        return sol, self._policy(sol)
+        policy = Policy(sol, replan=self.settings)
+        policy.prepare()
+        if world is not None:
+            policy.update_world(world[0], bounds=world[1])
+        return sol, policy, world
 
     def _take_goal(self) -> None:
         """The query's answer, if it can run: the new policy from the current belief (or from the
@@ -302,9 +307,14 @@ class PolicyNode(ros.Node):
         goal, future = self._query
         self._query = None
         try:
-            sol, policy = future.result()
+            sol, policy, world = future.result()
+            if self.world is not None and self.world is not world:  # updates taken while the query ran
+                policy.update_world(self.world[0], bounds=self.world[1])
         except FirmtoolError as exc:
             self._drop(MessageError("goal_pose", str(exc).split("\n")[0]), "goal_refused")
+            return
+        except Exception as exc:  # a numerical failure of the query must not stop the node  # noqa: BLE001
+            self._drop(MessageError("goal_pose", f"the query failed: {type(exc).__name__}: {exc}"), "goal_refused")
             return
         old = self.policy
         if self.state == IDLE:
