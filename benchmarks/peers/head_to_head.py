@@ -40,14 +40,10 @@ sys.path.insert(0, str(HERE.parent))
 from lightdark_pomcp import SCENARIO, LightDark, PeerSettings, run_episode  # noqa: E402
 
 
-def wilson(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return max(0.0, c - h), min(1.0, c + h)
+def wilson(successes: int, n: int) -> tuple[float, float]:
+    """Wilson 95% interval of ``successes`` of ``n`` (firmtool's, :func:`firmtool.results.wilson_interval`)."""
+    from firmtool.results import wilson_interval
+    return wilson_interval(successes, n)
 
 
 class Firmtool:

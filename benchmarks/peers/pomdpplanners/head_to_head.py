@@ -45,28 +45,10 @@ PARTICLES = 200
 WARM = 10**6  # the warm-up episode's index (never a measured one)
 
 
-def wilson(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion.
-
-    Parameters
-    ----------
-    successes, n : int
-        Successes and trials.
-    z : float
-        Normal quantile (95%: 1.96).
-
-    Returns
-    -------
-    tuple of float
-        (lower, upper).
-    """
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return max(0.0, c - h), min(1.0, c + h)
+def wilson(successes: int, n: int) -> tuple[float, float]:
+    """Wilson 95% interval of ``successes`` of ``n`` (firmtool's, :func:`firmtool.results.wilson_interval`)."""
+    from firmtool.results import wilson_interval
+    return wilson_interval(successes, n)
 
 
 def true_start(i: int, statement: dict = SAFETY) -> np.ndarray:
