@@ -108,7 +108,9 @@ def test_a_goal_sent_mid_run_is_taken(lightdark, tmp_path):
 @needs_namespace
 def test_malformed_messages_are_dropped_and_a_gap_stops_the_robot(lightdark, tmp_path):
     path, _ = lightdark
-    got = confined(tmp_path, "malformed", roadmap=str(path), gap=0.4, good=[1.0, 1.0])
+    # the watchdog's gap well above the bad messages' round trips (a fraction of a second; at 0.4 s a
+    # loaded CI machine once stopped the robot before the good measurement came)
+    got = confined(tmp_path, "malformed", roadmap=str(path), gap=2.0, good=[1.0, 1.0])
     refused = [(e["kind"], e.get("field")) for e in got["events"] if e["kind"].endswith(("dropped", "refused"))]
     assert refused.count(("dropped", "measurement.data")) == 2
     assert ("goal_refused", "goal_pose.pose.position") in refused
@@ -117,7 +119,7 @@ def test_malformed_messages_are_dropped_and_a_gap_stops_the_robot(lightdark, tmp
     assert ("dropped", "reset.data") in refused
     assert got["answered"], "the node stopped answering after the bad messages"
     stopped = [e for e in got["events"] if e["kind"] == "stopped"]
-    assert len(stopped) == 1 and 0.3 < got["stopped_after"] < 5.0
+    assert len(stopped) == 1 and 1.5 < got["stopped_after"] < 9.0
     assert got["controls"][-1] == [0.0, 0.0]  # the stop: a zero control
     assert got["node_rc"] == 130
 

@@ -207,17 +207,22 @@ class PolicyNode(ros.Node):
         self._act()
 
     def _between(self) -> None:
-        """Between an ``observe`` and the next ``act``, what the policy may take only there: a changed
-        world, a new goal's policy."""
-        while self._pending_world and self.state == RUNNING:
+        """Between an ``observe`` and the next ``act`` (or at any time while no run goes on), what the
+        policy may take only there: a changed world, a new goal's policy."""
+        self._take_world()
+        if self._query is not None and self._query[1].done():
+            self._take_goal()
+
+    def _take_world(self) -> None:
+        """The world updates that came while a control was in flight (each refused in one event if the
+        scenario's rules refuse it)."""
+        while self._pending_world:
             obstacles, bounds = self._pending_world.pop(0)
             try:
                 self._events(self.policy.update_world(obstacles, bounds=bounds))
                 self.world = (obstacles, bounds)
             except FirmtoolError as exc:
                 self._drop(MessageError("world_update.data", str(exc)), "world_update_refused")
-        if self._query is not None and self._query[1].done():
-            self._take_goal()
 
     def _on_measurement(self, msg) -> None:
         try:
@@ -247,6 +252,7 @@ class PolicyNode(ros.Node):
             self._say({"kind": "stopped", "step": self.policy.steps,
                        "detail": f"no measurement for {timeout:g} s after a control: zero control, "
                                  "waiting for ~/reset ({\"resume\": true}) or a new goal"})
+            self._take_world()  # updates that waited for the next measurement: no control is in flight now
         elif self.state != RUNNING and self._query is not None and self._query[1].done():
             self._take_goal()
 
