@@ -135,7 +135,7 @@ def hook_names(problem: Problem | None) -> list[str]:
     """``NAME=MODULE:QUALNAME`` of each compiled hook of ``problem``'s robot (what the background process
     imports to compile its kernel); empty without hooks a disk cache can key."""
     hooks = None if problem is None or problem.robot is None else problem.robot.compiled_kinematics()
-    if hooks is None or not disk_cached(hooks):
+    if hooks is None or not disk_cached(hooks) or hooks.dim != 2:  # a 3-D kernel compiles on first use
         return []
     python = {name: getattr(fn, "py_func", fn) for name, fn in hooks.functions().items() if fn is not None}
     return [f"{name}={py.__module__}:{py.__qualname__}" for name, py in python.items()]
@@ -244,7 +244,8 @@ def compile_kernels(reference: Callable, hooks: tuple[str, ...] = ()) -> None:
         except Exception:  # noqa: BLE001 - a robot whose template does not build is not warmed: it compiles when used
             continue
         found = problem.robot.compiled_kinematics()
-        if found is not None and disk_cached(found):
+        # the planar kernels share the reference's argument types; a 3-D one compiles on first use
+        if found is not None and disk_cached(found) and found.dim == 2:
             targets.append(found.functions())
     if hooks:
         targets.append(dict(_resolve(spec) for spec in hooks))

@@ -237,12 +237,20 @@ class GoalRegion:
         (then :meth:`contains` is False; False: ask :meth:`contains`). The online policy asks every
         control period, and the numpy task point was ~90 us of the arm's ~270 us step (issue 39)."""
         fast = self.compiled_task_point
-        if fast is None or self.dim != 2:
+        if fast is None:
             return False
         fn, params, work = fast
-        tx, ty = fn(xhat, params, work)
-        dx, dy = tx - self.center[0], ty - self.center[1]
-        return dx * dx + dy * dy >= self.radius * self.radius * (1.0 + self.PREFILTER_MARGIN) + 1e-300
+        t = fn(xhat, params, work)  # the task point, 2 or 3 coordinates
+        c = self.center
+        if len(t) == 2 == c.shape[0]:
+            dx, dy = t[0] - c[0], t[1] - c[1]
+            d2 = dx * dx + dy * dy
+        elif len(t) == 3 == c.shape[0]:
+            dx, dy, dz = t[0] - c[0], t[1] - c[1], t[2] - c[2]
+            d2 = dx * dx + dy * dy + dz * dz
+        else:
+            return False
+        return d2 >= self.radius * self.radius * (1.0 + self.PREFILTER_MARGIN) + 1e-300
 
     @property
     def dim(self) -> int:

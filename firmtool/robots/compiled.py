@@ -6,7 +6,8 @@ from :meth:`CompiledHooks.compiled_kinematics` (the default, None, runs the nump
 compiled once per set of hook functions (specialised on them, not on robot classes) and cached on
 disk; the hooks' constants travel as its arguments, so two arms with other link lengths share one
 compiled kernel. The planar point and chain hooks of the built-in robots are in
-:mod:`firmtool.robots.planar`, written the way a user's robot writes its own.
+:mod:`firmtool.robots.planar`, written the way a user's robot writes its own; the 3-D hooks of a URDF
+arm (``dim = 3``) in :mod:`firmtool.robots.urdf_compiled`.
 """
 
 from __future__ import annotations
@@ -23,9 +24,19 @@ from firmtool.errors import InputError
 class CompiledKinematics:
     """A robot's compiled hooks for the compiled Monte Carlo engine, and the constants they read.
 
-    The engine is planar (a 2-D world). A robot returns one only if each hook is exactly the twin of
-    its Python method named below: the engine then computes the same Monte Carlo as the numpy engine,
-    and the tests of a robot compare the two (``tests/test_kernels.py`` shows how).
+    The engine runs planar robots (``dim = 2``, a 2-D world) and 3-D ones (``dim = 3``). A robot
+    returns one only if each hook is exactly the twin of its Python method named below: the engine
+    then computes the same Monte Carlo as the numpy engine, and the tests of a robot compare the two
+    (``tests/test_kernels.py`` shows how, ``tests/test_kernels_3d.py`` in 3-D).
+
+    In 3-D the hooks take the key points' z too: ``key_points(X, params, PX, PY, PZ, lane, na)``,
+    ``task_point(xh, params, work) -> (tx, ty, tz)``, ``task_covariance(P, params, work) -> (s11,
+    s12, s13, s22, s23, s33)``, ``goal_gate(X, XH, PX, PY, PZ, params, center, radius, E, B, GG,
+    na)``; ``sense(PX, PY, PZ, params, S, na)`` fills the sensing coordinates ``S`` (n_sensing, N)
+    (the twin of :meth:`Robot.sensing_from_points <firmtool.robots.Robot.sensing_from_points>`'s
+    distinct columns; ``sensing[j]`` is then the row of ``S`` that sets measurement j's noise); the
+    capsules have a radius each (``radii``) and lie between key points ``stride l`` and
+    ``stride l + offset``; self-collision is not tested.
 
     Compiled functions (numba ``njit``, module-level functions of an importable module, so that the
     kernel compiled against them is cached on disk; hooks defined in ``__main__`` are compiled in
@@ -58,6 +69,10 @@ class CompiledKinematics:
         test's bounding-circle prefilter (inf: no bound, the prefilter passes).
     task_block : the leading state coordinates the task point depends on (at most n).
     work_size : the length of the ``work`` array of ``task_point`` and ``task_covariance``.
+    dim : 2 (planar) or 3.
+    stride : capsule ``l`` starts at key point ``stride l`` (3-D; 1 in 2-D).
+    radii : (n_seg,) the capsules' radii (3-D; in 2-D every capsule has ``world.robot_radius``).
+    sense : the 3-D sensing hook (above), None in 2-D; n_sensing : the rows it fills.
     """
 
     key_points: Callable
@@ -72,20 +87,40 @@ class CompiledKinematics:
     work_size: int = 1
     goal_gate: Callable | None = None
     half_lengths: np.ndarray | None = field(default=None)
+    dim: int = 2
+    stride: int = 1
+    radii: np.ndarray | None = field(default=None)
+    sense: Callable | None = None
+    n_sensing: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("key_points", "task_point", "task_covariance", "goal_gate"):
+        dim, stride = int(self.dim), int(self.stride)
+        if dim not in (2, 3):
+            raise InputError(f"compiled kinematics: dim must be 2 or 3, found {self.dim!r}")
+        for name in ("key_points", "task_point", "task_covariance", "goal_gate", "sense"):
             fn = getattr(self, name)
+            optional = name == "goal_gate" or (name == "sense" and dim == 2)
             # callable, not necessarily a dispatcher: with NUMBA_DISABLE_JIT=1 numba.njit gives back the function
-            if not (fn is None and name == "goal_gate") and not callable(fn):
+            if not (fn is None and optional) and not callable(fn):
                 raise InputError(f"compiled kinematics: {name} must be a numba-compiled function, found {fn!r}")
+        if dim == 2 and (self.sense is not None or stride != 1 or self.radii is not None):
+            raise InputError("compiled kinematics: sense, stride and radii are for 3-D robots (dim = 3)")
         n_seg, offset = (int(v) for v in self.segments)
-        if n_seg < 1 or offset < 0 or n_seg + offset > self.n_points:
-            raise InputError(f"compiled kinematics: segments {self.segments} do not fit {self.n_points} key points")
+        if n_seg < 1 or offset < 0 or stride < 1 or stride * (n_seg - 1) + offset >= self.n_points:
+            raise InputError(f"compiled kinematics: segments {self.segments} (stride {stride}) do not fit "
+                             f"{self.n_points} key points")
         sensing = np.ascontiguousarray(self.sensing, dtype=np.int64).reshape(-1)
-        if sensing.size and (sensing.min() < 0 or sensing.max() >= self.n_points):
-            raise InputError(f"compiled kinematics: sensing {sensing.tolist()} names a key point outside "
-                             f"0..{self.n_points - 1}")
+        rows = self.n_points if dim == 2 else int(self.n_sensing)
+        if sensing.size and (sensing.min() < 0 or sensing.max() >= rows):
+            raise InputError(f"compiled kinematics: sensing {sensing.tolist()} names a "
+                             f"{'key point' if dim == 2 else 'sensing row'} outside 0..{rows - 1}")
+        if dim == 3:
+            radii = np.ascontiguousarray(self.radii, dtype=float).reshape(-1) if self.radii is not None else None
+            if radii is None or radii.shape != (n_seg,) or not np.all(np.isfinite(radii) & (radii > 0)):
+                raise InputError(f"compiled kinematics: radii must be {n_seg} positive radii, one per capsule")
+            if self.self_collision:
+                raise InputError("compiled kinematics: the 3-D engine does not test self-collision")
+            object.__setattr__(self, "radii", radii)
         half = np.full(n_seg, np.inf) if self.half_lengths is None else \
             np.ascontiguousarray(self.half_lengths, dtype=float).reshape(-1)
         if half.shape != (n_seg,):
@@ -96,11 +131,18 @@ class CompiledKinematics:
         object.__setattr__(self, "params", np.ascontiguousarray(self.params, dtype=float).reshape(-1))
         object.__setattr__(self, "self_collision", bool(self.self_collision))
         object.__setattr__(self, "work_size", max(int(self.work_size), 1))
+        object.__setattr__(self, "dim", dim)
+        object.__setattr__(self, "stride", stride)
+        object.__setattr__(self, "n_sensing", max(int(self.n_sensing), 1))
 
     def functions(self) -> dict[str, Callable | None]:
-        """The hook functions by the names the engine's kernel calls them (what it is compiled against)."""
-        return {"key_points": self.key_points, "task_point": self.task_point,
-                "task_covariance": self.task_covariance, "goal_gate": self.goal_gate}
+        """The hook functions by the names the engine's kernel calls them (what it is compiled against);
+        ``sense`` only in 3-D (its presence selects the 3-D kernel)."""
+        out = {"key_points": self.key_points, "task_point": self.task_point,
+               "task_covariance": self.task_covariance, "goal_gate": self.goal_gate}
+        if self.dim == 3:
+            out["sense"] = self.sense
+        return out
 
 
 class CompiledHooks:

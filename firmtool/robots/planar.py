@@ -24,34 +24,13 @@ from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
 from firmtool.robots.compiled import CompiledKinematics
 
 if numba is not None:
+    from firmtool.models.angles import sincos  # the hooks' sine and cosine (also planar.sincos for the tests)
+
     njit = cached_njit(**KERNEL_OPTIONS)
     # The hooks are inlined into the engine's kernel at numba's IR level: compiled separately (and
     # then inlined by LLVM) they run at the same speed but make the kernel's cold compile longer (each
     # separately compiled function costs its own typing and optimisation passes).
     hook = cached_njit(**KERNEL_OPTIONS, inline="always")
-
-    @njit
-    def sincos(a):
-        """(sin a, cos a): Cody-Waite reduction by pi/2 and fdlibm's minimax polynomials on
-        [-pi/4, pi/4] (within an ulp or two of libm; branch-free but for the quadrant select).
-        Twin of ``np.sin``, ``np.cos``; pinned by tests/test_kernels.py::test_kinematics_are_the_robots_points."""
-        q = np.floor(a * 0.6366197723675814 + 0.5)
-        y = (a - q * 1.57079632673412561417e+00) - q * 6.07710050650619224932e-11
-        z = y * y
-        sp = y + y * z * (-1.66666666666666324348e-01 + z * (8.33333333332248946124e-03 + z * (
-            -1.98412698298579493134e-04 + z * (2.75573137070700676789e-06 + z * (
-                -2.50507602534068634195e-08 + z * 1.58969099521155010221e-10)))))
-        cp = 1.0 - 0.5 * z + z * z * (4.16666666666666019037e-02 + z * (-1.38888888888741095749e-03 + z * (
-            2.48015872894767294178e-05 + z * (-2.75573143513906633035e-07 + z * (
-                2.08757232129817482790e-09 + z * -1.13596475577881948265e-11)))))
-        k = int(q) & 3
-        if k == 0:
-            return sp, cp
-        if k == 1:
-            return cp, -sp
-        if k == 2:
-            return -sp, -cp
-        return -cp, sp
 
     # -- a point ---------------------------------------------------------------------------------
 

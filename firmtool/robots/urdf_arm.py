@@ -20,7 +20,9 @@ base link stands in the world) and ``light`` (a point of the world, for light-da
   the capsules must not meet the world's obstacles or leave its bounds (python-fcl,
   ``world.collision_backend = "fcl"``). Self-collision is not tested. The key points are the
   capsules' ends, link by link, and the tip (the task point).
-- The numpy Monte Carlo engine runs it (the compiled engine is planar; the build's notice says so).
+- The compiled Monte Carlo engine runs it in worlds of boxes and spheres (its hooks:
+  :mod:`firmtool.robots.urdf_compiled`); with cylinders or meshes in the world the numpy engine runs
+  it and the build's notice says why.
 
 A stored scenario (in a roadmap) finds its URDF inside the roadmap's folder, in the shipped ones,
 or in a folder of ``FIRMTOOL_URDF_PATH`` (``os.pathsep``-separated, set by the user: their own
@@ -39,6 +41,7 @@ import numpy as np
 from firmtool.errors import InputError, ScenarioError
 from firmtool.io.schema import Errors, Field, valid
 from firmtool.models import serial_chain
+from firmtool.robots import urdf_compiled
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
 from firmtool.robots.registry import register
 from firmtool.robots.urdf_file import SHIPPED_PREFIX, UrdfChain, UrdfError, read_urdf, resolve
@@ -126,6 +129,7 @@ class UrdfArm(LinearRobot):
         lo[:d] = np.where(self.arm.limited, self.arm.lo, -np.inf)
         hi[:d] = np.where(self.arm.limited, self.arm.hi, np.inf)
         self._limits = (lo, hi) if self.arm.limited.any() else None
+        self._hooks = None
 
     @property
     def identity(self) -> str:
@@ -162,6 +166,16 @@ class UrdfArm(LinearRobot):
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray] | None:
         return self._limits
+
+    def compiled_kinematics(self):
+        """The compiled engine's hooks (:mod:`firmtool.robots.urdf_compiled`), built once; None for a
+        subclass (it opts in by overriding this) or without numba."""
+        if type(self) is not UrdfArm or urdf_compiled.numba is None:
+            return None
+        if self._hooks is None:
+            self._hooks = urdf_compiled.urdf_kinematics(self.arm, self._frames, self._local, self.scenario.model.light,
+                                                        self.model.nz)
+        return self._hooks
 
     def is_valid(self, X: np.ndarray) -> np.ndarray:
         X = np.asarray(X, dtype=float)

@@ -12,7 +12,9 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.estimation.compiled.collide import world_group
+from firmtool.estimation.compiled.collide3d import world_group_3d
 from firmtool.estimation.compiled.goal import goal_group
+from firmtool.estimation.compiled.goal3d import goal_group_3d
 from firmtool.estimation.compiled.locate import candidate_lists
 from firmtool.estimation.compiled.run import kernel
 from firmtool.estimation.compiled.select import supports
@@ -27,7 +29,7 @@ CALL_PARTICLE_STEPS = 1024  # particle-steps of noise drawn per kernel call
 
 class _ProblemData:
     """Per-problem constant arrays for the kernel: the model's matrices, the sensor, the robot's
-    compiled hooks and their constants (the kernel's robot group), the world."""
+    compiled hooks and their constants and state limits (the kernel's robot group), the world."""
 
     def __init__(self, problem) -> None:
         model = problem.model
@@ -36,9 +38,16 @@ class _ProblemData:
         self.noise = sensor_group(model.noise)
         self.hooks = hooks = problem.robot.compiled_kinematics()
         n_seg, seg_offset = hooks.segments
+        n = model.n
+        limits = problem.robot.state_limits()
+        lo, hi = (np.full(n, -np.inf), np.full(n, np.inf)) if limits is None else \
+            (np.ascontiguousarray(limits[0], dtype=float), np.ascontiguousarray(limits[1], dtype=float))
         self.robot = (hooks.params, hooks.sensing, hooks.n_points, n_seg, seg_offset, hooks.self_collision,
-                      hooks.half_lengths, hooks.work_size)
-        self.world = world_group(problem.scenario.world)
+                      hooks.half_lengths, hooks.work_size, hooks.stride, hooks.n_sensing, limits is not None, lo, hi)
+        self.dim = hooks.dim
+        self.world = world_group(problem.scenario.world) if hooks.dim == 2 else \
+            world_group_3d(problem.scenario.world, hooks.radii)
+        self.goal_group = goal_group if hooks.dim == 2 else goal_group_3d
 
 
 _problem_cache: dict[int, tuple[object, _ProblemData]] = {}
@@ -137,7 +146,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
         rng_state[:] = rng.bit_generator.random_raw(4)
         rng_state[0] |= np.uint64(rng_state.any() == 0)  # xoshiro's one forbidden state: all zero
     x_ref, u_ref, K_ = (np.ascontiguousarray(a, dtype=float) for a in (lc.x_ref, lc.u_ref, lc.K))
-    swept = empty_swept(2)
+    swept = empty_swept(pd.dim)
     ensemble = (np.arange(M, dtype=np.int64), X, Xh, outcome, steps, effort, swept)  # the kernel's argument groups
     first_test = lc.edge_steps - 1  # membership is tested from step edge_steps - 1 (0-based) on
     candidates = (np.zeros(T + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
@@ -150,7 +159,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
         lo_t = max(k, first_test)
         if lo_t < k_end:
             candidates = _update_candidates(regions, P_, lo_t, k_end, candidates[0])
-        goal = goal_group(regions, P_, k_end, pd.hooks.task_block, perfect, goal_node)
+        goal = pd.goal_group(regions, P_, k_end, pd.hooks.task_block, perfect, goal_node)
         groups = (pd.mats, (x_ref, u_ref, K_, np.ascontiguousarray(Ld, dtype=float)), candidates,
                   locate_data(regions), pd.noise, pd.robot, pd.world, bool(perfect), goal)
         if stream is None:

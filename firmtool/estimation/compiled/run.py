@@ -1,10 +1,11 @@
 """The compiled Monte Carlo kernel: the steps of all live particles of an edge, structure of arrays,
-compiled against a robot's compiled hooks.
+compiled against a robot's compiled hooks, in a 2-D or a 3-D world.
 
 :func:`run` is the kernel's Python code; :func:`kernel` compiles it per set of hook functions
-(:class:`~firmtool.robots.compiled.CompiledKinematics`: key points, goal gate, and through
-:func:`firmtool.estimation.compiled.goal.goal_test` the task point and its covariance), bound as
-the code's global names by :func:`firmtool.jit.specialise`. The kernel is thereby specialised on the
+(:class:`~firmtool.robots.compiled.CompiledKinematics`: key points, goal gate, in 3-D sensing, and
+through the goal test the task point and its covariance) and world dimension, with the names of
+:mod:`firmtool.estimation.compiled.bindings` bound as the code's global names by
+:func:`firmtool.jit.specialise`. The kernel is thereby specialised on the
 hooks, not on robot classes, and is cached on disk like every other compiled function: each hook
 set is one entry of the kernel's index file, keyed by the hooks' modules, names and sources. Hooks
 that another process cannot import by name (a script's or notebook's ``__main__``) are compiled
@@ -22,11 +23,15 @@ each unpacked by the names below where it is used:
 - candidates, regions: node membership (:mod:`firmtool.estimation.compiled.locate`)
 - sensor ``(form, light_x, eta, sigma_b, a, c, std)``: the measurement noise
   (:data:`firmtool.estimation.compiled.step.NOISE_FORMS`)
-- robot ``(params, sensing, n_points, n_seg, seg_offset, self_collision, half_lengths, work_size)``:
-  the hooks' constants (:class:`~firmtool.robots.compiled.CompiledKinematics`); ``sensing[j]`` the key
-  point whose x sets measurement j's noise
-- world: bounds, boxes and the capsule radius (:mod:`firmtool.estimation.compiled.collide`)
-- goal: the goal ball and the goal nodes (:mod:`firmtool.estimation.compiled.goal`)
+- robot ``(params, sensing, n_points, n_seg, seg_offset, self_collision, half_lengths, work_size,
+  stride, n_sensing, has_limits, limit_lo, limit_hi)``: the hooks' constants
+  (:class:`~firmtool.robots.compiled.CompiledKinematics`; ``sensing[j]`` the row of the sensing
+  coordinates that sets measurement j's noise: in 2-D the key point whose x does) and the robot's
+  state limits (:meth:`~firmtool.robots.RobotGeometry.state_limits`; a true state outside them fails)
+- world: bounds, obstacles and the capsule radii (:mod:`firmtool.estimation.compiled.collide`,
+  :mod:`firmtool.estimation.compiled.collide3d`)
+- goal: the goal ball and the goal nodes (:mod:`firmtool.estimation.compiled.goal`,
+  :mod:`firmtool.estimation.compiled.goal3d`)
 """
 
 from __future__ import annotations
@@ -40,9 +45,7 @@ from firmtool.estimation.outcomes import FAILURE, GOAL_MISS
 from firmtool.jit import KERNEL_OPTIONS, importable, numba, specialise
 
 if numba is not None:
-    from firmtool.estimation.compiled import goal as goal_module
-    from firmtool.estimation.compiled.collide import collides, collision_gate, sweep
-    from firmtool.estimation.compiled.goal import every_particle
+    from firmtool.estimation.compiled.bindings import bindings
     from firmtool.estimation.compiled.rng import draw_noise, take_noise
     from firmtool.estimation.compiled.step import (
         control,
@@ -55,10 +58,10 @@ if numba is not None:
     from firmtool.roadmap.membership import locate
 
 #: the names of a robot's hook functions the kernel is compiled against (CompiledKinematics.functions)
-HOOK_NAMES = ("key_points", "task_point", "task_covariance", "goal_gate")
-# The robot's hooks and the goal test compiled against them, which kernel_for binds per hook set (the
-# unbound run is never compiled).
-key_points = goal_gate = goal_test = None
+HOOK_NAMES = ("key_points", "task_point", "task_covariance", "goal_gate", "sense")
+# The functions of firmtool.estimation.compiled.bindings, which kernel_for binds per hook set and
+# dimension (the unbound run is never compiled).
+points = sense = sweep_points = gate = particle_collides = goal_gate = goal_test = true_inside = None
 
 
 def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, regions, sensor, robot,
@@ -87,7 +90,8 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
     A, B, F, H = model
     x_ref, u_ref, K, L = controller
     cand_ptr, cand_idx, cand_key = candidates
-    params, sensing, n_pts, n_seg, seg_offset, self_collision, half, work_size = robot
+    params, sensing, n_pts = robot[0], robot[1], robot[2]
+    work_size, n_sense, has_limits, limit_lo, limit_hi = robot[7], robot[9], robot[10], robot[11], robot[12]
     n, m, nz = A.shape[0], B.shape[1], H.shape[0]
     d = F.shape[1] if perfect else F.shape[1] + nz
     stream = noise.shape[0] > 0
@@ -99,8 +103,9 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
     U, W, E = np.empty((m, N)), np.empty((d, N)), np.empty(N)
     HZ, INN = np.empty((nz, N)), np.empty((nz, N))
     G = np.empty(N, dtype=np.uint8)
-    PX, PY, PHI = np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty(N)
-    px, py, xh1 = np.empty(n_pts), np.empty(n_pts), np.empty(n)
+    PX, PY, PZ, PHI = np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty(N)
+    SB = np.empty((n_sense, N))
+    px, py, xh1 = np.empty(max(n_pts, 8)), np.empty(max(n_pts, 8)), np.empty(n)
     CS = np.empty(work_size)
     goal_on = goal[0]
     goal_node = goal[6]
@@ -117,18 +122,19 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
         control(XH, x_ref[k], u_ref[k], K[k], DX, U, na)
         true_step(A, B, F, X, U, W, XN, TMP, na)
         X, XN = XN, X
-        key_points(X, params, PX, PY, PHI, na)  # once per step: for the sensor noise and the collision test
-        sweep(PX, PY, n_pts, na, swept)
+        points(X, params, PX, PY, PZ, PHI, na)  # once per step: for the sensor noise and the collision test
+        sweep_points(PX, PY, PZ, n_pts, na, swept)
         if perfect:
             for j in range(n):
                 for a in range(na):
                     XH[j, a] = X[j, a]
         else:
-            filter_update(A, B, H, L[k], X, XH, U, W, PX, sensor, sensing, PRED, HZ, INN, TMP, na)
+            rows = sense(PX, PY, PZ, params, SB, na)
+            filter_update(A, B, H, L[k], X, XH, U, W, rows, sensor, sensing, PRED, HZ, INN, TMP, na)
         control_effort(U, E, na)
-        collision_gate(PX, PY, na, n_seg, seg_offset, world, self_collision, half, G)
+        gate(PX, PY, PZ, na, robot, world, G)
         if goal_on:
-            goal_gate(X, XH, PX, PY, params, goal[1], goal[2], EE, BB, GG, na)
+            goal_gate(X, XH, PX, PY, PZ, params, goal[1], goal[2], EE, BB, GG, na)
         # per particle: constraints on the true state, node membership, compaction (order kept)
         test_nodes = cand_ptr[k + 1] > cand_ptr[k]
         kept = 0
@@ -136,11 +142,12 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
             i = alive[a]
             effort[i] += E[a]
             failed = False
-            if G[a]:  # only where a prefilter passed (the same tests as in collides)
-                for p in range(n_pts):
-                    px[p] = PX[p, a]
-                    py[p] = PY[p, a]
-                failed = collides(px, py, n_seg, seg_offset, world, self_collision, half)
+            if G[a]:  # only where a prefilter passed (the same tests as in the exact test)
+                failed = particle_collides(PX, PY, PZ, a, px, py, robot, world)
+            if has_limits and not failed:  # the state limits (Problem.states_valid)
+                for j in range(n):
+                    if not (X[j, a] >= limit_lo[j] and X[j, a] <= limit_hi[j]):
+                        failed = True
             node = -1
             gated = goal_on and GG[a] and not failed
             if (test_nodes or gated) and not failed:
@@ -148,9 +155,7 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
                     xh1[j] = XH[j, a]
             if gated:
                 if goal_test(xh1, k, params, goal, CS):
-                    cx, cy = goal[1][0], goal[1][1]
-                    ex, ey = PX[tip, a] - cx, PY[tip, a] - cy
-                    node = goal_node if ex * ex + ey * ey < goal[2] * goal[2] else GOAL_MISS
+                    node = goal_node if true_inside(PX, PY, PZ, tip, a, goal[1], goal[2]) else GOAL_MISS
             if node == -1 and test_nodes and not failed:
                 node = locate(xh1, cand_ptr[k], cand_ptr[k + 1], cand_idx, cand_key, regions)
                 if node >= 0 and goal[7][node]:  # a goal state's node: judged on the true state too
@@ -198,22 +203,19 @@ def kernel(hooks) -> Callable:
 
 
 def kernel_for(functions: Mapping[str, Callable | None]) -> Callable:
-    """:func:`run` compiled with its hook names bound to ``functions`` (``key_points``, ``task_point``,
-    ``task_covariance``, ``goal_gate``; a goal gate of None is
-    :func:`~firmtool.estimation.compiled.goal.every_particle`), compiled on first use (or loaded from
-    numba's disk cache unless a hook is not importable) once per set of hook functions and process."""
+    """:func:`run` compiled with its names bound to ``functions`` (``key_points``, ``task_point``,
+    ``task_covariance``, ``goal_gate`` and, for a 3-D robot, ``sense``; a goal gate of None tests every
+    particle) through :func:`firmtool.estimation.compiled.bindings.bindings`, compiled on first use (or
+    loaded from numba's disk cache unless a hook is not importable) once per set of hook functions
+    and process. A ``sense`` hook makes it the 3-D kernel."""
     if numba is None:  # pragma: no cover
         raise InputError("the compiled Monte Carlo engine needs numba")
-    key = tuple(functions[name] for name in HOOK_NAMES)
+    key = tuple(functions.get(name) for name in HOOK_NAMES)
     hit = _kernels.get(key)
     if hit is None:
         cache = all(importable(fn) for fn in key if fn is not None)
-        test = specialise(goal_module.goal_test, {"task_point": functions["task_point"],
-                                                  "task_covariance": functions["task_covariance"]},
-                          KERNEL_OPTIONS, cache=cache)
-        bindings = {"key_points": functions["key_points"], "goal_gate": functions["goal_gate"] or every_particle,
-                    "goal_test": test}
-        hit = _kernels[key] = specialise(run, bindings, KERNEL_OPTIONS, cache=cache)
+        dim = 2 if functions.get("sense") is None else 3
+        hit = _kernels[key] = specialise(run, bindings(functions, dim, cache), KERNEL_OPTIONS, cache=cache)
     return hit
 
 

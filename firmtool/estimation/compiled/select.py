@@ -30,20 +30,20 @@ def supports(problem) -> str | None:
     """None if the compiled engine computes exactly ``problem``'s Monte Carlo, else why it cannot.
 
     The robot offers its compiled hooks (:meth:`firmtool.robots.Robot.compiled_kinematics`, the
-    twins of its key points, sensing, collision shape and task point); the kernel also needs a linear
-    model, a noise form with a compiled twin, the problem's validity to be exactly the scenario's
-    planar geometry (numpy/numba backend, boxes, the robot's own test, no user's checker), and a goal
-    ball's task point to be the robot's own."""
+    twins of its key points, sensing, collision shape and task point) for the world's dimension; the
+    kernel also needs a linear model, a noise form with a compiled twin, the problem's validity to be
+    exactly the scenario's geometry (planar: numpy/numba backend and boxes; 3-D: the fcl backend's
+    boxes and spheres without self-collision; the robot's own test and state limits, no user's
+    checker), and a goal ball's task point to be the robot's own."""
     if numba is None:
         return "numba is not installed"
-    if len(problem.scenario.world.lo) != 2:
-        return f"the compiled engine is planar, this world is {len(problem.scenario.world.lo)}-D"
     robot = problem.robot
     hooks = None if robot is None else robot.compiled_kinematics()
     if hooks is None:
         return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
-    if robot.state_limits() is not None:
-        return f"robot {problem.scenario.model.robot!r} has state limits, which the compiled engine does not test"
+    dim = len(problem.scenario.world.lo)
+    if hooks.dim != dim:
+        return f"robot {problem.scenario.model.robot!r}'s compiled kinematics are {hooks.dim}-D, this world is {dim}-D"
     if type(problem.model) is not LinearGaussianModel:
         return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
     if problem.validity is not None:
@@ -52,10 +52,11 @@ def supports(problem) -> str | None:
             and problem.sensing_from_points == robot.sensing_from_points):
         return "the problem's key points, sensing or validity are not its robot's own"
     w = problem.scenario.world
-    if w.collision_backend not in COMPILED_BACKENDS:
-        return f"collision backend {w.collision_backend!r} is not compiled (numpy/numba geometry only)"
-    if len(w.lo) != 2 or any(o.kind != "box" for o in w.obstacles):
-        return "the compiled engine's geometry is planar boxes only"
+    reason = _geometry_reason(w, dim)
+    if reason is None and dim == 3 and getattr(robot.collision(), "self_collision", False):
+        reason = "the compiled engine does not test self-collision in 3-D"
+    if reason is not None:
+        return reason
     if hooks.sensing.size != problem.model.nz or hooks.task_block > problem.model.n:
         return (f"the robot's compiled kinematics sense {hooks.sensing.size} measurements with a task block of "
                 f"{hooks.task_block}, its model has {problem.model.nz} measurements and {problem.model.n} states")
@@ -65,6 +66,22 @@ def supports(problem) -> str | None:
     noise = problem.model.noise
     if getattr(noise, "compiled", None) not in NOISE_FORMS:
         return f"measurement noise {getattr(noise, 'form', type(noise).__name__)!r} is not compiled"
+    return None
+
+
+def _geometry_reason(world, dim: int) -> str | None:
+    """Why the kernel cannot compute ``world``'s collision test exactly, or None."""
+    if dim == 2:
+        if world.collision_backend not in COMPILED_BACKENDS:
+            return f"collision backend {world.collision_backend!r} is not compiled (numpy/numba geometry only)"
+        if any(o.kind != "box" for o in world.obstacles):
+            return "the compiled engine's planar geometry is boxes only"
+        return None
+    if world.collision_backend != "fcl":
+        return f"collision backend {world.collision_backend!r}: the 3-D engine computes the fcl backend's test"
+    kinds = sorted({o.kind for o in world.obstacles} - {"box", "sphere"})
+    if kinds:
+        return f"the compiled engine's 3-D geometry is boxes and spheres, this world has {', '.join(kinds)}"
     return None
 
 
