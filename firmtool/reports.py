@@ -179,6 +179,7 @@ class EstimateReport(Report):
     adaptive : the adaptive rounds (None when ``estimation.adaptive_particles`` is 0 or nothing ran).
     notices : one-line remarks for the user, e.g. why the numpy Monte Carlo engine ran where the
         compiled one was asked for (a Python validity checker, a robot without compiled kinematics).
+    engine : the Monte Carlo engine the edges' keys were made for: ``"numba"`` (compiled) or ``"numpy"``.
     """
 
     roadmap: str
@@ -196,6 +197,7 @@ class EstimateReport(Report):
     seconds: float
     adaptive: AdaptiveReport | None = None
     notices: tuple[str, ...] = ()
+    engine: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -387,6 +389,7 @@ class BuildReport(Report):
         components the start reaches, what the connection stage added, and what is missing.
     adaptive : the last estimate stage's adaptive Monte Carlo rounds (None when off or up to date).
     notices : the estimate stages' notices (:class:`EstimateReport`).
+    engine : the last estimate stage's Monte Carlo engine (:class:`EstimateReport`).
     """
 
     roadmap: str | None
@@ -407,6 +410,7 @@ class BuildReport(Report):
     connectivity: ConnectivityReport | None = None
     adaptive: AdaptiveReport | None = None
     notices: tuple[str, ...] = ()
+    engine: str = ""
 
 
 @dataclasses.dataclass(frozen=True)

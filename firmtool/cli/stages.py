@@ -86,10 +86,18 @@ def estimate(roadmap: Path = typer.Argument(..., help="Roadmap file with designe
     emit(report, as_json, lambda r: (f"estimated {r['estimated_edges']} of {r['edges']} edges x "
                                      f"{r['particles_per_edge']} particles ({r['reused_edges']} reused; "
                                      f"{r['simulated_particle_steps']:,} particle-steps in "
-                                     f"{console.seconds(r['seconds'])} on {console.count(r['workers'], 'worker')})"))
+                                     f"{console.seconds(r['seconds'])} on {console.count(r['workers'], 'worker')}"
+                                     f"{engine_words(r)})"))
     print_notices(report)
     exit_on_failed_edges(report)
     console.next_step(str(roadmap), f"firmtool solve {roadmap}")
+
+
+def engine_words(report: dict) -> str:
+    """``", compiled engine"`` or ``", numpy engine"``: which Monte Carlo engine ran (the notices say why
+    the numpy one did where the compiled one cannot)."""
+    engine = report.get("engine")
+    return f", {'compiled' if engine == 'numba' else 'numpy'} engine" if engine else ""
 
 
 def exit_on_failed_edges(report: dict) -> None:
@@ -107,7 +115,7 @@ def build_human(r: dict) -> str:
             f"{r['reused_edges']} reused), {r['particles_per_edge']} particles/edge, "
             f"{r['simulated_particle_steps']:,} particle-steps simulated\n"
             f"time: sample {console.seconds(s['sample'])}, design {console.seconds(s['design'])}, "
-            f"estimate {console.seconds(s['estimate'])} on {console.count(r['workers'], 'worker')}")
+            f"estimate {console.seconds(s['estimate'])} on {console.count(r['workers'], 'worker')}{engine_words(r)}")
     a = r.get("adaptive")
     if a:
         last = a["rounds"][-1]

@@ -242,7 +242,7 @@ class _BuildRun:
                            particle_steps_per_second=steps / estimate_seconds if estimate_seconds else 0.0,
                            workers=r.workers.workers, executor=r.workers.executor, seconds=self.seconds,
                            densify=densify, connectivity=connectivity, adaptive=e.adaptive,
-                           notices=tuple(self.notices))
+                           notices=tuple(self.notices), engine=e.engine)
 
 
 def _record_source(target: RoadmapTarget, rm: RoadmapFile, scenario: Scenario) -> RoadmapFile:

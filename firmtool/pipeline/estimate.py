@@ -94,7 +94,7 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
             restamp(path, ("edges",))
         return _estimate_report(path, sc, E, 0, E, [], int(e["particle_steps"].sum()), 0,
                                 settings.workers if settings.requested else 0, settings.executor,
-                                time.perf_counter() - t0, up_to_date=True, notices=notices)
+                                time.perf_counter() - t0, up_to_date=True, notices=notices, engine=engine)
     known: dict[bytes, EdgeEstimate] = {} if fresh else from_arrays(roadmap.table("edges"))
     cache = {} if fresh else read_edge_cache(path, nodes=d.centers.shape[0])
     known.update(from_arrays(cache))
@@ -121,7 +121,7 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
                 for e in sorted(runs.failed)]
     return _estimate_report(path, sc, E, runs.estimated, reused, failures, int(arrays["particle_steps"].sum()),
                             runs.simulated, settings.workers, settings.executor, time.perf_counter() - t0,
-                            adaptive=adaptive, notices=notices)
+                            adaptive=adaptive, notices=notices, engine=engine)
 
 
 def _job(roadmap: RoadmapFile, problem: Problem, d: Design, engine: str) -> EstimationJob:
@@ -156,7 +156,7 @@ def _run(runs: EdgeRuns, todo: list[int], counter: Counter | None, d: Design, re
 def _estimate_report(path: str | RoadmapTarget, sc: Scenario, E: int, estimated: int, reused: int,
                      failures: list[FailedEdge], steps: int, simulated: int, workers: int, executor: str,
                      seconds: float, up_to_date: bool = False, adaptive: AdaptiveReport | None = None,
-                     notices: tuple[str, ...] = ()) -> EstimateReport:
+                     notices: tuple[str, ...] = (), engine: str = "") -> EstimateReport:
     """``particle_steps``: of the whole edge table; ``simulated_particle_steps``: of this run only."""
     return EstimateReport(roadmap=str(path), edges=E, estimated_edges=estimated, reused_edges=reused,
                           failed_edges=tuple(failures), up_to_date=up_to_date,
@@ -164,4 +164,4 @@ def _estimate_report(path: str | RoadmapTarget, sc: Scenario, E: int, estimated:
                           simulated_particle_steps=simulated,
                           particle_steps_per_second=simulated / seconds if seconds and simulated else 0.0,
                           workers=workers, executor=executor, seconds=seconds, adaptive=adaptive,
-                          notices=tuple(notices))
+                          notices=tuple(notices), engine=engine)
