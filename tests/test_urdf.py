@@ -332,6 +332,7 @@ def test_a_urdf_arm_end_to_end(small_arm):
     of the numpy one), the executed success is inside the interval around the predicted one."""
     folder, out, rm = small_arm
     assert not any("numpy Monte Carlo engine" in n for n in rm.report.notices), rm.report.notices
+    assert rm.report.engine == "numba"
     sol = ft.solve(rm)
     assert 0.2 < sol.success_probability <= 1.0
     res = ft.simulate(sol, episodes=150, seed=1)

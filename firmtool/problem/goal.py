@@ -187,6 +187,11 @@ def confidence_bounds(mean: np.ndarray, cov: np.ndarray, radius: float, confiden
 
     Accept: Anderson's theorem on the ball of radius ``r - ||mean||`` around the mean. Reject: the
     slabs ``|u'y| < r`` that contain the ball, ``u`` along the mean and along the top eigenvector.
+    In 3-D also the cubes along the covariance's eigenvectors (where the coordinates are independent,
+    so a cube's probability is the product of three intervals'): the one of half-side ``r / sqrt(3)``
+    lies in the ball (accept), the one of half-side ``r`` holds it (reject). They settle most of the
+    beliefs the direction rule would otherwise refine (~15 us per belief at its first level; measured:
+    two thirds of the compiled engine's time on arm7_shelf's edges).
     """
     mean = np.atleast_2d(mean)
     M, D = mean.shape
@@ -201,6 +206,12 @@ def confidence_bounds(mean: np.ndarray, cov: np.ndarray, radius: float, confiden
     slab_mean = _interval_probability(radius, d, su)
     top = U[:, :, -1]
     slab_top = _interval_probability(radius, np.einsum("mi,mi->m", top, mean), np.sqrt(lam[:, -1]))
+    if D == 3:
+        mu = np.einsum("mji,mj->mi", U, mean)  # the mean in the eigenbasis
+        sd = np.sqrt(lam)
+        inner = np.prod(_interval_probability(radius / np.sqrt(3.0), mu, sd), axis=1)
+        accept |= (d < radius) & (inner >= confidence)
+        slab_top = np.minimum(slab_top, np.prod(_interval_probability(radius, mu, sd), axis=1))
     reject = (np.minimum(slab_mean, slab_top) < confidence) & ~accept
     return accept, reject
 

@@ -2,10 +2,10 @@
 compiled against the robot's compiled hooks.
 
 :func:`simulate` is a drop-in twin of :func:`firmtool.estimation.edges.simulate` for the problems it knows:
-a :class:`~firmtool.models.linear.LinearGaussianModel` on a planar robot that offers compiled hooks
+a :class:`~firmtool.models.linear.LinearGaussianModel` on a robot that offers compiled hooks
 (:class:`~firmtool.robots.compiled.CompiledKinematics`: its key points, the sensing point of each
-measurement, its capsules over the key points, its task point) with the numpy or numba collision
-geometry. Per step and per live particle it does, in this order, exactly what the numpy path does:
+measurement, its capsules over the key points, its task point), planar with the numpy or numba
+collision geometry, or 3-D among the fcl backend's boxes and spheres. Per step and per live particle it does, in this order, exactly what the numpy path does:
 
     control from the estimate -> true-state step with process noise -> key points (once) ->
     observation noise with R at the TRUE state -> filter update with the precomputed gain ->
@@ -24,12 +24,14 @@ Modules, one job each:
 - :mod:`~firmtool.estimation.compiled.step`: the step helpers (control, true step, filter update,
   effort), all particles as columns;
 - :mod:`~firmtool.estimation.compiled.collide`: capsules against boxes and bounds, self-collision,
-  the gate;
+  the gate; :mod:`~firmtool.estimation.compiled.collide3d` the same in 3-D (a radius per capsule,
+  turned boxes, spheres);
 - :mod:`~firmtool.estimation.compiled.locate`: node membership's per-step candidates (the compiled
   test itself is the roadmap's, :mod:`firmtool.roadmap.membership`);
 - :mod:`~firmtool.estimation.compiled.goal`: the goal test (``ball_decision``, ``goal_test``);
+  :mod:`~firmtool.estimation.compiled.goal3d` in a 3-D task space;
 - :mod:`~firmtool.estimation.compiled.run`: the kernel (the steps of all live particles) and its compilation per
-  hook set;
+  hook set; :mod:`~firmtool.estimation.compiled.bindings`: what it calls per world dimension;
 - :mod:`~firmtool.estimation.compiled.driver`: :func:`simulate`, the data it prepares, its caches;
 - :mod:`~firmtool.estimation.compiled.select`: :func:`supports`, :func:`engine_choice`,
   :func:`engine_for`.

@@ -3,8 +3,9 @@ ball, tested per particle and step, as :mod:`firmtool.estimation.compiled.goal` 
 
 :func:`goal_test_3d` asks for the estimate's task point in the ball, then the chance constraint on the
 task covariance ``J P J'`` (the robot's compiled ``task_covariance``, six entries) by the exact
-bounds of :func:`firmtool.problem.goal.confidence_bounds` (Anderson's theorem accepts, the slabs
-along the mean and along the top eigenvector reject) and, between them, by the 3-D direction rule
+bounds of :func:`firmtool.problem.goal.confidence_bounds` (Anderson's theorem and the inner cube
+along the eigenvectors accept, the slabs along the mean and along the top eigenvector and the outer
+cube reject) and, between them, by the 3-D direction rule
 of :func:`firmtool.problem.goal.meets_confidence`: Gauss-Legendre nodes in the polar cosine times
 equally spaced azimuths (:func:`firmtool.problem.goal.directions`), refined level by level up to
 :data:`~firmtool.problem.goal.MAX_LEVEL_3D` until the gap to the confidence exceeds four times the
@@ -81,7 +82,8 @@ if numba is not None:
             if far <= 0.0:
                 continue
             near = max((-b - root) / a, 0.0)
-            total += (_chi2_3_cdf(far * far) - _chi2_3_cdf(near * near)) * W[q]
+            # near is 0 when the mean lies in the ball (the goal test's case), and chi2's CDF at 0 is 0
+            total += (_chi2_3_cdf(far * far) - (_chi2_3_cdf(near * near) if near > 0.0 else 0.0)) * W[q]
         return total
 
     @njit
@@ -96,6 +98,16 @@ if numba is not None:
         d = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
         if d < r and (r - d) * (r - d) >= q_conf * lam_max:
             return True
+        # the cubes along the eigenvectors (confidence_bounds): inside the ball (accept), around it (reject)
+        inner, outer = 1.0, 1.0
+        h = r / math.sqrt(3.0)
+        for i in range(3):
+            mu = V[0, i] * m[0] + V[1, i] * m[1] + V[2, i] * m[2]
+            sd = math.sqrt(max(lam[i], floor))
+            inner *= _ndtr((h - mu) / sd) - _ndtr((-h - mu) / sd)
+            outer *= _ndtr((r - mu) / sd) - _ndtr((-r - mu) / sd)
+        if d < r and inner >= conf:
+            return True
         if d > 0.0:
             u0, u1, u2 = m[0] / d, m[1] / d, m[2] / d
         else:
@@ -108,7 +120,7 @@ if numba is not None:
         slab = _ndtr((r - d) / su) - _ndtr((-r - d) / su)
         mt = V[0, 2] * m[0] + V[1, 2] * m[1] + V[2, 2] * m[2]
         st = math.sqrt(lam_max)
-        slab = min(slab, _ndtr((r - mt) / st) - _ndtr((-r - mt) / st))
+        slab = min(slab, min(_ndtr((r - mt) / st) - _ndtr((-r - mt) / st), outer))
         if slab < conf:
             return False
         L = np.linalg.cholesky(sym + floor * np.eye(3))

@@ -5,8 +5,8 @@ Monte Carlo, the numpy one otherwise, with a one-line notice saying why.
 says so: the environment variable ``FIRMTOOL_ENGINE=numpy`` forces the numpy path; unset, ``auto``
 or ``numba`` use the compiled kernel whenever numba is importable and the kernel computes exactly
 the problem's Monte Carlo (:func:`supports`: the robot's compiled hooks, a linear model, a compiled
-noise form, planar box geometry of numpy/numba, no user's validity checker), and the numpy path
-otherwise (:func:`engine_choice`).
+noise form, planar boxes of numpy/numba geometry or 3-D boxes and spheres of the fcl backend, no
+user's validity checker), and the numpy path otherwise (:func:`engine_choice`).
 
 :func:`engine_for` remembers the answer per problem object and value of the environment variable
 (issue 39: the checks cost ~0.35 ms of every arm edge at 200 particles).
