@@ -94,21 +94,29 @@ def test_arm_same_noise_same_outcomes():
     assert landed > 0
 
 
-def test_probabilities_agree_within_confidence_intervals_with_independent_seeds():
-    """Different random streams: the estimated landing probabilities agree within their binomial
-    confidence intervals (4 standard errors of the difference)."""
-    obstacles = "[ { center = [2.5, 2.0], half_size = [0.1, 1.0] } ]"
-    problem, d, regions = _setup(open_world(q=0.4, std=0.2, obstacles=obstacles))
-    N = 1500
-    for e in range(min(6, d.edge_source.size)):
+def _probabilities_agree(problem, d, regions, edges, N: int, chunk: int) -> set:
+    """Each edge estimated by both engines with independent seeds: every outcome's probability agrees
+    within 4 standard errors of the difference (plus one particle). Returns the outcome codes seen."""
+    seen = set()
+    for e in edges:
         s, t = int(d.edge_source[e]), int(d.edge_target[e])
-        a = estimate_edge(problem, d, regions, s, t, N, 1, 500, engine="numpy")
-        b = estimate_edge(problem, d, regions, s, t, N, 2, 500, engine="numba")
+        a = estimate_edge(problem, d, regions, s, t, N, 1, chunk, engine="numpy")
+        b = estimate_edge(problem, d, regions, s, t, N, 2, chunk, engine="numba")
         for code in set(a.outcomes.tolist()) | set(b.outcomes.tolist()):
             pa = a.counts[a.outcomes == code].sum() / N
             pb = b.counts[b.outcomes == code].sum() / N
             se = np.sqrt((pa * (1 - pa) + pb * (1 - pb)) / N) + 1.0 / N
             assert abs(pa - pb) <= 4 * se, (e, code, pa, pb)
+            seen.add(int(code))
+    return seen
+
+
+def test_probabilities_agree_within_confidence_intervals_with_independent_seeds():
+    """Different random streams: the estimated landing probabilities agree within their binomial
+    confidence intervals (4 standard errors of the difference)."""
+    obstacles = "[ { center = [2.5, 2.0], half_size = [0.1, 1.0] } ]"
+    problem, d, regions = _setup(open_world(q=0.4, std=0.2, obstacles=obstacles))
+    _probabilities_agree(problem, d, regions, range(min(6, d.edge_source.size)), 1500, 500)
 
 
 def test_estimate_edge_is_identical_with_both_engines_given_numpys_noise():

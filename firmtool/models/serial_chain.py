@@ -107,32 +107,40 @@ def link_frames(chain: Chain, Q: np.ndarray, compiled: bool = True) -> tuple[np.
 if numba is not None:
     from firmtool.models.angles import sincos
 
-    @cached_njit(nogil=True, inline="always")
-    def chain_frames(origins, axes, kinds, dof_index, base, q, R, p):  # pragma: no cover (compiled)
-        """The frames of one configuration ``q`` (dof,) into ``R`` (K + 1, 3, 3) and ``p`` (K + 1, 3):
-        :func:`link_frames`'s loop with the same products written out and the sine and cosine of
-        :func:`firmtool.models.angles.sincos` (within an ulp or two of numpy's; 0.8x the key points'
-        time of numba's ``np.sin``, ``np.cos``), also the compiled engine's forward kinematics
-        (:mod:`firmtool.robots.urdf_compiled`). Skipping the exact zeros of unrotated origins and
-        axis-aligned axes (the same sums) was measured 1.5x slower: the branches cost more than the
-        products."""
-        K = kinds.shape[0]
-        for i in range(3):
-            p[0, i] = base[i, 3]
-            for j in range(3):
-                R[0, i, j] = base[i, j]
-        for k in range(K):
-            o, Rc, Rn, pn = origins[k], R[k], R[k + 1], p[k + 1]
+    frames_step = cached_njit(nogil=True, inline="always")
+
+    @frames_step
+    def frames_base(R, p, base, m):
+        """Every column's frame the base's: ``R`` (9, m), ``p`` (3, m)."""
+        for a in range(m):
             for i in range(3):
-                pn[i] = p[k, i] + (Rc[i, 0] * o[0, 3] + Rc[i, 1] * o[1, 3] + Rc[i, 2] * o[2, 3])
-            for i in range(3):
+                p[i, a] = base[i, 3]
                 for j in range(3):
-                    Rn[i, j] = Rc[i, 0] * o[0, j] + Rc[i, 1] * o[1, j] + Rc[i, 2] * o[2, j]
-            if kinds[k] == REVOLUTE:
-                x, y, z = axes[k, 0], axes[k, 1], axes[k, 2]
-                s, c = sincos(q[dof_index[k]])
+                    R[3 * i + j, a] = base[i, j]
+
+    @frames_step
+    def frames_advance(R, p, Q, k, origins, axes, kinds, dof_index, m):
+        """The frames ``R`` (9, m) (rotations, row-major), ``p`` (3, m) of joint ``k``'s parent moved to
+        its child link, the joint values the rows of ``Q`` (the configuration's coordinates, a column
+        per configuration): :func:`link_frames`'s products, for all columns at once so that the
+        loops over columns vectorise (the compiled engine's forward kinematics,
+        :mod:`firmtool.robots.urdf_compiled`, 2.4x faster than one configuration at a time)."""
+        o = origins[k]
+        o00, o01, o02, o10, o11, o12 = o[0, 0], o[0, 1], o[0, 2], o[1, 0], o[1, 1], o[1, 2]
+        o20, o21, o22, t0, t1, t2 = o[2, 0], o[2, 1], o[2, 2], o[0, 3], o[1, 3], o[2, 3]
+        x, y, z = axes[k, 0], axes[k, 1], axes[k, 2]
+        row = dof_index[k] if kinds[k] != FIXED else 0
+        for a in range(m):
+            for i in range(3):
+                r0, r1, r2 = R[3 * i, a], R[3 * i + 1, a], R[3 * i + 2, a]
+                p[i, a] = p[i, a] + (r0 * t0 + r1 * t1 + r2 * t2)
+                R[3 * i, a] = r0 * o00 + r1 * o10 + r2 * o20
+                R[3 * i + 1, a] = r0 * o01 + r1 * o11 + r2 * o21
+                R[3 * i + 2, a] = r0 * o02 + r1 * o12 + r2 * o22
+        if kinds[k] == REVOLUTE:
+            for a in range(m):
+                s, c = sincos(Q[row, a])
                 c1 = 1.0 - c
-                # Rodrigues: I + s K + (1 - c) K^2, K the axis' cross-product matrix
                 g00 = 1.0 - c1 * (y * y + z * z)
                 g01 = -s * z + c1 * x * y
                 g02 = s * y + c1 * x * z
@@ -143,20 +151,32 @@ if numba is not None:
                 g21 = s * x + c1 * y * z
                 g22 = 1.0 - c1 * (x * x + y * y)
                 for i in range(3):
-                    r0, r1, r2 = Rn[i, 0], Rn[i, 1], Rn[i, 2]
-                    Rn[i, 0] = r0 * g00 + r1 * g10 + r2 * g20
-                    Rn[i, 1] = r0 * g01 + r1 * g11 + r2 * g21
-                    Rn[i, 2] = r0 * g02 + r1 * g12 + r2 * g22
-            elif kinds[k] == PRISMATIC:
-                qk = q[dof_index[k]]
+                    r0, r1, r2 = R[3 * i, a], R[3 * i + 1, a], R[3 * i + 2, a]
+                    R[3 * i, a] = r0 * g00 + r1 * g10 + r2 * g20
+                    R[3 * i + 1, a] = r0 * g01 + r1 * g11 + r2 * g21
+                    R[3 * i + 2, a] = r0 * g02 + r1 * g12 + r2 * g22
+        elif kinds[k] == PRISMATIC:
+            for a in range(m):
+                qk = Q[row, a]
                 for i in range(3):
-                    pn[i] += (Rn[i, 0] * axes[k, 0] + Rn[i, 1] * axes[k, 1] + Rn[i, 2] * axes[k, 2]) * qk
+                    p[i, a] += (R[3 * i, a] * x + R[3 * i + 1, a] * y + R[3 * i + 2, a] * z) * qk
 
     @cached_njit(nogil=True)
     def _frames_compiled(origins, axes, kinds, dof_index, base, Q, R, p):  # pragma: no cover (compiled)
-        """:func:`link_frames`'s loop, per configuration (:func:`chain_frames`)."""
-        for m in range(Q.shape[0]):
-            chain_frames(origins, axes, kinds, dof_index, base, Q[m], R[m], p[m])
+        """:func:`link_frames`'s loop over the joints, every configuration at once (:func:`frames_advance`;
+        the sine and cosine of :func:`firmtool.models.angles.sincos`, within an ulp or two of numpy's)."""
+        M, K = Q.shape[0], kinds.shape[0]
+        Qt = np.ascontiguousarray(Q.T)
+        Rw, pw = np.empty((9, M)), np.empty((3, M))
+        frames_base(Rw, pw, base, M)
+        for k in range(K + 1):
+            if k > 0:
+                frames_advance(Rw, pw, Qt, k - 1, origins, axes, kinds, dof_index, M)
+            for m in range(M):
+                for i in range(3):
+                    p[m, k, i] = pw[i, m]
+                    for j in range(3):
+                        R[m, k, i, j] = Rw[3 * i + j, m]
 
 
 def frame_points(R: np.ndarray, p: np.ndarray, frame: np.ndarray, local: np.ndarray) -> np.ndarray:

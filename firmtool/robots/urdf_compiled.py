@@ -4,10 +4,10 @@ engine, the twins of :class:`firmtool.robots.urdf_arm.UrdfArm`'s methods.
 
 The chain travels in the hooks' ``params`` vector (:func:`urdf_kinematics` packs it; the hooks
 unpack views of it): the joints' origins, axes, kinds and coordinates, the base, each key point's
-frame and its position in that frame, the light. Per particle the hooks run the chain's forward
-kinematics (:func:`firmtool.models.serial_chain.chain_frames`, the loop the numpy forward kinematics'
-compiled twin runs) and place the key points (the capsules' ends, link by link, and the tip) in the
-world.
+frame and its position in that frame, the light. The hooks run the chain's forward kinematics for
+all particles at once (:func:`firmtool.models.serial_chain.frames_advance`, the loop the numpy
+forward kinematics' compiled twin runs) and place the key points (the capsules' ends, link by
+link, and the tip) in the world.
 
 - sensing: one coordinate per particle, the tip's distance to the light (or the tip's x without
   one); every encoder reads it (``sensing`` all 0);
@@ -61,8 +61,7 @@ def tip_reach(chain) -> np.ndarray | None:
 if numba is not None:
     hook = cached_njit(**KERNEL_OPTIONS, inline="always")
     njit = cached_njit(**KERNEL_OPTIONS)
-    from firmtool.models.angles import sincos
-    from firmtool.models.serial_chain import REVOLUTE, chain_frames
+    from firmtool.models.serial_chain import frames_advance, frames_base
 
     @njit
     def unpack(params):
@@ -101,75 +100,24 @@ if numba is not None:
             PZ[i, a] = (R[6, a] * l0 + R[7, a] * l1 + R[8, a] * l2) + p[2, a]
 
     @hook
-    def _base(R, p, base, m):
-        """Every column's frame the base's: ``R`` (9, m), ``p`` (3, m)."""
-        for a in range(m):
-            for i in range(3):
-                p[i, a] = base[i, 3]
-                for j in range(3):
-                    R[3 * i + j, a] = base[i, j]
-
-    @hook
-    def _advance(R, p, Q, k, origins, axes, kinds, dof_index, m):
-        """The frames ``R`` (9, m), ``p`` (3, m) of joint ``k``'s parent moved to its child link, the
-        joint values the rows of ``Q`` (the state's coordinates, columns the particles): the products
-        of :func:`firmtool.models.serial_chain.chain_frames`, written for all columns at once."""
-        o = origins[k]
-        o00, o01, o02, o10, o11, o12 = o[0, 0], o[0, 1], o[0, 2], o[1, 0], o[1, 1], o[1, 2]
-        o20, o21, o22, t0, t1, t2 = o[2, 0], o[2, 1], o[2, 2], o[0, 3], o[1, 3], o[2, 3]
-        x, y, z = axes[k, 0], axes[k, 1], axes[k, 2]
-        row = dof_index[k] if kinds[k] != FIXED else 0
-        for a in range(m):
-            for i in range(3):
-                r0, r1, r2 = R[3 * i, a], R[3 * i + 1, a], R[3 * i + 2, a]
-                p[i, a] = p[i, a] + (r0 * t0 + r1 * t1 + r2 * t2)
-                R[3 * i, a] = r0 * o00 + r1 * o10 + r2 * o20
-                R[3 * i + 1, a] = r0 * o01 + r1 * o11 + r2 * o21
-                R[3 * i + 2, a] = r0 * o02 + r1 * o12 + r2 * o22
-        if kinds[k] == REVOLUTE:
-            for a in range(m):
-                s, c = sincos(Q[row, a])
-                c1 = 1.0 - c
-                g00 = 1.0 - c1 * (y * y + z * z)
-                g01 = -s * z + c1 * x * y
-                g02 = s * y + c1 * x * z
-                g10 = s * z + c1 * x * y
-                g11 = 1.0 - c1 * (x * x + z * z)
-                g12 = -s * x + c1 * y * z
-                g20 = -s * y + c1 * x * z
-                g21 = s * x + c1 * y * z
-                g22 = 1.0 - c1 * (x * x + y * y)
-                for i in range(3):
-                    r0, r1, r2 = R[3 * i, a], R[3 * i + 1, a], R[3 * i + 2, a]
-                    R[3 * i, a] = r0 * g00 + r1 * g10 + r2 * g20
-                    R[3 * i + 1, a] = r0 * g01 + r1 * g11 + r2 * g21
-                    R[3 * i + 2, a] = r0 * g02 + r1 * g12 + r2 * g22
-        elif kinds[k] == PRISMATIC:
-            for a in range(m):
-                qk = Q[row, a]
-                for i in range(3):
-                    p[i, a] += (R[3 * i, a] * x + R[3 * i + 1, a] * y + R[3 * i + 2, a] * z) * qk
-
-    @hook
     def urdf_key_points(X, params, PX, PY, PZ, lane, na):
         """The capsules' ends, link by link, and the tip of the states ``X`` (n, N). Twin of
         :meth:`firmtool.robots.urdf_arm.UrdfArm.points`; pinned by
         tests/test_kernels_3d.py::test_compiled_key_points_are_the_robots.
 
-        The frames of all particles at once, joint by joint (:func:`_advance`: each frame's rotation
-        as 9 rows of particles), so that the loops over particles vectorise: the same products as
-        :func:`firmtool.models.serial_chain.chain_frames` (2.4x faster than calling it per particle,
-        measured on arm7_shelf's 13 key points at 1000 particles). The key points are placed as their
-        frame is reached (they are stored by frame, base to tip)."""
+        The frames of all particles at once, joint by joint (:func:`~firmtool.models.serial_chain.frames_advance`: each frame's rotation
+        as 9 rows of particles), so that the loops over particles vectorise (2.4x faster than one
+        particle at a time, measured on arm7_shelf's 13 key points at 1000 particles). The key points
+        are placed as their frame is reached (they are stored by frame, base to tip)."""
         K, P, dof, _, _, base, origins, axes, kinds, dof_index, frames, local, _ = unpack(params)
         R, p = np.empty((9, na)), np.empty((3, na))
-        _base(R, p, base, na)
+        frames_base(R, p, base, na)
         point = 0
         while point < P and frames[point] == 0:
             _place(R, p, local, point, PX, PY, PZ, na)
             point += 1
         for k in range(K):
-            _advance(R, p, X, k, origins, axes, kinds, dof_index, na)
+            frames_advance(R, p, X, k, origins, axes, kinds, dof_index, na)
             while point < P and frames[point] == k + 1:
                 _place(R, p, local, point, PX, PY, PZ, na)
                 point += 1
@@ -194,24 +142,27 @@ if numba is not None:
         """The tip at the estimate ``xh``; leaves the tip's Jacobian (3, dof) in ``work[:3 dof]``. Twin of
         :meth:`~firmtool.robots.urdf_arm.UrdfArm.task_point` and ``task_jacobian``."""
         K, P, dof, _, _, base, origins, axes, kinds, dof_index, frames, local, _ = unpack(params)
-        at = 3 * dof
-        R = work[at:at + 9 * (K + 1)].reshape((K + 1, 3, 3))
-        at += 9 * (K + 1)
-        p = work[at:at + 3 * (K + 1)].reshape((K + 1, 3))
-        chain_frames(origins, axes, kinds, dof_index, base, xh, R, p)
-        tx, ty, tz = p[K, 0], p[K, 1], p[K, 2]
+        R, p = work[3 * dof:3 * dof + 9].reshape((9, 1)), work[3 * dof + 9:3 * dof + 12].reshape((3, 1))
+        at = work[3 * dof + 12:].reshape((6, dof))  # each moving joint's axis and origin in the world
+        Q = xh.reshape((xh.shape[0], 1))
+        frames_base(R, p, base, 1)
+        for k in range(K):
+            frames_advance(R, p, Q, k, origins, axes, kinds, dof_index, 1)
+            if kinds[k] != FIXED:
+                j, ax = dof_index[k], axes[k]
+                for i in range(3):  # the joint's axis in the world (its own rotation leaves it alone)
+                    at[i, j] = R[3 * i, 0] * ax[0] + R[3 * i + 1, 0] * ax[1] + R[3 * i + 2, 0] * ax[2]
+                    at[3 + i, j] = p[i, 0]
+        tx, ty, tz = p[0, 0], p[1, 0], p[2, 0]
         for k in range(K):
             if kinds[k] == FIXED:
                 continue
             j = dof_index[k]
-            Rk, ax = R[k + 1], axes[k]
-            a0 = Rk[0, 0] * ax[0] + Rk[0, 1] * ax[1] + Rk[0, 2] * ax[2]
-            a1 = Rk[1, 0] * ax[0] + Rk[1, 1] * ax[1] + Rk[1, 2] * ax[2]
-            a2 = Rk[2, 0] * ax[0] + Rk[2, 1] * ax[1] + Rk[2, 2] * ax[2]
+            a0, a1, a2 = at[0, j], at[1, j], at[2, j]
             if kinds[k] == PRISMATIC:
                 work[j], work[dof + j], work[2 * dof + j] = a0, a1, a2
             else:  # a x (tip - o)
-                e0, e1, e2 = tx - p[k + 1, 0], ty - p[k + 1, 1], tz - p[k + 1, 2]
+                e0, e1, e2 = tx - at[3, j], ty - at[4, j], tz - at[5, j]
                 work[j] = a1 * e2 - a2 * e1
                 work[dof + j] = a2 * e0 - a0 * e2
                 work[2 * dof + j] = a0 * e1 - a1 * e0
@@ -241,7 +192,7 @@ if numba is not None:
     def urdf_goal_gate(X, XH, PX, PY, PZ, params, center, r, E, bound, GG, na):
         """``GG[a] = 1`` where the estimate's tip may lie in the goal ball: first the true tip within
         the ball grown by ``sum_j reach_j |e_j|`` (module notes), then, for the particles that pass,
-        the estimates' tips computed all at once (:func:`_advance`; the goal test's own tip, one
+        the estimates' tips computed all at once (``frames_advance``; the goal test's own tip, one
         particle at a time, has the same products) within the ball grown by a relative 1e-9.
         ``E``, ``bound``: work arrays (N,). Measured on arm7_shelf: the goal test's per-particle
         forward kinematics were half of the kernel's time."""
@@ -269,9 +220,9 @@ if numba is not None:
             for b in range(m):
                 Q[j, b] = XH[j, int(E[b])]
         R, p = np.empty((9, m)), np.empty((3, m))
-        _base(R, p, base, m)
+        frames_base(R, p, base, m)
         for k in range(K):
-            _advance(R, p, Q, k, origins, axes, kinds, dof_index, m)
+            frames_advance(R, p, Q, k, origins, axes, kinds, dof_index, m)
         r2 = r * r * (1.0 + 1e-9)
         for b in range(m):
             ex, ey, ez = p[0, b] - cx, p[1, b] - cy, p[2, b] - cz
@@ -284,7 +235,7 @@ def urdf_kinematics(arm, frames: np.ndarray, local: np.ndarray, light, nz: int) 
     :meth:`~firmtool.robots.urdf_arm.UrdfArm.points` places them), ``light`` (3,) or None, ``nz``
     encoders."""
     chain = arm.chain
-    K, dof = chain.kinds.size, chain.dof
+    dof = chain.dof
     if np.any(np.diff(frames) < 0):  # urdf_key_points places the key points frame by frame
         raise InputError("URDF arm hooks: the key points must be ordered by frame, base to tip")
     reach = tip_reach(chain)
@@ -294,5 +245,5 @@ def urdf_kinematics(arm, frames: np.ndarray, local: np.ndarray, light, nz: int) 
                               task_covariance=urdf_task_covariance, goal_gate=None if reach is None else urdf_goal_gate,
                               params=params,
                               n_points=frames.size, sensing=np.zeros(nz, dtype=np.int64), segments=(C, 1),
-                              self_collision=False, task_block=dof, work_size=3 * dof + 12 * (K + 1), dim=3, stride=2,
+                              self_collision=False, task_block=dof, work_size=9 * dof + 12, dim=3, stride=2,
                               radii=arm.radii, sense=urdf_sense, n_sensing=1)

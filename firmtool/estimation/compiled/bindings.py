@@ -8,9 +8,10 @@ unused in 2-D) and calls, per step:
   ``key_points`` hook, through :func:`points_2d`; 3-D: the robot's hook itself);
 - ``sense(PX, PY, PZ, params, S, na) -> rows``: the array whose row ``sensing[j]`` sets measurement
   j's noise (2-D: ``PX`` itself, the key points' x; 3-D: the robot's ``sense`` hook fills ``S``);
-- ``sweep_points``, ``gate`` and ``particle_collides``: the swept region, the collision gate and the
-  exact collision test of one particle (:mod:`~firmtool.estimation.compiled.collide` in 2-D,
-  :mod:`~firmtool.estimation.compiled.collide3d` in 3-D);
+- ``sweep_points``: the swept region (:func:`firmtool.estimation.compiled.collide.sweep`, both);
+- ``gate`` and ``particle_collides``: the collision gate and the exact collision test of one particle
+  (:mod:`~firmtool.estimation.compiled.collide` in 2-D, :mod:`~firmtool.estimation.compiled.collide3d`
+  in 3-D);
 - ``goal_gate(X, XH, PX, PY, PZ, params, center, r, E, B, GG, na)``, ``goal_test`` and ``true_inside``:
   the goal ball's gate, its test on the estimate and its test of the true task point
   (:mod:`~firmtool.estimation.compiled.goal`, :mod:`~firmtool.estimation.compiled.goal3d`).
@@ -34,7 +35,7 @@ if numba is not None:
     from firmtool.estimation.compiled import goal as goal_2d
     from firmtool.estimation.compiled import goal3d
     from firmtool.estimation.compiled.collide import collides, collision_gate, sweep
-    from firmtool.estimation.compiled.collide3d import collision_gate_3d, particle_collides_3d, sweep_3d
+    from firmtool.estimation.compiled.collide3d import collision_gate_3d, particle_collides_3d
     from firmtool.estimation.compiled.goal import every_particle
 
     step = cached_njit(**INLINE)
@@ -57,10 +58,6 @@ if numba is not None:
     def sense_2d(PX, PY, PZ, params, S, na):
         """In 2-D measurement j's noise is set by the x of key point ``sensing[j]``: the rows are PX."""
         return PX
-
-    @step
-    def sweep_2d(PX, PY, PZ, n_pts, na, swept):
-        sweep(PX, PY, n_pts, na, swept)
 
     @step
     def gate_2d(PX, PY, PZ, na, robot, world, G):
@@ -103,9 +100,9 @@ def bindings(functions: Mapping[str, Callable | None], dim: int, cache: bool) ->
         return {"points": specialise(points_2d, {"key_points": functions["key_points"]}, INLINE, cache=cache),
                 "goal_gate": specialise(goal_gate_2d, {"planar_goal_gate": functions["goal_gate"] or every_particle},
                                         INLINE, cache=cache),
-                "sense": sense_2d, "sweep_points": sweep_2d, "gate": gate_2d, "particle_collides": particle_collides_2d,
+                "sense": sense_2d, "sweep_points": sweep, "gate": gate_2d, "particle_collides": particle_collides_2d,
                 "goal_test": test, "true_inside": true_inside_2d}
     test = specialise(goal3d.goal_test_3d, hooks, KERNEL_OPTIONS, cache=cache)
     return {"points": functions["key_points"], "goal_gate": functions["goal_gate"] or every_particle_3d,
-            "sense": functions["sense"], "sweep_points": sweep_3d, "gate": gate_3d,
+            "sense": functions["sense"], "sweep_points": sweep, "gate": gate_3d,
             "particle_collides": particle_collides_3d_robot, "goal_test": test, "true_inside": goal3d.true_inside_3d}

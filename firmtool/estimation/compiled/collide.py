@@ -83,12 +83,12 @@ if numba is not None:
         return False
 
     @njit
-    def sweep(PX, PY, n_pts, na, swept):
-        """Grow ``swept`` (2, 2) (lower and upper corners) to hold the key points of particles ``:na``:
-        the swept region a world update tests (the twin of
+    def sweep(PX, PY, PZ, n_pts, na, swept):
+        """Grow ``swept`` (2, D) (lower and upper corners) to hold the key points of particles ``:na``, D
+        = 2 (``PZ`` unused) or 3: the swept region a world update tests (the twin of
         :func:`firmtool.estimation.outcomes.grow_swept`; NaN coordinates skipped as it skips them)."""
-        for c in range(2):
-            P = PX if c == 0 else PY
+        for c in range(swept.shape[1]):
+            P = PX if c == 0 else (PY if c == 1 else PZ)
             lo_, hi_ = swept[0, c], swept[1, c]
             for p in range(n_pts):
                 row = P[p]

@@ -12,7 +12,7 @@ piecewise-quadratic minimisation as :func:`firmtool.geometry.distance3d.segment_
 written per segment. The gate tests the capsules' bounding boxes against the obstacles' (the fcl
 backend's screen) on all particles at once, so that it vectorises; only where it passes does the
 exact test run, one particle at a time. Self-collision is not tested (:func:`supports` refuses it in
-3-D).
+3-D). The swept region is :func:`firmtool.estimation.compiled.collide.sweep`'s, in both dimensions.
 
 Capsule ``l`` lies between key points ``stride l`` and ``stride l + offset`` (a URDF arm: the two
 ends of each link's capsule, ``stride`` 2, ``offset`` 1).
@@ -51,16 +51,11 @@ if numba is not None:
     step = cached_njit(**KERNEL_OPTIONS, inline="always")
 
     @njit
-    def _excess_d2(ax, ay, az, dx, dy, dz, t, h0, h1, h2):
-        """The squared distance of ``a + t d`` to the box ``[-h, h]``."""
+    def _excess_d2(A, D, Hh, t):
+        """The squared distance of ``a + t d`` to the box ``[-h, h]`` (``A``, ``D``, ``Hh``: 3-tuples)."""
         s = 0.0
         for c in range(3):
-            if c == 0:
-                v, h = ax + t * dx, h0
-            elif c == 1:
-                v, h = ay + t * dy, h1
-            else:
-                v, h = az + t * dz, h2
+            v, h = A[c] + t * D[c], Hh[c]
             e = max(-h - v, 0.0) + max(v - h, 0.0)
             s += e * e
         return s
@@ -71,23 +66,13 @@ if numba is not None:
         ``knots`` (8,) a work array. Twin of :func:`firmtool.geometry.distance3d.segment_box_distance_sq`
         (the same breaks, pieces and stationary points); pinned by
         tests/test_kernels_3d.py::test_compiled_segment_box_distance_is_the_numpy_one."""
-        dx, dy, dz = bx - ax, by - ay, bz - az
+        A, D, Hh = (ax, ay, az), (bx - ax, by - ay, bz - az), (h0, h1, h2)
         knots[0], knots[7] = 0.0, 1.0
-        for c in range(3):
-            if c == 0:
-                a_, d_, h = ax, dx, h0
-            elif c == 1:
-                a_, d_, h = ay, dy, h1
-            else:
-                a_, d_, h = az, dz, h2
+        for c in range(3):  # where each coordinate crosses its slab's faces (clipped; 0 if it never does)
             for side in range(2):
-                face = -h if side == 0 else h
-                t = (face - a_) / d_ if d_ != 0.0 else np.nan
-                if np.isfinite(t):
-                    t = min(max(t, 0.0), 1.0)
-                else:
-                    t = 0.0
-                knots[1 + 2 * c + side] = t
+                face = -Hh[c] if side == 0 else Hh[c]
+                t = (face - A[c]) / D[c] if D[c] != 0.0 else np.nan
+                knots[1 + 2 * c + side] = min(max(t, 0.0), 1.0) if np.isfinite(t) else 0.0
         for i in range(1, 8):  # insertion sort of the 8 knots
             v = knots[i]
             j = i - 1
@@ -97,26 +82,19 @@ if numba is not None:
             knots[j + 1] = v
         best = np.inf
         for i in range(8):
-            best = min(best, _excess_d2(ax, ay, az, dx, dy, dz, knots[i], h0, h1, h2))
-        for i in range(7):
+            best = min(best, _excess_d2(A, D, Hh, knots[i]))
+        for i in range(7):  # each piece's stationary point, clipped to the piece
             left, right = knots[i], knots[i + 1]
             mid = 0.5 * (left + right)
             num, den = 0.0, 0.0
             for c in range(3):
-                if c == 0:
-                    a_, d_, h = ax, dx, h0
-                elif c == 1:
-                    a_, d_, h = ay, dy, h1
-                else:
-                    a_, d_, h = az, dz, h2
-                pm = a_ + mid * d_
-                if pm < -h or pm > h:
-                    bound = -h if pm < -h else h
-                    num -= d_ * (a_ - bound)
-                    den += d_ * d_
+                pm = A[c] + mid * D[c]
+                if pm < -Hh[c] or pm > Hh[c]:
+                    bound = -Hh[c] if pm < -Hh[c] else Hh[c]
+                    num -= D[c] * (A[c] - bound)
+                    den += D[c] * D[c]
             t_star = num / den if den > 0.0 else mid
-            t_star = min(max(t_star, left), right)
-            best = min(best, _excess_d2(ax, ay, az, dx, dy, dz, t_star, h0, h1, h2))
+            best = min(best, _excess_d2(A, D, Hh, min(max(t_star, left), right)))
         return best
 
     @njit
@@ -202,18 +180,3 @@ if numba is not None:
                     G[a] |= not (min(sx[a], ex[a]) - r > b1x or max(sx[a], ex[a]) + r < b0x
                                  or min(sy[a], ey[a]) - r > b1y or max(sy[a], ey[a]) + r < b0y
                                  or min(sz[a], ez[a]) - r > b1z or max(sz[a], ez[a]) + r < b0z)
-
-    @step
-    def sweep_3d(PX, PY, PZ, n_pts, na, swept):
-        """Grow ``swept`` (2, 3) to hold the key points of particles ``:na`` (the twin of
-        :func:`firmtool.estimation.outcomes.grow_swept`; NaN coordinates skipped as it skips them)."""
-        for c in range(3):
-            P = PX if c == 0 else (PY if c == 1 else PZ)
-            lo_, hi_ = swept[0, c], swept[1, c]
-            for p in range(n_pts):
-                row = P[p]
-                for a in range(na):
-                    v = row[a]
-                    lo_ = v if v < lo_ else lo_
-                    hi_ = v if v > hi_ else hi_
-            swept[0, c], swept[1, c] = lo_, hi_

@@ -44,12 +44,7 @@ def goal_test(xh, k, params, goal, work):
     if mx * mx + my * my >= r * r:
         return False
     P = Pcfg[k + 1]
-    perfect = True
-    for i in range(P.shape[0]):
-        for j in range(P.shape[1]):
-            if P[i, j] != 0.0:
-                perfect = False
-    if perfect:
+    if all_zero(P):  # perfect measurements: the mean alone decides
         return True
     s11, s12, s22 = task_covariance(P, params, work)
     return ball_decision(mx, my, s11, s12, s22, r, conf, q_conf)
@@ -98,6 +93,15 @@ if numba is not None:
     njit = cached_njit(**KERNEL_OPTIONS)
     # inlined into the kernel at numba's IR level (cold compile: see firmtool.estimation.compiled.step)
     step = cached_njit(**KERNEL_OPTIONS, inline="always")
+
+    @step
+    def all_zero(P):
+        """Whether every entry of ``P`` is 0 (a covariance of perfect measurements)."""
+        for i in range(P.shape[0]):
+            for j in range(P.shape[1]):
+                if P[i, j] != 0.0:
+                    return False
+        return True
 
     @njit
     def _ndtr(x):

@@ -54,7 +54,7 @@ def goal_group_3d(regions, P_steps: np.ndarray, k_end: int, d_cfg: int, perfect:
 
 
 if numba is not None:
-    from firmtool.estimation.compiled.goal import _ndtr
+    from firmtool.estimation.compiled.goal import _ndtr, all_zero
 
     njit = cached_njit(**KERNEL_OPTIONS)
 
@@ -144,12 +144,7 @@ if numba is not None:
         if m[0] * m[0] + m[1] * m[1] + m[2] * m[2] >= r * r:
             return False
         P = Pcfg[k + 1]
-        perfect = True
-        for i in range(P.shape[0]):
-            for j in range(P.shape[1]):
-                if P[i, j] != 0.0:
-                    perfect = False
-        if perfect:
+        if all_zero(P):  # perfect measurements: the mean alone decides
             return True
         s11, s12, s13, s22, s23, s33 = task_covariance(P, params, work)
         S = np.empty((3, 3))

@@ -15,7 +15,7 @@ The kernel's arguments come in groups (plain tuples: numba dispatches them faste
 each unpacked by the names below where it is used:
 
 - ensemble ``(alive, x, xhat, outcome, steps, effort, swept)``: the particles, updated in place, and
-  their swept region (2, 2) (:func:`firmtool.estimation.compiled.collide.sweep`)
+  their swept region (2, D) (:func:`firmtool.estimation.compiled.collide.sweep`)
 - draws ``(noise, rng_state)``: numpy's stream (empty: draw here) and the xoshiro256++ state
   (:mod:`firmtool.estimation.compiled.rng`)
 - model ``(A, B, F, H)``: the linear Gaussian model's matrices
