@@ -260,3 +260,15 @@ def test_a_world_the_3d_kernel_does_not_know_runs_the_numpy_engine(tmp_path):
     problem = build_problem(load_scenario(tmp_path / "s.toml"))
     engine, notice = kernels.engine_choice(problem)
     assert engine == "numpy" and "boxes and spheres" in notice and "cylinder" in notice
+
+
+def test_the_background_compile_covers_a_3d_robots_kernel(four):
+    """The warm-up process's compile of a 3-D robot's kernel (firmtool.estimation.warmup): its hooks
+    travel by name, and the kernel is compiled for the 3-D argument types of the URDF template's edge."""
+    from firmtool.estimation import warmup
+
+    problem = four[0]
+    names = warmup.hook_names(problem)
+    assert any(n.startswith("sense=firmtool.robots.urdf_compiled:") for n in names)
+    warmup.compile_kernels(None, tuple(names))  # the 3-D reference is the URDF template's own edge
+    assert kernels.kernel(problem.robot.compiled_kinematics()).signatures

@@ -11,9 +11,10 @@ caller goes on; :func:`wait` blocks until it is done, before the workers start, 
 then load the cache. With a warm cache nothing is started.
 
 The kernel is compiled once per robot's set of compiled hooks (:mod:`firmtool.estimation.compiled.run`):
-the process compiles it, with the smoke edge's argument types, for the hooks of every robot with a
-scenario template (the built-in ones: ``firmtool init --robot``) and for the problem's robot that
-:func:`start` was given, if its hooks are importable by name.
+the process compiles it, with the smoke edge's argument types, for the hooks of every planar robot
+with a scenario template (the built-in ones: ``firmtool init --robot``) and for the problem's robot
+that :func:`start` was given, if its hooks are importable by name; a 3-D robot's with the types of
+an edge of the URDF arm's template.
 
 It compiles in the order a build needs: the design's functions first (the nominals' rollouts), then
 reports ``design`` so that a build's design stage, which runs on several worker processes, waits for
@@ -135,7 +136,7 @@ def hook_names(problem: Problem | None) -> list[str]:
     """``NAME=MODULE:QUALNAME`` of each compiled hook of ``problem``'s robot (what the background process
     imports to compile its kernel); empty without hooks a disk cache can key."""
     hooks = None if problem is None or problem.robot is None else problem.robot.compiled_kinematics()
-    if hooks is None or not disk_cached(hooks) or hooks.dim != 2:  # a 3-D kernel compiles on first use
+    if hooks is None or not disk_cached(hooks):
         return []
     python = {name: getattr(fn, "py_func", fn) for name, fn in hooks.functions().items() if fn is not None}
     return [f"{name}={py.__module__}:{py.__qualname__}" for name, py in python.items()]
@@ -234,25 +235,45 @@ def compile_engine(on_design: Callable[[], None] | None = None, hooks: tuple[str
 
 
 def compile_kernels(reference: Callable, hooks: tuple[str, ...] = ()) -> None:
-    """Compile (or load) the kernel of every robot with a scenario template and of ``hooks`` (a
-    :func:`hook_names` list) for the argument types ``reference`` (a kernel that ran) was compiled
-    for: the kernel's arguments have the same types whatever the robot."""
-    targets = []
-    for robot in template_robots():
+    """Compile (or load) the kernel of every planar robot with a scenario template and of ``hooks`` (a
+    :func:`hook_names` list) for the argument types ``reference`` (a planar kernel that ran) was
+    compiled for: the kernel's arguments have the same types whatever the robot. 3-D hooks (they
+    name a ``sense`` hook) get the 3-D kernel's types from an edge of the URDF arm's template
+    (:func:`_reference_3d`), and then the planar robots' kernels are left to their first use (a
+    3-D build waits for this process: measured, the template robots' kernels made a cold arm7_shelf
+    build's estimate stage wait ~40 s)."""
+    targets = [dict(_resolve(spec) for spec in hooks)] if hooks else []
+    three_d = bool(targets) and targets[0].get("sense") is not None
+    for robot in () if three_d else template_robots():  # a 3-D build waits for its own kernel only
         try:
             problem = build_problem(parse_scenario(template("warmup", robot), "warmup.toml"))
         except Exception:  # noqa: BLE001 - a robot whose template does not build is not warmed: it compiles when used
             continue
         found = problem.robot.compiled_kinematics()
-        # the planar kernels share the reference's argument types; a 3-D one compiles on first use
+        # the planar kernels share the reference's argument types; a 3-D one compiles below
         if found is not None and disk_cached(found) and found.dim == 2:
             targets.append(found.functions())
-    if hooks:
-        targets.append(dict(_resolve(spec) for spec in hooks))
     for functions in targets:
+        three_d = functions.get("sense") is not None
+        ref = _reference_3d() if three_d else reference
+        if ref is None:  # no 3-D template here (the urdf extra): the kernel compiles when used
+            continue
         compiled = kernels.kernel_for({name: functions.get(name) for name in HOOK_NAMES})
-        for signature in reference.signatures:
+        for signature in ref.signatures:
             compiled.compile(signature)
+
+
+def _reference_3d() -> Callable | None:
+    """The 3-D kernel compiled on an edge of the URDF arm's template (its argument types are those of
+    every 3-D problem), or None where the template does not build (the urdf extra missing)."""
+    try:
+        problem = build_problem(parse_scenario(template("warmup", "urdf"), "warmup.toml"))
+        centers, kinds = roadmap_nodes(problem, np.random.default_rng(0))
+        d = design(problem, centers, kinds)
+    except Exception:  # noqa: BLE001 - no URDF support here: nothing to warm
+        return None
+    estimate_edge(problem, d, d.regions(problem), int(d.edge_source[0]), int(d.edge_target[0]), 16, 0, 16, "numba")
+    return kernels.kernel(problem.robot.compiled_kinematics())
 
 
 def _main() -> int:
