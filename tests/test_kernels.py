@@ -50,8 +50,9 @@ def _small_arm() -> str:
     return text
 
 
-def _same_particles(problem, d, regions, edges, M, seed=0):
-    """Run each edge with both engines from the same ensemble and generator state."""
+def _same_particles(problem, d, regions, edges, M, seed=0, final=None):
+    """Run each edge with both engines from the same ensemble and generator state (``final``: a list
+    that receives each edge's last states (M, n) and outcomes (M,) of the numpy engine)."""
     checked = failures = landed = 0
     for e in edges:
         s, t = int(d.edge_source[e]), int(d.edge_target[e])
@@ -61,7 +62,11 @@ def _same_particles(problem, d, regions, edges, M, seed=0):
             rng = np.random.default_rng([seed, e])
             x, xhat = initial_ensemble(problem, d, s, M, rng)
             out[engine] = simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise=True)
+            if engine == "numpy":
+                ended = x  # simulate leaves each particle's last state in x
         a, b = out["numpy"], out["numba"]
+        if final is not None:  # the numpy engine's particles where they ended, and how
+            final.append((ended, a.outcome))
         same = (a.outcome == b.outcome) & (a.steps == b.steps)
         assert same.mean() >= 0.999, (e, np.flatnonzero(~same)[:5])
         np.testing.assert_allclose(b.terms[same], a.terms[same], rtol=1e-9, atol=1e-12)

@@ -208,7 +208,9 @@ if numba is not None:
         m = 0
         for a in range(na):
             ex, ey, ez = PX[tip, a] - cx, PY[tip, a] - cy, PZ[tip, a] - cz
-            grown = r + bound[a]
+            # an absolute slack besides the bound: the two tips' rounding (~1e-16) does not shrink
+            # with the estimate's error
+            grown = r * (1.0 + 1e-9) + 1e-12 + bound[a]
             GG[a] = ex * ex + ey * ey + ez * ez < grown * grown
             if GG[a]:
                 E[m] = a  # the passing particles, compacted (indices held exactly in float64)

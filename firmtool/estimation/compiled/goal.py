@@ -41,7 +41,7 @@ def goal_test(xh, k, params, goal, work):
     cx, cy = center[0], center[1]
     tx, ty = task_point(xh, params, work)
     mx, my = tx - cx, ty - cy
-    if mx * mx + my * my >= r * r:
+    if not (mx * mx + my * my < r * r):  # a NaN estimate is outside, as in numpy
         return False
     P = Pcfg[k + 1]
     if all_zero(P):  # perfect measurements: the mean alone decides

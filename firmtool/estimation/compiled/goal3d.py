@@ -141,7 +141,7 @@ if numba is not None:
         tx, ty, tz = task_point(xh, params, work)
         m = np.empty(3)
         m[0], m[1], m[2] = tx - center[0], ty - center[1], tz - center[2]
-        if m[0] * m[0] + m[1] * m[1] + m[2] * m[2] >= r * r:
+        if not (m[0] * m[0] + m[1] * m[1] + m[2] * m[2] < r * r):  # a NaN estimate is outside, as in numpy
             return False
         P = Pcfg[k + 1]
         if all_zero(P):  # perfect measurements: the mean alone decides
