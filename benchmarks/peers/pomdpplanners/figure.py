@@ -8,7 +8,7 @@ the hazard discs (red), the beacons with their radius (the halved observation no
 goal ball (green), the grid, the start. A path ends with its outcome: a star in the goal ball, a
 cross where a hazard ended the episode, a square elsewhere (the horizon, or firmtool's policy
 stopping). ``--also`` adds the systems of other runs of the same statement (e.g. a firmtool-only
-run's rollout row); a system already drawn is not drawn again.
+run's rollout row); a system already drawn is not drawn again; firmtool's rows come first.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ def load(paths: list[Path], statement: str | None) -> tuple[str, list[tuple[dict
             if row["system"] not in names:
                 names.add(row["system"])
                 systems.append((row, data["episodes"][row["system"]]))
+    systems.sort(key=lambda r: not r[0]["system"].startswith("firmtool"))  # firmtool's rows first (a stable sort)
     return statement, systems
 
 
@@ -60,8 +61,6 @@ def draw_map(ax, s: dict) -> None:
     if s["start_covariance"] > 0:  # the start belief's 1-sigma circle (the true starts are drawn from it)
         ax.add_patch(Circle(s["start"], math.sqrt(s["start_covariance"]), fill=False, ls="--", lw=0.6, ec="0.3"))
     ax.plot(*s["start"], marker="o", ms=4, color="k", ls="none")
-    ax.set_xlim(-1.5, g + 1.5)
-    ax.set_ylim(-1.5, g + 1.5)
     ax.set_aspect("equal")
     ax.tick_params(labelsize=6)
 
@@ -79,8 +78,14 @@ def figure(systems: list[tuple[dict, list[dict]]], statement: dict, episodes: li
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, 2.75 * rows), squeeze=False)
     colours = plt.get_cmap("tab10")
+    g = statement["grid_size"]
+    drawn = [p for _, eps in systems for i in episodes if i < len(eps) for p in eps[i]["path"]]
+    lo = min([-1.5] + [min(p) - 0.5 for p in drawn])  # the map, and every path drawn (a path may leave the grid)
+    hi = max([g + 1.5] + [max(p) + 0.5 for p in drawn])
     for ax, (row, eps) in zip(axes.flat, systems):
         draw_map(ax, statement)
+        ax.set_xlim(lo, hi)
+        ax.set_ylim(lo, hi)
         for k, i in enumerate(episodes):
             if i >= len(eps):
                 continue
