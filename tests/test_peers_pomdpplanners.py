@@ -123,10 +123,7 @@ def test_as_shipped_is_the_installed_packages_defaults():
             assert [tuple(map(float, v)) for v in default] == [tuple(map(float, v)) for v in value], key
         else:
             np.testing.assert_array_equal(np.asarray(default, dtype=float), np.asarray(value, dtype=float), err_msg=key)
-    from POMDPPlanners.environments.light_dark_pomdp.light_dark_pomdp_beliefs.continuous_light_dark_belief_factory import (
-        create_continuous_light_dark_belief,
-    )
-    belief = create_continuous_light_dark_belief(statement.make_env(statement.AS_SHIPPED))
+    belief = statement.pkg().create_continuous_light_dark_belief(statement.make_env(statement.AS_SHIPPED))
     particles = np.asarray(belief.particles)
     assert particles.shape[0] == 200
     assert np.all(particles[:, :2] == np.asarray(statement.AS_SHIPPED["start"]))

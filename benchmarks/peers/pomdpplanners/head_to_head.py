@@ -187,10 +187,7 @@ class PeerWorker:
         N(start, c I) (seed ``i``); ``"package"``, the package's default belief of the environment
         (its factory's vectorised particle belief: ``PARTICLES`` particles at the start)."""
         if self.statement["peers_belief"] == "package":
-            from POMDPPlanners.environments.light_dark_pomdp.light_dark_pomdp_beliefs.continuous_light_dark_belief_factory import (
-                create_continuous_light_dark_belief,
-            )
-            return create_continuous_light_dark_belief(self.env, n_particles=PARTICLES)
+            return pkg().create_continuous_light_dark_belief(self.env, n_particles=PARTICLES)
         rng = np.random.default_rng([SEED, i, 1])
         s = self.statement
         particles = np.asarray(s["start"], dtype=float) + math.sqrt(s["start_covariance"]) * rng.standard_normal((PARTICLES, 2))

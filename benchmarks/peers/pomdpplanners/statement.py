@@ -31,6 +31,9 @@ def pkg() -> SimpleNamespace:
         from POMDPPlanners.environments import ContinuousLightDarkPOMDPDiscreteActions
         from POMDPPlanners.environments.light_dark_pomdp import _native
         from POMDPPlanners.environments.light_dark_pomdp.continuous_light_dark_pomdp import ContinuousLightDarkPOMDP
+        from POMDPPlanners.environments.light_dark_pomdp.light_dark_pomdp_beliefs.continuous_light_dark_belief_factory import (
+            create_continuous_light_dark_belief,
+        )
         from POMDPPlanners.environments.light_dark_pomdp.light_dark_pomdp_beliefs.continuous_light_dark_vectorized_updater import (
             ContinuousLightDarkVectorizedUpdater,
         )
@@ -44,6 +47,7 @@ def pkg() -> SimpleNamespace:
                            ContinuousLightDarkPOMDPDiscreteActions=ContinuousLightDarkPOMDPDiscreteActions,
                            native=_native, ContinuousLightDarkPOMDP=ContinuousLightDarkPOMDP,
                            ContinuousLightDarkVectorizedUpdater=ContinuousLightDarkVectorizedUpdater,
+                           create_continuous_light_dark_belief=create_continuous_light_dark_belief,
                            PFT_DPW=PFT_DPW, POMCPOW=POMCPOW, DiscreteActionSampler=DiscreteActionSampler)
 
 
