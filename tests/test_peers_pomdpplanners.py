@@ -1,10 +1,13 @@
-"""The POMDPPlanners head to head (benchmarks/peers/pomdpplanners) states one problem for both systems:
-firmtool's model of the safety statement against the package's sampled transitions and observations
-(means and covariances within sampling error), its hazards, and its sensing law near and far from the
-beacons. Skipped without the optional 'peers-pomdpplanners' extra (pomdpplanners)."""
+"""The POMDPPlanners head to head (benchmarks/peers/pomdpplanners) states each problem once for both
+systems: for the safety and the as-shipped statements, firmtool's model against the package's sampled
+transitions and observations (means and covariances within sampling error), its sensing law near and
+far from the beacons, the hazards against firmtool's obstacles and the package's hazard draw; the
+as-shipped statement against the installed package's defaults. Skipped without the optional
+'peers-pomdpplanners' extra (pomdpplanners)."""
 
 from __future__ import annotations
 
+import inspect
 import sys
 from pathlib import Path
 
@@ -23,17 +26,23 @@ from firmtool.problem import build_problem  # noqa: E402
 
 N = 20_000
 
+#: points near a beacon (within its radius), then far from every beacon, per statement
+SENSING_POINTS = {"safety": [(2.5, 8.0), (5.5, 9.7), (1.0, 2.0), (9.0, 2.0)],
+                  "as-shipped": [(0.5, 5.3), (5.2, 9.5), (2.5, 2.5), (7.5, 7.5)]}
 
-@pytest.fixture(scope="module")
-def both(tmp_path_factory):
-    statement.register_robot()
-    path = tmp_path_factory.mktemp("pp") / "safety.toml"
-    path.write_text(statement.scenario_text())
+
+@pytest.fixture(scope="module", params=sorted(statement.STATEMENTS))
+def both(request, tmp_path_factory):
+    """firmtool's problem and the package's environment of one statement (its name, its numbers)."""
+    s = statement.STATEMENTS[request.param]
+    statement.register_robot(s)
+    path = tmp_path_factory.mktemp("pp") / f"{s['name']}.toml"
+    path.write_text(statement.scenario_text(s))
     problem = build_problem(ft.load_scenario(path))
-    env = statement.make_env()
+    env = statement.make_env(s)
     np.random.seed(0)
     statement.pkg().native.set_seed(0)
-    return problem, env
+    return request.param, s, problem, env
 
 
 def _moments_agree(samples: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
@@ -48,37 +57,74 @@ def _moments_agree(samples: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> No
 
 @pytest.mark.parametrize("u", [(1.0, 0.0), (0.0, -1.0), (0.4, 0.7)])
 def test_transitions_are_firmtools_model(both, u):
-    problem, env = both
+    _, s, problem, env = both
     m = problem.model
     x, u = np.array([2.0, 2.0]), np.array(u)
     draws = np.asarray(statement.pkg().ContinuousLightDarkPOMDP.sample_next_state(env, x, u, n_samples=N))[:, :2]
+    assert np.allclose(m.process_cov, s["transition_var"] * np.eye(2))
     _moments_agree(draws, m.f(x[None], u[None])[0], m.process_cov)
 
 
-@pytest.mark.parametrize("where", [(2.5, 8.0), (5.5, 9.7), (1.0, 2.0), (9.0, 2.0)])  # near beacons, then far
-def test_observations_are_firmtools_sensing_law(both, where):
-    problem, env = both
+@pytest.mark.parametrize("k", range(4))  # near beacons, then far
+def test_observations_are_firmtools_sensing_law(both, k):
+    name, s, problem, env = both
     m = problem.model
-    s = np.array(where)
-    draws = np.asarray(statement.pkg().ContinuousLightDarkPOMDP.sample_observation(env, s, np.zeros(2), n_samples=N))
-    var = m.measurement_variance(s[None])[0]
-    near = env.is_state_near_beacon(s)
-    assert np.allclose(var, statement.SAFETY["observation_var"] * (0.5 if near else 1.0))
-    _moments_agree(draws, m.h(s[None])[0], np.diag(var))
+    where = np.array(SENSING_POINTS[name][k])
+    draws = np.asarray(statement.pkg().ContinuousLightDarkPOMDP.sample_observation(env, where, np.zeros(2), n_samples=N))
+    var = m.measurement_variance(where[None])[0]
+    near = env.is_state_near_beacon(where)
+    assert near == (k < 2)  # the points are where they are meant to be
+    assert np.allclose(var, s["observation_var"] * (s["near_factor"] if near else 1.0))
+    _moments_agree(draws, m.h(where[None])[0], np.diag(var))
 
 
-def test_hazards_are_firmtools_obstacles_and_end_the_package_episode(both):
-    problem, env = both
-    hazards = np.asarray(statement.SAFETY["hazards"])
-    r = statement.SAFETY["hazard_radius"]
+def test_hazards_are_firmtools_obstacles(both):
+    _, s, problem, _ = both
+    hazards = np.asarray(s["hazards"])
+    r = s["hazard_radius"]
     inside = hazards + np.array([0.0, 0.95 * r])
     outside = hazards + np.array([0.0, 1.05 * r + 0.01])
     assert not problem.is_valid(inside).any()
     assert problem.is_valid(outside).all()
+    # everywhere in the grid (off the discs' edges, where firmtool's robot radius 0.01 decides):
+    # firmtool's invalid set is the package's hazard landings
+    p = np.random.default_rng(1).uniform(0.05, s["grid_size"] - 0.05, size=(5000, 2))
+    d = np.sqrt(((p[:, None] - hazards[None]) ** 2).sum(-1)).min(axis=1)
+    p = p[np.abs(d - r) > 0.05]
+    np.testing.assert_array_equal(problem.is_valid(p), ~statement.hazard_landings(s, p))
+
+
+def test_the_package_ends_a_hazard_landing_with_the_statements_probability(both):
+    _, s, _, env = both
     step = statement.pkg().ContinuousLightDarkPOMDP.sample_next_state
-    for h in hazards:  # a landing at the hazard's centre (tiny noise around it) always ends the episode
-        s = step(env, h - np.array([1.0, 0.0]), np.array([1.0, 0.0]))
-        if np.linalg.norm(s[:2] - h) < 0.9 * r:
-            assert s[2] > 0.5
-    s = step(env, np.array([2.0, 2.0]), np.array([0.0, 0.0]))
-    assert s.shape[0] < 3 or s[2] < 0.5
+    q = s["hazard_probability"]
+    for h in np.asarray(s["hazards"]):  # steps onto the hazard's centre
+        draws = np.asarray(step(env, h - np.array([1.0, 0.0]), np.array([1.0, 0.0]), n_samples=N))
+        inside, ended = statement.hazard_landings(s, draws), draws[:, 2] > 0.5
+        assert not ended[~inside].any()  # only a landing in a disc ends an episode
+        n = int(inside.sum())
+        assert n > 1000
+        assert abs(ended[inside].mean() - q) <= 5 * np.sqrt(q * (1 - q) / n) + 1e-12
+    s0 = step(env, np.array([2.0, 2.0]), np.array([0.0, 0.0]))
+    assert s0.shape[0] < 3 or s0[2] < 0.5 or statement.hazard_landings(s, s0[None])[0]
+
+
+def test_as_shipped_is_the_installed_packages_defaults():
+    """AS_SHIPPED states ``ContinuousLightDarkPOMDPDiscreteActions(discount_factor=0.95)``: every
+    other argument make_env passes is the installed signature's default, and the package's default
+    belief puts every particle at the start (the true start of every episode)."""
+    cls = statement.pkg().ContinuousLightDarkPOMDPDiscreteActions
+    defaults = {k: v.default for k, v in inspect.signature(cls.__init__).parameters.items()}
+    kwargs = statement.package_kwargs(statement.AS_SHIPPED)
+    assert kwargs.pop("discount_factor") == 0.95
+    for key, value in kwargs.items():
+        default = defaults[key]
+        if isinstance(default, (list, tuple)):
+            assert [tuple(map(float, v)) for v in default] == [tuple(map(float, v)) for v in value], key
+        else:
+            np.testing.assert_array_equal(np.asarray(default, dtype=float), np.asarray(value, dtype=float), err_msg=key)
+    belief = statement.pkg().create_continuous_light_dark_belief(statement.make_env(statement.AS_SHIPPED))
+    particles = np.asarray(belief.particles)
+    assert particles.shape[0] == 200
+    assert np.all(particles[:, :2] == np.asarray(statement.AS_SHIPPED["start"]))
+    assert statement.AS_SHIPPED["start_covariance"] == 0

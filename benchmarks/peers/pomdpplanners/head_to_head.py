@@ -2,23 +2,29 @@
 
     pip install torch==2.13.0                      # a CPU build first, so nothing pulls a CUDA one
     pip install -e '.[peers-pomdpplanners]'        # pomdpplanners==0.6.0 (never a runtime dependency)
-    python benchmarks/peers/pomdpplanners/head_to_head.py --episodes 200 --budgets 0.1 0.5 2 --json out.json
+    python benchmarks/peers/pomdpplanners/head_to_head.py --statement safety --episodes 200 --budgets 0.1 0.5 2 --json out.json
+    python benchmarks/peers/pomdpplanners/head_to_head.py --statement as-shipped --episodes 200 --budgets 0.1 0.5 --json out.json
+    python benchmarks/peers/pomdpplanners/head_to_head.py --episodes 200 --planners --json out.json   # firmtool only
 
-One worker process per system (firmtool; POMCPOW and PFT-DPW at each budget), all on POMDPPlanners'
-own simulator: its ``sample_next_state`` (which draws the landing and, with hazards certain, ends the
-episode on a landing in a hazard disc) and ``sample_observation`` are the truth for every system.
-firmtool is driven through its public ``Policy`` act/observe API from the package's observations;
-the peers plan from the package's particle belief (200 particles drawn from the start belief
-N(start, 5 I)) and update it with the package's updater. Episode ``i`` of every system starts from
-the same true start (drawn from the start belief with seed ``i``) with the same seeds for the
-package's RNGs (numpy's and its C++ kernels'); the driver sends episode ``i`` to each worker in turn
-(interleaved), so the machine's load falls on all alike.
+One worker process per system (firmtool's FIRM policy; firmtool's rollout FIRM; POMCPOW and PFT-DPW
+at each budget), all on POMDPPlanners' own simulator for the statement (``statement.py``: ``safety``
+or ``as-shipped``): its ``sample_next_state`` (which draws the landing and, on a landing in a hazard
+disc, ends the episode with the statement's hazard probability) and ``sample_observation`` are the
+truth for every system. firmtool is driven through its public ``Policy`` act/observe API from the
+package's observations; the peers plan from the package's particle belief (safety: 200 particles
+drawn from the start belief N(start, 5 I); as shipped: the package's default belief, 200 particles
+at the known start) and update it with the package's updater. Episode ``i`` of every system starts
+from the same true start (safety: drawn from the start belief with seed ``i``; as shipped: the
+start) with the same seeds for the package's RNGs (numpy's and its C++ kernels'); the driver sends
+episode ``i`` to each worker in turn (interleaved), so the machine's load falls on all alike.
 
 Success, for every system: the TRUE state enters the goal ball (radius 1.5) within the horizon
-(30 steps) without a landing in a hazard disc. Reported: success with its Wilson 95% interval,
-hazard rate, steps, the discounted return under the package's reward model, online compute per
-step as thread CPU time and wall time (mean and p99; firmtool: ``act`` plus ``observe``; the peers:
-the planning call, and the belief update apart), and the offline time (firmtool's build and solve).
+(30 steps) before a hazard ends the episode. Reported: success with its Wilson 95% interval, the
+share of episodes a hazard ended, hazard entries (episodes with a landing in a hazard disc, ended
+by it or not, and landings per episode), steps, the discounted return under the package's reward
+model, online compute per step as thread CPU time and wall time (mean and p99; firmtool: ``act``
+plus ``observe``; the peers: the planning call, and the belief update apart), and the offline time
+(firmtool's build and solve).
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import subprocess
 import sys
 import tempfile
@@ -38,7 +45,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parents[1]))  # benchmarks/: _common
 
-from statement import SAFETY, make_env, pkg, register_robot, scenario_text  # noqa: E402
+from statement import STATEMENTS, hazard_landings, make_env, pkg, register_robot, scenario_text  # noqa: E402
 
 SEED = 40  # the issue's number: episode i's streams are (SEED, i)
 PARTICLES = 200
@@ -51,10 +58,14 @@ def wilson(successes: int, n: int) -> tuple[float, float]:
     return wilson_interval(successes, n)
 
 
-def true_start(i: int, statement: dict = SAFETY) -> np.ndarray:
-    """Episode ``i``'s true start: a draw from the start belief N(start, c I)."""
+def true_start(i: int, statement: dict) -> np.ndarray:
+    """Episode ``i``'s true start: a draw from the start belief N(start, c I); the start itself when
+    ``c = 0`` (a known start: the as-shipped statement)."""
+    start = np.asarray(statement["start"], dtype=float)
+    if statement["start_covariance"] == 0:
+        return start
     rng = np.random.default_rng([SEED, i])
-    return np.asarray(statement["start"], dtype=float) + math.sqrt(statement["start_covariance"]) * rng.standard_normal(2)
+    return start + math.sqrt(statement["start_covariance"]) * rng.standard_normal(2)
 
 
 def seed_package(env, i: int) -> None:
@@ -67,12 +78,14 @@ def seed_package(env, i: int) -> None:
 
 
 class Episode:
-    """One episode's bookkeeping on the package's simulator (truth, outcome, return, timings)."""
+    """One episode's bookkeeping on the package's simulator (truth, outcome, hazard entries, return,
+    timings)."""
 
-    def __init__(self, env, x0: np.ndarray) -> None:
-        self.env, self.s = env, np.asarray(x0, dtype=float)
+    def __init__(self, env, x0: np.ndarray, statement: dict) -> None:
+        self.env, self.s, self.statement = env, np.asarray(x0, dtype=float), statement
         self.goal = np.asarray(env.goal_state, dtype=float)
         self.ret, self.disc, self.steps = 0.0, 1.0, 0
+        self.hazard_entries = 0  # landings in a hazard disc, whether or not the package's draw ended the episode
         self.outcome = "horizon"
         self.path = [self.s[:2].tolist()]
         self.cpu: list[float] = []
@@ -87,6 +100,7 @@ class Episode:
         self.disc *= self.env.discount_factor
         self.s, self.steps = s_next, self.steps + 1
         self.path.append(self.s[:2].tolist())
+        self.hazard_entries += int(hazard_landings(self.statement, self.s[None, :2])[0])
         if self.s.shape[0] > 2 and self.s[2] > 0.5:
             self.outcome = "hazard"
             return None
@@ -97,29 +111,30 @@ class Episode:
 
     def result(self) -> dict:
         return {"outcome": self.outcome, "success": self.outcome == "success", "hazard": self.outcome == "hazard",
-                "steps": self.steps, "return": self.ret, "cpu": self.cpu, "wall": self.wall,
+                "hazard_entries": self.hazard_entries, "steps": self.steps, "return": self.ret, "cpu": self.cpu, "wall": self.wall,
                 "update_cpu": self.update_cpu, "path": self.path}
 
 
 class FirmtoolWorker:
-    """firmtool's side: the roadmap built and solved once (timed), then episodes via ``Policy``."""
+    """firmtool's side: the roadmap built and solved once (timed), then episodes via ``Policy``
+    (``mode``: ``"base"``, the FIRM policy node to node; ``"rollout"``, rollout FIRM)."""
 
-    def __init__(self, nodes: int, deadline: int | None) -> None:
+    def __init__(self, statement: dict, nodes: int, deadline: int | None, mode: str = "base") -> None:
         import firmtool as ft
 
-        register_robot()
-        self.ft = ft
+        register_robot(statement)
+        self.ft, self.statement = ft, statement
         self.tmp = tempfile.TemporaryDirectory(prefix="firmtool-pomdpplanners-")
-        path = Path(self.tmp.name) / "safety.toml"
-        path.write_text(scenario_text(nodes=nodes, deadline=deadline))
+        path = Path(self.tmp.name) / f"{statement['name']}.toml"
+        path.write_text(scenario_text(statement, nodes=nodes, deadline=deadline))
         t0 = time.perf_counter()
-        rm = ft.build(ft.load_scenario(path), workers=1, output=Path(self.tmp.name) / "safety.h5")
+        rm = ft.build(ft.load_scenario(path), workers=1, output=Path(self.tmp.name) / f"{statement['name']}.h5")
         self.solution = ft.solve(rm)
         self.offline_s = time.perf_counter() - t0
-        self.policy = ft.Policy(self.solution)
-        self.env = make_env()
+        self.policy = ft.Policy(self.solution, mode=mode)
+        self.env = make_env(statement)
         self.info = {"offline_s": self.offline_s, "nodes": rm.report.nodes, "edges": rm.report.edges,
-                     "predicted_success": float(self.solution.success_probability),
+                     "predicted_success": float(self.solution.success_probability), "mode": mode,
                      "engine": getattr(rm.report, "engine", None)}
 
     def episode(self, i: int) -> dict:
@@ -127,8 +142,8 @@ class FirmtoolWorker:
         env, policy = self.env, self.policy
         seed_package(env, i)
         policy.reset(rng=np.random.default_rng([SEED, i, 2]))
-        ep = Episode(env, true_start(i))
-        for _ in range(SAFETY["horizon"]):
+        ep = Episode(env, true_start(i, self.statement), self.statement)
+        for _ in range(self.statement["horizon"]):
             if policy.done:
                 ep.outcome = f"policy_{policy.status.value}"  # stopped (declared arrival, or failed) outside the ball
                 break
@@ -151,10 +166,11 @@ class FirmtoolWorker:
 class PeerWorker:
     """A POMDPPlanners planner (POMCPOW or PFT-DPW, the README's settings) at a time budget per step."""
 
-    def __init__(self, planner: str, budget: float) -> None:
-        self.env = env = make_env()
+    def __init__(self, statement: dict, planner: str, budget: float) -> None:
+        self.statement = statement
+        self.env = env = make_env(statement)
         sampler = pkg().DiscreteActionSampler(env.get_actions())
-        common = dict(environment=env, discount_factor=SAFETY["discount"], depth=10, exploration_constant=200.0,
+        common = dict(environment=env, discount_factor=statement["discount"], depth=10, exploration_constant=200.0,
                       time_out_in_seconds=budget, action_sampler=sampler)
         if planner == "pomcpow":
             self.planner = pkg().POMCPOW(k_o=1.0, k_a=1.0, alpha_o=0.5, alpha_a=0.5, name="POMCPOW", **common)
@@ -164,21 +180,26 @@ class PeerWorker:
             raise SystemExit(f"unknown planner {planner!r}")
         self.info = {"offline_s": 0.0, "planner": planner, "budget_s": budget, "depth": 10,
                      "exploration_constant": 200.0, "k_o": 1.0, "k_a": 1.0, "alpha_o": 0.5, "alpha_a": 0.5,
-                     "particles": PARTICLES}
+                     "particles": PARTICLES, "belief": statement["peers_belief"]}
 
     def belief(self, i: int):
-        """The package's particle belief of the start belief N(start, c I) (``PARTICLES`` draws, seed ``i``)."""
+        """The peers' start belief of episode ``i``: ``"start_law"``, ``PARTICLES`` draws from
+        N(start, c I) (seed ``i``); ``"package"``, the package's default belief of the environment
+        (its factory's vectorised particle belief: ``PARTICLES`` particles at the start)."""
+        if self.statement["peers_belief"] == "package":
+            return pkg().create_continuous_light_dark_belief(self.env, n_particles=PARTICLES)
         rng = np.random.default_rng([SEED, i, 1])
-        particles = np.asarray(SAFETY["start"], dtype=float) + math.sqrt(SAFETY["start_covariance"]) * rng.standard_normal((PARTICLES, 2))
+        s = self.statement
+        particles = np.asarray(s["start"], dtype=float) + math.sqrt(s["start_covariance"]) * rng.standard_normal((PARTICLES, 2))
         updater = pkg().ContinuousLightDarkVectorizedUpdater.from_environment(self.env)
         return pkg().VectorizedWeightedParticleBelief(particles, np.full(PARTICLES, -math.log(PARTICLES)), updater)
 
     def episode(self, i: int) -> dict:
         env = self.env
-        belief = self.belief(i)
+        belief = self.belief(i)  # before the seeding: the package's factory may draw from numpy's stream
         seed_package(env, i)
-        ep = Episode(env, true_start(i))
-        for _ in range(SAFETY["horizon"]):
+        ep = Episode(env, true_start(i, self.statement), self.statement)
+        for _ in range(self.statement["horizon"]):
             c0, w0 = time.thread_time(), time.perf_counter()
             actions, _ = self.planner.action(belief)
             ep.cpu.append(time.thread_time() - c0)
@@ -194,12 +215,20 @@ class PeerWorker:
         return ep.result()
 
 
-def worker_main(system: str, budget: float, nodes: int, deadline: int | None) -> None:
+#: the worker names: firmtool's two policies and the peers
+FIRMTOOL_MODES = {"firmtool": "base", "firmtool_rollout": "rollout"}
+
+
+def worker_main(system: str, statement: dict, budget: float, nodes: int, deadline: int | None) -> None:
     """A worker: build the system, print its info as a JSON line, then one JSON line per episode index read."""
     from _common import one_blas_thread  # benchmarks/_common.py
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the driver stops the run (closing stdin), not a terminal's Ctrl-C
     one_blas_thread()
-    w = FirmtoolWorker(nodes, deadline) if system == "firmtool" else PeerWorker(system, budget)
+    if system in FIRMTOOL_MODES:
+        w = FirmtoolWorker(statement, nodes, deadline, FIRMTOOL_MODES[system])
+    else:
+        w = PeerWorker(statement, system, budget)
     w.episode(WARM)  # not counted: JIT compilation, caches
     print(json.dumps(w.info), flush=True)
     for line in sys.stdin:
@@ -208,10 +237,14 @@ def worker_main(system: str, budget: float, nodes: int, deadline: int | None) ->
         print(json.dumps(w.episode(int(line))), flush=True)
 
 
-def summarize(name: str, info: dict, eps: list[dict]) -> dict:
-    """The row of one system: success (Wilson 95%), hazard rate, steps, return, compute per step."""
+def summarize(name: str, info: dict, eps: list[dict], statement: dict) -> dict:
+    """The row of one system: success (Wilson 95%), hazard endings and entries, steps, return,
+    compute per step (an episode without ``hazard_entries``, from a JSON of an earlier version,
+    has them counted on its path)."""
     n = len(eps)
     s = sum(e["success"] for e in eps)
+    entries = [e["hazard_entries"] if "hazard_entries" in e else int(hazard_landings(statement, e["path"][1:]).sum())
+               for e in eps]
     cpu = np.concatenate([e["cpu"] for e in eps]) if n else np.zeros(1)
     wall = np.concatenate([e["wall"] for e in eps]) if n else np.zeros(1)
     upd = np.concatenate([e["update_cpu"] for e in eps]) if any(e["update_cpu"] for e in eps) else None
@@ -220,6 +253,8 @@ def summarize(name: str, info: dict, eps: list[dict]) -> dict:
         outcomes[e["outcome"]] = outcomes.get(e["outcome"], 0) + 1
     return {"system": name, "episodes": n, "successes": s, "success_rate": s / n if n else 0.0,
             "success_ci95": list(wilson(s, n)), "hazard_rate": sum(e["hazard"] for e in eps) / n if n else 0.0,
+            "hazard_entered_rate": sum(k > 0 for k in entries) / n if n else 0.0,
+            "hazard_entries_mean": float(np.mean(entries)) if n else 0.0,
             "steps_mean": float(np.mean([e["steps"] for e in eps])) if n else 0.0,
             "return_mean": float(np.mean([e["return"] for e in eps])) if n else 0.0,
             "step_cpu_ms_mean": 1e3 * float(cpu.mean()), "step_cpu_ms_p99": 1e3 * float(np.percentile(cpu, 99)),
@@ -230,41 +265,76 @@ def summarize(name: str, info: dict, eps: list[dict]) -> dict:
 
 def table(rows: list[dict]) -> str:
     """The rows as a Markdown table."""
-    lines = ["| system | success (95% CI) | hazard | steps | return | CPU/step mean (p99) | wall/step mean (p99) | offline |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| system | success (95% CI) | hazard ended | hazard entered (landings/ep) | steps | return "
+             "| CPU/step mean (p99) | wall/step mean (p99) | offline |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lo, hi = r["success_ci95"]
         lines.append(f"| {r['system']} | {r['successes']}/{r['episodes']} = {r['success_rate']:.3f} ({lo:.3f}-{hi:.3f}) "
-                     f"| {r['hazard_rate']:.3f} | {r['steps_mean']:.1f} | {r['return_mean']:.2f} "
+                     f"| {r['hazard_rate']:.3f} | {r['hazard_entered_rate']:.3f} ({r['hazard_entries_mean']:.2f}) "
+                     f"| {r['steps_mean']:.1f} | {r['return_mean']:.2f} "
                      f"| {r['step_cpu_ms_mean']:.3f} ms ({r['step_cpu_ms_p99']:.3f} ms) "
                      f"| {r['step_wall_ms_mean']:.3f} ms ({r['step_wall_ms_p99']:.3f} ms) | {r['offline_s']:.1f} s |")
     return "\n".join(lines)
 
 
+def report(rows: list[dict]) -> None:
+    """Print the table, the outcomes, firmtool's prediction and the compute ratios."""
+    print()
+    print(table(rows))
+    print("outcomes: " + "; ".join(f"{r['system']}: {r['outcomes']}" for r in rows))
+    firm = [r for r in rows if "predicted_success" in r]
+    for f in firm:
+        print(f"{f['system']}: predicted success (its own DP, declaring arrival within its execution limit) "
+              f"{f['predicted_success']:.3f}; nodes {f['nodes']}, edges {f['edges']}, offline {f['offline_s']:.1f} s")
+    if firm:
+        f = firm[0]
+        for r in rows:
+            if "predicted_success" not in r:
+                print(f"{r['system']}: planning CPU per step / {f['system']}'s whole step = "
+                      f"{r['step_cpu_ms_mean'] / f['step_cpu_ms_mean']:.0f}x")
+
+
+def retable(path: Path, statement: dict) -> list[dict]:
+    """The rows of a saved run (``--json``) summarised again, with the current columns."""
+    data = json.loads(path.read_text())
+    keys = set(summarize("", {}, [], statement))  # the computed columns, not the system's info
+    return [summarize(r["system"], {k: v for k, v in r.items() if k not in keys}, data["episodes"][r["system"]],
+                      statement) for r in data["rows"]]
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--statement", choices=sorted(STATEMENTS), default="safety", help="the statement (default safety)")
     ap.add_argument("--episodes", type=int, default=200, help="episodes per system (default 200)")
     ap.add_argument("--budgets", type=float, nargs="+", default=[0.1, 0.5, 2.0], help="peers' seconds per step")
-    ap.add_argument("--planners", nargs="+", default=["pomcpow", "pft_dpw"], choices=["pomcpow", "pft_dpw"])
+    ap.add_argument("--planners", nargs="*", default=["pomcpow", "pft_dpw"], choices=["pomcpow", "pft_dpw"],
+                    help="the peers (none: firmtool only)")
     ap.add_argument("--nodes", type=int, default=120, help="firmtool's roadmap nodes")
     ap.add_argument("--deadline", type=int, default=None, help="firmtool's [task] deadline_steps (default: none)")
     ap.add_argument("--json", type=Path, help="write the rows and the episodes here")
+    ap.add_argument("--table", type=Path, metavar="OUT.json", help="print the table of a saved run and exit")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--budget", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    statement = STATEMENTS[args.statement]
     if args.worker:
-        worker_main(args.worker, args.budget, args.nodes, args.deadline)
+        worker_main(args.worker, statement, args.budget, args.nodes, args.deadline)
         return
-    systems = [("firmtool (FIRM)", "firmtool", 0.0)]
+    if args.table:
+        report(retable(args.table, statement))
+        return
+    # a driver started in the background (nohup ... &) inherits SIGINT ignored: take it back, so
+    # that SIGINT stops the run and prints the table of the whole rounds
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    systems = [("firmtool (FIRM)", "firmtool", 0.0), ("firmtool (rollout)", "firmtool_rollout", 0.0)]
     systems += [(f"{'POMCPOW' if p == 'pomcpow' else 'PFT-DPW'} {b:g} s", p, b) for b in args.budgets for p in args.planners]
-    procs = {}
-    for name, system, budget in systems:  # one process per system
+    procs, infos = {}, {}
+    for name, system, budget in systems:  # one process per system, built one after the other (the offline time alone)
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", system, "--budget", str(budget),
-               "--nodes", str(args.nodes)] + (["--deadline", str(args.deadline)] if args.deadline else [])
-        procs[name] = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                                       )
-    infos = {}
-    for name, p in procs.items():  # the build (firmtool: timed offline) before any episode
+               "--statement", args.statement, "--nodes", str(args.nodes)]
+        cmd += ["--deadline", str(args.deadline)] if args.deadline else []
+        procs[name] = p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         infos[name] = json.loads(p.stdout.readline())
         print(f"{name}: ready {infos[name]}", flush=True)
     results: dict[str, list[dict]] = {name: [] for name in procs}
@@ -284,18 +354,15 @@ def main(argv: list[str] | None = None) -> None:
                 p.stdin.close()
             except OSError:
                 pass
-            p.wait(timeout=60)
+            p.wait(timeout=120)
     m = min(len(v) for v in results.values())
-    rows = [summarize(name, infos[name], results[name][:m]) for name in procs]
-    print()
-    print(table(rows))
-    f = rows[0]
-    print(f"firmtool predicted success (its own DP, declaring arrival within its execution limit): "
-          f"{f['predicted_success']:.3f}; nodes {f['nodes']}, edges {f['edges']}, offline {f['offline_s']:.1f} s")
-    for r in rows[1:]:
-        print(f"{r['system']}: planning CPU per step / firmtool's whole step = {r['step_cpu_ms_mean'] / f['step_cpu_ms_mean']:.0f}x")
+    results = {k: v[:m] for k, v in results.items()}
+    rows = [summarize(name, infos[name], results[name], statement) for name in procs]
+    report(rows)
     if args.json:
-        args.json.write_text(json.dumps({"rows": rows, "episodes": results}, indent=1, default=float))
+        args.json.write_text(json.dumps({"statement": args.statement, "statement_values": statement,
+                                         "argv": sys.argv[1:], "rows": rows, "episodes": results},
+                                        indent=1, default=float))
 
 
 if __name__ == "__main__":
