@@ -193,9 +193,11 @@ if numba is not None:
         """``GG[a] = 1`` where the estimate's tip may lie in the goal ball: first the true tip within
         the ball grown by ``sum_j reach_j |e_j|`` (module notes), then, for the particles that pass,
         the estimates' tips computed all at once (``frames_advance``; the goal test's own tip, one
-        particle at a time, has the same products) within the ball grown by a relative 1e-9.
-        ``E``, ``bound``: work arrays (N,). Measured on arm7_shelf: the goal test's per-particle
-        forward kinematics were half of the kernel's time."""
+        particle at a time, has the same products) within the ball grown by a relative 1e-9, so
+        that only estimates in the ball run the goal test. ``E``, ``bound``: work arrays (N,). (On
+        arm7_shelf the second stage changed the kernel's rate by less than the noise: the goal
+        test's cost there was the direction rule, now mostly spared by the 3-D bounds of
+        :func:`firmtool.problem.goal.confidence_bounds`.)"""
         K, P, dof, _, _, base, origins, axes, kinds, dof_index, frames, local, reach = unpack(params)
         tip = PX.shape[0] - 1
         cx, cy, cz = center[0], center[1], center[2]
