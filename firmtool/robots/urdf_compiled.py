@@ -13,12 +13,11 @@ link, and the tip) in the world.
   one); every encoder reads it (``sensing`` all 0);
 - the task point is the tip; ``task_point`` also leaves the tip's Jacobian (3, dof) in ``work`` for
   ``task_covariance`` (``J P J'``);
-- the goal gate is a necessary condition, in two steps: the estimate's tip is within
+- the goal gate is a cheap necessary condition: the estimate's tip is within
   ``sum_j reach_j |xhat_j - x_j|`` of the true tip, ``reach_j`` an upper bound of the tip's distance
   to joint j's axis over every configuration (the lengths of the origins after the joint), so
-  particles whose true tip is farther than that from the ball are out; for the rest the estimates'
-  tips are computed all at once and must lie in the ball (a chain with a prismatic joint has no
-  gate: every particle runs the goal test).
+  particles whose true tip is farther than that from the ball skip the estimate's kinematics (a
+  chain with a prismatic joint has no gate: every particle runs the goal test).
 
 Pinned to the numpy methods by tests/test_kernels_3d.py.
 """
@@ -172,7 +171,7 @@ if numba is not None:
     def urdf_task_covariance(P, params, work):
         """``J P J'`` (its six entries) with the Jacobian :func:`urdf_task_point` left in ``work``."""
         dof = int(params[2])
-        s = np.zeros(6)  # s11, s12, s13, s22, s23, s33
+        s11 = s12 = s13 = s22 = s23 = s33 = 0.0  # scalars: no array per tested particle
         for i in range(dof):
             a0, a1, a2 = 0.0, 0.0, 0.0
             for j in range(dof):
@@ -180,25 +179,21 @@ if numba is not None:
                 a1 += P[i, j] * work[dof + j]
                 a2 += P[i, j] * work[2 * dof + j]
             j0, j1, j2 = work[i], work[dof + i], work[2 * dof + i]
-            s[0] += j0 * a0
-            s[1] += j0 * a1
-            s[2] += j0 * a2
-            s[3] += j1 * a1
-            s[4] += j1 * a2
-            s[5] += j2 * a2
-        return s[0], s[1], s[2], s[3], s[4], s[5]
+            s11 += j0 * a0
+            s12 += j0 * a1
+            s13 += j0 * a2
+            s22 += j1 * a1
+            s23 += j1 * a2
+            s33 += j2 * a2
+        return s11, s12, s13, s22, s23, s33
 
     @hook
     def urdf_goal_gate(X, XH, PX, PY, PZ, params, center, r, E, bound, GG, na):
-        """``GG[a] = 1`` where the estimate's tip may lie in the goal ball: first the true tip within
-        the ball grown by ``sum_j reach_j |e_j|`` (module notes), then, for the particles that pass,
-        the estimates' tips computed all at once (``frames_advance``; the goal test's own tip, one
-        particle at a time, has the same products) within the ball grown by a relative 1e-9, so
-        that only estimates in the ball run the goal test. ``E``, ``bound``: work arrays (N,). (On
-        arm7_shelf the second stage changed the kernel's rate by less than the noise: the goal
-        test's cost there was the direction rule, now mostly spared by the 3-D bounds of
-        :func:`firmtool.problem.goal.confidence_bounds`.)"""
-        K, P, dof, _, _, base, origins, axes, kinds, dof_index, frames, local, reach = unpack(params)
+        """``GG[a] = 1`` where the estimate's tip may lie in the goal ball: the true tip within the ball
+        grown by ``sum_j reach_j |e_j|`` (module notes), all particles at once (``E`` unused,
+        ``bound``: work array (N,)). (A second stage computing the passing estimates' tips at once
+        changed arm7_shelf's rate by less than the noise, and was taken out again.)"""
+        dof, reach = int(params[2]), unpack(params)[12]
         tip = PX.shape[0] - 1
         cx, cy, cz = center[0], center[1], center[2]
         for a in range(na):
@@ -207,30 +202,12 @@ if numba is not None:
             rj = reach[j]
             for a in range(na):
                 bound[a] += rj * abs(XH[j, a] - X[j, a])
-        m = 0
         for a in range(na):
             ex, ey, ez = PX[tip, a] - cx, PY[tip, a] - cy, PZ[tip, a] - cz
             # an absolute slack besides the bound: the two tips' rounding (~1e-16) does not shrink
             # with the estimate's error
             grown = r * (1.0 + 1e-9) + 1e-12 + bound[a]
             GG[a] = ex * ex + ey * ey + ez * ez < grown * grown
-            if GG[a]:
-                E[m] = a  # the passing particles, compacted (indices held exactly in float64)
-                m += 1
-        if m == 0:
-            return
-        Q = np.empty((dof, m))
-        for j in range(dof):
-            for b in range(m):
-                Q[j, b] = XH[j, int(E[b])]
-        R, p = np.empty((9, m)), np.empty((3, m))
-        frames_base(R, p, base, m)
-        for k in range(K):
-            frames_advance(R, p, Q, k, origins, axes, kinds, dof_index, m)
-        r2 = r * r * (1.0 + 1e-9)
-        for b in range(m):
-            ex, ey, ez = p[0, b] - cx, p[1, b] - cy, p[2, b] - cz
-            GG[int(E[b])] = ex * ex + ey * ey + ez * ez < r2
 
 
 def urdf_kinematics(arm, frames: np.ndarray, local: np.ndarray, light, nz: int) -> CompiledKinematics:
