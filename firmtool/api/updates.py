@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from firmtool.api.roadmap import Roadmap, load_scenario
-from firmtool.io import arguments
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline.update import update_world
 from firmtool.scenario import Scenario
+from firmtool.util import arguments
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.progress import ProgressCallback
