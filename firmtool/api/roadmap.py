@@ -14,12 +14,12 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.api.solution import Solution
-from firmtool.errors import InputError, StaleScenarioWarning
+from firmtool.errors import InputError, StaleScenarioWarning, quoted
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.io import arguments, scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
-from firmtool.io.roadmap_queries import query_images
+from firmtool.io.roadmap_queries import query_names
 from firmtool.reports import BuildReport, QueryReport, UpdateReport
 from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario, parse_scenario
@@ -241,7 +241,7 @@ class Roadmap:
         """The names of the queries stored in the roadmap's file (:meth:`save_queries`); [] in memory."""
         if self.path is None:
             return []
-        return sorted(query_images(self._data.path))
+        return query_names(self._data.path)
 
     def query(self, name: str) -> "Roadmap":
         """The roadmap of the stored query ``name`` (in memory; :meth:`solution` gives its policy).
@@ -254,7 +254,7 @@ class Roadmap:
             A query answered on edges this roadmap no longer has.
         """
         if self.path is None:
-            raise InputError(f"query {name!r}: a roadmap in memory stores no queries; save it first")
+            raise InputError(f"query {quoted(name)}: a roadmap in memory stores no queries; save it first")
         image = pipeline.stored_query(self.path, name)
         rm = Roadmap(RoadmapFile(image), path=None, validity=self.validity)
         rm._image = image
@@ -279,7 +279,7 @@ class Roadmap:
             if image is None or not isinstance(report, QueryReport):
                 raise InputError("save_queries: expected solutions of queries (firmtool.solve with a goal)")
             if report.name in answers:
-                raise InputError(f"save_queries: two queries named {report.name!r}")
+                raise InputError(f"save_queries: two queries named {quoted(report.name)}")
             answers[report.name] = (image, report)
         pipeline.store_queries(self.path, answers, force=force)
         return list(answers)

@@ -20,7 +20,7 @@ from firmtool.cli.options import (
     open_roadmap,
 )
 from firmtool.cli.output import emit
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 
 
 @handles_errors
@@ -58,9 +58,9 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"],
              "rollout": ["rollout"], "firm-rollout": ["firm", "rollout"]}
     if policy_name not in names:
-        raise InputError(f"--policy: expected one of {', '.join(repr(n) for n in names)}, found {policy_name!r}")
+        raise InputError(f"--policy: expected one of {', '.join(repr(n) for n in names)}, found {quoted(policy_name)}")
     if kind not in FIGURE_KINDS:
-        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
+        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {quoted(kind)}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
     rm = open_roadmap(roadmap)
     if query is not None:

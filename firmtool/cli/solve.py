@@ -14,7 +14,7 @@ from firmtool.cli.exits import handles_errors
 from firmtool.cli.options import JsonOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.cli.queries import queries_of, query_human
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.io.locking import writer_lock
 
 
@@ -81,7 +81,7 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     import firmtool.api as ft
     check_roadmap_argument(roadmap)
     if method not in ("value", "policy"):
-        raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
+        raise InputError(f"--method: expected 'value' or 'policy', found {quoted(method)}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
     if deadline is not None and (goal or task is not None or start is not None):
@@ -115,7 +115,7 @@ def _queries(roadmap: Path, queries: list, failure_cost: float | None, method: s
     stored = set(rm.queries)
     for q in queries:  # before any Monte Carlo runs: a name that exists without --force
         if q.name is not None and q.name in stored and not force:
-            raise InputError(f"{roadmap}: --name: a query named {q.name!r} is stored already; give --force to "
+            raise InputError(f"{roadmap}: --name: a query named {quoted(q.name)} is stored already; give --force to "
                              "replace it, or another name")
     sols = ft.solve(rm, queries=queries, workers=workers, progress=console.progress(), allow_unreachable=True)
     names = rm.save_queries(sols, force=force)

@@ -69,7 +69,7 @@ import numpy as np
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.geometry.shapes import Obstacle
 from firmtool.online.arrival import Arrival
 from firmtool.online.decision import KeepOrReplan
@@ -96,7 +96,7 @@ def with_mode(settings: ReplanSettings | None, mode: str) -> ReplanSettings:
     """The settings a policy of ``mode`` runs with: ``"rollout"`` turns :attr:`ReplanSettings.rollout`
     on, ``"base"`` keeps the settings as given (default ones without)."""
     if mode not in MODES:
-        raise InputError(f"Policy mode: expected one of {', '.join(MODES)}, found {mode!r}")
+        raise InputError(f"Policy mode: expected one of {', '.join(MODES)}, found {quoted(mode)}")
     settings = settings or ReplanSettings()
     return dataclasses.replace(settings, rollout=True) if mode == ROLLOUT else settings
 
