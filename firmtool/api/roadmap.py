@@ -26,6 +26,7 @@ from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 
 if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.deadline import DeadlineBudget
     from firmtool.estimation.calibration import EdgeCounts
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
@@ -199,6 +200,17 @@ class Roadmap:
     def execution_design(self) -> "Design":
         """The design with one edge row per estimated edge (what a policy's edge indices address)."""
         return pipeline.execution_design(self._data)
+
+    def deadline_budget(self) -> "DeadlineBudget":
+        """The largest deadline :func:`firmtool.solve` takes on this roadmap (:func:`firmtool.deadline.deadline_budget`:
+        a multiple of its longest simple chain's steps, and the DP's memory), its reasons in ``why()``.
+
+        Raises
+        ------
+        RoadmapError
+            No estimated edges, or edges without step histograms.
+        """
+        return pipeline.roadmap_deadline_budget(self._data)
 
     def has_stage(self, stage: str) -> bool:
         """Whether the roadmap holds a stage (``nodes``, ``controllers``, ``edges``, ``policy``)."""

@@ -95,7 +95,10 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     # from the first read to the write: the policy is the edges' it was solved from (issue 35); it is
     # written also when the goal is unreachable (inspect shows it), then the run fails
     with writer_lock(roadmap):
-        sol = ft.solve(open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
+        rm = open_roadmap(roadmap)
+        if deadline is not None:  # its budget on this roadmap, before the DP allocates anything
+            rm.deadline_budget().check(deadline, "--deadline", str(roadmap))
+        sol = ft.solve(rm, failure_cost=failure_cost, method=method, progress=console.progress(),
                        allow_unreachable=True, deadline=deadline)
         sol.save()
     if not sol.start_reachable:

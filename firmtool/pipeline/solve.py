@@ -11,8 +11,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from firmtool.deadline import StepRows, smallest_feasible_deadline, solve_deadline
-from firmtool.errors import RunFailure, Unreachable
+from firmtool.deadline import DeadlineBudget, StepRows, deadline_budget, shown_steps, smallest_feasible_deadline, solve_deadline
+from firmtool.errors import InputError, RoadmapError, RunFailure, Unreachable
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.edge_table import edge_costs
 from firmtool.graph import SolveStatus, policy_path, shortest_path_policy, solve_dp, success_probability
@@ -102,8 +102,9 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
+    field = "task.deadline_steps" if deadline is None else "deadline"
     deadline = problem.scenario.task.deadline_steps if deadline is None else int(deadline)
-    timed = _deadline_arrays(roadmap, N, goals, cost, JF, deadline) if deadline is not None else ({}, {})
+    timed = _deadline_arrays(roadmap, N, goals, cost, JF, deadline, field) if deadline is not None else ({}, {})
     arrays.update(timed[0])
     attrs = {"inputs_sha256": policy_inputs(str(roadmap.attrs("edges")["inputs_sha256"]), JF, method,
                                             problem.scenario.cost, deadline), **timed[1],
@@ -113,24 +114,52 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
 
 
+def step_rows(roadmap: RoadmapFile) -> StepRows:
+    """The edges' step histograms as :class:`firmtool.deadline.StepRows` (checked by the reader).
+
+    Raises
+    ------
+    RoadmapError
+        No estimated edges, or edges estimated before firmtool recorded step histograms.
+    """
+    table = roadmap.table("edges")
+    if not table:
+        raise RoadmapError(f"{roadmap.path}: stage 'edges' is missing; run 'firmtool estimate' first")
+    if any(f"steps_{n}" not in table for n in ("edge", "code", "value", "count")):
+        raise RoadmapError(f"{roadmap.path}: its edges hold no step histograms (estimated before firmtool recorded "
+                           f"them), which a deadline's DP needs; estimate them once: firmtool estimate {roadmap.path} "
+                           "--fresh")
+    return StepRows.from_counts(table["steps_edge"], table["steps_code"], table["steps_value"], table["steps_count"],
+                                table["particles"])
+
+
+def roadmap_deadline_budget(roadmap: RoadmapFile) -> DeadlineBudget:
+    """The deadline budget of ``roadmap`` (:func:`firmtool.deadline.deadline_budget`)."""
+    rows = step_rows(roadmap)
+    return deadline_budget(roadmap.require("nodes", "kind", fresh=False)["kind"].size, rows)
+
+
 def _deadline_arrays(roadmap: RoadmapFile, N: int, goals: np.ndarray, cost: np.ndarray, JF: float,
-                     deadline: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """The time-indexed policy's datasets and attributes (:func:`solve_policy`'s ``deadline``)."""
+                     deadline: int, field: str = "deadline") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The time-indexed policy's datasets and attributes (:func:`solve_policy`'s ``deadline``, from
+    ``field``), its budget checked first (:func:`firmtool.deadline.deadline_budget`)."""
     table = roadmap.table("edges")
     if any(f"steps_{n}" not in table for n in ("edge", "code", "value", "count")):
         raise RunFailure(f"{roadmap.path}: its edges hold no step histograms (estimated before firmtool recorded "
                          f"them), which a deadline's DP needs; estimate them once: firmtool estimate {roadmap.path} "
                          "--fresh")
     if deadline < 1:
-        raise RunFailure(f"{roadmap.path}: deadline: expected a number of steps >= 1, found {deadline}")
+        raise InputError(f"{roadmap.path}: {field}: expected a number of steps >= 1, found {shown_steps(deadline)}")
     rows = StepRows.from_counts(table["steps_edge"], table["steps_code"], table["steps_value"], table["steps_count"],
                                 table["particles"])
+    budget = deadline_budget(N, rows)
+    budget.check(deadline, field, str(roadmap.path))  # before the DP allocates its (T + 1, N) arrays
     source = table["source"].astype(np.int64)
     res = solve_deadline(N, goals, source, cost, rows, JF, deadline)
     if res.success[deadline, START_INDEX] <= 0:
-        least = smallest_feasible_deadline(N, goals, source, rows, START_INDEX, 10**9)
+        least = smallest_feasible_deadline(N, goals, source, rows, START_INDEX, budget.steps)
         advice = (f"the least deadline that can is {least} steps" if least is not None else
-                  "the goal cannot be reached from the start at all")
+                  "the goal cannot be reached from the start at all under the estimated edges")
         raise RunFailure(f"{roadmap.path}: deadline {deadline}: no chain of edges reaches the goal from the start "
                          f"within {deadline} steps; {advice}")
     return ({"deadline_edge": res.policy, "deadline_success": res.success},
