@@ -76,8 +76,7 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     if edges["source"].size == 0:
-        raise RunFailure(f"{roadmap.path}: no edge was estimated (every edge's Monte Carlo failed); "
-                         "run 'firmtool estimate' again")
+        raise no_edge_failure(roadmap)
     cost = edge_costs(edges, problem.scenario.cost)
     landing, fail, timeout, _ = edge_probabilities(roadmap)
     N = landing.shape[1]
@@ -112,6 +111,22 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
              "failure_cost": JF, "method": method, **intervals, "interval_method": INTERVAL_METHOD,
              "interval_prior": PRIOR, "interval_samples": INTERVAL_SAMPLES}
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
+
+
+def no_edge_failure(roadmap: RoadmapFile) -> RunFailure:
+    """Why a roadmap has no estimated edge, in words that blame the right thing: a design without an
+    edge (no collision-free nominal between its nodes; after a world update, the new world cut them
+    all), or every designed edge's Monte Carlo failed."""
+    designed = roadmap.require("controllers", "edge_source", fresh=False)["edge_source"].size
+    if designed == 0:
+        updated = "updated_from" in roadmap.attrs("nodes")
+        why = ("the world update left no collision-free edge between the roadmap's nodes; build a new roadmap in the "
+               "new world" if updated else "no collision-free nominal joins two of its nodes; add nodes or raise "
+               "roadmap.neighbors / roadmap.max_edge_length")
+        return RunFailure(f"{roadmap.path}: the roadmap has no edge ({why})")
+    failed = int(roadmap.attrs("edges").get("failed_edges", 0) or 0)
+    return RunFailure(f"{roadmap.path}: no edge was estimated (the Monte Carlo of {failed or 'every'} of its {designed} "
+                      "designed edges failed); run 'firmtool estimate' again")
 
 
 def step_rows(roadmap: RoadmapFile) -> StepRows:
