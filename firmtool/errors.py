@@ -6,6 +6,31 @@ the library never prints or exits.
 
 from __future__ import annotations
 
+from typing import Any
+
+# Most characters of a user's value a message quotes (a 100 KB --name or key is cut, and says so).
+MAX_QUOTED = 200
+# Most characters of what a scenario error says was expected (the reader's own words, with a quoted
+# value at most MAX_QUOTED long): a backstop for a message that quotes a value without the helpers.
+MAX_EXPECTED = 600
+
+
+def cut(text: str, limit: int = MAX_QUOTED) -> str:
+    """``text`` as a message shows it: whole up to ``limit`` characters, else its first ``limit``
+    and how long it was (one line: newlines shown as ``\\n``). Every message that echoes a value from
+    a user or a file goes through here or :func:`quoted`."""
+    text = str(text)
+    head = text[:limit].replace("\r", "\\r").replace("\n", "\\n")
+    return head if len(text) <= limit else f"{head}... ({len(text)} characters)"
+
+
+def quoted(value: Any, limit: int = MAX_QUOTED) -> str:
+    """``repr(value)`` (a text in quotes), of at most ``limit`` characters of the value: a long text
+    is cut before its repr is taken, so the cost is bounded too."""
+    if isinstance(value, str) and len(value) > limit:
+        return f"{value[:limit]!r}... ({len(value)} characters)"
+    return cut(repr(value), limit + 2)  # + its quotes
+
 
 class FirmtoolError(Exception):
     """Base class of every error firmtool raises on purpose."""
@@ -26,10 +51,10 @@ class ScenarioError(InputError):
         self.path, self.field, self.expected = str(path), field, expected
         #: every problem found, ``(field, expected)``, the first one being ``(field, expected)``
         self.errors = [(field, expected), *more]
-        where = f"{self.path}: {field}" if field else self.path
-        text = f"{where}: {expected}"
+        where = f"{cut(self.path)}: {cut(field)}" if field else cut(self.path)
+        text = f"{where}: {cut(expected, MAX_EXPECTED)}"
         for f, e in more:  # all problems of a file on one line, first one first
-            text += f"; also {f}: {e}" if f else f"; also {e}"
+            text += f"; also {cut(f)}: {cut(e, MAX_EXPECTED)}" if f else f"; also {cut(e, MAX_EXPECTED)}"
         super().__init__(text)
 
 

@@ -22,7 +22,7 @@ from firmtool.api.roadmap import Roadmap
 from firmtool.api.solution import Solution
 from firmtool.errors import InputError
 from firmtool.io.roadmap_file import RoadmapFile
-from firmtool.pipeline.query import Query
+from firmtool.pipeline.query import Query, check_query_name
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.progress import ProgressCallback
@@ -74,6 +74,9 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         raise InputError("failure_cost, method: a query is solved with the scenario's J_F by value iteration")
     if queries is not None and single.task():
         raise InputError("queries: give the queries as a list or one by keyword, not both")
+    for q in ([single] if queries is None else list(queries)):  # every name before any query is computed
+        if isinstance(q, Query) and q.name is not None:
+            check_query_name(q.name)
     settings = pipeline.worker_settings(workers, default=1, problem=None)
     out = []
     for q in ([single] if queries is None else list(queries)):

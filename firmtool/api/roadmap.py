@@ -14,13 +14,13 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.api.solution import Solution
-from firmtool.errors import InputError, StaleScenarioWarning
+from firmtool.errors import InputError, StaleScenarioWarning, quoted
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.io import scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
-from firmtool.io.roadmap_queries import query_images
+from firmtool.io.roadmap_queries import query_names
 from firmtool.reports import BuildReport, QueryReport, UpdateReport
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
@@ -28,6 +28,7 @@ from firmtool.util import arguments
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.estimation.calibration import EdgeCounts
+    from firmtool.graph.deadline import DeadlineBudget
     from firmtool.problem import Problem
     from firmtool.progress import ProgressCallback
     from firmtool.roadmap.design import Design
@@ -201,6 +202,17 @@ class Roadmap:
         """The design with one edge row per estimated edge (what a policy's edge indices address)."""
         return pipeline.execution_design(self._data)
 
+    def deadline_budget(self) -> "DeadlineBudget":
+        """The largest deadline :func:`firmtool.solve` takes on this roadmap (:func:`firmtool.graph.deadline.deadline_budget`:
+        a multiple of its longest simple chain's steps, and the DP's memory), its reasons in ``why()``.
+
+        Raises
+        ------
+        RoadmapError
+            No estimated edges, or edges without step histograms.
+        """
+        return pipeline.roadmap_deadline_budget(self._data)
+
     def has_stage(self, stage: str) -> bool:
         """Whether the roadmap holds a stage (``nodes``, ``controllers``, ``edges``, ``policy``)."""
         return self._data.has(stage)
@@ -242,7 +254,7 @@ class Roadmap:
         """The names of the queries stored in the roadmap's file (:meth:`save_queries`); [] in memory."""
         if self.path is None:
             return []
-        return sorted(query_images(self._data.path))
+        return query_names(self._data.path)
 
     def query(self, name: str) -> "Roadmap":
         """The roadmap of the stored query ``name`` (in memory; :meth:`solution` gives its policy).
@@ -255,7 +267,7 @@ class Roadmap:
             A query answered on edges this roadmap no longer has.
         """
         if self.path is None:
-            raise InputError(f"query {name!r}: a roadmap in memory stores no queries; save it first")
+            raise InputError(f"query {quoted(name)}: a roadmap in memory stores no queries; save it first")
         image = pipeline.stored_query(self.path, name)
         rm = Roadmap(RoadmapFile(image), path=None, validity=self.validity)
         rm._image = image
@@ -280,7 +292,7 @@ class Roadmap:
             if image is None or not isinstance(report, QueryReport):
                 raise InputError("save_queries: expected solutions of queries (firmtool.solve with a goal)")
             if report.name in answers:
-                raise InputError(f"save_queries: two queries named {report.name!r}")
+                raise InputError(f"save_queries: two queries named {quoted(report.name)}")
             answers[report.name] = (image, report)
         pipeline.store_queries(self.path, answers, force=force)
         return list(answers)

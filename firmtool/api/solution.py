@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from firmtool import pipeline
-from firmtool.errors import ArgumentTypeError, InputError, Unreachable
+from firmtool.errors import ArgumentTypeError, InputError, Unreachable, quoted
 from firmtool.estimation.calibration import predicted_interval
 from firmtool.estimation.edge_table import edge_costs
 from firmtool.graph.dp import SolveStatus, policy_path
@@ -193,7 +193,7 @@ class Solution:
             return self.policy, self.success_probabilities
         if name == "shortest-path":
             return self.shortest_path_policy, self.shortest_path_success_probabilities
-        raise InputError(f"policy: expected one of {', '.join(POLICIES)}, found {name!r}")
+        raise InputError(f"policy: expected one of {', '.join(POLICIES)}, found {quoted(name)}")
 
     def _world_edges(self) -> EdgeTable:
         """What :meth:`firmtool.Policy.update_world` re-solves on: the estimated edges (in policy index
@@ -293,7 +293,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     arguments.function(progress, "progress")
     if deadline is not None and (isinstance(deadline, bool) or not isinstance(deadline, (int, np.integer))
                                  or deadline < 1):
-        raise InputError(f"deadline: expected a number of steps >= 1, found {deadline!r}")
+        raise InputError(f"deadline: expected a number of steps >= 1, found {quoted(deadline)}")
     group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress,
                                   deadline=deadline)
     solution = Solution._from_group(roadmap, group)

@@ -22,7 +22,7 @@ from firmtool.cli.options import (
     open_roadmap,
 )
 from firmtool.cli.output import emit
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.online.replanning import ReplanSettings
@@ -137,9 +137,9 @@ def parse_start(text: str | None) -> np.ndarray | None:
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
-        raise InputError(f"--start: expected comma-separated numbers, e.g. 3.0,1.5; found {text!r}") from None
+        raise InputError(f"--start: expected comma-separated numbers, e.g. 3.0,1.5; found {quoted(text)}") from None
     if not np.all(np.isfinite(values)):
-        raise InputError(f"--start: expected finite numbers, found {text!r}")
+        raise InputError(f"--start: expected finite numbers, found {quoted(text)}")
     return np.asarray(values)
 
 
@@ -222,9 +222,9 @@ def replan_settings(no_replan: bool, threshold: float, deadline: float | None, c
     if deadline is not None and not (np.isfinite(deadline) and deadline > 0):
         raise InputError(f"--replan-deadline: expected a number of seconds > 0, found {deadline}")
     if clock not in CLOCKS:
-        raise InputError(f"--replan-clock: expected one of {', '.join(CLOCKS)}, found {clock!r}")
+        raise InputError(f"--replan-clock: expected one of {', '.join(CLOCKS)}, found {quoted(clock)}")
     if latency not in LATENCIES:
-        raise InputError(f"--replan-latency: expected one of {', '.join(LATENCIES)}, found {latency!r}")
+        raise InputError(f"--replan-latency: expected one of {', '.join(LATENCIES)}, found {quoted(latency)}")
     if goal_check is not None and not (np.isfinite(goal_check) and 0.0 <= goal_check < 1.0):
         raise InputError(f"--goal-check: expected a probability in [0, 1), found {goal_check}")
     if jump_false_alarm is not None and not (np.isfinite(jump_false_alarm) and 0.0 < jump_false_alarm < 1.0):
@@ -253,4 +253,4 @@ def exit_if_all_stuck(report: dict, roadmap: Path) -> None:
 
 def check_policy(name: str) -> None:
     if name not in ("firm", "rollout", "shortest-path"):
-        raise InputError(f"--policy: expected 'firm', 'rollout' or 'shortest-path', found {name!r}")
+        raise InputError(f"--policy: expected 'firm', 'rollout' or 'shortest-path', found {quoted(name)}")

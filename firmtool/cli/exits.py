@@ -18,7 +18,7 @@ from threadpoolctl import threadpool_limits
 from typer.core import TyperGroup
 
 from firmtool.cli import console
-from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure, ScenarioError
+from firmtool.errors import MAX_EXPECTED, FirmtoolError, InputError, NumericalError, RunFailure, ScenarioError, cut
 from firmtool.io.atomic import write_failure
 from firmtool.util import interrupts
 
@@ -46,10 +46,10 @@ class OneLineErrors(TyperGroup):
         except click.exceptions.UsageError as exc:
             where = f"{exc.ctx.command_path}: " if exc.ctx is not None else ""
             hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
-            typer.echo(f"error: {where}{_one_line(exc.format_message())}{hint}", err=True)
+            typer.echo(f"error: {where}{cut(_one_line(exc.format_message()), MAX_EXPECTED)}{hint}", err=True)
             code = 2
         except click.exceptions.ClickException as exc:
-            typer.echo(f"error: {_one_line(exc.format_message())}", err=True)
+            typer.echo(f"error: {cut(_one_line(exc.format_message()), MAX_EXPECTED)}", err=True)
             code = exc.exit_code
         except (typer.Abort, KeyboardInterrupt):
             typer.echo("error: interrupted", err=True)
@@ -74,7 +74,8 @@ def fail_scenario(exc: ScenarioError) -> NoReturn:
     """Every mistake of a scenario file, one line each (``error: FILE: FIELD: expected``), exit 2."""
     console.close_progress()
     for field, expected in exc.errors:
-        typer.echo(f"error: {exc.path}: {field}: {expected}" if field else f"error: {exc.path}: {expected}", err=True)
+        path, expected = cut(exc.path), cut(expected, MAX_EXPECTED)  # a user's key or value: at most 200 characters
+        typer.echo(f"error: {path}: {cut(field)}: {expected}" if field else f"error: {path}: {expected}", err=True)
     raise typer.Exit(2)
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, read_edge_cache
 from firmtool.io.roadmap_format import START_INDEX
-from firmtool.io.roadmap_queries import query_images
+from firmtool.io.roadmap_queries import query_names
 from firmtool.reports import RoadmapSummary
 from firmtool.scenario import parse_scenario
 
@@ -51,7 +51,7 @@ def summarize(path: str | Path) -> RoadmapSummary:
     cache = read_edge_cache(path, nodes=out.get("nodes"))
     if cache:  # an interrupted estimate stage (or a superseded design) left estimates to reuse
         out["cached_edges"] = int(cache["source"].size)
-    out["queries"] = tuple(sorted(query_images(path)))
+    out["queries"] = tuple(query_names(path))
     if rm.has("policy"):
         a = rm.attrs("policy")
         p = rm.require("policy", "success_probability", "cost_to_go", fresh=False)

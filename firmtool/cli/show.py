@@ -20,7 +20,7 @@ from firmtool.cli.options import (
     open_roadmap,
 )
 from firmtool.cli.output import emit
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 
 
 @handles_errors
@@ -52,16 +52,16 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
       firmtool plot artifacts/point_lightdark.h5 --kind calibration -n 400 -o calibration.png
     """
     # lazy: saves firmtool --help the library's and matplotlib's import, 2 s (firmtool.cli.app)
-    from firmtool.estimation.budgets import check_execution
     from firmtool.api.figures import FIGURE_KINDS, FigureOptions, figure_provenance, make_figure
+    from firmtool.estimation.budgets import check_execution
     from firmtool.io.figure_file import check_output, save_figure
     check_roadmap_argument(roadmap)
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"],
              "rollout": ["rollout"], "firm-rollout": ["firm", "rollout"]}
     if policy_name not in names:
-        raise InputError(f"--policy: expected one of {', '.join(repr(n) for n in names)}, found {policy_name!r}")
+        raise InputError(f"--policy: expected one of {', '.join(repr(n) for n in names)}, found {quoted(policy_name)}")
     if kind not in FIGURE_KINDS:
-        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
+        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {quoted(kind)}")
     out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
     rm = open_roadmap(roadmap)
     if query is not None:

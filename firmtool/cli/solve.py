@@ -14,7 +14,7 @@ from firmtool.cli.exits import handles_errors
 from firmtool.cli.options import JsonOpt, QuietOpt, check_roadmap_argument, open_roadmap
 from firmtool.cli.output import emit
 from firmtool.cli.queries import queries_of, query_human
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.io.locking import writer_lock
 
 
@@ -81,7 +81,7 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     import firmtool.api as ft
     check_roadmap_argument(roadmap)
     if method not in ("value", "policy"):
-        raise InputError(f"--method: expected 'value' or 'policy', found {method!r}")
+        raise InputError(f"--method: expected 'value' or 'policy', found {quoted(method)}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
     if deadline is not None and (goal or task is not None or start is not None):
@@ -95,7 +95,10 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
     # from the first read to the write: the policy is the edges' it was solved from (issue 35); it is
     # written also when the goal is unreachable (inspect shows it), then the run fails
     with writer_lock(roadmap):
-        sol = ft.solve(open_roadmap(roadmap), failure_cost=failure_cost, method=method, progress=console.progress(),
+        rm = open_roadmap(roadmap)
+        if deadline is not None:  # its budget on this roadmap, before the DP allocates anything
+            rm.deadline_budget().check(deadline, "--deadline", str(roadmap))
+        sol = ft.solve(rm, failure_cost=failure_cost, method=method, progress=console.progress(),
                        allow_unreachable=True, deadline=deadline)
         sol.save()
     if not sol.start_reachable:
@@ -115,7 +118,7 @@ def _queries(roadmap: Path, queries: list, failure_cost: float | None, method: s
     stored = set(rm.queries)
     for q in queries:  # before any Monte Carlo runs: a name that exists without --force
         if q.name is not None and q.name in stored and not force:
-            raise InputError(f"{roadmap}: --name: a query named {q.name!r} is stored already; give --force to "
+            raise InputError(f"{roadmap}: --name: a query named {quoted(q.name)} is stored already; give --force to "
                              "replace it, or another name")
     sols = ft.solve(rm, queries=queries, workers=workers, progress=console.progress(), allow_unreachable=True)
     names = rm.save_queries(sols, force=force)

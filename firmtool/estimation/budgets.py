@@ -31,6 +31,7 @@ import os
 import numpy as np
 
 from firmtool.errors import InputError, RoadmapError, ScenarioError
+from firmtool.graph.deadline import deadline_budget
 from firmtool.problem import Problem
 from firmtool.roadmap.nodes import ATTEMPTS_PER_NODE, MIN_ATTEMPTS
 
@@ -124,7 +125,23 @@ def check_budget(problem: Problem, edges: int | None = None, mean_nominal_steps:
         raise ScenarioError(sc.path, "estimation.chunk",
                             f"expected a smaller estimation.chunk / estimation.particles / controller.max_steps: "
                             f"one chunk needs ~{_gib(b['chunk_bytes'])} (limit {_gib(MAX_BYTES)})")
+    check_deadline_steps(problem)
     return b
+
+
+def check_deadline_steps(problem: Problem) -> None:
+    """Refuse a ``task.deadline_steps`` beyond the budget known without a roadmap
+    (:func:`firmtool.graph.deadline.deadline_budget`: firmtool's cap, and the DP's memory at the scenario's
+    node count; the roadmap's own budget is checked when it is solved)."""
+    sc = problem.scenario
+    T = sc.task.deadline_steps
+    if T is None:
+        return
+    nodes = sc.roadmap.nodes + sc.roadmap.goal_nodes + 1  # the fewest a roadmap of the scenario holds
+    try:
+        deadline_budget(nodes).check(T, "task.deadline_steps")
+    except InputError as exc:
+        raise ScenarioError(sc.path, "task.deadline_steps", str(exc).split(": ", 1)[1]) from None
 
 
 def offline_budget(problem: Problem, nodes: int | None = None) -> dict:

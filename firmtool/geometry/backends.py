@@ -34,7 +34,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.geometry.distance import (
     segment_box_distance_sq_local,
     segment_segment_distance_sq,
@@ -102,9 +102,9 @@ def _check_capsules(starts, ends, radius, dim: int = 2) -> tuple[np.ndarray, np.
     try:
         r = float(radius)
     except (TypeError, ValueError):
-        raise InputError(f"radius: expected a positive number but found {radius!r}") from None
+        raise InputError(f"radius: expected a positive number but found {quoted(radius)}") from None
     if not (np.isfinite(r) and r > 0):
-        raise InputError(f"radius: expected a positive finite number but found {radius!r}")
+        raise InputError(f"radius: expected a positive finite number but found {quoted(radius)}")
     return starts, ends, r
 
 
@@ -307,6 +307,6 @@ def make_backend(name: str, obstacle_centers: np.ndarray, obstacle_half_sizes: n
     """
     cls = get_backend(name).load()
     if not hasattr(cls, "from_boxes"):
-        raise InputError(f"collision backend {name!r} does not take planar rectangles")
+        raise InputError(f"collision backend {quoted(name)} does not take planar rectangles")
     return cls.from_boxes(obstacle_centers, obstacle_half_sizes, workspace_lo, workspace_hi,
                           self_collision=self_collision, obstacle_angles=obstacle_angles, **options)

@@ -26,7 +26,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Callable
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 
 
 @dataclass(frozen=True)
@@ -62,9 +62,9 @@ def register_backend(name: str, cls: type | str, *, dimensions: tuple[int, ...],
     obstacle_kinds : the obstacle kinds it handles (:data:`firmtool.geometry.shapes.KINDS`).
     """
     if name in _BACKENDS and name in _BUILTIN:
-        raise InputError(f"collision backend {name!r} is built in and cannot be replaced")
+        raise InputError(f"collision backend {quoted(name)} is built in and cannot be replaced")
     if not name or not all(ch.isalnum() or ch in "_-." for ch in name):
-        raise InputError(f"collision backend {name!r}: expected a name of letters, digits, '_', '-' or '.'")
+        raise InputError(f"collision backend {quoted(name)}: expected a name of letters, digits, '_', '-' or '.'")
     load = _lazy(cls) if isinstance(cls, str) else (lambda: cls)
     _BACKENDS[name] = BackendInfo(name, tuple(dimensions), tuple(obstacle_kinds), load)
 
@@ -74,7 +74,7 @@ def get_backend(name: str) -> BackendInfo:
     try:
         return _BACKENDS[name]
     except (KeyError, TypeError):
-        raise InputError(f"collision backend: expected one of {sorted(_BACKENDS)} but found {name!r}") from None
+        raise InputError(f"collision backend: expected one of {sorted(_BACKENDS)} but found {quoted(name)}") from None
 
 
 def backend_names() -> tuple[str, ...]:

@@ -20,6 +20,13 @@ Written here (no library solves a finite-horizon MDP on sparse stochastic transi
 distributions, and the untimed solver of :mod:`firmtool.graph.dp` has no time index): one sweep of
 ``t = 0 .. T``, each a sum over the histogram rows that fit (sorted by steps, a prefix), so
 ``O(T * rows)`` arithmetic, vectorised; ~0.1-1 s for the shipped roadmaps' deadlines.
+
+A deadline has a budget (:func:`deadline_budget`), checked before the DP allocates anything: a
+multiple (:data:`CHAIN_MULTIPLE`) of the longest simple chain's steps (N - 1 edges, each taking the
+most steps any landing took: past that, P(goal within T) grows only by what repeated failures
+recover, and a deadline that long is no deadline), and the memory of the DP's (T + 1, N) arrays
+(:data:`MAX_DEADLINE_BYTES`). Without a roadmap (``firmtool check``), a stated absolute cap
+(:data:`MAX_DEADLINE_STEPS`) and the memory at the scenario's node count.
 """
 
 from __future__ import annotations
@@ -29,6 +36,82 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmtool.errors import InputError
+
+# The largest deadline firmtool takes at all (steps; without a roadmap, the only bound known besides memory).
+MAX_DEADLINE_STEPS = 10**6
+# A deadline may be at most this many times the longest simple chain's steps (see the module notes).
+CHAIN_MULTIPLE = 10
+# Memory the time-indexed DP may take: per (steps left, node) its policy, cost and success (8 bytes each)
+# and the stored copies of the policy and success (the /policy datasets: 8 bytes each).
+MAX_DEADLINE_BYTES = 2**30
+BYTES_PER_NODE_STEP = 5 * 8
+
+
+@dataclass(frozen=True)
+class DeadlineBudget:
+    """The largest deadline the DP takes on a roadmap (or without one).
+
+    Attributes
+    ----------
+    steps : the budget, in steps: the least of the three bounds below that apply.
+    chain_steps : the longest simple chain's steps ((N - 1) x the most steps a landing took), None
+        without a roadmap; the budget's first bound is :data:`CHAIN_MULTIPLE` times it.
+    memory_steps : the most steps whose (T + 1, N) arrays fit :data:`MAX_DEADLINE_BYTES`.
+    nodes : N the memory estimate counts.
+    """
+
+    steps: int
+    chain_steps: int | None
+    memory_steps: int
+    nodes: int
+
+    def why(self) -> str:
+        """What bounds the budget, in words (for a refusal's message)."""
+        memory = (f"the DP over {self.nodes} nodes and {self.memory_steps} steps left fills "
+                  f"{MAX_DEADLINE_BYTES / 2**30:g} GiB")
+        if self.chain_steps is not None and CHAIN_MULTIPLE * self.chain_steps <= self.memory_steps:
+            return (f"{CHAIN_MULTIPLE} x the roadmap's longest simple chain of {self.chain_steps} steps: N - 1 edges, "
+                    "each the most steps a landing took")
+        if self.chain_steps is None and MAX_DEADLINE_STEPS <= self.memory_steps:
+            return "firmtool's cap of a deadline; the roadmap's own budget is checked when it is solved"
+        return memory
+
+    def check(self, deadline: int, field: str, where: str = "") -> None:
+        """Refuse ``deadline`` beyond the budget: one line naming ``field`` and the budget.
+
+        Raises
+        ------
+        InputError
+        """
+        if int(deadline) > self.steps:
+            prefix = f"{where}: " if where else ""
+            shown = shown_steps(deadline)
+            advice = ("past it P(goal within T) no longer grows but by what repeated failures recover: give a shorter "
+                      "deadline, or none (the untimed policy)" if self.chain_steps is not None else
+                      "give a shorter deadline, or none (the untimed policy)")
+            raise InputError(f"{prefix}{field}: expected a deadline of at most {self.steps} steps ({self.why()}), found "
+                             f"{shown}; {advice}")
+
+
+def shown_steps(deadline: int) -> str:
+    """A step count as a message quotes it (a number of thousands of digits is described, not shown)."""
+    d = int(deadline)
+    return str(d) if abs(d) < 10**30 else f"a number of {len(str(abs(d)))} digits"
+
+
+def deadline_budget(n_nodes: int, rows: StepRows | None = None) -> DeadlineBudget:
+    """The budget of a deadline on a roadmap of ``n_nodes`` nodes whose edges' step histograms are
+    ``rows`` (None: no roadmap yet, ``n_nodes`` the scenario's count; see the module notes)."""
+    n = max(int(n_nodes), 1)
+    memory = max(MAX_DEADLINE_BYTES // (BYTES_PER_NODE_STEP * n) - 1, 1)
+    if rows is None:
+        return DeadlineBudget(steps=int(min(MAX_DEADLINE_STEPS, memory)), chain_steps=None, memory_steps=int(memory),
+                              nodes=n)
+    land = rows.code >= 0
+    longest = int(rows.steps[land].max()) if land.any() else 1
+    chain = max(n - 1, 1) * max(longest, 1)
+    return DeadlineBudget(steps=int(min(CHAIN_MULTIPLE * chain, memory)),
+                          chain_steps=int(chain), memory_steps=int(memory), nodes=n)
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -85,6 +168,10 @@ def solve_deadline(n_nodes: int, goals: np.ndarray, edge_source: np.ndarray, edg
         raise InputError(f"failure cost: expected a finite number > 0, found {failure_cost}")
     if deadline < 0:
         raise InputError(f"deadline: expected a number of steps >= 0, found {deadline}")
+    memory = deadline_budget(n_nodes).memory_steps  # before allocating (T + 1, N) arrays
+    if deadline > memory:
+        raise InputError(f"deadline: expected at most {memory} steps (the DP over {n_nodes} nodes within "
+                         f"{MAX_DEADLINE_BYTES / 2**30:g} GiB), found {shown_steps(deadline)}")
     edge_source = np.asarray(edge_source, dtype=np.int64)
     E, T = edge_source.size, int(deadline)
     is_goal = np.zeros(n_nodes, dtype=bool)

@@ -22,7 +22,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
-from firmtool.errors import InputError, NumericalError
+from firmtool.errors import InputError, NumericalError, quoted
 
 PROB_TOL = 1e-6
 
@@ -224,7 +224,7 @@ def solve_dp(n_nodes: int, goal: int, edge_source: np.ndarray, edge_cost: np.nda
         J, it, residual, status = _policy_iteration(n_nodes, is_goal, c, landing, seg, reach, effective,
                                                     failure_cost, tol, max_iterations)
     else:
-        raise InputError(f"method: expected 'value' or 'policy', found {method!r}")
+        raise InputError(f"method: expected 'value' or 'policy', found {quoted(method)}")
     _, chosen = seg.argmin(_bellman(c, landing, effective(J)))
     policy = np.full(n_nodes, -1, dtype=np.int64)
     policy[seg.nodes] = chosen

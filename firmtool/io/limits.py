@@ -13,6 +13,10 @@ useful error:
 - :func:`data_limit_error`: on the parsed data, nesting depth (dotted keys and table headers nest
   without brackets) and at most :data:`MAX_ITEMS` items in any array.
 
+:func:`read_toml_file` is the one door of every TOML side file a command reads (a query's task file,
+a scenario): the regular-file read, a size cap checked before reading, UTF-8, the nesting scan, then
+``tomllib``, then the data's bounds (:func:`parse_toml` is the same on text already in memory).
+
 Every finding names the dotted field (and, for the text scan, the line), so the caller can raise
 its one-line error naming the file and the field.
 """
@@ -23,6 +27,7 @@ import errno
 import os
 import re
 import stat
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -186,3 +191,52 @@ def data_limit_error(data: Any, max_depth: int = MAX_DEPTH, max_items: int = MAX
                 return LimitError(name, f"expected at most {max_items} items in an array, found {len(value)}")
             stack.extend((v, f"{name}[{i}]", depth + 1) for i, v in enumerate(value))
     return None
+
+
+def parse_toml(text: str, max_depth: int = MAX_DEPTH, max_items: int = MAX_ITEMS) -> dict[str, Any]:
+    """``text`` parsed as TOML, its nesting scanned before ``tomllib`` recurses and its data bounded
+    after (:func:`toml_nesting_error`, :func:`data_limit_error`).
+
+    Raises
+    ------
+    LimitError
+        Nested too deeply, an array too long, or not valid TOML (field '' and tomllib's message).
+    """
+    limit = toml_nesting_error(text, max_depth)  # before tomllib, which recurses once per level
+    if limit is not None:
+        raise limit
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise LimitError("", f"not valid TOML ({str(exc)[:200]})") from None
+    except RecursionError:  # pragma: no cover - the scan above refuses deep nesting first
+        raise LimitError("", "nested too deeply to parse") from None
+    limit = data_limit_error(data, max_depth, max_items)
+    if limit is not None:
+        raise limit
+    return data
+
+
+def read_toml_file(path: str | Path, max_bytes: int = MAX_SCENARIO_BYTES, max_depth: int = MAX_DEPTH,
+                   max_items: int = MAX_ITEMS) -> dict[str, Any]:
+    """A TOML side file through the one bounded door: a regular file only (no FIFO, no device),
+    at most ``max_bytes`` (checked before reading), UTF-8, then :func:`parse_toml`.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    LimitError
+        Anything else wrong with it (field '' for the file itself, else the dotted field).
+    """
+    try:
+        raw = read_regular_file(path, max_bytes)
+    except (FileNotFoundError, LimitError):
+        raise
+    except OSError as exc:
+        raise LimitError("", f"cannot read the file ({exc.strerror or type(exc).__name__})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise LimitError("", "expected a UTF-8 TOML file") from None
+    return parse_toml(text, max_depth, max_items)

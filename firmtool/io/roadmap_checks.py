@@ -11,7 +11,7 @@ also check the ``/edge_cache``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -186,6 +186,27 @@ def check_edges(p: Path, arrays: Mapping[str, np.ndarray], dims: dict[str, int],
                                    "particles")
     if all(f"steps_{n}" in arrays for n in ("edge", "code", "value", "count")):
         _check_histograms(at, arrays, N, F, particles)
+    if "swept_lo" in arrays and "swept_hi" in arrays:
+        _check_swept(at, arrays["swept_lo"], arrays["swept_hi"])
+
+
+# The dimensions a world has (firmtool.scenario: a plane or a room).
+WORLD_DIMS = (2, 3)
+
+
+def _check_swept(at: Any, lo: np.ndarray, hi: np.ndarray) -> None:
+    """The swept regions (E, W): finite, ``lo <= hi`` and of a world's dimension (the world's own
+    is compared by :func:`check_edges_model`). An edge's particles are always tested at least once,
+    so no real region is empty: a region a world update cannot trust is refused, never read as
+    "meets nothing"."""
+    for name, a in (("swept_lo", lo), ("swept_hi", hi)):
+        _finite(at(name), a, magnitude=MAX_MAGNITUDE)
+    if lo.ndim == 2 and lo.shape[1] not in WORLD_DIMS:
+        _fail(at("swept_lo"), f"has {lo.shape[1]} coordinates per region, expected a world's 2 or 3")
+    bad = np.flatnonzero(np.any(np.asarray(lo) > np.asarray(hi), axis=-1)) if lo.size else np.zeros(0, int)
+    if bad.size:
+        _fail(at("swept_hi"), f"row {int(bad[0])} lies below its swept_lo row (a region's upper corner under its "
+                              "lower one)")
 
 
 def _check_histograms(at: Any, arrays: Mapping[str, np.ndarray], N: int | None, F: int, particles: np.ndarray) -> None:
@@ -201,6 +222,34 @@ def _check_histograms(at: Any, arrays: Mapping[str, np.ndarray], N: int | None, 
     if bad.size:
         _fail(at("steps_count"), f"counts {per_edge[int(bad[0])]:.0f} particles' steps for edge {int(bad[0])}, which "
                                  f"has {int(particles[int(bad[0])])} particles")
+    # per (edge, outcome) the histogram's particles are the outcome count's: a histogram moved between
+    # outcomes (every particle landing in 1 step, the sums kept) would make P(goal within T) silently wrong
+    _same_counts(at, (arrays["outcome_edge"], arrays["outcome_code"], arrays["outcome_count"]),
+                 (arrays["steps_edge"], arrays["steps_code"], arrays["steps_count"]))
+
+
+def _pairs(edge: np.ndarray, code: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct (edge, outcome code) pairs (K, 2) with a nonzero total count, sorted, and their totals (K,)."""
+    pairs = np.stack([np.asarray(edge, dtype=np.int64).ravel(), np.asarray(code, dtype=np.int64).ravel()], axis=1)
+    if pairs.shape[0] == 0:
+        return pairs, np.zeros(0)
+    uniq, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    total = np.bincount(inverse.ravel(), weights=np.asarray(count, dtype=float).ravel(), minlength=uniq.shape[0])
+    keep = total != 0
+    return uniq[keep], total[keep]
+
+
+def _same_counts(at: Any, outcomes: tuple[np.ndarray, ...], steps: tuple[np.ndarray, ...]) -> None:
+    """The step histograms' particles per (edge, outcome) equal the outcome counts."""
+    (k_out, c_out), (k_steps, c_steps) = _pairs(*outcomes), _pairs(*steps)
+    if k_out.shape == k_steps.shape and np.array_equal(k_out, k_steps) and np.array_equal(c_out, c_steps):
+        return
+    known = {tuple(k): c for k, c in zip(k_out.tolist(), c_out.tolist())}
+    found = {tuple(k): c for k, c in zip(k_steps.tolist(), c_steps.tolist())}
+    for e, code in sorted(set(known) | set(found)):
+        if known.get((e, code), 0.0) != found.get((e, code), 0.0):
+            _fail(at("steps_count"), f"counts {found.get((e, code), 0.0):.0f} particles of edge {e} with outcome "
+                                     f"{code}, where the outcome counts hold {known.get((e, code), 0.0):.0f}")
 
 
 def _check_edges_stage(p: Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any], dims: dict[str, int],
@@ -278,6 +327,7 @@ def _check_policy(p: Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str,
             chosen = e >= 0
             if np.any(source[e[chosen]] != node[chosen]):
                 _fail(at("deadline_edge"), "gives a node an edge that leaves another node")
+    _check_deadline(p, arrays, attrs, goal)
     if "unreachable" in arrays:
         _index(at("unreachable"), arrays["unreachable"], 0, N, "N")
     if "failure_cost" in attrs:
@@ -300,6 +350,41 @@ def _check_policy(p: Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str,
             if not ci[0] - 1e-12 <= value <= ci[1] + 1e-12:
                 raise RoadmapError(f"{p}: attribute '{name}' of '/policy' does not hold the start's "
                                    f"{point} {value:.6g} (file damaged)")
+
+
+def _check_deadline(p: Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],
+                    goal: np.ndarray | None) -> None:
+    """The time-indexed policy (firmtool.graph.deadline): both arrays or neither, each with the attribute
+    ``deadline_steps`` = T (rows 0 .. T steps left) and ``deadline_success_probability`` = the start's
+    P(goal within T) in the last row; goals absorbing (no edge, success 1) at every t."""
+    at = lambda name: _where(p, "policy", name)  # noqa: E731
+    has = [name for name in ("deadline_edge", "deadline_success") if name in arrays]
+    keys = [key for key in ("deadline_steps", "deadline_success_probability") if key in attrs]
+    if not has and not keys:
+        return
+    attr = lambda key: f"{p}: attribute '{key}' of '/policy'"  # noqa: E731
+    if len(has) != 2:
+        missing = "deadline_success" if "deadline_edge" in has else "deadline_edge"
+        _fail(at(missing), "is missing beside the time-indexed policy's other dataset")
+    if len(keys) != 2:
+        missing = "deadline_success_probability" if "deadline_steps" in keys else "deadline_steps"
+        raise RoadmapError(f"{attr(missing)} is missing beside the time-indexed policy (file damaged)")
+    e, success = np.asarray(arrays["deadline_edge"]), np.asarray(arrays["deadline_success"])
+    T = e.shape[0] - 1
+    if int(attrs["deadline_steps"]) != T:
+        raise RoadmapError(f"{attr('deadline_steps')} is {int(attrs['deadline_steps'])}, but '/policy/deadline_edge' "
+                           f"holds {T + 1} rows (0 .. T steps left: T = {T}) (file damaged)")
+    if T < 1 or START_INDEX >= success.shape[1]:
+        _fail(at("deadline_edge"), f"has shape {e.shape}, expected (T + 1, N) with T >= 1")
+    stored, last = float(attrs["deadline_success_probability"]), float(success[T, START_INDEX])
+    if not abs(stored - last) <= 1e-12:
+        raise RoadmapError(f"{attr('deadline_success_probability')} is {stored:.6g}, but '/policy/deadline_success' "
+                           f"gives the start {last:.6g} with {T} steps left (file damaged)")
+    if goal is not None and goal.size == e.shape[1] and goal.any():
+        if np.any(e[:, goal] >= 0):
+            _fail(at("deadline_edge"), "gives a goal node an edge (goals are absorbing)")
+        if np.any(success[:, goal] != 1.0):
+            _fail(at("deadline_success"), "gives a goal node a success probability other than 1")
 
 
 _CHECKS = {"nodes": _check_nodes, "controllers": _check_controllers, "edges": _check_edges_stage,
@@ -325,3 +410,74 @@ def check_stage(path: Path, stage: str, stages: Stages, dims: dict[str, int]) ->
     check_stage_attributes(path, stage, attrs)  # firmtool.io.attributes: the attributes read, like the datasets
     check_shapes(path, stage, arrays, dims)
     return _CHECKS[stage](path, arrays, attrs, dims, stages)
+
+
+def check_edges_model(path: Path, stages: Stages, rows: np.ndarray | None, *, world_dim: int | None,
+                      steps_past_edge: int | None, points: Callable[[np.ndarray], np.ndarray] | None,
+                      reach: float = 0.0) -> None:
+    """The checks of ``/edges`` that need the stored scenario's model (the reader runs them once
+    :meth:`~firmtool.io.roadmap_file.RoadmapFile.check_model` told it the model):
+
+    - the swept regions have the world's dimension ``world_dim``, and each holds the key points of its
+      edge's source node (``points``: states (M, n) -> key points (M, P, D)), within a margin of the
+      region's largest side plus the robot's ``reach``: the particles start around that node (a region
+      start tests candidates all over its region; a centre start's first step moves them by less than the
+      edge's length);
+    - no particle of an edge took more steps than the edge may run: its nominal's
+      (``/controllers/edge_steps`` of its design row ``rows``) plus ``steps_past_edge``
+      (``controller.max_steps``, the stabiliser's timeout); none landed in a node other than a goal
+      before its nominal's steps ended (membership is tested from then on, in both engines).
+
+    Raises
+    ------
+    RoadmapError
+        One line naming the file and the dataset.
+    """
+    arrays = stages["edges"][0]
+    at = lambda name: _where(path, "edges", name)  # noqa: E731
+    if "swept_lo" in arrays and "swept_hi" in arrays:
+        lo, hi = np.asarray(arrays["swept_lo"], dtype=float), np.asarray(arrays["swept_hi"], dtype=float)
+        if world_dim is not None and lo.shape[1] != world_dim:
+            _fail(at("swept_lo"), f"holds regions of {lo.shape[1]} coordinates, but the stored scenario's world has "
+                                  f"{world_dim}")
+        centers = stages["nodes"][0].get("centers")
+        if points is not None and lo.shape[0] and centers is not None:
+            source = np.asarray(arrays["source"], dtype=np.int64)
+            nodes, which = np.unique(source, return_inverse=True)
+            pts = np.asarray(points(np.asarray(centers)[nodes]), dtype=float).reshape(nodes.size, -1, lo.shape[1])
+            pts = pts[which.ravel()]  # (F, P, D) the key points of each edge's source node
+            margin = (hi - lo).max(axis=1)[:, None, None] + float(reach)
+            out = np.any((pts < lo[:, None, :] - margin) | (pts > hi[:, None, :] + margin), axis=(1, 2))
+            bad = np.flatnonzero(out)
+            if bad.size:
+                e = int(bad[0])
+                _fail(at("swept_lo"), f"row {e}: the swept region does not hold the key points of the edge's source "
+                                      f"node {int(source[e])}, where its particles start")
+    names = ("steps_edge", "steps_value")
+    if steps_past_edge is not None and rows is not None and all(n in arrays for n in names):
+        design = stages["controllers"][0].get("edge_steps")
+        if design is None or arrays["steps_edge"].size == 0:
+            return
+        limit = np.asarray(design, dtype=np.int64)[rows] + int(steps_past_edge)  # (F,)
+        edge = np.asarray(arrays["steps_edge"], dtype=np.int64)
+        value = np.asarray(arrays["steps_value"], dtype=np.int64)
+        bad = np.flatnonzero(value > limit[edge])
+        if bad.size:
+            r = int(bad[0])
+            _fail(at("steps_value"), f"row {r} gives edge {int(edge[r])} {int(value[r])} steps, more than it may run "
+                                     f"({int(limit[edge[r]])}: its nominal's steps and controller.max_steps "
+                                     f"{int(steps_past_edge)})")
+        # a landing in a node is tested from the nominal's last step on (both engines): never earlier, but
+        # in a goal node, which a goal ball's gate may reach at any step
+        nominal = np.asarray(design, dtype=np.int64)[rows][edge]
+        code = np.asarray(arrays["steps_code"], dtype=np.int64)
+        kind = stages["nodes"][0].get("kind")
+        landed = code >= 0
+        if kind is not None:
+            landed[landed] = np.asarray(kind)[code[landed]] != GOAL
+        bad = np.flatnonzero(landed & (value < nominal))
+        if bad.size:
+            r = int(bad[0])
+            _fail(at("steps_value"), f"row {r} lands a particle of edge {int(edge[r])} in node {int(code[r])} after "
+                                     f"{int(value[r])} steps, before its nominal's {int(nominal[r])} steps end (a "
+                                     "landing is tested from then on)")

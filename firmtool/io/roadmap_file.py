@@ -52,18 +52,17 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import h5py
 import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import FileBusyError, RoadmapError
-from firmtool.io import hdf5
+from firmtool.io import hdf5, scenario_source
 from firmtool.io.attributes import ROOT_ATTRIBUTES, check_attributes, check_stage_attributes
-from firmtool.io import scenario_source
 from firmtool.io.memory_file import MemoryFile, as_target, readable, size_of
-from firmtool.io.roadmap_checks import check_edges, check_shapes, check_stage
+from firmtool.io.roadmap_checks import check_edges, check_edges_model, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
     CACHE,
     ENCODING_TYPE,
@@ -129,6 +128,7 @@ class RoadmapFile:
         self._dims: dict[str, int] = {"C": 3, "H": 32}  # cost terms (sum tr P, steps, effort); sha256 bytes
         self._checked: set[str] = set()
         self._edge_rows: np.ndarray | None = None
+        self._edge_model: dict[str, Any] | None = None  # what check_model knows of the model, for /edges
 
     def _read(self, f: h5py.File) -> None:
         p = self.path
@@ -260,14 +260,27 @@ class RoadmapFile:
         rows = check_stage(self.path, stage, self.stages, self._dims)
         if stage == "edges":
             self._edge_rows = rows
+            if self._edge_model is not None:  # the model is known (check_model ran): its checks of /edges
+                check_edges_model(self.path, self.stages, rows, **self._edge_model)
         self._checked.add(stage)
 
     def check_model(self, n: int, m: int, nz: int, config_dim: int, lo: np.ndarray, hi: np.ndarray,
-                    is_valid: Any = None) -> None:
+                    is_valid: Any = None, *, world_dim: int | None = None, steps_past_edge: int | None = None,
+                    points: Callable[[np.ndarray], np.ndarray] | None = None, reach: float = 0.0) -> None:
         """Check the stages present against the model of the stored scenario: state, input and
         measurement dimensions, node centres within (a margin of) the configuration bounds and, with
-        ``is_valid``, valid (collision-free, in bounds)."""
+        ``is_valid``, valid (collision-free, in bounds).
+
+        With ``world_dim``, ``steps_past_edge`` (``controller.max_steps``), ``points`` (the robot's
+        key points of states, (M, n) -> (M, P, D)) and ``reach`` (the robot's world reach), the
+        ``/edges`` table is checked against them when it is read (now, if it was already):
+        :func:`firmtool.io.roadmap_checks.check_edges_model`."""
         p = self.path
+        if world_dim is not None or steps_past_edge is not None or points is not None:
+            self._edge_model = {"world_dim": world_dim, "steps_past_edge": steps_past_edge, "points": points,
+                                "reach": float(reach)}
+            if "edges" in self._checked:
+                check_edges_model(self.path, self.stages, self._edge_rows, **self._edge_model)
         for stage, symbol, size, what in (("nodes", "n", n, "state"), ("controllers", "m", m, "input"),
                                           ("controllers", "nz", nz, "measurement")):
             if stage not in self.stages:

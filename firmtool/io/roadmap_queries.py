@@ -7,6 +7,10 @@ An image rather than a group of the query's own datasets: the query's roadmap is
 executed and plotted by exactly the code that reads a roadmap file, with nothing to keep in step.
 What it costs: each query holds a copy of the edge table it uses (the roadmap's reused estimates
 too). Written by :func:`firmtool.io.roadmap_write.write_queries`.
+
+Read one at a time: :func:`query_names` lists the names without reading any image, and
+:func:`query_image` reads the one image asked for, after checking that the file stores every byte it
+declares (a crafted file of kilobytes may declare gigabytes of unwritten queries).
 """
 
 from __future__ import annotations
@@ -17,40 +21,93 @@ from typing import Any
 import h5py
 import numpy as np
 
-from firmtool.errors import RoadmapError
-from firmtool.io.memory_file import MemoryFile, readable
+from firmtool.errors import RoadmapError, cut
+from firmtool.io import hdf5
+from firmtool.io.memory_file import MemoryFile, as_target, readable
 from firmtool.io.roadmap_format import MAX_READ_BYTES, QUERIES, short
 
-QUERY_NAME = r"[A-Za-z0-9_.-]{1,64}"  # a query's name: what a dataset's name and a shell word both hold
+# A query's name: what an HDF5 dataset's name and a shell word both hold, never '.' or '..' (HDF5's
+# names of a group itself and its parent) nor a leading '-' (an option to a shell).
+QUERY_NAME = r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}"
+# Most bytes of one stored query's image read: a query's roadmap is a roadmap (the reader's bound).
+MAX_QUERY_BYTES = MAX_READ_BYTES
 
 
-def query_images(path: str | Path | MemoryFile) -> dict[str, tuple[bytes, dict[str, Any]]]:
-    """The stored queries of a roadmap file: name -> (image bytes, attributes); {} without any.
+def query_names(path: str | Path | MemoryFile) -> list[str]:
+    """The names of the queries stored in a roadmap file, sorted; [] without any. Nothing of their
+    images is read (``inspect`` and :attr:`firmtool.Roadmap.queries` list them).
 
     Raises
     ------
     RoadmapError
-        A ``/queries`` entry that is not a plain uint8 dataset in the file (a link, external or
-        virtual storage, another type) or larger than the reader reads.
+        ``/queries`` that is not a group stored in the file, or holds more members than a group may.
     """
-    out: dict[str, tuple[bytes, dict[str, Any]]] = {}
     try:
-        with h5py.File(readable(path), "r") as f:
-            if QUERIES not in f:
-                return out
-            g = f[QUERIES]
-            if not isinstance(g, h5py.Group) or not isinstance(f.get(QUERIES, getlink=True), h5py.HardLink):
-                raise RoadmapError(f"{path}: '/{QUERIES}' is not a group (file damaged)")
-            for name in g:
-                at = f"{path}: '/{QUERIES}/{name}'"
-                if not isinstance(g.get(name, getlink=True), h5py.HardLink):
-                    raise RoadmapError(f"{at} is a link, not a stored query")
-                d = g[name]
-                if not isinstance(d, h5py.Dataset) or d.dtype != np.uint8 or d.ndim != 1 or d.external or d.is_virtual:
-                    raise RoadmapError(f"{at} is not a stored query (a uint8 dataset in the file)")
-                if d.size > MAX_READ_BYTES:
-                    raise RoadmapError(f"{at} is larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged)")
-                out[name] = (d[()].tobytes(), {k: d.attrs[k] for k in d.attrs})
+        with _open(path) as f:
+            g = _group(f, path)
+            if g is None:
+                return []
+            return sorted(name for name, _ in _entries(g, path))
     except OSError as exc:
         raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
+
+
+def query_image(path: str | Path | MemoryFile, name: str) -> tuple[bytes, dict[str, Any]] | None:
+    """The stored query ``name``: (its roadmap image's bytes, its attributes), or None if there is no
+    such query. Only that query's image is read, and only after its declared size was checked
+    against what the file stores for it (a plain uint8 dataset, stored contiguously in the file,
+    whole: a size declared but never written is refused, never allocated).
+
+    Raises
+    ------
+    RoadmapError
+        The entry is a link, stored outside the file, of another type or layout, larger than
+        :data:`MAX_QUERY_BYTES`, or declares more bytes than the file stores for it.
+    """
+    try:
+        with _open(path) as f:
+            g = _group(f, path)
+            if g is None or hdf5.link_kind(g, name) is None:
+                return None
+            at = f"{path}: '/{QUERIES}/{name}'"
+            d = hdf5.member(g, name, f"/{QUERIES}", path, RoadmapError)
+            if not isinstance(d, h5py.Dataset) or d.dtype != np.uint8 or d.ndim != 1:
+                raise RoadmapError(f"{at} is not a stored query (a uint8 dataset in the file)")
+            declared = int(d.shape[0])
+            if declared > MAX_QUERY_BYTES:
+                raise RoadmapError(f"{at} declares {declared} bytes, more than {MAX_QUERY_BYTES / 2**30:.0f} GiB "
+                                   "(file damaged)")
+            stored = d.id.get_storage_size()
+            if d.chunks is not None or d.compression is not None or stored != declared:
+                raise RoadmapError(f"{at} declares {declared} bytes but the file stores {stored} for it (a query's "
+                                   "image is stored whole and uncompressed; file damaged or crafted)")
+            attrs = {k: d.attrs[k] for k in d.attrs}
+            return hdf5.read_value(d, f"/{QUERIES}/{name}", path, RoadmapError).tobytes(), attrs
+    except OSError as exc:
+        raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
+
+
+def _open(path: str | Path | MemoryFile) -> h5py.File:
+    target = as_target(path)
+    if isinstance(target, MemoryFile):
+        return h5py.File(readable(target), "r")
+    return hdf5.open_regular(target, "HDF5 roadmap file", RoadmapError)
+
+
+def _group(f: h5py.File, path: Any) -> h5py.Group | None:
+    g = hdf5.member(f, QUERIES, "/", path, RoadmapError)
+    if g is not None and not isinstance(g, h5py.Group):
+        raise RoadmapError(f"{path}: '/{QUERIES}' is not a group (file damaged)")
+    return g
+
+
+def _entries(g: h5py.Group, path: Any) -> list[tuple[str, Any]]:
+    """The members of ``/queries`` (each a hard link to a dataset stored in the file), checked
+    without reading their data."""
+    out = []
+    for name, d in hdf5.members(g, f"/{QUERIES}", path, RoadmapError):
+        if not isinstance(d, h5py.Dataset):
+            raise RoadmapError(f"{path}: '/{QUERIES}/{cut(name, 64)}' is not a stored query (a uint8 dataset in the "
+                               "file)")
+        out.append((name, d))
     return out

@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 import scipy.linalg
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.models import noise as noise_models
 from firmtool.models.noise import NoiseModel
 
@@ -157,7 +157,7 @@ def _matrix(name: str, M, shape: tuple[int | None, int | None]) -> np.ndarray:
     try:
         arr = np.atleast_2d(np.asarray(M, dtype=float))
     except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a numeric matrix but found {M!r}") from None
+        raise InputError(f"{name}: expected a numeric matrix but found {quoted(M)}") from None
     want = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
     if arr.ndim != 2 or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
         raise InputError(f"{name}: expected shape {want} but found {arr.shape}")
@@ -211,7 +211,7 @@ def discretize_statespace(sys, G, Q, dt: float | None = None) -> tuple[np.ndarra
         if dt is not None and float(dt) != step:
             raise InputError(f"dt: the discrete system's step is {step:g}, found dt = {dt:g}")
     if not (np.isfinite(step) and step > 0):
-        raise InputError(f"dt: expected a finite step > 0, found {step!r}")
+        raise InputError(f"dt: expected a finite step > 0, found {quoted(step)}")
     if continuous:
         Ad, Bd, Qd = discretize(A, B, G, Q, step)
     else:

@@ -31,7 +31,7 @@ from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.util.schema import Field
 
 
@@ -199,9 +199,9 @@ _FORMS: dict[str, type[NoiseModel]] = {}
 def register(form: str, cls: type[NoiseModel]) -> type[NoiseModel]:
     """Register a noise form under ``form`` (the scenario's ``measurement.noise``); returns ``cls``."""
     if not (isinstance(cls, type) and issubclass(cls, NoiseModel)):
-        raise InputError(f"noise form {form!r}: expected a NoiseModel subclass, found {cls!r}")
+        raise InputError(f"noise form {quoted(form)}: expected a NoiseModel subclass, found {quoted(cls)}")
     if not form or not all(ch.isalnum() or ch in "_-." for ch in form):
-        raise InputError(f"noise form {form!r}: expected a name of letters, digits, '_', '-' or '.'")
+        raise InputError(f"noise form {quoted(form)}: expected a name of letters, digits, '_', '-' or '.'")
     _FORMS[form] = cls
     return cls
 
@@ -211,7 +211,7 @@ def get(form: str) -> type[NoiseModel]:
     try:
         return _FORMS[form]
     except KeyError:
-        raise InputError(f"unknown noise form {form!r}; known: {', '.join(names())}") from None
+        raise InputError(f"unknown noise form {quoted(form)}; known: {', '.join(names())}") from None
 
 
 def names(scenario_only: bool = False) -> tuple[str, ...]:

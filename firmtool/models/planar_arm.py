@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 
 
 def validated_lengths(link_lengths) -> np.ndarray:
@@ -27,9 +27,9 @@ def validated_lengths(link_lengths) -> np.ndarray:
     try:
         ll = np.asarray(link_lengths, dtype=float)
     except (TypeError, ValueError):
-        raise InputError(f"link_lengths: expected positive numbers but found {link_lengths!r}") from None
+        raise InputError(f"link_lengths: expected positive numbers but found {quoted(link_lengths)}") from None
     if ll.ndim != 1 or ll.size == 0 or not np.all(np.isfinite(ll)) or np.any(ll <= 0):
-        raise InputError(f"link_lengths: expected a non-empty 1-D array of positive lengths but found {ll!r}")
+        raise InputError(f"link_lengths: expected a non-empty 1-D array of positive lengths but found {quoted(ll)}")
     return ll
 
 
@@ -37,7 +37,7 @@ def _angles(theta, L: int) -> np.ndarray:
     try:
         th = np.asarray(theta, dtype=float)
     except (TypeError, ValueError):
-        raise InputError(f"theta: expected joint angles but found {theta!r}") from None
+        raise InputError(f"theta: expected joint angles but found {quoted(theta)}") from None
     if th.ndim not in (1, 2) or th.shape[-1] != L:
         raise InputError(f"theta: expected shape ({L},) or (M, {L}) but found {th.shape}")
     return th
@@ -46,7 +46,7 @@ def _angles(theta, L: int) -> np.ndarray:
 def _base(base) -> np.ndarray:
     b = np.asarray(base, dtype=float)
     if b.shape != (2,) or not np.all(np.isfinite(b)):
-        raise InputError(f"base: expected 2 finite coordinates but found {base!r}")
+        raise InputError(f"base: expected 2 finite coordinates but found {quoted(base)}")
     return b
 
 
@@ -170,7 +170,7 @@ def inverse_kinematics_tip(target: np.ndarray, link_lengths: np.ndarray, theta0:
     b = _base(base)
     tgt = np.asarray(target, dtype=float)
     if tgt.shape != (2,) or not np.all(np.isfinite(tgt)):
-        raise InputError(f"target: expected 2 finite coordinates but found {target!r}")
+        raise InputError(f"target: expected 2 finite coordinates but found {quoted(target)}")
     if int(max_restarts) < 0 or not (tol > 0) or int(max_iter) < 1:
         raise InputError("inverse_kinematics_tip: expected max_restarts >= 0, tol > 0, max_iter >= 1")
     inner, outer = reach(ll)

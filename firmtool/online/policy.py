@@ -67,7 +67,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.geometry.shapes import Obstacle
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.online.arrival import Arrival
@@ -75,8 +75,8 @@ from firmtool.online.decision import KeepOrReplan
 from firmtool.online.record import Traversal
 from firmtool.online.replanning import DEADLINE_FALSE_ALARMS, Replanner, ReplanSettings, mission_false_alarm
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
-from firmtool.online.timing import TimingSummary
 from firmtool.online.running import EdgeControllers
+from firmtool.online.timing import TimingSummary
 from firmtool.online.world import Worlds
 from firmtool.problem import Problem
 from firmtool.results import Event
@@ -95,7 +95,7 @@ def with_mode(settings: ReplanSettings | None, mode: str) -> ReplanSettings:
     """The settings a policy of ``mode`` runs with: ``"rollout"`` turns :attr:`ReplanSettings.rollout`
     on, ``"base"`` keeps the settings as given (default ones without)."""
     if mode not in MODES:
-        raise InputError(f"Policy mode: expected one of {', '.join(MODES)}, found {mode!r}")
+        raise InputError(f"Policy mode: expected one of {', '.join(MODES)}, found {quoted(mode)}")
     settings = settings or ReplanSettings()
     return dataclasses.replace(settings, rollout=True) if mode == ROLLOUT else settings
 

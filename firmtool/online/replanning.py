@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from firmtool.control.gains import lqr_weights
 from firmtool.control.local import LocalController, plan_local_controller
-from firmtool.errors import InputError, NumericalError
+from firmtool.errors import InputError, NumericalError, quoted
 from firmtool.estimation.edges import simulate
 from firmtool.graph.dp import policy_path
 from firmtool.io.roadmap_format import GOAL
@@ -247,15 +247,15 @@ class ReplanSettings:
         if self.deadline is not None and not (np.isfinite(self.deadline) and self.deadline > 0):
             raise InputError(f"replan deadline: expected a number of seconds > 0, found {self.deadline}")
         if self.clock not in CLOCKS:
-            raise InputError(f"replan clock: expected one of {', '.join(CLOCKS)}, found {self.clock!r}")
+            raise InputError(f"replan clock: expected one of {', '.join(CLOCKS)}, found {quoted(self.clock)}")
         if self.candidate_seconds is not None and not (np.isfinite(self.candidate_seconds)
                                                        and self.candidate_seconds > 0):
             raise InputError(f"replan candidate_seconds: expected a number > 0, found {self.candidate_seconds}")
         if self.jump_velocity not in JUMP_VELOCITIES:
             raise InputError(f"replan jump_velocity: expected one of {', '.join(JUMP_VELOCITIES)}, "
-                             f"found {self.jump_velocity!r}")
+                             f"found {quoted(self.jump_velocity)}")
         if str(self.latency) not in LATENCIES:
-            raise InputError(f"replan latency: expected one of {', '.join(LATENCIES)}, found {self.latency!r}")
+            raise InputError(f"replan latency: expected one of {', '.join(LATENCIES)}, found {quoted(self.latency)}")
         if not 0.0 <= self.goal_check < 1.0:
             raise InputError(f"replan goal_check: expected a probability in [0, 1), found {self.goal_check}")
         for name in ("false_alarm", "jump_false_alarm"):

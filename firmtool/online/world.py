@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 import scipy.sparse
 
-from firmtool.errors import InputError, ScenarioError
+from firmtool.errors import MAX_EXPECTED, InputError, ScenarioError, cut
 from firmtool.geometry.shapes import Obstacle
 from firmtool.graph.dp import solve_dp
+from firmtool.io.limits import MAX_ITEMS
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.world_change import WorldChange, meets, world_change
 from firmtool.util.hashing import digest
@@ -93,6 +94,9 @@ def obstacle_tables(obstacles: Iterable[Mapping[str, Any] | Obstacle]) -> list[d
     tables as given, :class:`~firmtool.geometry.shapes.Obstacle` objects by their keys."""
     out = []
     for o in obstacles:
+        if len(out) >= MAX_ITEMS:  # counted as they come: an iterable may not end
+            raise InputError(f"update_world: obstacles: expected at most {MAX_ITEMS} obstacles (as world.obstacles "
+                             "of a scenario), found more")
         if isinstance(o, Obstacle):
             out.append(o.to_table())
         elif isinstance(o, Mapping):
@@ -125,7 +129,7 @@ def world_update(base: Problem, table: EdgeTable, centers: np.ndarray, obstacles
         scenario = base.scenario.replace(world=world)
         problem = build_problem(scenario, validity=base.validity)
     except ScenarioError as exc:
-        raise InputError(f"update_world: {exc.field}: {exc.expected}") from None
+        raise InputError(f"update_world: {cut(exc.field or 'world')}: {cut(exc.expected, MAX_EXPECTED)}") from None
     change = world_change(base.scenario.world, scenario.world)
     blocked = blocked_edges(table, change, problem.robot.world_reach(), np.asarray(problem.is_valid(centers), bool))
     policy, cost_to_go = resolve(table, blocked)

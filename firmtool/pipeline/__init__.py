@@ -39,6 +39,7 @@ from firmtool.pipeline.sample import add_nodes_stage, check_start_apart_from_goa
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
 from firmtool.pipeline.solve import (
     PolicyGroup,
+    roadmap_deadline_budget,
     solve_policy,
     solve_report,
     solve_stage,
@@ -49,7 +50,7 @@ from firmtool.pipeline.target import RoadmapTarget, check_output, default_output
 
 __all__ = [
     "BuildRequest", "CHECKPOINT_SECONDS", "Densify", "EstimationInterrupted", "PolicyGroup", "RoadmapTarget",
-    "Query", "VALIDITY_ATTR", "WorkerSettings", "answer_query", "store_queries", "stored_query", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
+    "Query", "VALIDITY_ATTR", "roadmap_deadline_budget", "WorkerSettings", "answer_query", "store_queries", "stored_query", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
     "build_roadmap", "check_output", "check_start_apart_from_goals", "controllers_inputs", "default_output",
     "design_of", "design_stage", "edge_probabilities", "edges_inputs", "estimate_stage", "execution_design",
     "in_memory", "node_task_points", "nodes_inputs", "policy_inputs", "problem_of", "roadmap_connectivity",

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from firmtool.errors import InputError, RoadmapError, ScenarioError
+from firmtool.errors import InputError, RoadmapError, ScenarioError, cut, quoted
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, edge_keys, from_arrays, to_arrays
 from firmtool.estimation.edges import GOAL_MISS, EdgeEstimate
@@ -45,7 +45,7 @@ from firmtool.estimation.executors import Workers
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache
 from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
-from firmtool.io.roadmap_queries import QUERY_NAME, query_images
+from firmtool.io.roadmap_queries import QUERY_NAME, query_image, query_names
 from firmtool.io.roadmap_write import write_queries
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
@@ -120,12 +120,26 @@ def query_scenario(base: Scenario, query: Query, where: str) -> Scenario:
 
 
 def query_name(query: Query, scenario: Scenario) -> str:
-    """The query's name: its own, checked, or ``q-`` and 8 hex digits of its task section's hash."""
+    """The query's name: its own, checked (:func:`check_query_name`), or ``q-`` and 8 hex digits of
+    its task section's hash."""
     if query.name is None:
         return "q-" + digest(scenario.task).hex()[:8]
-    if not re.fullmatch(QUERY_NAME, query.name):
-        raise InputError(f"--name: expected letters, digits, '.', '_' or '-' (at most 64), found {query.name!r}")
-    return query.name
+    return check_query_name(query.name)
+
+
+def check_query_name(name: Any) -> str:
+    """``name`` if a query may be stored under it (a dataset's name in ``/queries`` and one shell
+    word: :data:`firmtool.io.roadmap_queries.QUERY_NAME`); checked before anything is computed.
+
+    Raises
+    ------
+    InputError
+        Any other name (``--name``), quoted at most 200 characters.
+    """
+    if not isinstance(name, str) or not re.fullmatch(QUERY_NAME, name):
+        raise InputError("--name: expected 1 to 64 letters, digits, '.', '_' or '-', starting with a letter, digit "
+                         f"or '_', found {quoted(name)}")
+    return name
 
 
 @dataclasses.dataclass
@@ -385,10 +399,10 @@ def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]],
     with locked(path):  # one writer at a time, as every stage writes; the check and the write under it
         base = RoadmapFile(path)
         edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
-        existing = query_images(path)
+        existing = set(query_names(path))
         for name in answers:
             if name in existing and not force:
-                raise InputError(f"{path}: a query named {name!r} is stored already; give --force to replace it, "
+                raise InputError(f"{path}: a query named {quoted(name)} is stored already; give --force to replace it, "
                                  "or another --name")
         write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **_summary(report)})
                              for name, (image, report) in answers.items()})
@@ -410,15 +424,15 @@ def stored_query(path: Any, name: str) -> MemoryFile:
     RoadmapError
         A query answered on edges the roadmap no longer has (answer it again).
     """
-    images = query_images(path)
-    if name not in images:
-        have = ", ".join(sorted(images)) or "none"
-        raise InputError(f"{path}: --query: no query named {name!r} (stored: {have})")
-    data, attrs = images[name]
+    found = query_image(path, name) if re.fullmatch(QUERY_NAME, str(name)) else None
+    if found is None:
+        have = cut(", ".join(query_names(path)) or "none")
+        raise InputError(f"{path}: --query: no query named {quoted(name)} (stored: {have})")
+    data, attrs = found
     base = RoadmapFile(path)
     edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
     if str(attrs.get("base_edges_sha256", "")) != str(edges):
-        raise RoadmapError(f"{path}: query {name!r} was answered on edges this roadmap no longer has; answer it "
+        raise RoadmapError(f"{path}: query {quoted(name)} was answered on edges this roadmap no longer has; answer it "
                            f"again (firmtool solve {path} --goal ... --name {name} --force)")
     image = MemoryFile(f"{path}#{name}")
     image.data = data

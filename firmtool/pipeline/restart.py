@@ -7,7 +7,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from firmtool.errors import FileBusyError, InputError, RoadmapError
+from firmtool.errors import FileBusyError, InputError, RoadmapError, quoted
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.scenario import Scenario
@@ -69,7 +69,7 @@ def check_same_scenario(previous: RoadmapFile, scenario: Scenario, *, force: boo
     """
     old_name = scenario_name(previous)
     if old_name and old_name != scenario.name and not force:
-        raise InputError(f"{previous.path}: holds the roadmap of scenario {old_name!r}, not {scenario.name!r}; "
+        raise InputError(f"{previous.path}: holds the roadmap of scenario {quoted(old_name)}, not {quoted(scenario.name)}; "
                          "give another output (-o) or --force to replace it")
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.estimation.budgets import check_workers
 from firmtool.problem import Problem
 from firmtool.util import arguments
@@ -48,7 +48,7 @@ def check_executor(executor: str, scheduler: str | None = None) -> None:
     """Refuse an unknown executor, or a dask scheduler address dask cannot parse (one line naming
     ``--executor`` or ``--scheduler``, not dask's own error deep inside the first stage)."""
     if executor not in EXECUTORS:
-        raise InputError(f"--executor: expected 'process' or 'dask', found {executor!r}")
+        raise InputError(f"--executor: expected 'process' or 'dask', found {quoted(executor)}")
     arguments.scheduler_address(scheduler)
 
 

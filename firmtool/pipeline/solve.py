@@ -11,10 +11,17 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from firmtool.errors import RunFailure, Unreachable
+from firmtool.errors import InputError, RoadmapError, RunFailure, Unreachable
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.edge_table import edge_costs
-from firmtool.graph.deadline import StepRows, smallest_feasible_deadline, solve_deadline
+from firmtool.graph.deadline import (
+    DeadlineBudget,
+    StepRows,
+    deadline_budget,
+    shown_steps,
+    smallest_feasible_deadline,
+    solve_deadline,
+)
 from firmtool.graph.dp import SolveStatus, policy_path, shortest_path_policy, solve_dp, success_probability
 from firmtool.io.consistency import check_unchanged
 from firmtool.io.memory_file import MemoryFile
@@ -76,8 +83,7 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     if edges["source"].size == 0:
-        raise RunFailure(f"{roadmap.path}: no edge was estimated (every edge's Monte Carlo failed); "
-                         "run 'firmtool estimate' again")
+        raise no_edge_failure(roadmap)
     cost = edge_costs(edges, problem.scenario.cost)
     landing, fail, timeout, _ = edge_probabilities(roadmap)
     N = landing.shape[1]
@@ -102,8 +108,9 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
               "success_probability": p, "unreachable": res.unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
+    field = "task.deadline_steps" if deadline is None else "deadline"
     deadline = problem.scenario.task.deadline_steps if deadline is None else int(deadline)
-    timed = _deadline_arrays(roadmap, N, goals, cost, JF, deadline) if deadline is not None else ({}, {})
+    timed = _deadline_arrays(roadmap, N, goals, cost, JF, deadline, field) if deadline is not None else ({}, {})
     arrays.update(timed[0])
     attrs = {"inputs_sha256": policy_inputs(str(roadmap.attrs("edges")["inputs_sha256"]), JF, method,
                                             problem.scenario.cost, deadline), **timed[1],
@@ -113,24 +120,68 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     return PolicyGroup(arrays=arrays, attrs=attrs, seconds=time.perf_counter() - t0)
 
 
+def no_edge_failure(roadmap: RoadmapFile) -> RunFailure:
+    """Why a roadmap has no estimated edge, in words that blame the right thing: a design without an
+    edge (no collision-free nominal between its nodes; after a world update, the new world cut them
+    all), or every designed edge's Monte Carlo failed."""
+    designed = roadmap.require("controllers", "edge_source", fresh=False)["edge_source"].size
+    if designed == 0:
+        updated = "updated_from" in roadmap.attrs("nodes")
+        why = ("the world update left no collision-free edge between the roadmap's nodes; build a new roadmap in the "
+               "new world" if updated else "no collision-free nominal joins two of its nodes; add nodes or raise "
+               "roadmap.neighbors / roadmap.max_edge_length")
+        return RunFailure(f"{roadmap.path}: the roadmap has no edge ({why})")
+    failed = int(roadmap.attrs("edges").get("failed_edges", 0) or 0)
+    return RunFailure(f"{roadmap.path}: no edge was estimated (the Monte Carlo of {failed or 'every'} of its {designed} "
+                      "designed edges failed); run 'firmtool estimate' again")
+
+
+def step_rows(roadmap: RoadmapFile) -> StepRows:
+    """The edges' step histograms as :class:`firmtool.graph.deadline.StepRows` (checked by the reader).
+
+    Raises
+    ------
+    RoadmapError
+        No estimated edges, or edges estimated before firmtool recorded step histograms.
+    """
+    table = roadmap.table("edges")
+    if not table:
+        raise RoadmapError(f"{roadmap.path}: stage 'edges' is missing; run 'firmtool estimate' first")
+    if any(f"steps_{n}" not in table for n in ("edge", "code", "value", "count")):
+        raise RoadmapError(f"{roadmap.path}: its edges hold no step histograms (estimated before firmtool recorded "
+                           f"them), which a deadline's DP needs; estimate them once: firmtool estimate {roadmap.path} "
+                           "--fresh")
+    return StepRows.from_counts(table["steps_edge"], table["steps_code"], table["steps_value"], table["steps_count"],
+                                table["particles"])
+
+
+def roadmap_deadline_budget(roadmap: RoadmapFile) -> DeadlineBudget:
+    """The deadline budget of ``roadmap`` (:func:`firmtool.graph.deadline.deadline_budget`)."""
+    rows = step_rows(roadmap)
+    return deadline_budget(roadmap.require("nodes", "kind", fresh=False)["kind"].size, rows)
+
+
 def _deadline_arrays(roadmap: RoadmapFile, N: int, goals: np.ndarray, cost: np.ndarray, JF: float,
-                     deadline: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """The time-indexed policy's datasets and attributes (:func:`solve_policy`'s ``deadline``)."""
+                     deadline: int, field: str = "deadline") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The time-indexed policy's datasets and attributes (:func:`solve_policy`'s ``deadline``, from
+    ``field``), its budget checked first (:func:`firmtool.graph.deadline.deadline_budget`)."""
     table = roadmap.table("edges")
     if any(f"steps_{n}" not in table for n in ("edge", "code", "value", "count")):
         raise RunFailure(f"{roadmap.path}: its edges hold no step histograms (estimated before firmtool recorded "
                          f"them), which a deadline's DP needs; estimate them once: firmtool estimate {roadmap.path} "
                          "--fresh")
     if deadline < 1:
-        raise RunFailure(f"{roadmap.path}: deadline: expected a number of steps >= 1, found {deadline}")
+        raise InputError(f"{roadmap.path}: {field}: expected a number of steps >= 1, found {shown_steps(deadline)}")
     rows = StepRows.from_counts(table["steps_edge"], table["steps_code"], table["steps_value"], table["steps_count"],
                                 table["particles"])
+    budget = deadline_budget(N, rows)
+    budget.check(deadline, field, str(roadmap.path))  # before the DP allocates its (T + 1, N) arrays
     source = table["source"].astype(np.int64)
     res = solve_deadline(N, goals, source, cost, rows, JF, deadline)
     if res.success[deadline, START_INDEX] <= 0:
-        least = smallest_feasible_deadline(N, goals, source, rows, START_INDEX, 10**9)
+        least = smallest_feasible_deadline(N, goals, source, rows, START_INDEX, budget.steps)
         advice = (f"the least deadline that can is {least} steps" if least is not None else
-                  "the goal cannot be reached from the start at all")
+                  "the goal cannot be reached from the start at all under the estimated edges")
         raise RunFailure(f"{roadmap.path}: deadline {deadline}: no chain of edges reaches the goal from the start "
                          f"within {deadline} steps; {advice}")
     return ({"deadline_edge": res.policy, "deadline_success": res.success},

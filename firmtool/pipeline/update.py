@@ -31,10 +31,11 @@ import collections
 import dataclasses
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, cut
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edges import EdgeEstimate
 from firmtool.estimation.executors import Workers, default_workers
@@ -79,7 +80,8 @@ def check_update(old: Scenario, new: Scenario) -> None:
         raise InputError(f"{new.path}: scenario.seed: differs from the roadmap's ({old.seed}); {rebuild}")
     for section in FIXED_SECTIONS:
         if digest(getattr(old, section)) != digest(getattr(new, section)):
-            raise InputError(f"{new.path}: [{section}]: differs from the roadmap's; an update changes only [world] "
+            field = changed_field(section, getattr(old, section), getattr(new, section))
+            raise InputError(f"{new.path}: {field}: differs from the roadmap's; an update changes only [world] "
                              f"(and {', '.join(f'[{s}]' for s in FREE_SECTIONS)}); {rebuild}")
     if old.world.dim != new.world.dim:
         raise InputError(f"{new.path}: world.bounds: a {new.world.dim}-D world, the roadmap's is {old.world.dim}-D; "
@@ -88,6 +90,22 @@ def check_update(old: Scenario, new: Scenario) -> None:
         if getattr(old.world, name) != getattr(new.world, name):
             raise InputError(f"{new.path}: world.{name}: differs from the roadmap's ({getattr(old.world, name)}); "
                              f"{rebuild}")
+
+
+def changed_field(section: str, old: Any, new: Any) -> str:
+    """The first field of ``section`` whose value differs between two specs (``model.link_lengths``,
+    ``task.goal``): a refusal names the field, not only its section; the section itself if no single
+    field differs (e.g. a key set apart from the values)."""
+    fields = [f.name for f in dataclasses.fields(old)] if dataclasses.is_dataclass(old) else []
+    for name in fields:
+        a, b = getattr(old, name, None), getattr(new, name, None)
+        if isinstance(a, dict) and isinstance(b, dict):  # a robot's or a noise law's keys (ModelSpec.params)
+            for key in sorted(set(a) | set(b), key=str):
+                if key not in a or key not in b or digest(a[key]) != digest(b[key]):
+                    return f"{section}.{cut(str(key))}"
+        elif digest(a) != digest(b):
+            return f"{section}.{name}"
+    return f"[{section}]"
 
 
 @dataclasses.dataclass

@@ -13,7 +13,7 @@ import importlib
 import pkgutil
 from typing import Any
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.robots import installed
 from firmtool.robots.base import Robot
 
@@ -50,16 +50,16 @@ def register(name: str, cls: type[Robot], *, replace: bool = False) -> type[Robo
     module registers it at the end of the module.)
     """
     if not isinstance(name, str) or not name or not all(ch.isalnum() or ch in "_-." for ch in name):
-        raise InputError(f"robot name {name!r}: expected a name of letters, digits, '_', '-' or '.'")
+        raise InputError(f"robot name {quoted(name)}: expected a name of letters, digits, '_', '-' or '.'")
     if not (isinstance(cls, type) and issubclass(cls, Robot)):
-        raise InputError(f"robot {name!r}: expected a subclass of firmtool.robots.Robot, found {cls!r}")
+        raise InputError(f"robot {quoted(name)}: expected a subclass of firmtool.robots.Robot, found {quoted(cls)}")
     if not _builtin(cls):
         _load_builtins()
     old = _REGISTERED.get(name)
     if old is not None and old is not cls and _builtin(old):
-        raise InputError(f"robot {name!r} is built in; register yours under another name")
+        raise InputError(f"robot {quoted(name)} is built in; register yours under another name")
     if old is not None and old is not cls and not replace:
-        raise InputError(f"robot {name!r} is already registered ({old.__module__}.{old.__qualname__}); "
+        raise InputError(f"robot {quoted(name)} is already registered ({old.__module__}.{old.__qualname__}); "
                          "pass replace=True to replace it")
     _REGISTERED[name] = cls
     return cls
@@ -86,15 +86,15 @@ def get(name: str) -> type[Robot]:
         try:
             cls = ep.load()
         except Exception as exc:  # noqa: BLE001 - report which package failed, in one line
-            raise InputError(f"robot {name!r}: its entry point {ep.value!r} fails to load "
+            raise InputError(f"robot {quoted(name)}: its entry point {quoted(ep.value)} fails to load "
                              f"({type(exc).__name__}: {exc})") from None
         if not (isinstance(cls, type) and issubclass(cls, Robot)):
-            raise InputError(f"robot {name!r}: entry point {ep.value!r} is not a firmtool.robots.Robot subclass")
+            raise InputError(f"robot {quoted(name)}: entry point {quoted(ep.value)} is not a firmtool.robots.Robot subclass")
         _REGISTERED[name] = cls
         return cls
-    raise InputError(f"unknown robot {name!r}; known: {', '.join(names())} (a robot defined in Python "
+    raise InputError(f"unknown robot {quoted(name)}; known: {', '.join(names())} (a robot defined in Python "
                      f"is registered with firmtool.robots.register, a package's through the entry-point "
-                     f"group {ENTRY_POINT_GROUP!r})")
+                     f"group {quoted(ENTRY_POINT_GROUP)})")
 
 
 def names() -> tuple[str, ...]:

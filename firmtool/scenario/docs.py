@@ -28,7 +28,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from firmtool import robots as robot_registry
-from firmtool.errors import InputError, OutputError
+from firmtool.errors import InputError, OutputError, quoted
 from firmtool.geometry.shapes import KIND_FIELD, KINDS
 from firmtool.io.atomic import check_target, write_bytes
 from firmtool.models import noise
@@ -201,7 +201,7 @@ def toml_value(value: Any) -> str:
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{k} = {toml_value(v)}" for k, v in value.items()) + " }"
-    raise TypeError(f"not a TOML value: {value!r}")
+    raise TypeError(f"not a TOML value: {quoted(value)}")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -410,10 +410,10 @@ def template(name: str, robot: str = DEFAULT_ROBOT) -> str:
         TOML text.
     """
     if robot not in template_robots():
-        raise InputError(f"--robot: expected one of {', '.join(template_robots())}, found {robot!r}")
+        raise InputError(f"--robot: expected one of {', '.join(template_robots())}, found {quoted(robot)}")
     problem = _name_problem(name)
     if problem:
-        raise InputError(f"NAME: {problem}, found {name!r}")
+        raise InputError(f"NAME: {problem}, found {quoted(name)}")
     values = {"scenario": {"name": name, "seed": 0,
                            "description": f"{'an' if robot[:1] in 'aeiou' else 'a'} {robot} robot (firmtool init)"},
               **robot_registry.get(robot).template}

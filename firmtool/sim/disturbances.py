@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.models.angles import on_turn_of
 from firmtool.problem import Problem
 from firmtool.roadmap.nodes import segment_is_valid
@@ -96,10 +96,10 @@ def _number(text: str, spec: str, what: str, kind: type = float) -> float:
     try:
         value = kind(text)
     except ValueError:
-        raise InputError(f"--disturbance {spec!r}: {what} must be a{'n integer' if kind is int else ' number'}, "
-                         f"found {text!r} (format: {SPEC_HELP})") from None
+        raise InputError(f"--disturbance {quoted(spec)}: {what} must be a{'n integer' if kind is int else ' number'}, "
+                         f"found {quoted(text)} (format: {SPEC_HELP})") from None
     if not np.isfinite(value):
-        raise InputError(f"--disturbance {spec!r}: {what} must be finite, found {text!r}")
+        raise InputError(f"--disturbance {quoted(spec)}: {what} must be finite, found {quoted(text)}")
     return value
 
 
@@ -116,7 +116,7 @@ def parse_disturbance(spec: str) -> Disturbance:
     parts = spec.strip().split(":")
     kind = parts[0].lower()
     if kind not in KINDS:
-        raise InputError(f"--disturbance {spec!r}: expected 'push', 'kidnap', 'obstacle' or 'obstacle-unseen' first "
+        raise InputError(f"--disturbance {quoted(spec)}: expected 'push', 'kidnap', 'obstacle' or 'obstacle-unseen' first "
                          f"(format: {SPEC_HELP})")
     if kind in (OBSTACLE, OBSTACLE_UNSEEN):
         return _obstacle(spec, kind, parts)
@@ -125,20 +125,20 @@ def parse_disturbance(spec: str) -> Disturbance:
     if len(parts) != expected[(kind, random_times)]:
         form = {(PUSH, False): "push:STEP:SIZE", (PUSH, True): "push:random:SIZE:RATE",
                 (KIDNAP, False): "kidnap:STEP", (KIDNAP, True): "kidnap:random:RATE"}[(kind, random_times)]
-        raise InputError(f"--disturbance {spec!r}: expected {form}")
+        raise InputError(f"--disturbance {quoted(spec)}: expected {form}")
     step, rate, size = None, 0.0, 0.0
     if random_times:
         rate = _number(parts[-1], spec, "RATE")
         if not 0.0 < rate <= 1.0:
-            raise InputError(f"--disturbance {spec!r}: RATE is a probability per step, expected 0 < RATE <= 1")
+            raise InputError(f"--disturbance {quoted(spec)}: RATE is a probability per step, expected 0 < RATE <= 1")
     else:
         step = int(_number(parts[1], spec, "STEP", int))
         if step < 0:
-            raise InputError(f"--disturbance {spec!r}: STEP must be >= 0")
+            raise InputError(f"--disturbance {quoted(spec)}: STEP must be >= 0")
     if kind == PUSH:
         size = _number(parts[2], spec, "SIZE")
         if size <= 0:
-            raise InputError(f"--disturbance {spec!r}: SIZE must be > 0")
+            raise InputError(f"--disturbance {quoted(spec)}: SIZE must be > 0")
     return Disturbance(kind=kind, step=step, rate=rate, size=size)
 
 
@@ -146,16 +146,16 @@ def _obstacle(spec: str, kind: str, parts: list[str]) -> Disturbance:
     """``obstacle[-unseen]:STEP:CX,CY[,CZ]:HX,HY[,HZ]`` (its dimension is checked against the world
     when the box is added)."""
     if len(parts) != 4:
-        raise InputError(f"--disturbance {spec!r}: expected {kind}:STEP:CX,CY:HX,HY")
+        raise InputError(f"--disturbance {quoted(spec)}: expected {kind}:STEP:CX,CY:HX,HY")
     step = int(_number(parts[1], spec, "STEP", int))
     if step < 0:
-        raise InputError(f"--disturbance {spec!r}: STEP must be >= 0")
+        raise InputError(f"--disturbance {quoted(spec)}: STEP must be >= 0")
     center = tuple(_number(v, spec, "a centre coordinate") for v in parts[2].split(","))
     half = tuple(_number(v, spec, "a half size") for v in parts[3].split(","))
     if len(center) != len(half) or len(center) not in (2, 3):
-        raise InputError(f"--disturbance {spec!r}: expected as many half sizes as centre coordinates (2 or 3)")
+        raise InputError(f"--disturbance {quoted(spec)}: expected as many half sizes as centre coordinates (2 or 3)")
     if min(half) <= 0:
-        raise InputError(f"--disturbance {spec!r}: the half sizes must be > 0")
+        raise InputError(f"--disturbance {quoted(spec)}: the half sizes must be > 0")
     return Disturbance(kind=kind, step=step, center=center, half_size=half)
 
 
