@@ -71,12 +71,14 @@ _EXPORTS = {
     "StaleScenarioWarning": "firmtool.errors",
     "WorldUpdateWarning": "firmtool.errors",
     "World": "firmtool.online.world",
+    "forward_kinematics": "firmtool.api.kinematics",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
     from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve, update
+    from firmtool.api.kinematics import forward_kinematics
     from firmtool.errors import (FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError,
                                  StaleScenarioWarning, Unreachable, WorldUpdateWarning)
     from firmtool.figures import plot
