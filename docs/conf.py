@@ -6,9 +6,9 @@ Build (warnings are errors, as in CI)::
     python docs/generate.py
     sphinx-build -W -b html docs docs/_build/html
 
-Pages are Markdown (MyST); the API reference comes from the numpydoc docstrings (autodoc,
-``docs/_ext/firmtool_docs.py``); the scenario reference, the command pages and the other generated
-parts are written into the committed pages from firmtool's own schema and command line by
+Pages are Markdown (MyST); the API reference (from the numpydoc docstrings: ``docs/api_markdown.py``,
+its groups checked against ``firmtool.__all__`` by ``docs/_ext/firmtool_docs.py``), the scenario
+reference, the command pages and the other generated parts are written into the committed pages from firmtool's own schema and command line by
 ``docs/generate.py`` (checked current by tests/test_generated_docs.py), so that none can drift from
 the code and all read on the repository page too.
 """

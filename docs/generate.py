@@ -12,7 +12,9 @@ the pages between two HTML comments, which both renderers hide::
     <!-- end generated -->
 
 The first comment names the block: ``help COMMAND``, ``commands``, ``template ROBOT``,
-``scenario-reference``, ``figures``, ``readme`` (the README up to its ``## Documentation``, with
+``scenario-reference``, ``figures``, ``api ENTRIES`` (the API reference from the docstrings:
+``docs/api_markdown.py``), ``results NAME...`` (the measured numbers of ``docs/results/numbers.json``:
+``docs/results_numbers.py``), ``readme`` (the README up to its ``## Documentation``, with
 its links made relative to docs/) or ``include PATH [pyobject=NAME] [start-at=TEXT]
 [end-before=TEXT] [language=LANG]`` (a file's text as a code block, ``PATH`` relative to the page,
 with a link to the file). ``tests/test_generated_docs.py`` fails when a page differs from what this
@@ -39,6 +41,10 @@ DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
 # The checkout documents itself, even where another version of firmtool is installed (as docs/conf.py).
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(DOCS))
+
+import api_markdown  # noqa: E402  (docs/api_markdown.py: the API reference as Markdown)
+import results_numbers  # noqa: E402  (docs/results_numbers.py: the results pages' measured numbers)
 
 from firmtool.cli import app  # noqa: E402
 from firmtool.scenario.docs import md_escape, reference_markdown, template  # noqa: E402
@@ -206,6 +212,11 @@ def readme_part() -> str:
 
 def render_block(page: Path, spec: str) -> str:
     """The text of one generated block, named by its comment's ``spec``."""
+    if spec.startswith("api "):
+        try:
+            return api_markdown.render(spec[4:])
+        except api_markdown.ApiError as exc:
+            raise GenerateError(f"{page.name}: {exc}") from None
     kind, *args = shlex.split(spec)
     if kind == "help" and len(args) == 1:
         return help_markdown(args[0])
@@ -217,6 +228,11 @@ def render_block(page: Path, spec: str) -> str:
         return reference_markdown(level=2)
     if kind == "figures" and not args:
         return figures_table()
+    if kind == "results" and args:
+        try:
+            return results_numbers.render(args)
+        except KeyError as exc:
+            raise GenerateError(f"{page.name}: {exc.args[0]}") from None
     if kind == "readme" and not args:
         return readme_part()
     if kind == "include" and args:

@@ -27,7 +27,6 @@ import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 import firmtool as ft  # noqa: E402
-from firmtool.problem import build_problem  # noqa: E402
 
 SCENARIO = "arm7_shelf"  # shipped with firmtool
 EPISODES = 100
@@ -52,7 +51,7 @@ def draw(ax, sc, robot, runs, view) -> None:
                       color="green", linewidth=0.4)
     for (policy, color), res in runs.items():
         for k, ep in enumerate(res.episodes[:4]):
-            tip = robot.task_point(ep.states)
+            tip = ft.forward_kinematics(sc, ep.states)
             ax.plot(*tip.T, color=color, linewidth=1.2, alpha=0.8, label=policy if k == 0 else None)
     start = robot.points(np.asarray(sc.task.start, dtype=float)[None])[0]
     ax.plot(*start.T, color="k", linewidth=2.5, alpha=0.6, label="the arm at the start (capsule axes)")
@@ -62,11 +61,11 @@ def draw(ax, sc, robot, runs, view) -> None:
 
 def main(out_png: Path) -> int:
     sc = ft.load_scenario(SCENARIO)
-    robot = build_problem(sc).robot
+    rm = ft.build(sc, workers=2)
+    robot = rm.problem.robot  # the roadmap's robot (ft.forward_kinematics(sc, q) gives its tip alone)
     arm = robot.arm
     print(f"{arm.name}: {arm.chain.dof} joints {', '.join(arm.joint_names)}; links {', '.join(arm.links)} as "
           f"capsules of radii {np.round(arm.radii, 3).tolist()}")
-    rm = ft.build(sc, workers=2)
     print(f"roadmap: {len(rm.nodes)} nodes, {len(rm.edges)} edges, built in {sum(rm.report.seconds.values()):.0f} s")
     for notice in rm.report.notices:
         print(f"notice: {notice}")

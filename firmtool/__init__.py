@@ -69,18 +69,32 @@ _EXPORTS = {
     "RunFailure": "firmtool.errors",
     "Unreachable": "firmtool.errors",
     "StaleScenarioWarning": "firmtool.errors",
+    "WorldUpdateWarning": "firmtool.errors",
+    "World": "firmtool.online.world",
+    "forward_kinematics": "firmtool.api.kinematics",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
     from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve, update
-    from firmtool.errors import (FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError,
-                                 StaleScenarioWarning, Unreachable)
+    from firmtool.api.kinematics import forward_kinematics
+    from firmtool.errors import (
+        FirmtoolError,
+        InputError,
+        NumericalError,
+        RoadmapError,
+        RunFailure,
+        ScenarioError,
+        StaleScenarioWarning,
+        Unreachable,
+        WorldUpdateWarning,
+    )
     from firmtool.figures.paths import plot
     from firmtool.graph.dp import SolveStatus
     from firmtool.online.policy import Policy, PolicyStatus
     from firmtool.online.replanning import ReplanSettings
+    from firmtool.online.world import World
     from firmtool.reports import (
         BuildReport,
         DensifyReport,

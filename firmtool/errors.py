@@ -99,6 +99,12 @@ class WriteFailure(RunFailure):
     is intact and no temporary file is left (exit code 1)."""
 
 
+class WorldUpdateWarning(UserWarning):
+    """A world told to a policy (:meth:`firmtool.Policy.update_world`) keeps none of the roadmap's
+    obstacles: the obstacle list replaces the whole world, so a new box passed alone drops every
+    wall (warned once per policy)."""
+
+
 class StaleScenarioWarning(UserWarning):
     """A roadmap's scenario file was modified after the roadmap was built from it: the roadmap (and
     its policy) may hold the old plan (:func:`firmtool.open_roadmap` warns; the commands print it as

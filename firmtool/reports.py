@@ -267,6 +267,9 @@ class UpdateReport(Report):
     seconds : per part (``design``, ``estimate``, ``solve``) and ``total``.
     start_success_probability : the DP's prediction from the start in the new world.
     notices : what the estimate stage said (e.g. which engine ran).
+    queries_kept : stored queries kept byte for byte (the update changed nothing they depend on);
+    queries_answered : stored queries answered again on the updated roadmap;
+    queries_dropped : stored queries the new world cannot answer, name -> why.
     """
 
     roadmap: str
@@ -283,6 +286,9 @@ class UpdateReport(Report):
     seconds: Mapping[str, float]
     start_success_probability: float
     notices: tuple[str, ...] = ()
+    queries_kept: tuple[str, ...] = ()
+    queries_answered: tuple[str, ...] = ()
+    queries_dropped: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)

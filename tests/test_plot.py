@@ -189,3 +189,55 @@ def test_firm_and_rollout_side_by_side_draw_the_same_episode(smoke_roadmap):
     r = CliRunner().invoke(app, ["plot", str(roadmap), "--policy", "firm-rollout", "--episodes", "3", "--dpi", "40",
                                  "-o", str(roadmap.with_name("fr.png"))])
     assert r.exit_code == 0, r.output
+
+
+def test_plot_query_writes_its_own_file_and_names_the_query(smoke_roadmap, tmp_path, monkeypatch):
+    """Issue 54, 7: ``plot --query NAME`` wrote the plain plot's file, titled like it."""
+    import shutil
+
+    import firmtool.io.figure_file as figures
+
+    path = tmp_path / "smoke.h5"
+    shutil.copyfile(smoke_roadmap[0], path)
+    runner = CliRunner()
+    assert runner.invoke(app, ["solve", str(path), "--goal", "3.5,2.5", "--name", "corner", "-q"]).exit_code == 0
+    titles = []
+    save = figures.save_figure
+    monkeypatch.setattr(figures, "save_figure", lambda fig, *a, **k: titles.append(fig._suptitle.get_text())
+                        or save(fig, *a, **k))
+    r = runner.invoke(app, ["plot", str(path), "--query", "corner", "-n", "0", "--dpi", "40"])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "smoke-corner.png").is_file() and not (tmp_path / "smoke.png").exists()
+    assert titles == ["smoke: query corner"]
+    r = runner.invoke(app, ["plot", str(path), "-n", "0", "--dpi", "40"])
+    assert r.exit_code == 0 and (tmp_path / "smoke.png").is_file() and titles[-1].startswith("smoke (")
+
+
+def test_a_3d_world_gets_a_3d_panel_beside_the_top_view(tmp_path):
+    """Issue 54, 7: a 3-D world was drawn from above only, which hid its climbs. Now a 3-D panel
+    (mplot3d) sits beside the top views, its z axis the world's height, its path the policy's."""
+    from conftest import room_3d
+    from mpl_toolkits.mplot3d import Axes3D
+
+    import firmtool as ft
+    from firmtool.figures.paths import plot_policies
+
+    sc = ft.load_scenario(_write(tmp_path / "room.toml", room_3d('{ center = [3.0, 2.5, 2.0], half_size = [0.4, 0.4, 2.0] }')))
+    sol = ft.solve(ft.build(sc, workers=1))
+    res = ft.simulate(sol, episodes=2, seed=0, record=True)
+    fig = plot_policies(sol, [res], ["firm"], dpi=40)
+    three = [ax for ax in fig.axes if isinstance(ax, Axes3D)]
+    assert len(three) == 1 and len([ax for ax in fig.axes if not isinstance(ax, Axes3D)]) >= 1
+    ax = three[0]
+    assert ax.get_zlim() == (0.0, 4.0)
+    lines = {ln.get_label(): ln for ln in ax.get_lines()}
+    xs, ys, zs = lines["policy path"].get_data_3d()
+    tips = sol.roadmap.problem.points(sol.roadmap.execution_design.centers)[:, -1]
+    assert np.allclose([xs[0], ys[0], zs[0]], tips[0])  # from the start node, in 3-D
+    assert "estimated mean" in lines
+    fig.canvas.draw() if hasattr(fig.canvas, "draw") else None
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path

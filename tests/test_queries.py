@@ -207,3 +207,15 @@ def test_dataclass_query_task_keys():
     assert q.task() == {"goal": [1.0, 2.0], "goal_radius": 0.2, "start_covariance": cov}
     assert dataclasses.replace(q, goal=None).task() == {"goal_radius": 0.2, "start_covariance": cov}
     assert dataclasses.replace(q, start_covariance=cov).task()["start_covariance"] == cov
+
+
+def test_a_querys_retired_goal_nodes_are_not_reported_as_unreachable(smoke_fixed):
+    """Issue 54, 7: every query printed "N nodes cannot reach the goal", listing the roadmap's own
+    goal nodes it had retired (no edges by design). The unreachable nodes are those with an infinite
+    cost-to-go that are neither goals nor retired."""
+    sol = ft.solve(smoke_fixed, goal=NEW_GOAL)
+    d = design_of(RoadmapFile(sol.roadmap._image))
+    assert d.retired is not None and d.retired.any()
+    expected = np.flatnonzero(~np.isfinite(sol.cost_to_go) & ~d.retired & (d.kinds != GOAL))
+    np.testing.assert_array_equal(sol.unreachable_nodes, expected)
+    assert not np.isin(np.flatnonzero(d.retired), sol.unreachable_nodes).any()

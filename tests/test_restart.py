@@ -4,9 +4,9 @@ another build silently, and an edited scenario started over with "0 reused" as t
 
 import json
 
+from conftest import open_world
 from typer.testing import CliRunner
 
-from conftest import open_world
 from firmtool.cli import app
 from firmtool.pipeline.restart import changed_sections
 
@@ -141,3 +141,58 @@ def test_only_a_plain_local_path_is_looked_at(tmp_path):
     assert changed_since(ScenarioSource(str(real), status.st_size, status.st_mtime_ns), "r.h5") is None
     for path in ("//server/share/room.toml", f"{real}\n", "room.toml", "\x1b[31m" + str(real), ""):
         assert changed_since(ScenarioSource(path, 0, 0), "r.h5") is None, repr(path)
+
+
+def test_a_touched_but_unedited_scenario_is_not_stale(tmp_path, monkeypatch):
+    """Issue 54, 4: a reinstall changed the shipped scenario's mtime, not its bytes, and every
+    command warned "was modified". The record keeps the file's sha256: same bytes is no change;
+    other bytes of the same size are; the check reads no more than the bounded scenario size."""
+    import hashlib
+    import os
+
+    from firmtool.io import scenario_source
+    from firmtool.io.limits import MAX_SCENARIO_BYTES
+    from firmtool.io.scenario_source import ScenarioSource, changed_since, source_of
+
+    real = tmp_path / "room.toml"
+    real.write_bytes(b"seed = 1\n")
+    sha = hashlib.sha256(real.read_bytes()).hexdigest()
+    rec = source_of(real, sha)
+    assert rec is not None and rec.sha256 == sha
+    os.utime(real, ns=(rec.mtime_ns + 10**9, rec.mtime_ns + 10**9))  # touched: time only
+    assert changed_since(rec, "r.h5") is None
+    assert changed_since(ScenarioSource(rec.path, rec.size, rec.mtime_ns), "r.h5") is not None  # no hash: stat only
+    real.write_bytes(b"seed = 2\n")  # same size, other bytes
+    assert "was modified" in changed_since(rec, "r.h5")
+    # the read is the bounded reader's, capped at the scenario size whatever the record says
+    seen = []
+    real_reader = scenario_source.read_regular_file
+    monkeypatch.setattr(scenario_source, "read_regular_file",
+                        lambda p, n: seen.append(n) or real_reader(p, n))
+    big = ScenarioSource(rec.path, rec.size, 0, sha)
+    changed_since(big, "r.h5")
+    assert seen == [MAX_SCENARIO_BYTES]
+
+
+def test_a_roadmap_survives_a_touch_of_its_scenario(tmp_path):
+    """Issue 54, 4, end to end: the roadmap records the file's sha256; after a ``touch`` (new mtime,
+    same bytes) solve prints no warning and ft.open_roadmap warns nothing."""
+    import os
+    import warnings
+
+    import h5py
+
+    import firmtool as ft
+
+    room = _scenario(tmp_path, "room")
+    out = tmp_path / "room.h5"
+    assert runner.invoke(app, ["build", str(room), "-o", str(out), "--workers", "1"]).exit_code == 0
+    with h5py.File(out, "r") as f:
+        assert len(f.attrs["scenario_file_sha256"]) == 64
+    st = room.stat()
+    os.utime(room, ns=(st.st_atime_ns + 5 * 10**9, st.st_mtime_ns + 5 * 10**9))
+    res = runner.invoke(app, ["solve", str(out)])
+    assert res.exit_code == 0 and "warning:" not in res.stderr, res.output
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ft.StaleScenarioWarning)
+        ft.open_roadmap(out)

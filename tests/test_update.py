@@ -261,3 +261,59 @@ def test_cli_update_and_estimate_fresh(point_roadmap, tmp_path):
     bad.write_text(sc.replace(model={"process_noise_std": 0.06}).to_toml())
     r = runner.invoke(app, ["update", str(copy), str(bad)])
     assert r.exit_code == 2 and r.output.count("\n") == 1 and "[model]" in r.output, r.output
+
+
+def _with_queries(path, tmp_path):
+    """A copy of ``path`` holding two stored queries: "east" (goal at (3.6, 2.6)) and "low" (goal at
+    (1.0, 2.6))."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    copy = tmp_path / "queried.h5"
+    shutil.copyfile(path, copy)
+    rm = ft.open_roadmap(copy)
+    rm.save_queries(ft.solve(rm, queries=[ft.Query(goal=[3.6, 2.6], name="east"), ft.Query(goal=[1.0, 2.6], name="low")]))
+    return copy
+
+
+def test_no_change_keeps_the_stored_queries_byte_for_byte(point_roadmap, tmp_path):
+    """Issue 54, 2: ``firmtool update`` deleted every stored query, even when it printed "no change"."""
+    from firmtool.io.roadmap_queries import query_images
+
+    sc, path = point_roadmap
+    copy = _with_queries(path, tmp_path)
+    before = query_images(copy)
+    res = CliRunner().invoke(app, ["update", str(copy), str(_toml(sc, tmp_path)), "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert "no change" in res.output and "stored queries kept as they were: east, low" in res.output
+    after = query_images(copy)
+    assert sorted(after) == ["east", "low"]
+    assert all(after[n][0] == before[n][0] for n in after)  # the images, byte for byte
+    rm = ft.open_roadmap(copy)
+    assert rm.queries == ["east", "low"]
+    rm.query("east").solution()  # readable: checked against the roadmap's current edges
+
+
+def test_an_update_answers_every_stored_query_again_or_names_why_it_dropped_it(point_roadmap, tmp_path):
+    """Issue 54, 2: each stored query is answered on the updated roadmap, as a new query on it would
+    be (the same policy, bit for bit); a query whose goal the new world covers is dropped, named
+    with the reason."""
+    sc, path = point_roadmap
+    copy = _with_queries(path, tmp_path)
+    new = _world(sc, [_box([2.0, 1.2], [0.3, 0.7]), _box([1.0, 2.6], [0.2, 0.2])])  # over "low"'s goal
+    report = ft.update(copy, new, workers=1).report
+    assert report.queries_answered == ("east",)
+    assert list(report.queries_dropped) == ["low"]
+    assert report.queries_dropped["low"].startswith("task.goal: expected a collision-free state")
+    rm = ft.open_roadmap(copy)
+    assert rm.queries == ["east"]
+    stored = rm.query("east").solution()
+    fresh = ft.solve(rm, goal=[3.6, 2.6], name="east")
+    np.testing.assert_array_equal(stored.policy, fresh.policy)
+    np.testing.assert_array_equal(stored.cost_to_go, fresh.cost_to_go)
+    assert stored.success_probability == fresh.success_probability
+
+
+def _toml(sc, tmp_path):
+    """The scenario written to a file (the command line takes a file)."""
+    out = tmp_path / "same.toml"
+    out.write_text(sc.to_toml())
+    return out

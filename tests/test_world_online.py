@@ -100,3 +100,51 @@ def test_obstacle_disturbance_spec_round_trips():
     d = parse_disturbance("obstacle:12:3,2.5:0.1,0.2")
     assert d.step == 12 and d.box() == {"center": [3.0, 2.5], "half_size": [0.1, 0.2]}
     assert parse_disturbance(str(d)) == d
+
+
+def test_update_world_add_and_remove_match_the_full_list_form(solution):
+    """Issue 54, 1: ``add=`` / ``remove=`` (by index or by the box) against the policy's current
+    world, and ``ft.World`` values, give the same policy as the equivalent whole list."""
+    import warnings
+
+    full = ft.Policy(solution)
+    full.update_world(OWN + [ACROSS])
+    added = ft.Policy(solution)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ft.WorldUpdateWarning)  # the walls stay: no warning
+        added.update_world(add=[ACROSS])
+    np.testing.assert_array_equal(added.edge_per_node, full.edge_per_node)
+    np.testing.assert_array_equal(added._cost_to_go, full._cost_to_go)
+    assert added.problem.scenario.world == full.problem.scenario.world
+    # remove by the box (a table in other number types) and by index: back to the roadmap's world
+    added.update_world(remove=[{"center": [3, 2.1], "half_size": [0.15, 0.3], "kind": "box"}])
+    np.testing.assert_array_equal(added.edge_per_node, solution.policy)
+    added.update_world(add=[ACROSS])
+    added.update_world(remove=[-1])
+    np.testing.assert_array_equal(added.edge_per_node, solution.policy)
+    # a World value, and a scenario's world (its bounds included)
+    as_world = ft.Policy(solution)
+    as_world.update_world(ft.World(obstacles=OWN + [ACROSS]))
+    np.testing.assert_array_equal(as_world.edge_per_node, full.edge_per_node)
+    as_world.update_world(solution.roadmap.scenario.world)
+    np.testing.assert_array_equal(as_world.edge_per_node, solution.policy)
+    with pytest.raises(InputError, match=r"remove\[0\]: expected an index of the current world's 1 obstacles"):
+        as_world.update_world(remove=[3])
+    with pytest.raises(InputError, match=r"remove\[0\]: no obstacle of the current world is"):
+        as_world.update_world(remove=[ACROSS])
+    with pytest.raises(InputError, match="expected obstacles"):
+        as_world.update_world()
+
+
+def test_dropping_every_wall_of_the_roadmap_warns_once(solution):
+    """Issue 54, 1: the newcomer passed the new box alone; the policy dropped every wall without a
+    word. Now a world that keeps none of the roadmap's obstacles warns, once per policy."""
+    policy = ft.Policy(solution)
+    with pytest.warns(ft.WorldUpdateWarning, match="keeps none of the roadmap's 1 obstacles"):
+        policy.update_world([ACROSS])
+    assert policy.problem.is_valid(np.array([[2.0, 1.2]]))[0]  # the wall is gone: as told, but warned
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ft.WorldUpdateWarning)
+        policy.update_world([ACROSS])  # once
+        policy.update_world(OWN + [ACROSS])

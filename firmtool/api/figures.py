@@ -35,6 +35,7 @@ class FigureOptions:
     unit : length unit of the axes.
     progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), or None.
     max_total_steps : the bound of the episodes' worst-case control steps (``--max-total-steps``).
+    title : the figure's title (default: the scenario's name; ``firmtool plot --query`` names the query).
     """
 
     episodes: int = 20
@@ -44,6 +45,7 @@ class FigureOptions:
     unit: str = DEFAULT_UNIT
     progress: Callable[[str, int, int], None] | None = None
     max_total_steps: float = MAX_EXECUTION_STEPS
+    title: str | None = None
 
 
 def _relabel(progress, stage: str):
@@ -57,7 +59,8 @@ def paths_figure(solution, options: FigureOptions) -> Figure:
                            progress=_relabel(options.progress, f"plot: {name} episodes"),
                            max_total_steps=options.max_total_steps)
                if options.episodes else None for name in options.policies]
-    return plot_policies(solution, results, list(options.policies), dpi=options.dpi, unit=options.unit)
+    return plot_policies(solution, results, list(options.policies), dpi=options.dpi, unit=options.unit,
+                         title=options.title)
 
 
 def calibration_kind_figure(solution, options: FigureOptions) -> Figure:

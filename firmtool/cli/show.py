@@ -62,14 +62,17 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
         raise InputError(f"--policy: expected one of {', '.join(repr(n) for n in names)}, found {quoted(policy_name)}")
     if kind not in FIGURE_KINDS:
         raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {quoted(kind)}")
-    out = check_output(output or roadmap.with_suffix(".png"), force)  # before the episodes run
+    # a query's figure is its own file, named after it (a plain plot's is ROADMAP.png)
+    default = roadmap.with_name(f"{roadmap.stem}-{query}.png") if query is not None else roadmap.with_suffix(".png")
+    out = check_output(output or default, force)  # before the episodes run
     rm = open_roadmap(roadmap)
     if query is not None:
         rm = rm.query(query)
     if episodes:
         check_execution(rm.problem, episodes * len(names[policy_name]), max_total_steps=max_total_steps)
     options = FigureOptions(episodes=episodes, seed=seed, policies=tuple(names[policy_name]), dpi=dpi, unit=unit,
-                            progress=console.progress(), max_total_steps=max_total_steps)
+                            progress=console.progress(), max_total_steps=max_total_steps,
+                            title=None if query is None else f"{rm.scenario.name}: query {query}")
     sol = rm.solution()
     save_figure(make_figure(kind, sol, options), out, force=force, provenance=figure_provenance(sol, options))
     console.next_step(str(out))

@@ -203,7 +203,20 @@ def update_human(r: dict) -> str:
             f"{r['dropped_edges']} dropped; {r['retired_nodes']} of {r['nodes']} nodes retired\n"
             f"not kept: {why}\n"
             f"time: design {console.seconds(s['design'])}, estimate {console.seconds(s['estimate'])}, "
-            f"solve {console.seconds(s['solve'])}; P(success) from the start {prob(r['start_success_probability'])}")
+            f"solve {console.seconds(s['solve'])}; P(success) from the start {prob(r['start_success_probability'])}"
+            + _queries_human(r))
+
+
+def _queries_human(r: dict) -> str:
+    """What the update did with the stored queries (nothing when there were none)."""
+    kept, answered, dropped = r.get("queries_kept", ()), r.get("queries_answered", ()), r.get("queries_dropped", {})
+    lines = []
+    if kept:
+        lines.append(f"stored queries kept as they were: {', '.join(kept)}")
+    if answered:
+        lines.append(f"stored queries answered again in the new world: {', '.join(answered)}")
+    lines += [f"stored query {name} dropped: {why}" for name, why in dropped.items()]
+    return "".join("\n" + ln for ln in lines)
 
 
 @handles_errors

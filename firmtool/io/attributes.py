@@ -102,10 +102,11 @@ STAGE_ATTRIBUTES: dict[str, dict[str, Attribute]] = {
                "deadline_success_probability": Attribute("number", low=0.0)},
 }
 # Root attributes read as text besides those the reader checks itself (schema_version, seed, the scenario).
-# The scenario file's path and stat (firmtool.io.scenario_source): compared by stat only, never opened.
+# The scenario file's path, stat and sha256 (firmtool.io.scenario_source): compared by stat, then by a
+# bounded read of a same-size file.
 ROOT_ATTRIBUTES = {"created": Attribute("text"), "firmtool_version": Attribute("text"),
                    "scenario_file": Attribute("text"), "scenario_file_size": _COUNT,
-                   "scenario_file_mtime_ns": _COUNT}
+                   "scenario_file_mtime_ns": _COUNT, "scenario_file_sha256": Attribute("text")}
 
 
 def check_attributes(path: str | Path, group: str, attrs: Mapping[str, Any],

@@ -77,7 +77,7 @@ from firmtool.online.replanning import DEADLINE_FALSE_ALARMS, Replanner, ReplanS
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
 from firmtool.online.running import EdgeControllers
 from firmtool.online.timing import TimingSummary
-from firmtool.online.world import Worlds
+from firmtool.online.world import World, Worlds
 from firmtool.problem import Problem
 from firmtool.results import Event
 from firmtool.roadmap.design import Design
@@ -238,10 +238,17 @@ class Policy:
         self.prepare()
         return self._parts
 
-    def update_world(self, obstacles: Iterable[Mapping[str, Any] | Obstacle], *, bounds: Any = None) -> list[Event]:
-        """Tell the policy the world changed: its obstacles are now ``obstacles`` (scenario tables such
-        as ``{"center": [x, y], "half_size": [hx, hy]}``, or :class:`~firmtool.geometry.shapes.Obstacle`
-        objects; ``bounds``: ``[lo, hi]``, None for the roadmap's).
+    def update_world(self, obstacles: Iterable[Mapping[str, Any] | Obstacle] | World | None = None, *,
+                     add: Iterable[Mapping[str, Any] | Obstacle] | None = None,
+                     remove: Iterable[int | Mapping[str, Any] | Obstacle] | None = None,
+                     bounds: Any = None) -> list[Event]:
+        """Tell the policy the world changed. ``obstacles`` is the WHOLE obstacle list (scenario tables
+        such as ``{"center": [x, y], "half_size": [hx, hy]}``, or :class:`~firmtool.geometry.shapes.Obstacle`
+        objects): it replaces the current world's, so a new box alone drops every wall (warned once:
+        :class:`~firmtool.errors.WorldUpdateWarning`). Or a :class:`~firmtool.online.world.World`
+        (``ft.World``, or a scenario's ``world``: obstacles and bounds). Or ``add=`` / ``remove=``
+        against the world the policy holds now (``remove``: indices into its obstacle list, or the
+        obstacles themselves). ``bounds``: ``[lo, hi]``, None for the roadmap's.
 
         The edges the change can touch are blocked at once, without a Monte Carlo, and the DP is
         solved again on the others (:mod:`firmtool.online.world`); the replanner tests the new world
@@ -263,6 +270,7 @@ class Policy:
         if self._now is not None and self._now.awaiting:
             raise InputError("Policy.update_world: observe() the measurement of the previous control first")
         regions = self._prepared().regions
+        obstacles, bounds = self._worlds.request(obstacles, add=add, remove=remove, bounds=bounds)
         self._parts, update = self._worlds.answer(
             obstacles, bounds, lambda u: self._build(u.problem, u.policy, u.cost_to_go, regions, bool(u.changes)))
         self.problem, self.edge_per_node, self._cost_to_go = update.problem, update.policy, update.cost_to_go

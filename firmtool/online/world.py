@@ -9,24 +9,61 @@ safe answer without re-estimating it is not to plan through it. Every other edge
 in the new world exactly (the argument of :mod:`firmtool.roadmap.world_change`), so the re-solved
 policy is the DP of the new world on the unblocked edges; its predictions are approximate only in
 leaving out what the blocked edges would still give after a re-estimate (``firmtool update``).
+
+A world is told in one of three forms (:meth:`Worlds.request`, issue 54): the whole obstacle list
+(what replaces the current world's; a perception module's one new box alone drops every wall), a
+:class:`World` value (obstacles and bounds, e.g. another scenario's ``world``), or ``add=`` /
+``remove=`` against the world the policy holds now (remove by index into its obstacle list or by
+the obstacle itself). A world that keeps none of the roadmap's own obstacles warns once per policy
+(:class:`~firmtool.errors.WorldUpdateWarning`): it is the full-list form's likely mistake.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+import warnings
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.sparse
 
-from firmtool.errors import MAX_EXPECTED, InputError, ScenarioError, cut
+from firmtool.errors import MAX_EXPECTED, InputError, ScenarioError, WorldUpdateWarning, cut
 from firmtool.geometry.shapes import Obstacle
 from firmtool.graph.dp import solve_dp
 from firmtool.io.limits import MAX_ITEMS
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.world_change import WorldChange, meets, world_change
+from firmtool.scenario.specs import WorldSpec
 from firmtool.util.hashing import digest
+
+
+@dataclass(frozen=True)
+class World:
+    """A world to tell a policy (``ft.World``): its obstacles and, optionally, its bounds.
+
+    Attributes
+    ----------
+    obstacles : scenario tables (``{"center": [x, y], "half_size": [hx, hy]}``, ``{"kind": "sphere",
+        ...}``) or :class:`~firmtool.geometry.shapes.Obstacle` objects; the whole list.
+    bounds : ``[lo, hi]`` ((2, D)), or None for the roadmap's.
+
+    Examples
+    --------
+    >>> ft.World(obstacles=[{"center": [2.0, 1.2], "half_size": [0.3, 0.7]}])  # doctest: +SKIP
+    >>> policy.update_world(ft.load_scenario("other.toml").world)  # a scenario's world  # doctest: +SKIP
+    """
+
+    obstacles: tuple[Mapping[str, Any] | Obstacle, ...] = ()
+    bounds: Any = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "obstacles", tuple(self.obstacles))
+
+    @classmethod
+    def of(cls, spec: WorldSpec) -> "World":
+        """The world of a scenario's ``[world]`` (:class:`~firmtool.scenario.specs.WorldSpec`), bounds included."""
+        return cls(obstacles=spec.obstacles, bounds=[list(spec.lo), list(spec.hi)])
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -107,6 +144,52 @@ def obstacle_tables(obstacles: Iterable[Mapping[str, Any] | Obstacle]) -> list[d
     return out
 
 
+def _same(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+    """Whether two obstacle tables describe the same obstacle (numbers compared as floats, a box's
+    ``kind`` optional)."""
+    def norm(t: Mapping[str, Any]) -> dict[str, Any]:
+        out = {}
+        for k, v in t.items():
+            if k == "kind" and v == "box":
+                continue
+            try:
+                out[k] = np.asarray(v, dtype=float).tolist() if not isinstance(v, str) else v
+            except (TypeError, ValueError):
+                out[k] = v
+        return out
+    return norm(a) == norm(b)
+
+
+def edit(current: Sequence[Mapping[str, Any]], add: Iterable[Mapping[str, Any] | Obstacle] | None,
+         remove: Iterable[int | Mapping[str, Any] | Obstacle] | None) -> list[dict[str, Any]]:
+    """The obstacle tables ``current`` less ``remove`` (indices into ``current``, or obstacles equal
+    to one of it) plus ``add`` (appended in order).
+
+    Raises
+    ------
+    InputError
+        An index out of range or an obstacle that is not in ``current`` (named as ``remove[i]``).
+    """
+    drop: set[int] = set()
+    for i, r in enumerate(() if remove is None else remove):
+        if isinstance(r, (int, np.integer)) and not isinstance(r, bool):
+            if not -len(current) <= int(r) < len(current):
+                raise InputError(f"update_world: remove[{i}]: expected an index of the current world's "
+                                 f"{len(current)} obstacles, found {int(r)}")
+            drop.add(int(r) % len(current))
+            continue
+        if not isinstance(r, (Mapping, Obstacle)):
+            raise InputError(f"update_world: remove[{i}]: expected an obstacle index, table or Obstacle, "
+                             f"found {type(r).__name__}")
+        table = obstacle_tables([r])[0]
+        hits = [j for j, c in enumerate(current) if j not in drop and _same(c, table)]
+        if not hits:
+            raise InputError(f"update_world: remove[{i}]: no obstacle of the current world is {str(table)[:200]}")
+        drop.add(hits[0])
+    kept = [dict(c) for j, c in enumerate(current) if j not in drop]
+    return kept + obstacle_tables(() if add is None else add)
+
+
 def world_update(base: Problem, table: EdgeTable, centers: np.ndarray, obstacles: Iterable[Mapping[str, Any] | Obstacle],
                  bounds: Any = None) -> WorldUpdate:
     """The policy's response to the world ``obstacles`` (and ``bounds``, a ``[lo, hi]`` pair; None:
@@ -151,6 +234,49 @@ class Worlds:
         self.base, self.centers, self._edges = base, centers, edges
         self._table: EdgeTable | None = None
         self._answers: dict[str, tuple[Any, WorldUpdate]] = {}
+        self._own = [o.to_table() for o in base.scenario.world.obstacles]
+        self.obstacles: list[dict[str, Any]] = [dict(t) for t in self._own]  # the world the policy holds now
+        self.bounds: Any = None
+        self._warned = False
+
+    def request(self, obstacles: Any = None, *, add: Any = None, remove: Any = None,
+                bounds: Any = None) -> tuple[list[dict[str, Any]], Any]:
+        """The world a call of ``update_world`` asks for, as ``(obstacle tables, bounds)``, remembered
+        as the current one: ``obstacles`` the whole list or a :class:`World` (a
+        :class:`~firmtool.scenario.specs.WorldSpec`: its obstacles and bounds), None for the
+        current world; less ``remove``, plus ``add`` (:func:`edit`). Warns once per policy
+        (:class:`~firmtool.errors.WorldUpdateWarning`) when the world keeps none of the roadmap's
+        own obstacles.
+
+        Raises
+        ------
+        InputError
+            Nothing asked (no obstacles, add or remove), both a World's bounds and ``bounds``,
+            or a removal that names no obstacle of the world.
+        """
+        if obstacles is None and add is None and remove is None:
+            raise InputError("update_world: expected obstacles (the whole list), a World, or add= / remove=")
+        if isinstance(obstacles, WorldSpec):
+            obstacles = World.of(obstacles)
+        if isinstance(obstacles, World):
+            if bounds is not None and obstacles.bounds is not None:
+                raise InputError("update_world: bounds: given twice (the World's and bounds=)")
+            bounds = obstacles.bounds if bounds is None else bounds
+            obstacles = obstacles.obstacles
+        elif isinstance(obstacles, (str, bytes, Mapping)):
+            raise InputError(f"update_world: obstacles: expected the whole list of obstacle tables or a World, "
+                             f"found {type(obstacles).__name__}")
+        start = self.obstacles if obstacles is None else obstacle_tables(obstacles)
+        tables = edit(start, add, remove)
+        if bounds is None and obstacles is None:
+            bounds = self.bounds  # add/remove keep the bounds the policy holds
+        if self._own and not self._warned and not any(_same(o, t) for o in self._own for t in tables):
+            self._warned = True
+            warnings.warn(f"update_world: the new world keeps none of the roadmap's {len(self._own)} obstacles "
+                          f"(the obstacle list replaces the whole world; to add a box keep the others, or "
+                          f"use add=)", WorldUpdateWarning, stacklevel=3)
+        self.obstacles, self.bounds = tables, bounds
+        return tables, bounds
 
     def answer(self, obstacles: Iterable[Mapping[str, Any] | Obstacle], bounds: Any,
                build: Callable[[WorldUpdate], Any]) -> tuple[Any, WorldUpdate]:

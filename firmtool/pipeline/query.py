@@ -63,7 +63,7 @@ from firmtool.roadmap.queries import query_edges, query_goal_nodes
 from firmtool.scenario import Scenario
 from firmtool.util.hashing import digest
 
-_TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance")
+TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance")
 # the option each task key comes from on the command line (messages name what the user typed)
 OPTION_OF = {"task.goal": "--goal", "task.goal_radius": "--goal-radius", "task.goal_confidence": "--goal-confidence",
              "task.start": "--start", "task.start_covariance": "--start-covariance"}
@@ -91,7 +91,7 @@ class Query:
     def task(self) -> dict[str, Any]:
         """The ``[task]`` keys it sets (TOML values: lists, floats)."""
         out = {}
-        for key in _TASK_KEYS:
+        for key in TASK_KEYS:
             value = getattr(self, key)
             if value is None:
                 continue
@@ -404,11 +404,11 @@ def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]],
             if name in existing and not force:
                 raise InputError(f"{path}: a query named {quoted(name)} is stored already; give --force to replace it, "
                                  "or another --name")
-        write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **_summary(report)})
+        write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **query_summary(report)})
                              for name, (image, report) in answers.items()})
 
 
-def _summary(report: QueryReport) -> dict[str, Any]:
+def query_summary(report: QueryReport) -> dict[str, Any]:
     return {"start_success_probability": report.start_success_probability, "goal_nodes": report.goal_nodes,
             "reused_edges": report.reused_edges, "estimated_edges": report.estimated_edges}
 

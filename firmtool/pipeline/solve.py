@@ -28,7 +28,7 @@ from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, write_stage
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.inputs import policy_inputs
-from firmtool.pipeline.reading import edge_probabilities, node_task_points, problem_of
+from firmtool.pipeline.reading import edge_probabilities, node_task_points, problem_of, retired_nodes
 from firmtool.pipeline.target import RoadmapTarget, locked
 from firmtool.progress import SOLVE, Counter, ProgressCallback
 from firmtool.reports import SolveReport
@@ -105,8 +105,10 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
         predicted_interval(counts, N, goals, pol, roadmap.seed, node=START_INDEX, point=float(prob[START_INDEX])))
         for prefix, pol, prob in (("", res.policy, p), ("shortest_path_", sp, p_sp))}
     steps.finish()
+    retired = retired_nodes(roadmap)  # a query's or an update's retired nodes have no edges by design: not news
+    unreachable = res.unreachable if retired is None else res.unreachable[~retired[res.unreachable]]
     arrays = {"cost_to_go": res.cost_to_go, "edge": res.policy, "next_node": next_node,
-              "success_probability": p, "unreachable": res.unreachable,
+              "success_probability": p, "unreachable": unreachable,
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
     field = "task.deadline_steps" if deadline is None else "deadline"
     deadline = problem.scenario.task.deadline_steps if deadline is None else int(deadline)

@@ -22,7 +22,13 @@ every edge's Monte Carlo computes, and is refused naming the field (build again)
 So the updated ``/edges`` and ``/policy`` are, bit for bit, those of ``firmtool estimate --fresh``
 and ``firmtool solve`` on the updated node set (tests/test_update.py). The new roadmap is computed
 in memory and replaces the file in one atomic rename: an interrupted update leaves the old one.
-Its stored queries were answered in the old world and are not carried over.
+
+Its stored queries (``/queries``) survive (issue 54, :func:`carry_queries`): an update that
+changes nothing a query's answer depends on (the same world, ``[cost]`` and ``[execution]``)
+keeps each stored image byte for byte; any other re-answers each query on the updated roadmap
+(:func:`firmtool.pipeline.query.answer_query`: its goal nodes estimated as a query estimates
+them), and a query the new world cannot answer (a goal or start now in collision, a goal its
+start cannot reach) is dropped and named with the reason (:attr:`UpdateReport.queries_dropped`).
 """
 
 from __future__ import annotations
@@ -30,12 +36,14 @@ from __future__ import annotations
 import collections
 import dataclasses
 import time
+import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from firmtool.errors import InputError, cut
+from firmtool.errors import InputError, RoadmapError, cut
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edges import EdgeEstimate
 from firmtool.estimation.executors import Workers, default_workers
@@ -43,13 +51,14 @@ from firmtool.io import scenario_source
 from firmtool.io.memory_file import MemoryFile, replace_bytes
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.io.roadmap_format import GOAL, START_INDEX
-from firmtool.io.roadmap_write import record_source
+from firmtool.io.roadmap_queries import query_images
+from firmtool.io.roadmap_write import record_source, write_queries
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
 from firmtool.pipeline.inputs import as_scenario
-from firmtool.pipeline.query import rekeyed_estimates
+from firmtool.pipeline.query import OPTION_OF, TASK_KEYS, Query, answer_query, query_summary, rekeyed_estimates
 from firmtool.pipeline.reading import design_of, problem_of
-from firmtool.pipeline.settings import worker_settings
+from firmtool.pipeline.settings import WorkerSettings, worker_settings
 from firmtool.pipeline.solve import solve_policy, unreachable_failure, write_policy
 from firmtool.pipeline.target import kept, locked
 from firmtool.problem import Problem, build_problem
@@ -167,6 +176,9 @@ def update_world(path: str | Path, scenario: Scenario | str | Path, *, workers: 
         if source is not None:
             record_source(image, source)
         seconds["solve"] = time.perf_counter() - t1
+        t2 = time.perf_counter()
+        carried = carry_queries(base, image, up, settings, session=session)
+        seconds["queries"] = time.perf_counter() - t2
         replace_bytes(Path(path), image.read_bytes())  # one atomic rename: the old file until it is done
     seconds["total"] = time.perf_counter() - t0
     J = group.arrays["cost_to_go"]
@@ -180,7 +192,62 @@ def update_world(path: str | Path, scenario: Scenario | str | Path, *, workers: 
         retired_nodes=int(0 if d.retired is None else d.retired.sum()), edges=e.edges, kept_edges=e.reused_edges,
         estimated_edges=e.estimated_edges, new_edges=len(new_pairs - old_pairs), dropped_edges=len(old_pairs - new_pairs),
         reasons=dict(reasons), simulated_particle_steps=e.simulated_particle_steps, seconds=seconds,
-        start_success_probability=float(group.arrays["success_probability"][START_INDEX]), notices=tuple(e.notices))
+        start_success_probability=float(group.arrays["success_probability"][START_INDEX]), notices=tuple(e.notices),
+        queries_kept=carried.kept, queries_answered=carried.answered, queries_dropped=carried.dropped)
+
+
+@dataclasses.dataclass(frozen=True)
+class CarriedQueries:
+    """What became of a roadmap's stored queries in an update: kept byte for byte, answered again,
+    or dropped (name -> why)."""
+
+    kept: tuple[str, ...] = ()
+    answered: tuple[str, ...] = ()
+    dropped: Mapping[str, str] = dataclasses.field(default_factory=dict)
+
+
+def _query_of(name: str, data: bytes) -> Query:
+    """The query a stored image answered: the ``[task]`` fields a query sets, read from its scenario."""
+    image = MemoryFile(name)
+    image.data = data
+    task = tomllib.loads(RoadmapFile(image).scenario_text).get("task", {})
+    return Query(name=name, **{k: task[k] for k in TASK_KEYS if k in task})
+
+
+def carry_queries(base: RoadmapFile, image: MemoryFile, up: _Update, settings: WorkerSettings,
+                  session: Workers | None = None) -> CarriedQueries:
+    """Store ``base``'s queries in the updated roadmap ``image`` (module notes): byte for byte when
+    the update changed nothing their answers depend on, else each answered again on ``image``
+    (:func:`~firmtool.pipeline.query.answer_query`), or dropped with the reason."""
+    stored = query_images(base.path)
+    if not stored:
+        return CarriedQueries()
+    edges = str(RoadmapFile(image).attrs("edges").get("inputs_sha256", ""))
+    old, new = up.base_problem.scenario, up.problem.scenario
+    if not up.change.what and all(digest(getattr(old, s)) == digest(getattr(new, s)) for s in FREE_SECTIONS):
+        write_queries(image, {name: (data, {**attrs, "base_edges_sha256": edges}) for name, (data, attrs) in stored.items()})
+        return CarriedQueries(kept=tuple(sorted(stored)))
+    answers: dict[str, tuple[MemoryFile, Any]] = {}
+    dropped: dict[str, str] = {}
+    updated = RoadmapFile(image)
+    for name, (data, _) in sorted(stored.items()):
+        try:
+            answer, report = answer_query(updated, _query_of(name, data), settings=settings, session=session,
+                                          source=image)
+        except (InputError, RoadmapError) as exc:
+            why = str(exc).replace(f"{updated.path}: ", "", 1)
+            for field, option in OPTION_OF.items():  # the query's own fields, not the options of a new one
+                why = why.replace(f"{option}:", f"{field}:").replace(f"{option} ", f"{field} ")
+            dropped[name] = why
+            continue
+        if not np.isfinite(RoadmapFile(answer).table("policy")["cost_to_go"][START_INDEX]):
+            dropped[name] = "its goal cannot be reached from its start in the new world"
+            continue
+        answers[name] = (answer, report)
+    if answers:
+        write_queries(image, {name: (answer.read_bytes(), {"base_edges_sha256": edges, **query_summary(report)})
+                              for name, (answer, report) in answers.items()})
+    return CarriedQueries(answered=tuple(answers), dropped=dropped)
 
 
 def _prepare(base: RoadmapFile, sc: Scenario) -> _Update:
