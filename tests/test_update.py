@@ -276,7 +276,10 @@ def _with_queries(path, tmp_path):
 
 def test_no_change_keeps_the_stored_queries_byte_for_byte(point_roadmap, tmp_path):
     """Issue 54, 2: ``firmtool update`` deleted every stored query, even when it printed "no change"."""
-    from firmtool.io.roadmap_queries import query_images
+    from firmtool.io.roadmap_queries import query_image, query_names
+
+    def query_images(p):
+        return {n: query_image(p, n) for n in query_names(p)}
 
     sc, path = point_roadmap
     copy = _with_queries(path, tmp_path)

@@ -51,7 +51,7 @@ from firmtool.io import scenario_source
 from firmtool.io.memory_file import MemoryFile, replace_bytes
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.io.roadmap_format import GOAL, START_INDEX
-from firmtool.io.roadmap_queries import query_images
+from firmtool.io.roadmap_queries import query_image, query_names
 from firmtool.io.roadmap_write import record_source, write_queries
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
@@ -219,7 +219,9 @@ def carry_queries(base: RoadmapFile, image: MemoryFile, up: _Update, settings: W
     """Store ``base``'s queries in the updated roadmap ``image`` (module notes): byte for byte when
     the update changed nothing their answers depend on, else each answered again on ``image``
     (:func:`~firmtool.pipeline.query.answer_query`), or dropped with the reason."""
-    stored = query_images(base.path)
+    # each stored image read alone (a declared size is checked before its bytes are read)
+    stored = {n: stored_query for n in query_names(base.path)
+              if (stored_query := query_image(base.path, n)) is not None}
     if not stored:
         return CarriedQueries()
     edges = str(RoadmapFile(image).attrs("edges").get("inputs_sha256", ""))
