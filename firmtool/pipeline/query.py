@@ -127,17 +127,17 @@ def query_name(query: Query, scenario: Scenario) -> str:
     return check_query_name(query.name)
 
 
-def check_query_name(name: Any) -> str:
+def check_query_name(name: Any, field: str = "--name") -> str:
     """``name`` if a query may be stored under it (a dataset's name in ``/queries`` and one shell
     word: :data:`firmtool.io.roadmap_queries.QUERY_NAME`); checked before anything is computed.
 
     Raises
     ------
     InputError
-        Any other name (``--name``), quoted at most 200 characters.
+        Any other name, named as ``field`` (``--name``; the API's ``name``), quoted at most 200 characters.
     """
     if not isinstance(name, str) or not re.fullmatch(QUERY_NAME, name):
-        raise InputError("--name: expected 1 to 64 letters, digits, '.', '_' or '-', starting with a letter, digit "
+        raise InputError(f"{field}: expected 1 to 64 letters, digits, '.', '_' or '-', starting with a letter, digit "
                          f"or '_', found {quoted(name)}")
     return name
 
@@ -281,7 +281,7 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
                zip(rows, base_keys, new_keys)}
     B = base_problem.scenario.estimation.particles
     known: dict[bytes, EdgeEstimate] = from_arrays(table)
-    known.update(from_arrays(read_edge_cache(source, nodes=N0)))
+    known.update(from_arrays(read_edge_cache(source, nodes=N0, world_dim=base_problem.workspace_dim)))
     estimates, keys, covered = [], [], set()
     for key, x in known.items():
         pair = (x.source, x.target)

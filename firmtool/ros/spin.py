@@ -8,6 +8,8 @@ node appears on the network), starts the ROS client library with the command's R
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -51,10 +53,22 @@ def load_system(source: str | Path) -> tuple[Any, Any, Any]:
     import firmtool.api as ft
     from firmtool.problem import build_problem
     path = Path(source)
-    if path.suffix in (".h5", ".hdf5") or (path.is_file() and path.read_bytes()[:8] == b"\x89HDF\r\n\x1a\n"):
+    if path.suffix in (".h5", ".hdf5") or _hdf5_signature(path):
         rm = ft.open_roadmap(path)
         return rm.problem, rm.execution_design, rm
     return build_problem(ft.load_scenario(source)), None, None
+
+
+def _hdf5_signature(path: Path) -> bool:
+    """Whether ``path`` is a regular file starting with HDF5's signature (8 bytes read, nothing more;
+    a FIFO or a device is not opened)."""
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
+        with open(path, "rb") as fh:
+            return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
 
 
 def run_sim_node(source: str | Path, *, episodes: int = 1, seed: int = 0, lockstep: bool = True,
