@@ -462,7 +462,8 @@ def test_a_tampered_swept_region_is_refused_by_the_api(kind, dataset, smoke_road
 
 
 @pytest.mark.parametrize("kind,dataset", [("all_in_one_step", "steps_value"), ("moved_outcome", "steps_count"),
-                                          ("beyond_max_steps", "steps_value"), ("one_early", "steps_value")])
+                                          ("beyond_max_steps", "steps_value"), ("one_early", "steps_value"),
+                                          ("goal_in_one_step", "steps_value")])
 def test_a_tampered_step_histogram_is_refused_by_the_api(kind, dataset, smoke_roadmap, tmp_path):
     path = _tampered(smoke_roadmap, tmp_path, corpus._steps(kind))
     with pytest.raises(ft.RoadmapError, match=rf"'/edges/{dataset}'"):

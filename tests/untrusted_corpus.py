@@ -561,6 +561,8 @@ def _steps(kind: str) -> Callable[[h5py.File], None]:
             value[np.argmax(value)] = 2**31 - 1
         elif kind == "just_beyond":
             value[np.argmax(value)] = 400  # the smoke edges run at most 150 steps past their nominal (<= 30)
+        elif kind == "goal_in_one_step":  # landings in the goal node (which a goal ball may reach early) in 1 step
+            value[code == 1] = 1
         elif kind == "one_early":  # one landing row in a regular node made 1 step long
             r = int(np.flatnonzero(code >= 2)[0])
             value[r] = 1
@@ -600,7 +602,8 @@ def table_cases() -> list[Case]:
     steps = [("all_in_one_step", ("'/edges/steps_value'", "before its nominal")),
              ("moved_outcome", ("'/edges/steps_count'", "outcome counts")),
              ("beyond_max_steps", ("'/edges/steps_value'", "controller.max_steps")),
-             ("just_beyond", ("'/edges/steps_value'",)), ("one_early", ("'/edges/steps_value'", "before"))]
+             ("just_beyond", ("'/edges/steps_value'",)), ("one_early", ("'/edges/steps_value'", "before")),
+             ("goal_in_one_step", ("'/edges/steps_value'", "particle_steps"))]
     cases += [table(f"steps_{kind}", _steps(kind), "solve", phrases, ("--deadline", "40"))
               for kind, phrases in steps]
     cases += [table("steps_moved_outcome", _steps("moved_outcome"), "execute", ("'/edges/steps_count'",))]

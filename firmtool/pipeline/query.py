@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from firmtool.errors import InputError, RoadmapError, ScenarioError, cut, quoted
+from firmtool.errors import MAX_EXPECTED, InputError, RoadmapError, ScenarioError, cut, quoted
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, edge_keys, from_arrays, to_arrays
 from firmtool.estimation.edges import GOAL_MISS, EdgeEstimate
@@ -67,6 +67,12 @@ _TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covarian
 # the option each task key comes from on the command line (messages name what the user typed)
 OPTION_OF = {"task.goal": "--goal", "task.goal_radius": "--goal-radius", "task.goal_confidence": "--goal-confidence",
              "task.start": "--start", "task.start_covariance": "--start-covariance"}
+
+
+def option_of(field: str) -> str:
+    """The command-line option a query's task field comes from (``task.goal`` -> ``--goal``); the field
+    itself where no option sets it, and ``task`` for a refusal of the section as a whole."""
+    return OPTION_OF.get(field, cut(field) or "task")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,7 +122,7 @@ def query_scenario(base: Scenario, query: Query, where: str) -> Scenario:
     try:
         return base.replace(task=task)
     except ScenarioError as exc:
-        raise InputError(f"{where}: {OPTION_OF.get(exc.field, exc.field)}: {exc.expected}") from None
+        raise InputError(f"{where}: {option_of(exc.field)}: {cut(exc.expected, MAX_EXPECTED)}") from None
 
 
 def query_name(query: Query, scenario: Scenario) -> str:
@@ -362,7 +368,7 @@ def _query_problem(sc: Scenario, base_problem: Any, validity: Callable | None, w
     try:
         return build_problem(sc, validity=base_problem.validity)
     except ScenarioError as exc:
-        raise InputError(f"{where}: {OPTION_OF.get(exc.field, exc.field)}: {exc.expected}") from None
+        raise InputError(f"{where}: {option_of(exc.field)}: {cut(exc.expected, MAX_EXPECTED)}") from None
 
 
 def _check_start(problem: Any, ns: _NodeSet, where: str) -> None:
