@@ -575,3 +575,16 @@ def test_a_message_quotes_at_most_200_characters():
     with pytest.raises(InputError) as info:
         parse_disturbance("push:" + "9" * 10**5)
     assert len(str(info.value)) < 800
+
+
+def test_a_rewrite_refuses_a_size_declared_but_never_written(smoke_roadmap, tmp_path):
+    """Storing a query rewrites the file by value: a query declared 0.99 GiB but never written (a file of
+    kilobytes) is refused before it is read, not allocated; the file is left as it was."""
+    from firmtool.io.roadmap_write import write_queries
+    path = corpus.prepare(tmp_path, smoke_roadmap[0])
+    corpus.edit(path, lambda f: f.create_group("queries").create_dataset(
+        "bomb", shape=(int(0.99 * 2**30),), dtype="u1", chunks=(2**20,), compression="gzip", fillvalue=0))
+    before = path.read_bytes()
+    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 1063004405 bytes but the file stores"):
+        write_queries(path, {"new": (b"\x00" * 16, {})})
+    assert path.read_bytes() == before
