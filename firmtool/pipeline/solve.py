@@ -11,7 +11,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from firmtool.deadline import DeadlineBudget, StepRows, deadline_budget, shown_steps, smallest_feasible_deadline, solve_deadline
+from firmtool.deadline import (
+    DeadlineBudget,
+    StepRows,
+    deadline_budget,
+    shown_steps,
+    smallest_feasible_deadline,
+    solve_deadline,
+)
 from firmtool.errors import InputError, RoadmapError, RunFailure, Unreachable
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.edge_table import edge_costs
