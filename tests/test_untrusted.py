@@ -441,3 +441,150 @@ def test_a_build_in_memory_touches_no_disk_and_saves_what_it_built(tmp_path, mon
     stored = ft.open_roadmap(sol.save(tmp_path / "solved.h5")).solution()
     assert np.array_equal(stored.policy, sol.policy) and stored.success_probability == sol.success_probability
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cwd", "saved.h5", "solved.h5"]
+
+
+# -- issue 52 through the API: derived tables, budgets, names, values in messages ------------------------------
+
+def _tampered(smoke_roadmap, tmp_path, fn) -> Path:
+    path = corpus.prepare(tmp_path, smoke_roadmap[0])
+    corpus.edit(path, fn)
+    return path
+
+
+@pytest.mark.parametrize("kind,dataset", [("inverted", "swept_hi"), ("point", "swept_lo"), ("moved", "swept_lo"),
+                                          ("third_dim", "swept_lo"), ("nan", "swept_hi")])
+def test_a_tampered_swept_region_is_refused_by_the_api(kind, dataset, smoke_roadmap, tmp_path):
+    """Every reader of the edge table refuses it, naming the dataset: a world update on the API
+    (``Policy.update_world`` reads the regions through the solution) never sees it."""
+    path = _tampered(smoke_roadmap, tmp_path, corpus._swept(kind))
+    with pytest.raises(ft.RoadmapError, match=rf"'/edges/{dataset}'"):
+        ft.solve(ft.open_roadmap(path))
+
+
+@pytest.mark.parametrize("kind,dataset", [("all_in_one_step", "steps_value"), ("moved_outcome", "steps_count"),
+                                          ("beyond_max_steps", "steps_value"), ("one_early", "steps_value"),
+                                          ("goal_in_one_step", "steps_value")])
+def test_a_tampered_step_histogram_is_refused_by_the_api(kind, dataset, smoke_roadmap, tmp_path):
+    path = _tampered(smoke_roadmap, tmp_path, corpus._steps(kind))
+    with pytest.raises(ft.RoadmapError, match=rf"'/edges/{dataset}'"):
+        ft.solve(ft.open_roadmap(path), deadline=40)
+
+
+def test_the_checked_tables_hold_on_real_roadmaps(smoke_roadmap):
+    """The checks are true of what the engines write (independent counts from h5py): every landing in a
+    regular node after its nominal's steps, none beyond nominal + controller.max_steps, the histogram's
+    particles per (edge, outcome) the outcome counts, every source's key point in its swept region."""
+    with corpus.h5py.File(smoke_roadmap[0], "r") as f:
+        e, c = f["edges"], f["controllers"]
+        key = {(int(s), int(t)): k for k, (s, t) in enumerate(zip(c["edge_source"][()], c["edge_target"][()]))}
+        nominal = np.array([c["edge_steps"][()][key[(int(s), int(t))]] for s, t in zip(e["source"][()], e["target"][()])])
+        edge, code, value, count = (e[f"steps_{n}"][()] for n in ("edge", "code", "value", "count"))
+        kinds = f["nodes/kind"][()]
+        per_outcome = Counter()
+        for a, b, n in zip(e["outcome_edge"][()], e["outcome_code"][()], e["outcome_count"][()]):
+            per_outcome[(int(a), int(b))] += int(n)
+        per_steps = Counter()
+        for a, b, n in zip(edge, code, count):
+            per_steps[(int(a), int(b))] += int(n)
+        centers, lo, hi, source = f["nodes/centers"][()], e["swept_lo"][()], e["swept_hi"][()], e["source"][()]
+    assert +per_outcome == +per_steps
+    regular = (code >= 0) & (kinds[np.maximum(code, 0)] != 2)
+    assert np.all(value[regular] >= nominal[edge[regular]]) and np.all(value <= nominal[edge] + 150)
+    assert np.all((lo <= centers[source]) & (centers[source] <= hi))  # the point robot's key point is its position
+
+
+def test_a_center_start_with_perfect_sensing_passes_the_swept_check(tmp_path):
+    """The worst case of the source-point check: particles that start exactly at the node and move off
+    at once (perfect sensing, centre start); the region need not hold the node, but within its margin."""
+    sc = ft.load_scenario("point_perfect").replace(roadmap={"nodes": 8}, estimation={"particles": 30,
+                                                                                     "start": "center"})
+    rm = ft.build(sc, workers=1)
+    path = rm.save(tmp_path / "perfect.h5")
+    sol = ft.solve(ft.open_roadmap(path), allow_unreachable=True)
+    assert sol.success_probability >= 0.0
+
+
+def test_the_deadline_budget_is_its_chain_and_memory_bound(solved, smoke_roadmap):
+    """The budget is CHAIN_MULTIPLE x (N - 1) x the most steps a landing took (from h5py), within the
+    memory bound; a deadline past it is refused before the DP allocates, whatever its size; at the
+    budget, P(goal within T) has reached the untimed success probability (nothing is lost)."""
+    from firmtool.graph.deadline import CHAIN_MULTIPLE
+    rm, sol = solved
+    with corpus.h5py.File(smoke_roadmap[0], "r") as f:
+        code, value = f["edges/steps_code"][()], f["edges/steps_value"][()]
+        n = f["nodes/kind"].shape[0]
+    budget = rm.deadline_budget()
+    assert budget.chain_steps == (n - 1) * int(value[code >= 0].max())
+    assert budget.steps == min(CHAIN_MULTIPLE * budget.chain_steps, budget.memory_steps)
+    for deadline in (budget.steps + 1, 10**7, 10**12, 2**63, 10**400):
+        t0 = time.perf_counter()
+        with pytest.raises(InputError, match=rf"deadline: expected a deadline of at most {budget.steps} steps"):
+            ft.solve(rm, deadline=deadline)
+        assert time.perf_counter() - t0 < 5.0
+    timed = ft.solve(rm, deadline=budget.steps)
+    assert abs(timed.deadline_success_probability - sol.success_probability) < 1e-3
+
+
+def test_a_query_name_is_checked_before_anything_is_computed(solved, monkeypatch):
+    rm, _ = solved
+
+    def computed(*args, **kwargs):
+        raise AssertionError("a query was computed")
+
+    monkeypatch.setattr(api.queries.pipeline, "answer_query", computed)
+    for name in (".", "..", "-x", "a/b", "", "n" * 100_000, 7):
+        with pytest.raises(InputError, match=r"^name: expected 1 to 64") as info:
+            ft.solve(rm, queries=[ft.Query(goal=[3.5, 2.5], name="fine"), ft.Query(goal=[3.5, 2.6], name=name)])
+        assert len(str(info.value)) < 400
+
+
+def test_a_stored_query_is_read_alone_and_a_declared_one_refused(smoke_roadmap, tmp_path):
+    path = corpus.prepare(tmp_path, smoke_roadmap[0])
+    image = path.read_bytes()
+    with corpus.h5py.File(path, "r") as f:
+        edges = str(f["edges"].attrs["inputs_sha256"])
+
+    def fn(f):
+        corpus._store_query(f, "own", image, edges)
+        f["queries"].create_dataset("bomb", shape=(int(0.99 * 2**30),), dtype="u1", chunks=(2**20,),
+                                    compression="gzip", fillvalue=0)
+    corpus.edit(path, fn)
+    rm = ft.open_roadmap(path)
+    assert rm.queries == ["bomb", "own"]
+    assert rm.query("own").solution().success_probability == rm.solution().success_probability
+    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 1063004405 bytes but the file stores 0"):
+        rm.query("bomb")
+
+
+def test_update_world_bounds_its_obstacles_and_names_the_field(solved):
+    from firmtool.online import Policy
+    _, sol = solved
+    policy = Policy(sol)
+    many = ({"center": [0.1, 2.9], "half_size": [0.01, 0.01]} for _ in range(10**9))  # an iterable that never ends
+    with pytest.raises(InputError, match=r"^update_world: obstacles: expected at most 1000 obstacles"):
+        policy.update_world(many)
+
+
+def test_a_message_quotes_at_most_200_characters():
+    from firmtool.errors import MAX_QUOTED, ScenarioError, cut, quoted
+    from firmtool.sim.disturbances import parse_disturbance
+    assert quoted("x" * 10**6) == repr("x" * MAX_QUOTED) + "... (1000000 characters)"
+    assert quoted("ok") == "'ok'" and cut("a\nb") == "a\\nb"
+    exc = ScenarioError("s.toml", "model." + "k" * 10**5, "unknown field: " + "v" * 10**5)
+    assert len(str(exc)) < 1200 and "(100006 characters)" in str(exc)
+    with pytest.raises(InputError) as info:
+        parse_disturbance("push:" + "9" * 10**5)
+    assert len(str(info.value)) < 800
+
+
+def test_a_rewrite_refuses_a_size_declared_but_never_written(smoke_roadmap, tmp_path):
+    """Storing a query rewrites the file by value: a query declared 0.99 GiB but never written (a file of
+    kilobytes) is refused before it is read, not allocated; the file is left as it was."""
+    from firmtool.io.roadmap_write import write_queries
+    path = corpus.prepare(tmp_path, smoke_roadmap[0])
+    corpus.edit(path, lambda f: f.create_group("queries").create_dataset(
+        "bomb", shape=(int(0.99 * 2**30),), dtype="u1", chunks=(2**20,), compression="gzip", fillvalue=0))
+    before = path.read_bytes()
+    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 1063004405 bytes but the file stores"):
+        write_queries(path, {"new": (b"\x00" * 16, {})})
+    assert path.read_bytes() == before

@@ -18,7 +18,17 @@ Classes (``Case.klass``):
   in a scenario and in the scenario text a roadmap stores;
 - ``budget``: work far beyond what a build, a design or an execution may take;
 - ``attribute``: stage attributes missing, NaN, arrays, bogus texts;
-- ``option``: command-line values that reach a library call unchecked.
+- ``option``: command-line values that reach a library call unchecked;
+- ``table``: derived tables rewritten consistently enough to pass the shape checks (issue 52): swept
+  regions (inverted, shrunk to a point, moved away, non-finite, of another world's dimension), step
+  histograms (moved between outcomes or steps with the per-edge sums kept, beyond an edge's steps),
+  the time-indexed policy's attributes against its arrays; each must be refused, never read into a
+  silently wrong probability or update;
+- ``side``: side files a command reads besides the roadmap: ``--task`` files that are FIFOs,
+  devices, huge, nested deep or not text, and stored query images declared far larger than stored;
+- ``deadline``: deadlines beyond the roadmap's budget (CLI and scenario);
+- ``message``: values echoed in messages (long names, names HDF5 cannot hold), messages that must
+  blame the right thing.
 
 The plugin, argument, stamp and disk-full classes need a process of their own or the API and are
 made in the test module.
@@ -35,7 +45,6 @@ from typing import Callable
 
 import h5py
 import numpy as np
-
 from conftest import room_3d
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -488,9 +497,281 @@ def option_cases() -> list[Case]:
     ]
 
 
+# -- derived tables (issue 52) ----------------------------------------------------------------------------
+
+def _rewrite(f: h5py.File, name: str, value: np.ndarray) -> None:
+    """Replace dataset ``name`` by ``value`` (any shape: a new dataset of the same dtype kind)."""
+    dtype = f[name].dtype
+    del f[name]
+    f[name] = np.asarray(value).astype(dtype)
+
+
+def table(name: str, fn: Callable[[h5py.File], None], command: str, phrases: tuple[str, ...],
+          extra: tuple[str, ...] = ()) -> Case:
+    """A derived table of the solved smoke roadmap rewritten by ``fn``; ``command`` opens it."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        edit(roadmap, fn)
+        if command == "update":
+            path = folder / "moved.toml"
+            path.write_text(scenario_text(**{"center = [2.0, 1.2]": "center = [2.0, 1.3]"}))
+            return ["update", str(roadmap), str(path)]
+        return [command, str(roadmap), *extra] + (["-n", "2"] if command == "execute" else [])
+    return Case(f"table_{name}_{command}", "table", make, phrases)
+
+
+def _swept(kind: str) -> Callable[[h5py.File], None]:
+    def fn(f: h5py.File) -> None:
+        lo, hi = f["edges/swept_lo"][()], f["edges/swept_hi"][()]
+        if kind == "inverted":
+            lo, hi = hi, lo
+        elif kind == "point":  # shrunk to one corner (lo == hi): far from most sources' key points
+            hi = lo.copy()
+        elif kind == "inf":
+            lo[0, 0] = -np.inf
+        elif kind == "nan":
+            hi[-1, 1] = np.nan
+        elif kind == "moved":  # the same boxes, moved far off (outside the world)
+            lo, hi = lo + 50.0, hi + 50.0
+        elif kind == "one_row_inverted":
+            lo[3], hi[3] = hi[3].copy(), lo[3].copy()
+        elif kind == "third_dim":  # (E, 3) in the 2-D world
+            lo, hi = np.c_[lo, np.zeros(len(lo))], np.c_[hi, np.ones(len(hi))]
+        elif kind == "huge":
+            lo[:] = -1e300
+            hi[:] = 1e300
+        _rewrite(f, "edges/swept_lo", lo)
+        _rewrite(f, "edges/swept_hi", hi)
+    return fn
+
+
+def _steps(kind: str) -> Callable[[h5py.File], None]:
+    def fn(f: h5py.File) -> None:
+        e = f["edges"]
+        edge, code, value, count = (e[f"steps_{n}"][()] for n in ("edge", "code", "value", "count"))
+        if kind == "all_in_one_step":  # every particle in 1 step, per-edge and per-outcome sums kept
+            value[:] = 1
+        elif kind == "moved_outcome":  # a failure's particles moved to a landing, per-edge sums kept
+            land = np.flatnonzero(code >= 0)
+            fail = np.flatnonzero((code < 0) & np.isin(edge, edge[land]))
+            r = int(fail[0])
+            same = land[edge[land] == edge[r]][0]
+            code[r] = code[same]
+        elif kind == "beyond_max_steps":
+            value[np.argmax(value)] = 2**31 - 1
+        elif kind == "just_beyond":
+            value[np.argmax(value)] = 400  # the smoke edges run at most 150 steps past their nominal (<= 30)
+        elif kind == "goal_in_one_step":  # landings in the goal node (which a goal ball may reach early) in 1 step
+            value[code == 1] = 1
+        elif kind == "one_early":  # one landing row in a regular node made 1 step long
+            r = int(np.flatnonzero(code >= 2)[0])
+            value[r] = 1
+        for n, a in (("edge", edge), ("code", code), ("value", value), ("count", count)):
+            _rewrite(f, f"edges/steps_{n}", a)
+    return fn
+
+
+def _deadline_policy(kind: str) -> Callable[[h5py.File], None]:
+    """The solved smoke roadmap's policy solved again with a deadline (by the file's own DP), then
+    one attribute or array made to disagree."""
+    def fn(f: h5py.File) -> None:
+        g = f["policy"]
+        if kind == "steps_attribute":
+            g.attrs["deadline_steps"] = int(g.attrs["deadline_steps"]) + 5
+        elif kind == "probability_attribute":
+            g.attrs["deadline_success_probability"] = 1.0
+        elif kind == "success_array":
+            s = g["deadline_success"][()]
+            s[:, 0] = 1.0
+            _rewrite(f, "policy/deadline_success", s)
+        elif kind == "one_array":
+            del g["deadline_success"]
+        elif kind == "attribute_without_arrays":
+            del g["deadline_edge"], g["deadline_success"]
+    return fn
+
+
+def table_cases() -> list[Case]:
+    swept = [("inverted", "inspect", ("'/edges/swept_hi'", "below")), ("inverted", "update", ("'/edges/swept_hi'",)),
+             ("point", "update", ("'/edges/swept_lo'", "source node")), ("inf", "update", ("'/edges/swept_lo'",)),
+             ("nan", "solve", ("'/edges/swept_hi'", "non-finite")), ("moved", "update", ("'/edges/swept_lo'",)),
+             ("one_row_inverted", "update", ("'/edges/swept_hi'", "row 3")),
+             ("third_dim", "update", ("'/edges/swept_lo'", "world has 2")),
+             ("third_dim", "execute", ("'/edges/swept_lo'",)), ("huge", "update", ("'/edges/swept_lo'",))]
+    cases = [table(f"swept_{kind}", _swept(kind), command, phrases) for kind, command, phrases in swept]
+    steps = [("all_in_one_step", ("'/edges/steps_value'", "before its nominal")),
+             ("moved_outcome", ("'/edges/steps_count'", "outcome counts")),
+             ("beyond_max_steps", ("'/edges/steps_value'", "controller.max_steps")),
+             ("just_beyond", ("'/edges/steps_value'",)), ("one_early", ("'/edges/steps_value'", "before")),
+             ("goal_in_one_step", ("'/edges/steps_value'", "particle_steps"))]
+    cases += [table(f"steps_{kind}", _steps(kind), "solve", phrases, ("--deadline", "40"))
+              for kind, phrases in steps]
+    cases += [table("steps_moved_outcome", _steps("moved_outcome"), "execute", ("'/edges/steps_count'",))]
+    return cases
+
+
+def deadline_table_cases() -> list[Case]:
+    """The time-indexed policy's attributes against its arrays (a roadmap solved with a deadline)."""
+    def case(kind: str, phrases: tuple[str, ...]) -> Case:
+        def make(folder: Path, roadmap: Path) -> list[str]:
+            from firmtool.io.roadmap_file import RoadmapFile
+            from firmtool.pipeline.solve import solve_policy, write_policy
+            write_policy(roadmap, solve_policy(RoadmapFile(roadmap), deadline=60))
+            edit(roadmap, _deadline_policy(kind))
+            return ["execute", str(roadmap), "-n", "2"]
+        return Case(f"table_deadline_{kind}_execute", "table", make, phrases)
+    return [case("steps_attribute", ("attribute 'deadline_steps' of '/policy'",)),
+            case("probability_attribute", ("attribute 'deadline_success_probability' of '/policy'",)),
+            case("success_array", ("'/policy/deadline_success'",)),
+            case("one_array", ("'/policy/deadline_success'", "missing")),
+            case("attribute_without_arrays", ("'/policy/deadline_edge'", "missing"))]
+
+
+# -- side files (issue 52) ----------------------------------------------------------------------------------
+
+def _task(kind: str, folder: Path) -> Path:
+    path = folder / "task.toml"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind in ("dev_zero", "dev_urandom"):
+        path.symlink_to("/dev/zero" if kind == "dev_zero" else "/dev/urandom")
+    elif kind == "folder":
+        path.mkdir()
+    elif kind == "huge":
+        with open(path, "wb") as fh:  # sparse: 200 MiB declared, nothing stored
+            fh.truncate(200 * 2**20)
+    elif kind == "nested":
+        path.write_text("[task]\ngoal = " + "[" * 3000 + "3.5, 2.5" + "]" * 3000 + "\n")
+    elif kind == "nested_tables":
+        path.write_text("[task]\ngoal = " + "{ a = " * 3000 + "1" + " }" * 3000 + "\n")
+    elif kind == "long_array":
+        path.write_text("[task]\ngoal = [" + ", ".join(["1.0"] * 5000) + "]\n")
+    elif kind == "binary":
+        path.write_bytes(b"[task]\ngoal = [3.5, 2.5]\n\xff\xfe" + SECRET.encode())
+    elif kind == "secret_key":
+        path.write_text(f"[task]\n{'k' * 50_000} = 1\n")
+    elif kind == "link_to_secret":
+        secret = folder / "secret.txt"
+        secret.write_text(f"{SECRET}\n")
+        path.symlink_to(secret)
+    return path
+
+
+def task_case(kind: str, phrases: tuple[str, ...]) -> Case:
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        return ["solve", str(roadmap), "--task", str(_task(kind, folder))]
+    return Case(f"task_{kind}", "side", make, ("task.toml",) + phrases)
+
+
+def _store_query(f: h5py.File, name: str, image: bytes, base_edges: str) -> None:
+    g = f.require_group("queries")
+    d = g.create_dataset(name, data=np.frombuffer(image, dtype=np.uint8))
+    d.attrs["base_edges_sha256"] = base_edges
+
+
+def query_bombs(command: str, query: str, phrases: tuple[str, ...] = (), code: int = 2) -> Case:
+    """A roadmap with a stored query 'own' (its own image: a valid query) and five queries declared
+    0.99 GiB each but never written (a file of kilobytes): only the query asked for may be read."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        image = roadmap.read_bytes()
+        with h5py.File(roadmap, "r") as f:
+            edges = str(f["edges"].attrs["inputs_sha256"])
+
+        def fn(f: h5py.File) -> None:
+            _store_query(f, "own", image, edges)
+            for i in range(5):
+                f["queries"].create_dataset(f"bomb{i}", shape=(int(0.99 * 2**30),), dtype="u1", chunks=(2**20,),
+                                            compression="gzip", fillvalue=0)
+        edit(roadmap, fn)
+        if command == "inspect":
+            return ["inspect", str(roadmap)]
+        if command == "plot":
+            return ["plot", str(roadmap), "--query", query, "-o", str(folder / "q.png")]
+        return ["execute", str(roadmap), "--query", query, "-n", "2"]
+    outputs = (".r.h5.lock", "q.png", ".q.png.lock")
+    return Case(f"query_bombs_{command}_{query}", "side", make, phrases, code=code, outputs=outputs)
+
+
+def side_cases() -> list[Case]:
+    cases = [task_case("fifo", ("--task", "FIFO")), task_case("dev_zero", ("--task", "character device")),
+             task_case("dev_urandom", ("--task", "character device")), task_case("folder", ("--task", "directory")),
+             task_case("huge", ("--task", "at most")), task_case("nested", ("task.goal", "nested at most")),
+             task_case("nested_tables", ("task.goal", "nested at most")),
+             task_case("long_array", ("task.goal", "at most 1000 items")), task_case("binary", ("--task", "UTF-8")),
+             task_case("secret_key", ("task.kkkk", "(50000 characters)")), task_case("link_to_secret", ("--task",))]
+    cases += [query_bombs("execute", "own", code=0), query_bombs("plot", "own", code=0),
+              query_bombs("inspect", "", code=0),
+              query_bombs("execute", "bomb3", ("'/queries/bomb3'", "declares")),
+              query_bombs("plot", "bomb0", ("'/queries/bomb0'", "declares"))]
+    return cases
+
+
+# -- deadline budgets and messages (issue 52) ---------------------------------------------------------------
+
+def deadline_cases() -> list[Case]:
+    def solve(value: str) -> Case:
+        return Case(f"deadline_{value}", "deadline",
+                    lambda folder, roadmap: ["solve", str(roadmap), "--deadline", value],
+                    ("--deadline", "expected a deadline of at most", "longest simple chain"))
+    cases = [solve(v) for v in ("10000000", "1000000000000", str(2**63), str(10**40))]
+    cases += [scenario_case(f"deadline_steps_{v}_check", "deadline",
+                            scenario_text(**{"[task]\n": f"[task]\ndeadline_steps = {v}\n"}), "check",
+                            ("task.deadline_steps", "at most")) for v in ("1000000000000", "2000000")]
+    cases += [scenario_case("deadline_steps_2_63_check", "deadline",
+                            scenario_text(**{"[task]\n": f"[task]\ndeadline_steps = {2**63}\n"}), "check",
+                            ("task.deadline_steps",))]
+    return cases
+
+
+def _no_edge_world(folder: Path) -> Path:
+    """The smoke world with walls that put every node but the start and goal in collision and cut
+    every nominal between them."""
+    path = folder / "walled.toml"
+    path.write_text(scenario_text(**{
+        "obstacles = [ { center = [2.0, 1.2], half_size = [0.3, 0.7] } ]":
+            "obstacles = [ { center = [2.0, 1.5], half_size = [1.2, 1.5] }, { center = [0.5, 2.0], half_size = "
+            "[0.5, 1.2] }, { center = [3.6, 2.0], half_size = [0.4, 1.1] } ]"}))
+    return path
+
+
+def message_cases() -> list[Case]:
+    long_name = "n" * 100_000
+    return [
+        Case("name_100kb", "message", lambda folder, roadmap: ["solve", str(roadmap), "--goal", "3.5,2.5", "--name",
+                                                                long_name], ("--name", "(100000 characters)")),
+        Case("name_dot", "message", lambda folder, roadmap: ["solve", str(roadmap), "--goal", "3.5,2.5", "--name", "."],
+             ("--name", "found '.'")),
+        Case("name_dotdot", "message", lambda folder, roadmap: ["solve", str(roadmap), "--goal", "3.5,2.5", "--name",
+                                                                 ".."], ("--name",)),
+        Case("name_dash", "message", lambda folder, roadmap: ["solve", str(roadmap), "--goal", "3.5,2.5", "--name",
+                                                               "-x"], ("--name",)),
+        Case("query_long_execute", "message", lambda folder, roadmap: ["execute", str(roadmap), "--query", long_name],
+             ("--query", "(100000 characters)")),
+        Case("disturbance_long", "message", lambda folder, roadmap: ["execute", str(roadmap), "-n", "1", "-d",
+                                                                     "push:" + "9" * 100_000],
+             ("--disturbance", "characters)")),
+        Case("update_leaves_no_edge", "message",
+             lambda folder, roadmap: ["update", str(roadmap), str(_no_edge_world(folder))],
+             ("has no edge", "world update"), code=1, outputs=(".r.h5.lock", "r.h5")),
+        Case("update_changes_a_task_field", "message",
+             lambda folder, roadmap: ["update", str(roadmap), str(_changed(folder, "start = [0.5, 0.5]",
+                                                                           "start = [0.5, 0.6]"))],
+             ("task.start", "differs")),
+        Case("update_changes_a_model_field", "message",
+             lambda folder, roadmap: ["update", str(roadmap), str(_changed(folder, "dt = 0.1", "dt = 0.11"))],
+             ("model.dt", "differs")),
+    ]
+
+
+def _changed(folder: Path, old: str, new: str) -> Path:
+    path = folder / "changed.toml"
+    path.write_text(scenario_text(**{old: new}))
+    return path
+
+
 def cli_cases() -> list[Case]:
     """Every case run through the command line in a child process."""
     cases = hdf5_cases() + lock_cases() + mesh_cases() + budget_cases() + attribute_cases() + option_cases()
+    cases += table_cases() + deadline_table_cases() + side_cases() + deadline_cases() + message_cases()
     names = [c.name for c in cases]
     assert len(set(names)) == len(names), sorted(n for n in names if names.count(n) > 1)
     return cases

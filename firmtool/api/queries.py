@@ -76,7 +76,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         raise InputError("queries: give the queries as a list or one by keyword, not both")
     for q in ([single] if queries is None else list(queries)):  # every name before any query is computed
         if isinstance(q, Query) and q.name is not None:
-            check_query_name(q.name)
+            check_query_name(q.name, "name")
     settings = pipeline.worker_settings(workers, default=1, problem=None)
     out = []
     for q in ([single] if queries is None else list(queries)):

@@ -30,7 +30,7 @@ import os
 
 import numpy as np
 
-from firmtool.errors import InputError, RoadmapError, ScenarioError
+from firmtool.errors import InputError, RoadmapError, ScenarioError, quoted
 from firmtool.graph.deadline import deadline_budget
 from firmtool.problem import Problem
 from firmtool.roadmap.nodes import ATTEMPTS_PER_NODE, MIN_ATTEMPTS
@@ -234,7 +234,7 @@ def check_push_size(problem: Problem, spec: str, size: float, flag: str = "--dis
     would be sized by its length."""
     diagonal = configuration_diagonal(problem)
     if not (math.isfinite(size) and size <= diagonal):
-        raise InputError(f"{flag} {spec!r}: SIZE {size:g} is longer than the diagonal of the configuration bounds "
+        raise InputError(f"{flag} {quoted(spec)}: SIZE {size:g} is longer than the diagonal of the configuration bounds "
                          f"({diagonal:.4g}): a push that long leaves them from every state; expected SIZE <= "
                          f"{diagonal:.4g}")
 
@@ -280,7 +280,7 @@ def check_workers(workers: int, problem: Problem | None = None) -> int:
     (``WORKER_BASE_BYTES`` plus one chunk of particles of ``problem`` each) within what is available.
     """
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise InputError(f"--workers: expected an integer >= 1, found {workers!r}")
+        raise InputError(f"--workers: expected an integer >= 1, found {quoted(workers)}")
     n_cores = cores()
     top = max(MIN_WORKER_LIMIT, WORKERS_PER_CORE * n_cores)
     if workers > top:
@@ -312,10 +312,10 @@ def check_execution(problem: Problem, episodes: int, record: bool = False,
     """
     flag_episodes, flag_bound, flag_record = names
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise InputError(f"{flag_episodes}: expected an integer >= 1, found {episodes!r}")
+        raise InputError(f"{flag_episodes}: expected an integer >= 1, found {quoted(episodes)}")
     if isinstance(max_total_steps, bool) or not isinstance(max_total_steps, (int, float, np.integer, np.floating)) \
             or not (math.isfinite(max_total_steps) and max_total_steps >= 1):
-        raise InputError(f"{flag_bound}: expected a finite number >= 1, found {max_total_steps!r}")
+        raise InputError(f"{flag_bound}: expected a finite number >= 1, found {quoted(max_total_steps)}")
     per_episode = problem.scenario.execution.max_steps
     steps = float(episodes) * per_episode
     if steps > max_total_steps:

@@ -16,7 +16,7 @@ import cloudpickle
 import numpy as np
 
 from firmtool import robots
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import Design
 from firmtool.robots.registry import is_importable
@@ -75,7 +75,7 @@ def job_extras(problem: Problem) -> dict:
         try:
             extras["robot"] = (problem.scenario.model.robot, cloudpickle.dumps(cls))
         except Exception as exc:  # noqa: BLE001 - say which object cannot travel, in one line
-            raise InputError(f"robot {problem.scenario.model.robot!r}: its class cannot be pickled for worker "
+            raise InputError(f"robot {quoted(problem.scenario.model.robot)}: its class cannot be pickled for worker "
                              f"processes ({type(exc).__name__}: {exc})") from None
     return extras
 

@@ -36,7 +36,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from threadpoolctl import threadpool_limits
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.estimation.jobs import forget_context
 from firmtool.io.locking import forget_inherited
 from firmtool.util import interrupts
@@ -204,7 +204,7 @@ class Workers:
 
     def __init__(self, workers: int = 1, executor: str = "process", scheduler: str | None = None) -> None:
         if executor not in ("process", "dask"):
-            raise InputError(f"--executor: expected 'process' or 'dask', found {executor!r}")
+            raise InputError(f"--executor: expected 'process' or 'dask', found {quoted(executor)}")
         self.executor, self.scheduler, self.requested = executor, scheduler, max(1, int(workers))
         self._pool: ProcessPoolExecutor | None = None
         self._pool_jobs: set[str] = set()  # tokens the current pool's workers inherited at their fork
@@ -384,7 +384,7 @@ class Workers:
                                              dashboard_address="127.0.0.1:0")
                 self._client = Client(self._cluster)
         except (OSError, TimeoutError) as exc:
-            raise InputError(f"--scheduler: cannot reach the dask scheduler {self.scheduler!r} "
+            raise InputError(f"--scheduler: cannot reach the dask scheduler {quoted(self.scheduler)} "
                              f"({_cause(exc)})") from None
 
     def _run_dask(self, job, fn, work, retry) -> Iterator[BatchResult]:

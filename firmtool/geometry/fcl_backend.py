@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.geometry.backends import _check_capsules, _check_world, nonadjacent_pairs, outside_workspace
 from firmtool.geometry.distance3d import segment_box_distance_sq, segment_point_distance_sq
 from firmtool.geometry.shapes import Box, Capsule, Cylinder, Mesh, Obstacle, Sphere
@@ -153,7 +153,7 @@ class FclCollisionBackend:
             model.addSubModel(np.asarray(o.vertices, dtype=float), np.asarray(o.triangles, dtype=np.int64))
             model.endModel()
             return model, fcl.Transform()
-        raise InputError(f"collision backend 'fcl': obstacle kind {o.kind!r} is not supported")
+        raise InputError(f"collision backend 'fcl': obstacle kind {quoted(o.kind)} is not supported")
 
     def _segment_geometry(self, p: np.ndarray, q: np.ndarray, r: float):
         """A capsule (or a sphere, if shorter than MIN_LENGTH) around the segment [p, q] (3-D points)."""

@@ -51,6 +51,11 @@ MAX_MEMBERS = 256
 # reads at most as much: firmtool.io.roadmap_file.MAX_READ_BYTES).
 MAX_OBJECTS = 4096
 MAX_COPY_BYTES = 2**30
+# A dataset declared larger than SPARSE_BYTES is copied only if the file stores at least
+# 1 / MAX_COMPRESSION of it: no firmtool roadmap compresses its data, and a size declared but never
+# written (chunked fill values, a file of kilobytes) would otherwise be allocated whole by the copy.
+SPARSE_BYTES = 2**26
+MAX_COMPRESSION = 1000
 
 
 def _kind(st: os.stat_result) -> str:
@@ -250,8 +255,12 @@ def copy_by_value(src: h5py.Group, dst: h5py.Group, where: str, path: str | Path
     stored = used = 0
     for at, obj in plan:
         if isinstance(obj, h5py.Dataset):
-            stored += element_count(obj.shape) * obj.dtype.itemsize
+            declared = element_count(obj.shape) * obj.dtype.itemsize
+            stored += declared
             used += working_bytes(obj.shape)
+            if declared > SPARSE_BYTES and _storage_size(obj) * MAX_COMPRESSION < declared:
+                raise error(f"{path}: '{at}' declares {declared} bytes but the file stores {_storage_size(obj)} for it "
+                            f"(more than {MAX_COMPRESSION} to 1: declared, never written; file damaged or crafted)")
             if stored > MAX_COPY_BYTES or used > MAX_WORKING_BYTES:
                 raise error(f"{path}: '{at}' of shape {obj.shape} makes the file too large to copy (more than "
                             f"{MAX_COPY_BYTES / 2**30:.0f} GiB of data; file damaged)")
@@ -265,6 +274,13 @@ def copy_by_value(src: h5py.Group, dst: h5py.Group, where: str, path: str | Path
             continue
         copy = parent.create_dataset(name, data=read_value(obj, at, path, error), dtype=obj.dtype)
         _copy_attributes(obj, copy, at, path, error)
+
+
+def _storage_size(d: h5py.Dataset) -> int:
+    try:
+        return int(d.id.get_storage_size())
+    except (OSError, ValueError, TypeError):
+        return 0
 
 
 def _inventory(group: h5py.Group, where: str, path: str | Path,

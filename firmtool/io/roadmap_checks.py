@@ -222,6 +222,26 @@ def _check_histograms(at: Any, arrays: Mapping[str, np.ndarray], N: int | None, 
     if bad.size:
         _fail(at("steps_count"), f"counts {per_edge[int(bad[0])]:.0f} particles' steps for edge {int(bad[0])}, which "
                                  f"has {int(particles[int(bad[0])])} particles")
+    # per edge the histogram's steps are the steps its particles took (particle_steps, whose mean is
+    # steps_mean and the cost's steps term): steps moved within the outcomes' counts show here
+    if "particle_steps" in arrays:
+        steps = np.bincount(edge, weights=count.astype(float) * arrays["steps_value"].astype(float), minlength=F) \
+            if edge.size else np.zeros(F)
+        bad = np.flatnonzero(steps != arrays["particle_steps"].astype(float))
+        if bad.size:
+            e = int(bad[0])
+            _fail(at("steps_value"), f"gives edge {e} {steps[e]:.0f} particle-steps in all, where "
+                                     f"particle_steps holds {int(arrays['particle_steps'][e])}")
+        mean = arrays["particle_steps"].astype(float) / np.maximum(particles.astype(float), 1.0)
+        for name, value in (("steps_mean", arrays.get("steps_mean")),
+                            ("cost_terms_mean", None if "cost_terms_mean" not in arrays else
+                             np.asarray(arrays["cost_terms_mean"])[:, 1])):
+            if value is None or not value.size:
+                continue
+            bad = np.flatnonzero(~np.isclose(np.asarray(value, dtype=float), mean, rtol=1e-9, atol=1e-9))
+            if bad.size:
+                _fail(at(name), f"gives edge {int(bad[0])} a mean of {float(np.asarray(value)[bad[0]]):.6g} steps, "
+                                f"where its particle_steps / particles is {mean[bad[0]]:.6g}")
     # per (edge, outcome) the histogram's particles are the outcome count's: a histogram moved between
     # outcomes (every particle landing in 1 step, the sums kept) would make P(goal within T) silently wrong
     _same_counts(at, (arrays["outcome_edge"], arrays["outcome_code"], arrays["outcome_count"]),

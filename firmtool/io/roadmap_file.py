@@ -344,10 +344,12 @@ def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any,
     return value
 
 
-def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None) -> dict[str, np.ndarray]:
+def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None,
+                    world_dim: int | None = None) -> dict[str, np.ndarray]:
     """The ``/edge_cache`` table (estimates of an interrupted or superseded estimate stage), or {}
     if there is none. A cache that fails the checks of ``/edges`` (shapes, ranges, counts summing to
-    the particles; node ids below ``nodes`` when given) is ignored: it only saves work."""
+    the particles, swept regions finite with ``lo <= hi``, step histograms per outcome; node ids below
+    ``nodes`` and regions of ``world_dim`` coordinates when given) is ignored: it only saves work."""
     try:
         with _open(path) as f:
             g = hdf5.member(f, CACHE, "/", path, RoadmapError)  # a link or external storage: not read
@@ -367,6 +369,8 @@ def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None) -> 
         dims = {"C": 3, "H": 32}
         if nodes is not None:
             dims["N"] = nodes
+        if world_dim is not None:
+            dims["W"] = world_dim
         check_shapes(as_target(path), "edges", table, dims, where=CACHE)
         check_edges(as_target(path), table, dims, where=CACHE)
     except RoadmapError:

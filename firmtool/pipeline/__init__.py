@@ -50,10 +50,11 @@ from firmtool.pipeline.target import RoadmapTarget, check_output, default_output
 
 __all__ = [
     "BuildRequest", "CHECKPOINT_SECONDS", "Densify", "EstimationInterrupted", "PolicyGroup", "RoadmapTarget",
-    "Query", "VALIDITY_ATTR", "roadmap_deadline_budget", "WorkerSettings", "answer_query", "store_queries", "stored_query", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
+    "Query", "VALIDITY_ATTR", "WorkerSettings", "answer_query", "store_queries", "stored_query", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
     "build_roadmap", "check_output", "check_start_apart_from_goals", "controllers_inputs", "default_output",
     "design_of", "design_stage", "edge_probabilities", "edges_inputs", "estimate_stage", "execution_design",
     "in_memory", "node_task_points", "nodes_inputs", "policy_inputs", "problem_of", "roadmap_connectivity",
+    "roadmap_deadline_budget",
     "sample_stage", "solve_policy", "solve_report", "solve_stage", "unreachable_failure", "validity_of",
     "worker_settings", "write_policy",
 ]

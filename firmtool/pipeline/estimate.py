@@ -96,7 +96,7 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
                                 settings.workers if settings.requested else 0, settings.executor,
                                 time.perf_counter() - t0, up_to_date=True, notices=notices, engine=engine)
     known: dict[bytes, EdgeEstimate] = {} if fresh else from_arrays(roadmap.table("edges"))
-    cache = {} if fresh else read_edge_cache(path, nodes=d.centers.shape[0])
+    cache = {} if fresh else read_edge_cache(path, nodes=d.centers.shape[0], world_dim=problem.workspace_dim)
     known.update(from_arrays(cache))
     todo = [e for e in range(E) if bytes(keys[e]) not in known]
     reused = E - len(todo)

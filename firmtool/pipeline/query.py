@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from firmtool.errors import InputError, RoadmapError, ScenarioError, cut, quoted
+from firmtool.errors import MAX_EXPECTED, InputError, RoadmapError, ScenarioError, cut, quoted
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, edge_keys, from_arrays, to_arrays
 from firmtool.estimation.edges import GOAL_MISS, EdgeEstimate
@@ -67,6 +67,12 @@ TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covarianc
 # the option each task key comes from on the command line (messages name what the user typed)
 OPTION_OF = {"task.goal": "--goal", "task.goal_radius": "--goal-radius", "task.goal_confidence": "--goal-confidence",
              "task.start": "--start", "task.start_covariance": "--start-covariance"}
+
+
+def option_of(field: str) -> str:
+    """The command-line option a query's task field comes from (``task.goal`` -> ``--goal``); the field
+    itself where no option sets it, and ``task`` for a refusal of the section as a whole."""
+    return OPTION_OF.get(field, cut(field) or "task")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,7 +122,7 @@ def query_scenario(base: Scenario, query: Query, where: str) -> Scenario:
     try:
         return base.replace(task=task)
     except ScenarioError as exc:
-        raise InputError(f"{where}: {OPTION_OF.get(exc.field, exc.field)}: {exc.expected}") from None
+        raise InputError(f"{where}: {option_of(exc.field)}: {cut(exc.expected, MAX_EXPECTED)}") from None
 
 
 def query_name(query: Query, scenario: Scenario) -> str:
@@ -127,17 +133,17 @@ def query_name(query: Query, scenario: Scenario) -> str:
     return check_query_name(query.name)
 
 
-def check_query_name(name: Any) -> str:
+def check_query_name(name: Any, field: str = "--name") -> str:
     """``name`` if a query may be stored under it (a dataset's name in ``/queries`` and one shell
     word: :data:`firmtool.io.roadmap_queries.QUERY_NAME`); checked before anything is computed.
 
     Raises
     ------
     InputError
-        Any other name (``--name``), quoted at most 200 characters.
+        Any other name, named as ``field`` (``--name``; the API's ``name``), quoted at most 200 characters.
     """
     if not isinstance(name, str) or not re.fullmatch(QUERY_NAME, name):
-        raise InputError("--name: expected 1 to 64 letters, digits, '.', '_' or '-', starting with a letter, digit "
+        raise InputError(f"{field}: expected 1 to 64 letters, digits, '.', '_' or '-', starting with a letter, digit "
                          f"or '_', found {quoted(name)}")
     return name
 
@@ -281,7 +287,7 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
                zip(rows, base_keys, new_keys)}
     B = base_problem.scenario.estimation.particles
     known: dict[bytes, EdgeEstimate] = from_arrays(table)
-    known.update(from_arrays(read_edge_cache(source, nodes=N0)))
+    known.update(from_arrays(read_edge_cache(source, nodes=N0, world_dim=base_problem.workspace_dim)))
     estimates, keys, covered = [], [], set()
     for key, x in known.items():
         pair = (x.source, x.target)
@@ -362,7 +368,7 @@ def _query_problem(sc: Scenario, base_problem: Any, validity: Callable | None, w
     try:
         return build_problem(sc, validity=base_problem.validity)
     except ScenarioError as exc:
-        raise InputError(f"{where}: {OPTION_OF.get(exc.field, exc.field)}: {exc.expected}") from None
+        raise InputError(f"{where}: {option_of(exc.field)}: {cut(exc.expected, MAX_EXPECTED)}") from None
 
 
 def _check_start(problem: Any, ns: _NodeSet, where: str) -> None:

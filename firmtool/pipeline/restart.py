@@ -4,10 +4,10 @@ another build's hours without a word)."""
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 from firmtool.errors import FileBusyError, InputError, RoadmapError, quoted
+from firmtool.io.limits import LimitError, parse_toml
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.scenario import Scenario
@@ -34,9 +34,9 @@ def previous_roadmap(out: Path | MemoryFile) -> RoadmapFile | None:
 def changed_sections(old_text: str, new_text: str) -> list[str]:
     """The node-defining sections (``[world]``, ...) whose tables differ between two scenario texts
     (comments and layout do not count); ``seed`` for a changed ``scenario.seed``."""
-    try:
-        old, new = tomllib.loads(old_text), tomllib.loads(new_text)
-    except tomllib.TOMLDecodeError:
+    try:  # the previous file's text is someone else's: bounded before it is parsed (firmtool.io.limits)
+        old, new = parse_toml(old_text), parse_toml(new_text)
+    except LimitError:
         return []
     changed = []
     for section in NODE_SECTIONS:
@@ -52,8 +52,8 @@ def changed_sections(old_text: str, new_text: str) -> list[str]:
 def scenario_name(roadmap: RoadmapFile) -> str:
     """The ``[scenario] name`` of the scenario a roadmap stores ("" when its text does not read)."""
     try:
-        return str(tomllib.loads(roadmap.scenario_text).get("scenario", {}).get("name", ""))
-    except (tomllib.TOMLDecodeError, AttributeError):
+        return str(parse_toml(roadmap.scenario_text).get("scenario", {}).get("name", ""))
+    except (LimitError, AttributeError):
         return ""
 
 
@@ -83,5 +83,5 @@ def starting_over(previous: RoadmapFile, scenario: Scenario) -> str:
     why = (f"the scenario's {', '.join(changed)} changed since it was built" if changed else
            "its nodes were sampled from other inputs (another firmtool version, robot code or validity checker)")
     if old_name != scenario.name:
-        why = f"it held the roadmap of scenario {old_name!r} (replaced: --force)"
+        why = f"it held the roadmap of scenario {quoted(old_name)} (replaced: --force)"
     return f"starting over: {previous.path}: {why}; its {nodes} nodes and {edges} estimated edges are not reused"

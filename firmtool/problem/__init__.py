@@ -15,7 +15,7 @@ import cloudpickle
 import numpy as np
 
 from firmtool import robots
-from firmtool.errors import InputError, ScenarioError
+from firmtool.errors import InputError, ScenarioError, quoted
 from firmtool.models.base import Model
 from firmtool.problem.goal import GoalRegion
 from firmtool.scenario import Scenario
@@ -281,8 +281,17 @@ def _check_free_space(problem: Problem, samples: int = 4096) -> None:
     """ScenarioError on world.obstacles if no uniformly drawn configuration is collision-free."""
     rng = np.random.default_rng(0)
     q = rng.uniform(problem.config_lo, problem.config_hi, size=(samples, problem.config_dim))
-    if not np.any(problem.is_valid(problem.state_of(q))):
+    states = problem.state_of(q)
+    if not np.any(problem.is_valid(states)):
         sc = problem.scenario
+        with np.errstate(all="ignore"):
+            points = np.asarray(problem.points(states[:64]), dtype=float)
+        if not np.all(np.isfinite(points)):  # the robot's own numbers overflow: no world is to blame
+            bad = int(np.sum(~np.all(np.isfinite(points), axis=(-2, -1))))
+            raise ScenarioError(sc.path, "model.robot", f"expected robot {quoted(sc.model.robot)}'s key points to be "
+                                                        f"finite numbers: at {bad} of {len(points)} random "
+                                                        "configurations they are not (a length, offset or origin of "
+                                                        "the robot's description overflows)")
         raise ScenarioError(sc.path, "world.obstacles", f"expected some free space: none of {samples} random "
                                                         "configurations is collision-free (the obstacles and "
                                                         "world.robot_radius cover world.bounds)")

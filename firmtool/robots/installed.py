@@ -31,7 +31,7 @@ from importlib import metadata
 from pathlib import Path
 from urllib.parse import unquote, urlparse
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 
 
 def site_directories() -> tuple[Path, ...]:
@@ -82,7 +82,7 @@ def check_origin(robot: str, ep: metadata.EntryPoint) -> None:
     outside = [o for o in origins if not any(_inside(o, r) for r in roots)]
     if not origins or outside:
         where = outside[0] if outside else "nowhere"
-        raise InputError(f"robot {robot!r}: its entry point {ep.value!r} would import {top!r} from {where}, outside "
+        raise InputError(f"robot {quoted(robot)}: its entry point {quoted(ep.value)} would import {quoted(top)} from {where}, outside "
                          "the installed distribution that declares it (a module of that name in the current folder "
                          "or on PYTHONPATH shadows it); firmtool runs plugin code only from installed distributions")
 

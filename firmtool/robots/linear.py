@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from firmtool.errors import InputError, ScenarioError
+from firmtool.errors import InputError, ScenarioError, quoted
 from firmtool.models.linear import LinearGaussianModel, discretize, discretize_statespace, noise_factor
 from firmtool.robots.base import Robot
 from firmtool.util.schema import INVALID, MAX_STATE_DIM, Errors, Field, shape_text, valid
@@ -58,7 +58,7 @@ class LinearRobot(Robot):
         if dynamics != "matrices":
             for key in matrices:
                 if key in values and values[key] is not None and valid(values[key]):
-                    errors.add(f"model.{key}", f"only read with dynamics = 'matrices' (found dynamics = {dynamics!r})")
+                    errors.add(f"model.{key}", f"only read with dynamics = 'matrices' (found dynamics = {quoted(dynamics)})")
             if "process_noise_std" in values and values["process_noise_std"] is None:
                 errors.add("model.process_noise_std", "missing required field")
             return values

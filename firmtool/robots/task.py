@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from firmtool.errors import ScenarioError
+from firmtool.errors import ScenarioError, quoted
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.models.base import Model
@@ -106,7 +106,7 @@ class TaskSpaceDefaults:
             X = self._task_state("task.goal", q)[None]
             if np.allclose(self.task_point(X)[0], center, rtol=0, atol=1e-9 * max(1.0, float(np.abs(center).max()))):
                 return X[0]
-        raise ScenarioError(self.scenario.path, "task.goal", f"robot {self.name!r} cannot place its task point at a "
+        raise ScenarioError(self.scenario.path, "task.goal", f"robot {quoted(self.name)} cannot place its task point at a "
                                                              "given centre; give the goal as a configuration (without "
                                                              "goal_radius)")
 

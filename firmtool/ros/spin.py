@@ -58,6 +58,7 @@ def load_system(source: str | Path) -> tuple[Any, Any, Any]:
     return build_problem(ft.load_scenario(source)), None, None
 
 
+
 def run_sim_node(source: str | Path, *, episodes: int = 1, seed: int = 0, lockstep: bool = True,
                  rate: float | None = None, policy_node: str = "firmtool", control_timeout: float = 10.0,
                  ros_args: list[str] | None = None) -> dict[str, Any]:

@@ -42,7 +42,7 @@ import numpy as np
 import tomli_w
 
 from firmtool.errors import ScenarioError
-from firmtool.io.limits import LimitError, read_regular_file
+from firmtool.io.limits import LimitError, read_regular_file, read_toml_file
 from firmtool.scenario.read import read_tables
 from firmtool.scenario.specs import (
     ControllerSpec,
@@ -139,9 +139,9 @@ def shipped_scenarios() -> dict[str, Path]:
 
 def scenario_description(path: str | Path) -> str:
     """The ``scenario.description`` of a scenario file ('' if it has none or cannot be read)."""
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+    try:  # through the one bounded door of side files (a regular file, size cap, nesting bounded)
+        data = read_toml_file(path)
+    except (OSError, LimitError):
         return ""
     section = data.get("scenario")
     description = section.get("description", "") if isinstance(section, dict) else ""

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from firmtool import robots
-from firmtool.errors import InputError, ScenarioError
+from firmtool.errors import InputError, ScenarioError, quoted
 from firmtool.geometry.registry import backends_for, get_backend
 from firmtool.geometry.shapes import KIND_FIELD, KINDS, Mesh, Obstacle, obstacle_from_values
 from firmtool.io.limits import MAX_SCENARIO_BYTES, data_limit_error, toml_nesting_error
@@ -141,7 +141,7 @@ def _read_model(errors: Errors, data: dict) -> tuple[ModelSpec | None, type | No
         try:
             cls = robots.get(name)
         except InputError as exc:
-            errors.add("model.robot", f"expected one of {', '.join(robots.names())}, found {name!r}"
+            errors.add("model.robot", f"expected one of {', '.join(robots.names())}, found {quoted(name)}"
                        if str(exc).startswith("unknown robot") else str(exc))
     if cls is None:  # the robot's keys are unknown: read dt, do not flag the others
         values = read_table(errors, "model", raw, MODEL_FIELDS[1:], known_extra=tuple(raw))
@@ -216,12 +216,12 @@ def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
         info = get_backend(backend)
         kinds = {o.kind for o in obstacles}
         if D not in info.dimensions:
-            errors.add("world.collision_backend", f"{backend!r} handles {'/'.join(map(str, info.dimensions))}-D worlds, "
+            errors.add("world.collision_backend", f"{quoted(backend)} handles {'/'.join(map(str, info.dimensions))}-D worlds, "
                                                   f"this world is {D}-D; use one of: {', '.join(backends_for(D, kinds))}")
         for i, o in enumerate(obstacles):
             if o.kind not in info.obstacle_kinds:
-                errors.add(f"world.obstacles[{i}].kind", f"{o.kind!r} is not handled by world.collision_backend "
-                                                         f"{backend!r} (it handles {', '.join(info.obstacle_kinds)}); "
+                errors.add(f"world.obstacles[{i}].kind", f"{quoted(o.kind)} is not handled by world.collision_backend "
+                                                         f"{quoted(backend)} (it handles {', '.join(info.obstacle_kinds)}); "
                                                          f"use one of: {', '.join(backends_for(D, kinds))}")
     if not (ok and D is not None and all(valid(v) for v in values.values())):
         return None
@@ -242,7 +242,7 @@ def _read_obstacle(errors: Errors, prefix: str, item: Any, D: int | None, path: 
     before = len(errors.items)
     values = read_table(errors, prefix, item, cls.fields, {"D": D} if D else {}, known_extra=("kind",))
     if D is not None and D not in cls.dimensions:
-        errors.add(f"{prefix}.kind", f"{kind!r} needs a {'/'.join(map(str, cls.dimensions))}-D world, this one is {D}-D")
+        errors.add(f"{prefix}.kind", f"{quoted(kind)} needs a {'/'.join(map(str, cls.dimensions))}-D world, this one is {D}-D")
     if kind == "box" and D is not None and D != 3 and values.get("rpy") is not None:
         errors.add(f"{prefix}.rpy", f"only in 3-D worlds (this one is {D}-D)")
     if len(errors.items) > before or D is None:
@@ -274,7 +274,7 @@ def _read_mesh(errors: Errors, prefix: str, values: dict, path: str) -> bool:
                 p = stored_scenario_mesh_path(folder, values["file"])
             values["vertices"], values["triangles"] = read_mesh(p)  # bounded; errors quote no content
         except FileNotFoundError:
-            errors.add(f"{prefix}.file", f"no such file {str(p)!r}")
+            errors.add(f"{prefix}.file", f"no such file {quoted(str(p))}")
             return False
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             errors.add(f"{prefix}.file", f"expected a mesh file (OBJ of v and triangular f lines, STL or PLY): {p}: {exc}")

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.errors import InputError, ScenarioError
+from firmtool.errors import MAX_EXPECTED, InputError, ScenarioError, cut
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import Design
 from firmtool.roadmap.nodes import NodeRegions
@@ -164,7 +164,7 @@ class SimulatedSystem:
             scenario = self._base_problem.scenario.replace(world={"obstacles": list(obstacles)})
             self.problem = build_problem(scenario, validity=self._base_problem.validity)
         except ScenarioError as exc:
-            raise InputError(f"disturbance: the new world: {exc.field}: {exc.expected}") from None
+            raise InputError(f"disturbance: the new world: {cut(exc.field or 'world')}: {cut(exc.expected, MAX_EXPECTED)}") from None
 
     def set_state(self, state: np.ndarray) -> float:
         """Put the true state at ``state`` (n,) (a user's disturbance); returns how far the configuration moved."""

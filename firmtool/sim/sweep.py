@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.online.policy import Policy
 from firmtool.online.replanning import ReplanSettings
 from firmtool.results import EventKind, Outcome, wilson_interval
@@ -311,7 +311,7 @@ def policies_of(solution, replan: ReplanSettings | None = None, modes=DEFAULT_MO
     out = {}
     for mode in modes:
         if mode not in MODES:
-            raise InputError(f"sweep mode: expected one of {', '.join(MODES)}, found {mode!r}")
+            raise InputError(f"sweep mode: expected one of {', '.join(MODES)}, found {quoted(mode)}")
         settings = ReplanSettings(**{**asdict(base), "enabled": False}) if mode == "none" else base
         out[mode] = Policy(solution, replan=settings, mode="rollout" if mode == "rollout" else "base")
     return out

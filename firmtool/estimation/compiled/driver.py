@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.estimation.compiled.collide import world_group
 from firmtool.estimation.compiled.collide3d import world_group_3d
 from firmtool.estimation.compiled.goal import goal_group
@@ -43,7 +43,7 @@ class _ProblemData:
         lo, hi = (np.full(n, -np.inf), np.full(n, np.inf)) if limits is None else \
             (np.ascontiguousarray(limits[0], dtype=float), np.ascontiguousarray(limits[1], dtype=float))
         if lo.shape != (n,) or hi.shape != (n,):  # the kernel reads them unchecked
-            raise InputError(f"robot {problem.scenario.model.robot!r}: state_limits() must give two ({n},) arrays, "
+            raise InputError(f"robot {quoted(problem.scenario.model.robot)}: state_limits() must give two ({n},) arrays, "
                              f"found {lo.shape} and {hi.shape}")
         self.robot = (hooks.params, hooks.sensing, hooks.n_points, n_seg, seg_offset, hooks.self_collision,
                       hooks.half_lengths, hooks.work_size, hooks.stride, hooks.n_sensing, limits is not None, lo, hi)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 
-from firmtool.errors import InputError
+from firmtool.errors import InputError, quoted
 from firmtool.estimation.compiled.run import disk_cached
 from firmtool.estimation.compiled.step import NOISE_FORMS
 from firmtool.jit import numba
@@ -40,10 +40,10 @@ def supports(problem) -> str | None:
     robot = problem.robot
     hooks = None if robot is None else robot.compiled_kinematics()
     if hooks is None:
-        return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
+        return f"robot {quoted(problem.scenario.model.robot)} has no compiled kinematics"
     dim = len(problem.scenario.world.lo)
     if hooks.dim != dim:
-        return f"robot {problem.scenario.model.robot!r}'s compiled kinematics are {hooks.dim}-D, this world is {dim}-D"
+        return f"robot {quoted(problem.scenario.model.robot)}'s compiled kinematics are {hooks.dim}-D, this world is {dim}-D"
     if type(problem.model) is not LinearGaussianModel:
         return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
     if problem.validity is not None:
@@ -73,12 +73,12 @@ def _geometry_reason(world, dim: int) -> str | None:
     """Why the kernel cannot compute ``world``'s collision test exactly, or None."""
     if dim == 2:
         if world.collision_backend not in COMPILED_BACKENDS:
-            return f"collision backend {world.collision_backend!r} is not compiled (numpy/numba geometry only)"
+            return f"collision backend {quoted(world.collision_backend)} is not compiled (numpy/numba geometry only)"
         if any(o.kind != "box" for o in world.obstacles):
             return "the compiled engine's planar geometry is boxes only"
         return None
     if world.collision_backend != "fcl":
-        return f"collision backend {world.collision_backend!r}: the 3-D engine computes the fcl backend's test"
+        return f"collision backend {quoted(world.collision_backend)}: the 3-D engine computes the fcl backend's test"
     kinds = sorted({o.kind for o in world.obstacles} - {"box", "sphere"})
     if kinds:
         return f"the compiled engine's 3-D geometry is boxes and spheres, this world has {', '.join(kinds)}"
@@ -95,14 +95,14 @@ def engine_choice(problem) -> tuple[str, str | None]:
     is compiled in every process, not cached on disk. Else ``notice`` is None."""
     choice = os.environ.get(ENGINE_ENV, "auto").strip().lower() or "auto"
     if choice not in ("auto", "numpy", "numba"):
-        raise InputError(f"{ENGINE_ENV}: expected 'auto', 'numpy' or 'numba' but found {choice!r}")
+        raise InputError(f"{ENGINE_ENV}: expected 'auto', 'numpy' or 'numba' but found {quoted(choice)}")
     if choice == "numpy":
         return "numpy", None
     reason = supports(problem)
     if reason is None:
         if disk_cached(problem.robot.compiled_kinematics()):
             return "numba", None
-        return "numba", (f"compiled Monte Carlo engine: robot {problem.scenario.model.robot!r}'s compiled hooks are "
+        return "numba", (f"compiled Monte Carlo engine: robot {quoted(problem.scenario.model.robot)}'s compiled hooks are "
                          "not importable by name (defined in __main__ or inside a function), so the kernel is "
                          "compiled in every process, not cached on disk")
     asked = f"{ENGINE_ENV}=numba" if choice == "numba" else "the compiled Monte Carlo engine"
