@@ -1,0 +1,290 @@
+"""Occupancy-grid maps (firmtool.geometry.occupancy, firmtool.io.map_file): ROS map_server files read
+against hand-computed cells, the distance field and the clearance rule against brute force, both
+Monte Carlo engines equal particle by particle on a map world, a map update equal to a fresh estimate,
+and every refusal naming its file and field.
+
+The fixtures are written here byte by byte (PGM P5 and P2, 8 and 16 bits) or by Pillow (PNG), from
+the format's definition, not from firmtool's own writer (it has none)."""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import firmtool as ft
+from firmtool.errors import InputError, ScenarioError
+from firmtool.geometry.occupancy import Map
+from firmtool.io.map_file import FREE, OCCUPIED, UNKNOWN, MapFileError, read_map_yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ---------------------------------------------------------------------------------------------------
+# fixtures: map files written from the formats' definitions
+
+
+def pgm_p5(pixels: np.ndarray, maxval: int = 255) -> bytes:
+    """A binary PGM: header, then rows top first, 1 byte per sample (2, big-endian, if maxval > 255)."""
+    rows, cols = pixels.shape
+    dtype = ">u2" if maxval > 255 else "u1"
+    return b"P5\n# a comment\n%d %d\n%d\n" % (cols, rows, maxval) + np.asarray(pixels, dtype=dtype).tobytes()
+
+
+def pgm_p2(pixels: np.ndarray, maxval: int = 255) -> bytes:
+    rows, cols = pixels.shape
+    body = "\n".join(" ".join(str(int(v)) for v in row) for row in pixels)
+    return f"P2\n{cols} {rows}\n{maxval}\n{body}\n".encode()
+
+
+def png(pixels: np.ndarray, mode: str) -> bytes:
+    from PIL import Image
+    buf = io.BytesIO()
+    Image.fromarray(np.asarray(pixels), mode=mode).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def write_map(folder: Path, image: bytes, name: str = "m.pgm", **keys) -> Path:
+    (folder / name).write_bytes(image)
+    settings = {"image": name, "resolution": 0.5, "origin": "[1.0, -2.0, 0.0]", **keys}
+    text = "".join(f"{k}: {v}\n" for k, v in settings.items())
+    (folder / "m.yaml").write_text(text)
+    return folder / "m.yaml"
+
+
+# a 3 x 4 image, top row first: shades chosen on both sides of the default thresholds
+# occ = 1 - v / 255: 0 -> 1.0 (occupied), 254 -> 0.004 (free), 205 -> 0.196 (unknown: not < 0.196),
+# 100 -> 0.608 (unknown), 80 -> 0.686 (occupied), 210 -> 0.176 (free)
+IMAGE = np.array([[0, 254, 205, 100],
+                  [80, 210, 254, 254],
+                  [254, 254, 0, 254]], dtype=np.uint8)
+
+
+def expected_cells(image: np.ndarray, maxval: float, negate=False, occ_t=0.65, free_t=0.196) -> np.ndarray:
+    """Hand-written rule (Nav2's map_io, trinary): occ = 1 - v / maxval (or v / maxval negated);
+    occupied if occ > occ_t, free if occ < free_t, else unknown; rows flipped (image top = map top)."""
+    out = np.empty(image.shape, dtype=np.int8)
+    for r in range(image.shape[0]):
+        for c in range(image.shape[1]):
+            shade = image[r, c] / maxval
+            occ = shade if negate else 1.0 - shade
+            out[r, c] = OCCUPIED if occ > occ_t else (FREE if occ < free_t else UNKNOWN)
+    return out[::-1]
+
+
+@pytest.mark.parametrize("fmt", ["p5", "p2", "png"])
+def test_map_cells_match_the_hand_computed_rule(tmp_path, fmt):
+    data = {"p5": pgm_p5(IMAGE), "p2": pgm_p2(IMAGE), "png": png(IMAGE, "L")}[fmt]
+    path = write_map(tmp_path, data, name="m.png" if fmt == "png" else "m.pgm")
+    f = read_map_yaml(path)
+    want = expected_cells(IMAGE, 255.0)
+    assert np.array_equal(f.cells, want)
+    # hand check of three cells: the image's top-left pixel (0: black) is the map's top-left cell
+    assert f.cells[2, 0] == OCCUPIED and f.cells[2, 1] == FREE and f.cells[2, 2] == UNKNOWN
+    assert f.resolution == 0.5 and f.origin == (1.0, -2.0, 0.0)
+
+
+def test_negate_and_thresholds(tmp_path):
+    path = write_map(tmp_path, pgm_p5(IMAGE), negate=1, occupied_thresh=0.5, free_thresh=0.1)
+    got = read_map_yaml(path).cells
+    assert np.array_equal(got, expected_cells(IMAGE, 255.0, negate=True, occ_t=0.5, free_t=0.1))
+    # negated: white (254) is occupied, black (0) free
+    assert got[2, 1] == OCCUPIED and got[2, 0] == FREE
+
+
+def test_sixteen_bit_pgm(tmp_path):
+    img16 = (IMAGE.astype(np.int64) * 257).astype(np.uint16)  # the same shades on a 16-bit scale
+    for data in (pgm_p5(img16, 65535), pgm_p2(img16, 65535)):
+        path = write_map(tmp_path, data)
+        assert np.array_equal(read_map_yaml(path).cells, expected_cells(IMAGE, 255.0))
+
+
+def test_scale_mode_transparent_pixels_are_unknown_and_trinary_averages_alpha(tmp_path):
+    rgba = np.zeros((2, 2, 4), dtype=np.uint8)
+    rgba[..., :3] = 254  # white: free
+    rgba[..., 3] = 255
+    rgba[0, 0, 3] = 0  # transparent
+    path = write_map(tmp_path, png(rgba, "RGBA"), name="m.png", mode="scale")
+    cells = read_map_yaml(path).cells
+    assert cells[1, 0] == UNKNOWN and (cells.ravel() == FREE).sum() == 3
+    # trinary: alpha averaged with the colours: (254 * 3 + 0) / 4 = 190.5 -> occ 0.253: unknown
+    path = write_map(tmp_path, png(rgba, "RGBA"), name="m.png", mode="trinary")
+    cells = read_map_yaml(path).cells
+    assert cells[1, 0] == UNKNOWN and (cells.ravel() == FREE).sum() == 3
+
+
+def test_raw_mode_values_are_percentages(tmp_path):
+    img = np.array([[0, 10, 19, 20], [64, 66, 100, 101]], dtype=np.uint8)
+    path = write_map(tmp_path, pgm_p5(img), mode="raw", negate=1)  # negate is ignored in raw mode
+    cells = read_map_yaml(path).cells[::-1]  # image orientation
+    # free below 19.6 %, occupied above 65 %, unknown between and above 100
+    assert cells.tolist() == [[FREE, FREE, FREE, UNKNOWN], [UNKNOWN, OCCUPIED, OCCUPIED, UNKNOWN]]
+
+
+def test_unknown_counts_as_occupied_unless_free(tmp_path):
+    path = write_map(tmp_path, pgm_p5(IMAGE))
+    cells = read_map_yaml(path).cells
+    assert np.array_equal(Map.from_yaml(path).occupied, cells != FREE)
+    assert np.array_equal(Map.from_yaml(path, unknown="free").occupied, cells == OCCUPIED)
+
+
+def test_occupancy_grid_message_layout():
+    """nav_msgs/OccupancyGrid: row-major from the origin, -1 unknown, 0..100."""
+    data = [0, 100, -1, 0, 0, 0]  # width 3, height 2: row 0 = bottom
+    m = Map.from_occupancy_grid(data, 3, 2, 0.25, (0.0, 0.0, 0.0))
+    assert m.occupied.tolist() == [[False, True, True], [False, False, False]]
+    rows, cols = m.world_to_cell(np.array([[0.3, 0.1], [0.6, 0.3]]))  # (x, y) in cell (0, 1) and (1, 2)
+    assert rows.tolist() == [0, 1] and cols.tolist() == [1, 2]
+    with pytest.raises(InputError, match="width \\* height"):
+        Map.from_occupancy_grid(data[:5], 3, 2, 0.25, (0, 0, 0))
+    with pytest.raises(InputError, match="-1..100"):
+        Map.from_occupancy_grid([0, 101, 0, 0, 0, 0], 3, 2, 0.25, (0, 0, 0))
+
+
+# ---------------------------------------------------------------------------------------------------
+# the distance field and the clearance rule
+
+
+def _random_grid(seed: int, shape=(23, 31), p=0.08) -> np.ndarray:
+    return np.random.default_rng(seed).random(shape) < p
+
+
+def test_distance_field_against_brute_force():
+    grid = _random_grid(0)
+    m = Map(grid, 0.2, (0.0, 0.0, 0.0))
+    D = m.distance_field()
+    rows, cols = grid.shape
+    # the occupied cells and the ring outside the grid (the outside counts as occupied)
+    occ = [(i, j) for i in range(-1, rows + 1) for j in range(-1, cols + 1)
+           if not (0 <= i < rows and 0 <= j < cols) or grid[i, j]]
+    occ = np.array(occ, dtype=float)
+    for i in range(rows):
+        for j in range(cols):
+            brute = 0.2 * np.sqrt(((occ - [i, j]) ** 2).sum(axis=1)).min()
+            assert D[i, j] == pytest.approx(brute, abs=1e-12)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.4])
+def test_a_disc_declared_free_meets_no_occupied_square(yaw):
+    """The conservative rule against brute force: the exact distance from the disc's centre to every
+    occupied square (and to the outside of the grid) is more than the radius wherever the map says free,
+    and discs far enough from every square are declared free."""
+    grid = _random_grid(1)
+    res, r = 0.2, 0.15
+    m = Map(grid, res, (0.5, -1.0, yaw))
+    rng = np.random.default_rng(2)
+    lo, hi = m.bounds
+    P = rng.uniform(lo - 0.3, hi + 0.3, size=(4000, 2))
+    hit = m.discs_hit(P, r)
+    lx, ly = m.to_local(P)
+    rows, cols = grid.shape
+    # exact distance to the union of occupied squares and the outside, in the map's frame
+    sq = np.array([(i, j) for i in range(rows) for j in range(cols) if grid[i, j]], dtype=float) * res
+    dx = np.maximum(np.maximum(sq[None, :, 1] - lx[:, None], lx[:, None] - (sq[None, :, 1] + res)), 0.0)
+    dy = np.maximum(np.maximum(sq[None, :, 0] - ly[:, None], ly[:, None] - (sq[None, :, 0] + res)), 0.0)
+    d_sq = np.sqrt(dx ** 2 + dy ** 2).min(axis=1)
+    inside = (lx >= 0) & (lx <= cols * res) & (ly >= 0) & (ly <= rows * res)
+    d_out = np.where(inside, np.minimum.reduce([lx, cols * res - lx, ly, rows * res - ly]), 0.0)
+    exact = np.minimum(d_sq, d_out)
+    assert np.all(exact[~hit] > r)  # never declared free while touching
+    assert np.all(~hit[exact > r + 2 * res * math.sqrt(2)])  # at most two half-diagonals of slack
+    assert hit.sum() > 100 and (~hit).sum() > 100
+
+
+def test_capsules_are_tested_along_their_length():
+    grid = np.zeros((20, 20), dtype=bool)
+    grid[10, 10] = True  # one occupied cell at x, y in [1.0, 1.1)
+    m = Map(grid, 0.1, (0.0, 0.0, 0.0))
+    S = np.array([[[0.3, 1.05]], [[0.3, 1.6]]])
+    E = np.array([[[1.5, 1.05]], [[1.5, 1.6]]])
+    assert m.capsules_hit(S, E, 0.05).tolist() == [True, False]
+    assert m.capsules_hit(S, S, 0.05).tolist() == [False, False]  # the end discs alone are free
+
+
+# ---------------------------------------------------------------------------------------------------
+# a scenario with a map
+
+
+def office(folder: Path) -> Path:
+    """A 4 x 3 m map of 0.1 m cells: a wall with a door, an unknown corner; and its scenario."""
+    rows, cols = 30, 40
+    img = np.full((rows, cols), 254, np.uint8)
+    img[:, 19:21] = 0  # a wall across at x = 1.9 .. 2.1
+    img[12:18, 19:21] = 254  # its door, y = 1.2 .. 1.8
+    img[0:3, 0:5] = 205  # unknown
+    (folder / "office.pgm").write_bytes(pgm_p5(img))
+    (folder / "office.yaml").write_text("image: office.pgm\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\n"
+                                        "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    text = (ROOT / "scenarios" / "smoke.toml").read_text()
+    text = re.sub(r"(?m)^bounds = .*$", 'map = "office.yaml"', text)
+    text = re.sub(r"(?m)^obstacles = .*$", "", text)
+    text = text.replace('name = "smoke"', 'name = "office"').replace("goal = [3.5, 0.6]", "goal = [3.5, 1.5]")
+    (folder / "office.toml").write_text(text)
+    return folder / "office.toml"
+
+
+def test_scenario_map_sets_the_bounds_and_the_validity(tmp_path):
+    sc = ft.load_scenario(office(tmp_path))
+    assert sc.world.lo == (0.0, 0.0) and sc.world.hi == (4.0, 3.0)
+    assert sc.world.grid.shape == (30, 40)
+    from firmtool.problem import build_problem
+    p = build_problem(sc)
+    X = np.array([[1.0, 1.0], [2.0, 0.5], [2.0, 1.5], [0.2, 2.9], [3.5, 1.5]])
+    assert p.is_valid(X).tolist() == [True, False, True, False, True]  # wall, door, unknown corner
+
+
+def test_start_in_an_occupied_cell_is_refused(tmp_path):
+    path = office(tmp_path)
+    path.write_text(path.read_text().replace("start = [0.5, 0.5]", "start = [2.0, 0.5]"))
+    with pytest.raises(ScenarioError, match=r"office\.toml: task\.start: .*collision"):
+        ft.build(path)
+
+
+def test_boxes_add_to_the_map(tmp_path):
+    path = office(tmp_path)
+    path.write_text(path.read_text().replace('map = "office.yaml"',
+                                             'map = "office.yaml"\nobstacles = [ { center = [3.0, 2.5], half_size = [0.2, 0.2] } ]'))
+    from firmtool.problem import build_problem
+    p = build_problem(ft.load_scenario(path))
+    assert p.is_valid(np.array([[3.0, 2.5], [3.0, 1.5]])).tolist() == [False, True]
+
+
+# ---------------------------------------------------------------------------------------------------
+# both engines
+
+
+def test_both_engines_equal_particle_by_particle_on_a_map_world(tmp_path):
+    """The compiled kernel's map test (firmtool.estimation.compiled.maps) against the numpy one, given
+    the same noise: every particle ends the same way at the same step, and the map decides failures."""
+    from firmtool.estimation import compiled as kernels
+    if kernels.numba is None:
+        pytest.skip("numba not installed")
+    from firmtool.estimation.edges import FAILURE, initial_ensemble, simulate
+    from firmtool.estimation.compiled import select
+    from firmtool.problem import build_problem
+    from firmtool.roadmap.design import design, local_controller
+    from firmtool.roadmap.nodes import roadmap_nodes
+
+    problem = build_problem(ft.load_scenario(office(tmp_path)))
+    assert select.supports(problem) is None
+    centers, kinds = roadmap_nodes(problem, np.random.default_rng(0))
+    d = design(problem, centers, kinds)
+    regions = d.regions(problem)
+    failures = landed = 0
+    for e in range(d.edge_source.size):
+        s, t = int(d.edge_source[e]), int(d.edge_target[e])
+        lc = local_controller(problem, d, s, t)
+        out = {}
+        for engine in ("numpy", "numba"):
+            rng = np.random.default_rng([0, e])
+            x, xhat = initial_ensemble(problem, d, s, 200, rng)
+            out[engine] = simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise=True)
+        a, b = out["numpy"], out["numba"]
+        assert np.array_equal(a.outcome, b.outcome) and np.array_equal(a.steps, b.steps), e
+        failures += int((a.outcome == FAILURE).sum())
+        landed += int((a.outcome >= 0).sum())
+    assert failures > 50 and landed > 0  # the map's walls were hit
