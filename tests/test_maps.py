@@ -288,3 +288,92 @@ def test_both_engines_equal_particle_by_particle_on_a_map_world(tmp_path):
         failures += int((a.outcome == FAILURE).sum())
         landed += int((a.outcome >= 0).sum())
     assert failures > 50 and landed > 0  # the map's walls were hit
+
+
+# ---------------------------------------------------------------------------------------------------
+# a changed map: firmtool update
+
+
+def _closed_door(folder: Path, name: str = "closed") -> Path:
+    """The office map with its door shut, as another map file; the scenario naming it."""
+    rows, cols = 30, 40
+    img = np.full((rows, cols), 254, np.uint8)
+    img[:, 19:21] = 0
+    img[12:18, 19:21] = 254
+    img[12:18, 19:21] = 0  # the door shut
+    img[0:3, 0:5] = 205
+    (folder / f"{name}.pgm").write_bytes(pgm_p5(img))
+    (folder / f"{name}.yaml").write_text(f"image: {name}.pgm\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\n")
+    text = (folder / "office.toml").read_text().replace('map = "office.yaml"', f'map = "{name}.yaml"')
+    (folder / f"{name}.toml").write_text(text)
+    return folder / f"{name}.toml"
+
+
+def _cart(folder: Path) -> Path:
+    """The office map with a cart (4 x 3 cells) in the left room."""
+    rows, cols = 30, 40
+    img = np.full((rows, cols), 254, np.uint8)
+    img[:, 19:21] = 0
+    img[12:18, 19:21] = 254
+    img[0:3, 0:5] = 205
+    img[5:8, 8:12] = 0  # y = 2.2 .. 2.5, x = 0.8 .. 1.2
+    (folder / "cart.pgm").write_bytes(pgm_p5(img))
+    (folder / "cart.yaml").write_text("image: cart.pgm\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\n")
+    text = (folder / "office.toml").read_text().replace('map = "office.yaml"', 'map = "cart.yaml"')
+    (folder / "cart.toml").write_text(text)
+    return folder / "cart.toml"
+
+
+@pytest.fixture(scope="module")
+def office_roadmap(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("office")
+    path = office(folder)
+    path.write_text(path.read_text().replace("nodes = 10", "nodes = 14"))
+    ft.build(path, output=folder / "office.h5", workers=1)
+    return folder
+
+
+def test_a_changed_map_updates_bit_for_bit(office_roadmap):
+    """A cart in one room: only the edges whose swept regions come near its cells are estimated again,
+    and the result equals a fresh estimate and solve."""
+    import shutil
+
+    import h5py
+
+    from firmtool.pipeline import estimate_stage, solve_stage
+    folder = office_roadmap
+    new = _cart(folder)
+    updated, fresh = folder / "updated.h5", folder / "fresh.h5"
+    shutil.copyfile(folder / "office.h5", updated)
+    report = ft.update(updated, new, workers=1).report
+    assert report.changes == ("map cells",)
+    assert report.kept_edges >= 1 and report.estimated_edges >= 1  # neither all nor nothing
+    shutil.copyfile(updated, fresh)
+    r = estimate_stage(fresh, workers=1, fresh=True)
+    assert r.reused_edges == 0
+    solve_stage(fresh)
+    for group in ("edges", "policy"):
+        with h5py.File(updated, "r") as a, h5py.File(fresh, "r") as b:
+            assert sorted(a[group]) == sorted(b[group])
+            for k in a[group]:
+                assert a[group][k][()].tobytes() == b[group][k][()].tobytes(), f"/{group}/{k} differs"
+
+
+def test_a_shut_door_cuts_every_path_to_the_goal(office_roadmap):
+    import shutil
+    folder = office_roadmap
+    new = _closed_door(folder)
+    updated = folder / "shut.h5"
+    shutil.copyfile(folder / "office.h5", updated)
+    with pytest.raises(ft.Unreachable):
+        ft.update(updated, new, workers=1)
+
+
+def test_an_edited_map_beside_the_roadmap_is_refused_on_update(office_roadmap, tmp_path):
+    import shutil
+    for name in ("office.h5", "office.yaml", "office.pgm", "office.toml"):
+        shutil.copyfile(office_roadmap / name, tmp_path / name)
+    _cart(tmp_path)
+    shutil.copyfile(tmp_path / "cart.pgm", tmp_path / "office.pgm")  # the old map edited in place
+    with pytest.raises(InputError, match=r"office\.h5: world\.map: .*not the one it was built with"):
+        ft.update(tmp_path / "office.h5", tmp_path / "cart.toml", workers=1)

@@ -318,14 +318,18 @@ class Map:
 
     def changed_boxes(self, other: "Map", margin: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """World boxes ``(lo, hi)`` (K, 2) around the cells whose occupancy differs between ``self`` and
-        ``other`` (one box per connected group of changed cells), grown by ``margin`` (default two
-        cells: how far a changed cell reaches into the clearance rule's verdicts beyond the robot's
-        radius: a cell's diagonal plus half a capsule's spacing). Maps in another frame: one infinite box."""
+        ``other`` (one box per connected group of changed cells), grown by ``margin`` beyond the robot's
+        radius (default three cells). Why three: a disc at ``p`` in cell ``c`` reads whether some occupied
+        centre lies within ``r + h + e + |p - centre(c)|`` of ``centre(c)`` (``h`` half a cell's diagonal,
+        ``e <= resolution / 2`` a capsule disc's extra radius), so a changed cell can alter its verdict only
+        if the cell's square is within ``r + 3 h + resolution / 2 < r + 2.62 * resolution`` of ``p``; the
+        caller grows the swept regions by ``r`` (:func:`firmtool.roadmap.world_change.meets`). Maps in
+        another frame: one infinite box."""
         if not self.same_frame(other):
             return np.full((1, 2), -np.inf), np.full((1, 2), np.inf)
         import scipy.ndimage  # lazily, as in distance_field
 
-        grow = 2.0 * self.resolution if margin is None else float(margin)
+        grow = 3.0 * self.resolution if margin is None else float(margin)
         changed = self.occupied != other.occupied
         labels, n = scipy.ndimage.label(changed, structure=np.ones((3, 3), dtype=int))
         lo, hi = [], []
