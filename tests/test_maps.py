@@ -377,3 +377,104 @@ def test_an_edited_map_beside_the_roadmap_is_refused_on_update(office_roadmap, t
     shutil.copyfile(tmp_path / "cart.pgm", tmp_path / "office.pgm")  # the old map edited in place
     with pytest.raises(InputError, match=r"office\.h5: world\.map: .*not the one it was built with"):
         ft.update(tmp_path / "office.h5", tmp_path / "cart.toml", workers=1)
+
+
+# ---------------------------------------------------------------------------------------------------
+# refusals: one line naming the file and the field, exit code 2
+
+
+def _refused(tmp_path, yaml_text: str | None = None, image: bytes | None = None, image_name: str = "m.pgm"):
+    """``firmtool check`` on a scenario whose map is ``m.yaml`` (``yaml_text``) -> (exit code, output)."""
+    from typer.testing import CliRunner
+
+    from firmtool.cli import app
+    path = office(tmp_path)
+    path.write_text(path.read_text().replace('map = "office.yaml"', 'map = "m.yaml"'))
+    if image is not None:
+        (tmp_path / image_name).write_bytes(image)
+    if yaml_text is not None:
+        (tmp_path / "m.yaml").write_text(yaml_text)
+    r = CliRunner().invoke(app, ["check", str(path)])
+    return r.exit_code, r.output
+
+
+GOOD = "image: m.pgm\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\n"
+FREE_IMAGE = pgm_p5(np.full((30, 40), 254, np.uint8))
+
+
+@pytest.mark.parametrize("yaml_text, image, field, words", [
+    (GOOD.replace("m.pgm", "nothere.pgm"), None, "image", "no such file"),
+    (GOOD, b"GIF89a not an image at all", "image", "expected a PGM"),
+    (GOOD, b"P5\n40 30\n255\n" + b"\x00" * 10, "image", "corrupt or truncated"),
+    (GOOD, pgm_p5(np.zeros((1, 8193), np.uint8)), "image", "at most 8192 x 8192"),
+    (GOOD.replace("0.1", "0.0"), FREE_IMAGE, "resolution", "positive"),
+    (GOOD.replace("0.1", "-1"), FREE_IMAGE, "resolution", "positive"),
+    (GOOD.replace("[0.0, 0.0, 0.0]", "[.nan, 0.0, 0.0]"), FREE_IMAGE, "origin", "finite"),
+    (GOOD + "occupied_thresh: 1.5\n", FREE_IMAGE, "occupied_thresh", r"\[0, 1\]"),
+    (GOOD + "free_thresh: -0.1\n", FREE_IMAGE, "free_thresh", r"\[0, 1\]"),
+    (GOOD + "free_thresh: 0.7\n", FREE_IMAGE, "free_thresh", "less than occupied_thresh"),
+    (GOOD + "mode: fancy\n", FREE_IMAGE, "mode", "trinary, scale, raw"),
+    (GOOD.replace("m.pgm", "../m.pgm"), FREE_IMAGE, "image", "inside the YAML's folder"),
+    (GOOD.replace("m.pgm", "/etc/hostname"), FREE_IMAGE, "image", "inside the YAML's folder"),
+    ("- just\n- a list\n", FREE_IMAGE, "", "expected a YAML mapping"),
+    ("image: [unclosed\n", FREE_IMAGE, "", "not valid YAML"),
+    ("!!python/object/apply:os.system ['true']\n", FREE_IMAGE, "", "not valid YAML"),
+])
+def test_bad_maps_are_refused_in_one_line(tmp_path, yaml_text, image, field, words):
+    code, out = _refused(tmp_path, yaml_text, image)
+    assert code == 2, out
+    line = out.strip()
+    assert "\n" not in line and "Traceback" not in line
+    where = "m.yaml" if field in ("", "resolution", "origin", "occupied_thresh", "free_thresh", "mode") or \
+        "inside" in words else "m.pgm" if "no such" not in words else "nothere.pgm"
+    assert re.search(rf"office\.toml: world\.map: \S*{re.escape(where)}: {field + ': ' if field else ''}.*{words}", line), line
+
+
+def test_an_image_over_64_mib_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    from firmtool.io import map_file
+    monkeypatch.setattr(map_file, "MAX_IMAGE_BYTES", 1000)  # the cap, made small (a 64 MiB fixture is slow)
+    with pytest.raises(MapFileError, match=r"m\.pgm: image: expected a file of at most"):
+        Map.from_yaml(write_map(tmp_path, FREE_IMAGE))
+
+
+def test_an_image_linked_from_outside_the_folder_is_refused(tmp_path):
+    outside = tmp_path / "outside"
+    inside = tmp_path / "maps"
+    outside.mkdir()
+    inside.mkdir()
+    (outside / "secret.pgm").write_bytes(FREE_IMAGE)
+    (inside / "m.pgm").symlink_to(outside / "secret.pgm")
+    (inside / "m.yaml").write_text(GOOD)
+    with pytest.raises(MapFileError, match=r"m\.yaml: image: 'm\.pgm' leads outside the YAML's folder"):
+        Map.from_yaml(inside / "m.yaml")
+
+
+def test_a_missing_yaml_and_a_three_d_world_and_unknown_without_map(tmp_path):
+    path = office(tmp_path)
+    text = path.read_text()
+    path.write_text(text.replace('map = "office.yaml"', 'map = "none.yaml"'))
+    with pytest.raises(ScenarioError, match=r"office\.toml: world\.map: \S*none\.yaml: no such file"):
+        ft.load_scenario(path)
+    path.write_text(text.replace('map = "office.yaml"', 'map = "office.yaml"\nbounds = [[0, 0, 0], [1, 1, 1]]'))
+    with pytest.raises(ScenarioError, match=r"world\.map: a map is planar"):
+        ft.load_scenario(path)
+    smoke = (ROOT / "scenarios" / "smoke.toml").read_text().replace("[world]", '[world]\nunknown = "free"')
+    with pytest.raises(ScenarioError, match=r"world\.unknown: only read with world\.map"):
+        ft.Scenario.from_toml(smoke, "s.toml")
+
+
+def test_plot_draws_the_map_as_the_background(office_roadmap):
+    """``firmtool plot``'s panel holds the map's cells as an image: opaque exactly where occupied."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    solution = ft.solve(ft.open_roadmap(office_roadmap / "office.h5"))
+    ax = Figure().add_subplot()
+    ft.plot(solution, ax=ax, legend=False)
+    grid = solution.roadmap.scenario.world.grid
+    images = [im for im in ax.get_images() if np.asarray(im.get_array()).shape[:2] == grid.shape]
+    assert len(images) == 1
+    alpha = np.asarray(images[0].get_array())[..., 3]
+    assert np.array_equal(alpha == 1.0, grid.occupied & ~grid.unknown)  # the unknown corner drawn lighter
+    assert images[0].get_extent() == [0.0, 4.0, 0.0, 3.0]

@@ -310,6 +310,28 @@ class Map:
             hit |= (self.discs_hit(pts, radius, half) & on).any(axis=1)
         return hit
 
+    # --- drawing --------------------------------------------------------------------------------
+
+    def draw(self, ax, *, color=(0.25, 0.25, 0.3), zorder: float = 1.5, label: str | None = "map"):
+        """Draw the map into matplotlib axes ``ax``: occupied cells in ``color``, unknown ones (when the
+        source had any) in a lighter shade, free cells transparent; turned by the origin's yaw.
+        Returns the image artist."""
+        import matplotlib.transforms as mtransforms  # matplotlib only where a figure is drawn
+
+        rows, cols = self.shape
+        rgba = np.zeros((rows, cols, 4))
+        rgba[..., :3] = color
+        rgba[..., 3] = np.where(self.occupied, 1.0, 0.0)
+        if self.unknown is not None:
+            rgba[self.unknown, 3] = 0.35
+        ox, oy, _, _ = self._frame()
+        res = self.resolution
+        image = ax.imshow(rgba, origin="lower", extent=(ox, ox + cols * res, oy, oy + rows * res),
+                          interpolation="nearest", zorder=zorder, label=label)
+        if self.yaw:
+            image.set_transform(mtransforms.Affine2D().rotate_around(ox, oy, self.yaw) + ax.transData)
+        return image
+
     # --- changes --------------------------------------------------------------------------------
 
     def same_frame(self, other: "Map") -> bool:
