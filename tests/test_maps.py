@@ -478,3 +478,25 @@ def test_plot_draws_the_map_as_the_background(office_roadmap):
     alpha = np.asarray(images[0].get_array())[..., 3]
     assert np.array_equal(alpha == 1.0, grid.occupied & ~grid.unknown)  # the unknown corner drawn lighter
     assert images[0].get_extent() == [0.0, 4.0, 0.0, 3.0]
+
+
+@pytest.mark.parametrize("yaw", [0.0, -0.7])
+def test_compiled_capsule_test_is_the_numpy_one(yaw):
+    """Capsules of every length (discs included), in and out of a turned map: the compiled
+    :func:`~firmtool.estimation.compiled.maps.capsule_hits` gives numpy's verdict for each."""
+    from firmtool.estimation import compiled as kernels
+    if kernels.numba is None:
+        pytest.skip("numba not installed")
+    from firmtool.estimation.compiled.maps import capsule_hits
+    m = Map(_random_grid(3, (40, 50), 0.03), 0.1, (-1.0, 0.5, yaw))
+    rng = np.random.default_rng(4)
+    lo, hi = m.bounds
+    S = rng.uniform(lo - 0.2, hi + 0.2, size=(3000, 1, 2))
+    E = S + rng.normal(scale=0.4, size=S.shape) * (rng.random((3000, 1, 1)) < 0.7)  # 30% discs
+    S[5, 0, 0] = np.nan
+    r = 0.07
+    want = m.capsules_hit(S, E, r)
+    mp = (m.clearance(r), m.geometry())
+    got = np.array([capsule_hits(S[i, 0, 0], S[i, 0, 1], E[i, 0, 0], E[i, 0, 1], mp) for i in range(S.shape[0])])
+    assert np.array_equal(got, want)
+    assert 300 < want.sum() < 2700 and want[5]

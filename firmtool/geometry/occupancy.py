@@ -217,7 +217,7 @@ class Map:
         """World points (..., 2) -> ``(row, col)`` integer arrays (...,); a point outside the grid gets
         an index outside ``[0, rows) x [0, cols)`` (NaN: -1)."""
         lx, ly = self.to_local(points)
-        fi, fj = np.floor(ly / self.resolution), np.floor(lx / self.resolution)
+        fi, fj = np.floor(ly * self.inverse), np.floor(lx * self.inverse)
         big = 2.0 * MAX_CELLS_SIDE
         fi = np.where(np.isnan(fi), -1.0, np.clip(fi, -big, big))
         fj = np.where(np.isnan(fj), -1.0, np.clip(fj, -big, big))
@@ -261,10 +261,16 @@ class Map:
         return hit
 
     def geometry(self) -> np.ndarray:
-        """(7,) float: ``ox, oy, cos yaw, sin yaw, resolution, rows, cols``: the compiled test's frame."""
+        """(8,) float: ``ox, oy, cos yaw, sin yaw, resolution, rows, cols, 1 / resolution``: the compiled
+        test's frame."""
         ox, oy, c, s = self._frame()
         rows, cols = self.shape
-        return np.array([ox, oy, c, s, self.resolution, rows, cols], dtype=np.float64)
+        return np.array([ox, oy, c, s, self.resolution, rows, cols, self.inverse], dtype=np.float64)
+
+    @property
+    def inverse(self) -> float:
+        """``1 / resolution``: both engines multiply by it (a division costs several multiplications)."""
+        return 1.0 / self.resolution
 
     def discs_hit(self, points: np.ndarray, radius: float, extra: np.ndarray | float = 0.0) -> np.ndarray:
         """bool (...,): the discs of ``radius + extra`` centred at ``points`` (..., 2) are not free by the
@@ -277,7 +283,7 @@ class Map:
         P = np.asarray(points, dtype=float)
         dx, dy = P[..., 0] - ox, P[..., 1] - oy
         lx, ly = dx * c + dy * s, dy * c - dx * s
-        fi, fj = np.floor(ly / res), np.floor(lx / res)
+        fi, fj = np.floor(ly * self.inverse), np.floor(lx * self.inverse)
         inside = (fi >= 0) & (fi < rows) & (fj >= 0) & (fj < cols)  # False for NaN
         i = np.where(inside, fi, 0).astype(np.int64)
         j = np.where(inside, fj, 0).astype(np.int64)
@@ -297,7 +303,7 @@ class Map:
             return np.zeros(M, dtype=bool)
         vx, vy = E[..., 0] - S[..., 0], E[..., 1] - S[..., 1]
         length = np.sqrt(vx * vx + vy * vy)
-        steps = np.ceil(length / self.resolution)  # discs - 1 along each segment (NaN: the disc at S refuses it)
+        steps = np.ceil(length * self.inverse)  # discs - 1 along each segment (NaN: the disc at S refuses it)
         steps = np.where(np.isfinite(steps), np.minimum(steps, MAX_SEGMENT_STEPS), 0.0)
         some = steps > 0
         div = np.where(some, steps, 1.0)

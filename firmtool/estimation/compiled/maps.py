@@ -5,7 +5,7 @@ the same verdict for every particle (tests/test_maps.py).
 
 The kernel's map group ``(F, geom)``: the clearance field ``F`` (rows, cols) for the robot's radius
 (:meth:`~firmtool.geometry.occupancy.Map.clearance`) and ``geom`` = ``ox, oy, cos yaw, sin yaw,
-resolution, rows, cols`` (:meth:`~firmtool.geometry.occupancy.Map.geometry`). A world without a map
+resolution, rows, cols, 1 / resolution`` (:meth:`~firmtool.geometry.occupancy.Map.geometry`). A world without a map
 has an empty ``F`` (0, 0): :func:`capsule_hits` then returns False without reading it.
 """
 
@@ -15,7 +15,7 @@ import numpy as np
 
 from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
 
-NO_MAP = (np.zeros((0, 0)), np.zeros(7))
+NO_MAP = (np.zeros((0, 0)), np.zeros(8))
 
 
 def map_group(world) -> tuple:
@@ -28,14 +28,15 @@ def map_group(world) -> tuple:
 
 if numba is not None:
     njit = cached_njit(**KERNEL_OPTIONS)
+    inline = cached_njit(**KERNEL_OPTIONS, inline="always")
 
-    @njit
+    @inline
     def disc_hits(x, y, F, geom, extra):
         """The disc of the field's radius + ``extra`` at ``(x, y)`` is not free (module notes)."""
-        ox, oy, c, s, res, rows, cols = geom[0], geom[1], geom[2], geom[3], geom[4], geom[5], geom[6]
+        ox, oy, c, s, res, rows, cols, inv = geom[0], geom[1], geom[2], geom[3], geom[4], geom[5], geom[6], geom[7]
         dx, dy = x - ox, y - oy
         lx, ly = dx * c + dy * s, dy * c - dx * s
-        fi, fj = np.floor(ly / res), np.floor(lx / res)
+        fi, fj = np.floor(ly * inv), np.floor(lx * inv)
         if not (fi >= 0 and fi < rows and fj >= 0 and fj < cols):  # outside, or NaN
             return True
         i, j = int(fi), int(fj)
@@ -50,9 +51,11 @@ if numba is not None:
         F, geom = mp
         if F.shape[0] == 0:
             return False
+        if ax == bx and ay == by:  # a disc (the numpy twin's arithmetic for a zero-length segment: t = 0, extra 0)
+            return disc_hits(ax, ay, F, geom, 0.0)
         vx, vy = bx - ax, by - ay
         length = np.sqrt(vx * vx + vy * vy)
-        steps = np.ceil(length / geom[4])
+        steps = np.ceil(length * geom[7])
         if not np.isfinite(steps):
             steps = 0.0
         steps = min(steps, 1e6)
