@@ -38,6 +38,7 @@ _EXPORTS = {
     "Roadmap": "firmtool.api",
     "Solution": "firmtool.api",
     "Scenario": "firmtool.scenario",
+    "Map": "firmtool.geometry.occupancy",
     "Results": "firmtool.results",
     "Episode": "firmtool.results",
     "Event": "firmtool.results",
@@ -91,6 +92,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time 
         WorldUpdateWarning,
     )
     from firmtool.figures.paths import plot
+    from firmtool.geometry.occupancy import Map
     from firmtool.graph.dp import SolveStatus
     from firmtool.online.policy import Policy, PolicyStatus
     from firmtool.online.replanning import ReplanSettings
