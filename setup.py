@@ -7,4 +7,4 @@ from setuptools import find_packages, setup
 
 setup(packages=find_packages(include=["firmtool", "firmtool.*"]) + ["firmtool.scenarios"],
       package_dir={"firmtool.scenarios": "scenarios"},
-      package_data={"firmtool.scenarios": ["*.toml", "robots/*.urdf"]})
+      package_data={"firmtool.scenarios": ["*.toml", "robots/*.urdf", "*.yaml", "*.pgm", "*.png"]})

@@ -38,6 +38,7 @@ _EXPORTS = {
     "Roadmap": "firmtool.api",
     "Solution": "firmtool.api",
     "Scenario": "firmtool.scenario",
+    "Map": "firmtool.geometry.occupancy",
     "Results": "firmtool.results",
     "Episode": "firmtool.results",
     "Event": "firmtool.results",
@@ -94,6 +95,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time 
         UpdateReport,
     )
     from firmtool.results import Calibration, EdgeCheck, Episode, Event, EventKind, Outcome, Results
+    from firmtool.geometry.occupancy import Map
     from firmtool.scenario import Scenario
     from firmtool.sim.disturbances import Disturbance, UserDisturbance
     from firmtool.sim.environment import SimulatedSystem

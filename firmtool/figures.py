@@ -118,6 +118,8 @@ def _background(ax, problem: Problem, unit: str = DEFAULT_UNIT):
                           cmap="Greys", alpha=0.55, vmin=0.0, vmax=float(std.max()) * 1.2, zorder=0)
         if lo[0] <= lx <= hi[0]:
             ax.axvline(lx, color="gold", lw=2.5, zorder=1, label="light")
+    if getattr(sc.world, "grid", None) is not None:  # an occupancy map: the background (firmtool.geometry.occupancy)
+        sc.world.grid.draw(ax)
     alpha = 1.0 if problem.workspace_dim == 2 else 0.5  # seen from above, 3-D obstacles overlap
     for i, o in enumerate(sc.world.obstacles):  # each obstacle's disc, or its x-y bounding box
         label = "obstacle" if i == 0 else None

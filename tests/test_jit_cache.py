@@ -88,7 +88,8 @@ KERNEL_CALLS = textwrap.dedent("""
     # a disc of radius 0.1 at (0.38, 0.38), 0.113 from the corner of the box [-0.3, 0.3]^2: its
     # bounding box overlaps the box's, so geometry._numba.seg_box_d2 decides (clear)
     C, Hs = np.zeros((1, 2)), np.full((1, 2), 0.3)
-    world = (np.array([-2.0, -2.0]), np.array([2.0, 2.0]), C, Hs, np.ones(1), np.zeros(1), C - Hs, C + Hs, 0.1)
+    world = (np.array([-2.0, -2.0]), np.array([2.0, 2.0]), C, Hs, np.ones(1), np.zeros(1), C - Hs, C + Hs, 0.1,
+             (np.zeros((0, 0)), np.zeros(7)))
     hit = collide.collides(np.array([0.38]), np.array([0.38]), 1, 0, world, False, np.zeros(0))
     hits = sum(sum(f.stats.cache_hits.values()) for f in (step.control, collide.collides))
     print(json.dumps({{"control": U.tolist(), "collides": bool(hit), "hits": hits}}))
@@ -115,7 +116,7 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
 
 def test_the_kernels_cache_key_covers_every_module_it_calls_into():
     run = kernels.kernel(planar.point_kinematics(1))  # the point robot's kernel: its hooks are callees too
-    engine = {f"firmtool.estimation.compiled.{m}" for m in ("run", "bindings", "step", "rng", "collide", "goal")}
+    engine = {f"firmtool.estimation.compiled.{m}" for m in ("run", "bindings", "step", "rng", "collide", "goal", "maps")}
     others = {"firmtool.roadmap.membership", "firmtool.control.linalg", "firmtool.geometry._numba",
               "firmtool.robots.planar"}
     assert set(_jit.dependency_files(run.py_func)) == engine | others

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from firmtool.errors import InputError
+from firmtool.geometry.occupancy import MapCollisionBackend
 
 
 @dataclass(frozen=True)
@@ -87,8 +88,14 @@ def backends_for(dim: int, kinds: set[str] | frozenset[str] = frozenset()) -> tu
 
 
 def backend_for_world(world, *, self_collision: bool):
-    """The collision backend a scenario's world names, built over its obstacles and bounds."""
-    return get_backend(world.collision_backend).load().from_world(world, self_collision=self_collision)
+    """The collision backend a scenario's world names, built over its obstacles and bounds; with an
+    occupancy map (``world.grid``) the map's test on top of it
+    (:class:`firmtool.geometry.occupancy.MapCollisionBackend`)."""
+    backend = get_backend(world.collision_backend).load().from_world(world, self_collision=self_collision)
+    grid = getattr(world, "grid", None)
+    if grid is not None:
+        backend = MapCollisionBackend(backend, grid)
+    return backend
 
 
 register_backend("numpy", "firmtool.geometry.backends:NumpyCollisionBackend", dimensions=(2,),

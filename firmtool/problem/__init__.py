@@ -293,8 +293,9 @@ def _check_task(problem: Problem) -> None:
               else problem.is_valid(state[None]))[0]
         if not ok:
             _check_free_space(problem)
+            cell = "" if sc.world.grid is None else ", an occupied or unknown cell of world.map"
             raise ScenarioError(sc.path, name, "expected a collision-free state inside world.bounds (it is in collision "
-                                               "with an obstacle or the world's edge, at world.robot_radius"
+                                               f"with an obstacle{cell} or the world's edge, at world.robot_radius"
                                                + (", or the validity checker refuses it)" if problem.validity else ")"))
         if name != "task.true_start" and np.any(state[problem.config_dim:] != 0):
             raise ScenarioError(sc.path, name, robot.rest_state_text)

@@ -6,8 +6,8 @@ capsules of ``world.robot_radius`` over its key points, or the margin a robot ke
 :meth:`~firmtool.robots.geometry.GeometryDefaults.world_reach`) against the obstacles and the bounds.
 The Monte Carlo records, per edge, the box around every key point it tested
 (:attr:`firmtool.estimation.edges.EdgeEstimate.swept`). A world change is a set of boxes (the
-bounding box of every obstacle added or removed, a moved one being both, and the slab between an
-old and a new bound). If no changed box meets an edge's swept box grown by the reach, every
+bounding box of every obstacle added or removed, a moved one being both, the slab between an
+old and a new bound, and around the cells of an occupancy map that changed). If no changed box meets an edge's swept box grown by the reach, every
 collision test of every particle gives the verdict it gave before (a capsule lies in the convex
 hull of its end points grown by its radius, and an obstacle outside it cannot meet it), so with the
 same random streams each particle runs as it ran: the edge's outcomes, costs and adaptive blocks
@@ -71,6 +71,7 @@ def world_change(old: WorldSpec, new: WorldSpec) -> WorldChange:
                 lo.append(np.asarray(a, dtype=float))
                 hi.append(np.asarray(b, dtype=float))
                 what.append(f"{label} {o.kind}")
+    _map_change(old, new, lo, hi, what)
     D = len(old.lo)
     for side, a_values, b_values in (("lo", old.lo, new.lo), ("hi", old.hi, new.hi)):
         for c, (a, b) in enumerate(zip(a_values, b_values)):
@@ -85,6 +86,24 @@ def world_change(old: WorldSpec, new: WorldSpec) -> WorldChange:
     lo_arr = np.array(lo, dtype=float).reshape(-1, D) - grow
     hi_arr = np.array(hi, dtype=float).reshape(-1, D) + grow
     return WorldChange(lo=lo_arr, hi=hi_arr, what=tuple(what))
+
+
+def _map_change(old: WorldSpec, new: WorldSpec, lo: list, hi: list, what: list) -> None:
+    """Append the boxes where the occupancy maps of ``old`` and ``new`` differ: around each connected
+    group of changed cells, grown by three cells (:meth:`firmtool.geometry.occupancy.Map.changed_boxes`
+    says why); a map added, removed or in another frame
+    (size, resolution, origin): one box spanning the world."""
+    a, b = old.grid, new.grid
+    if a is None and b is None:
+        return
+    if a is None or b is None:
+        boxes = (np.full((1, 2), -np.inf), np.full((1, 2), np.inf))
+    else:
+        boxes = a.changed_boxes(b)
+    for box_lo, box_hi in zip(*boxes):
+        lo.append(np.asarray(box_lo, dtype=float))
+        hi.append(np.asarray(box_hi, dtype=float))
+        what.append("map cells" if a is not None and b is not None and a.same_frame(b) else "world.map")
 
 
 def meets(swept_lo: np.ndarray, swept_hi: np.ndarray, change: WorldChange, reach: float) -> np.ndarray:

@@ -213,6 +213,8 @@ _TOP = ("name", "seed")  # Scenario fields kept in the [scenario] table
 _NOT_SETTINGS = ("path", "text", "sha256")  # where a scenario came from, not what it says
 # (section, field) -> TOML key, where they differ; both rows of world.bounds come from lo and hi.
 _KEYS = {("world", "lo"): "bounds", ("world", "hi"): "bounds"}
+# Fields that are no TOML key: a map read (world.grid) is what world.map names.
+_NOT_KEYS = {("world", "grid")}
 # Keys that spell the same setting another way: removed when the canonical key is written.
 _ALIASES = {("model", "link_lengths"): ("links", "link_length"), ("task", "goal"): ("goal_center",)}
 
@@ -307,6 +309,8 @@ def _settings(spec: Any) -> dict[str, Any]:
 
 def _write(tables: dict[str, Any], section: str, field: str, spec: Any) -> None:
     """Write the typed value of ``section.field`` (from ``spec``) over ``tables``."""
+    if (section, field) in _NOT_KEYS:
+        return
     table = tables.setdefault(section, {})
     key = _KEYS.get((section, field), field)
     if key == "bounds":

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from firmtool.geometry.occupancy import UNKNOWN_CHOICES
 from firmtool.geometry.registry import backend_names
 from firmtool.io.schema import Field
 from firmtool.models import noise
@@ -57,12 +58,19 @@ MEASUREMENT_FIELDS = (  # and, when imperfect, the noise form's fields
     MEASUREMENT_MODEL_FIELD,
 )
 WORLD_FIELDS = (
-    Field("bounds", "array", shape=(2, None), unit="workspace",
-          doc="[[xmin, ymin], [xmax, ymax]] (2-D) or with z (3-D): the workspace box"),
+    Field("bounds", "array", None, shape=(2, None), unit="workspace",
+          doc="[[xmin, ymin], [xmax, ymax]] (2-D) or with z (3-D): the workspace box (required without a map; "
+              "default with one: the map's extent)"),
     Field("robot_radius", "number", 0.05, bound="positive", unit="workspace", doc="radius of the robot's spheres or capsules"),
     Field("collision_backend", "string", "numpy", choices=lambda: _backend_names(),
           doc="collision backend (firmtool.geometry.registry): numpy, numba (2-D) or fcl (2-D and 3-D)"),
     Field("obstacles", "tables", [], doc="the obstacles, each a table with a kind (firmtool.geometry.shapes)"),
+    Field("map", "string", None, doc="an occupancy-grid map, planar worlds: a ROS map_server YAML file (relative to "
+                                     "the scenario) naming a PGM or PNG image (firmtool.geometry.occupancy); obstacles "
+                                     "are added on top, and everything outside the map counts as occupied",
+          example="office.yaml"),
+    Field("unknown", "string", None, choices=UNKNOWN_CHOICES,
+          doc="with map: what the map's unknown cells count as (default: occupied)", example="free"),
 )
 def _open_probability(x: float) -> str | None:
     return None if 0 < x < 1 else f"expected a probability in (0, 1), found {x}"

@@ -5,6 +5,8 @@ Unknown keys are rejected: in a hand-written file they are almost always typos."
 from __future__ import annotations
 
 import hashlib
+import importlib.resources
+import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -13,6 +15,7 @@ import numpy as np
 
 from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
+from firmtool.geometry.occupancy import Map
 from firmtool.geometry.registry import backends_for, get_backend
 from firmtool.geometry.shapes import KIND_FIELD, KINDS, Mesh, Obstacle, obstacle_from_values
 from firmtool.io.limits import MAX_SCENARIO_BYTES, data_limit_error, toml_nesting_error
@@ -209,7 +212,12 @@ def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
     if values is None:
         return None
     bounds, D = values["bounds"], None
-    if valid(bounds):
+    grid = _read_map(errors, values, bounds, path)
+    if valid(bounds) and bounds is None and grid is not None:
+        bounds = np.array(grid.bounds)  # the map's extent
+    if valid(bounds) and bounds is None and values["map"] is None:
+        errors.add("world.bounds", "missing required field (or give world.map)")
+    elif valid(bounds) and bounds is not None:
         if bounds.shape[1] not in (2, 3):
             errors.add("world.bounds", f"expected 2 (x, y) or 3 (x, y, z) columns, found {bounds.shape[1]}")
         elif np.any(bounds[1] <= bounds[0]):
@@ -241,11 +249,76 @@ def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
                 errors.add(f"world.obstacles[{i}].kind", f"{o.kind!r} is not handled by world.collision_backend "
                                                          f"{backend!r} (it handles {', '.join(info.obstacle_kinds)}); "
                                                          f"use one of: {', '.join(backends_for(D, kinds))}")
-    if not (ok and D is not None and all(valid(v) for v in values.values())):
+    if not (ok and D is not None and all(valid(v) for v in values.values())) or (values["map"] and grid is None):
         return None
     lo, hi = bounds
     return WorldSpec(lo=tuple(float(x) for x in lo), hi=tuple(float(x) for x in hi), robot_radius=values["robot_radius"],
-                     obstacles=tuple(obstacles), collision_backend=backend)
+                     obstacles=tuple(obstacles), collision_backend=backend, map=values["map"],
+                     unknown=values["unknown"], grid=grid)
+
+
+# where a roadmap's stored scenario may find its map besides the roadmap's folder (os.pathsep-separated)
+MAP_PATH_ENV = "FIRMTOOL_MAP_PATH"
+
+
+def _read_map(errors: Errors, values: dict, bounds: Any, path: str) -> "Map | None":
+    """``world.map`` read (and ``world.unknown`` checked), or None without one or on an error (recorded).
+
+    The map's YAML is relative to the scenario's folder. A scenario a roadmap stores (its path ends in
+    ``:scenario_toml``) reads it only inside the roadmap's folder, a folder of ``FIRMTOOL_MAP_PATH`` or
+    firmtool's shipped scenarios (a relative path without '..', not leading out through a link): a
+    roadmap may come from someone else."""
+    name, unknown = values["map"], values["unknown"]
+    if not valid(name, unknown):
+        return None
+    if name is None:
+        if unknown is not None:
+            errors.add("world.unknown", "only read with world.map")
+        return None
+    if valid(bounds) and bounds is not None and bounds.shape[1] != 2:
+        errors.add("world.map", f"a map is planar, this world is {bounds.shape[1]}-D (world.bounds)")
+        return None
+    try:
+        where = _map_location(path, name)
+        return Map.from_yaml(where, unknown=unknown or "occupied")
+    except InputError as exc:
+        errors.add("world.map", str(exc))
+        return None
+
+
+def _map_location(path: str, name: str) -> Path:
+    """Where the map ``name`` of the scenario at ``path`` is (:func:`_read_map`'s rules)."""
+    stored = path.endswith(STORED_SUFFIX)
+    folder = Path(path[:-len(STORED_SUFFIX)] if stored else path).parent
+    if not stored:
+        return folder / name
+    relative = Path(name)
+    if relative.is_absolute() or ".." in relative.parts:
+        raise InputError(f"{name[:200]!r}: a scenario stored in a roadmap names its map only inside the roadmap's "
+                         "folder (a relative path without '..')")
+    places = [folder] + [Path(p) for p in os.environ.get(MAP_PATH_ENV, "").split(os.pathsep) if p]
+    shipped = _shipped_folder()
+    if shipped is not None:
+        places.append(shipped)
+    for place in places:
+        base = Path(os.path.realpath(place))
+        target = Path(os.path.realpath(base / relative))
+        if (base in target.parents) and target.is_file():
+            return base / relative
+    raise InputError(f"{name[:200]!r} is not in the roadmap's folder {folder} (a roadmap's scenario reads its map "
+                     f"only there, in a folder of {MAP_PATH_ENV} or among firmtool's shipped scenarios)")
+
+
+def _shipped_folder() -> Path | None:
+    """The folder of firmtool's shipped scenarios (their maps), or None."""
+    try:
+        return Path(str(importlib.resources.files("firmtool.scenarios")))
+    except (ModuleNotFoundError, TypeError):
+        folder = Path(__file__).resolve().parents[2] / "scenarios"
+        return folder if folder.is_dir() else None
+
+
+STORED_SUFFIX = ":scenario_toml"  # the path of the scenario text a roadmap stores ends so
 
 
 def _read_obstacle(errors: Errors, prefix: str, item: Any, D: int | None, path: str) -> Obstacle | None:

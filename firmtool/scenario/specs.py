@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from firmtool.geometry.occupancy import Map
 from firmtool.geometry.shapes import Obstacle
 
 MEASUREMENT_KINDS = ("perfect", "imperfect")
@@ -84,13 +85,19 @@ class MeasurementSpec(_Params):
 @dataclass(frozen=True)
 class WorldSpec:
     """``[world]``: bounds ``lo``, ``hi`` (D,) (D = 2 or 3), the robot's radius, the obstacles
-    (:mod:`firmtool.geometry.shapes`) and the collision backend's name."""
+    (:mod:`firmtool.geometry.shapes`) and the collision backend's name; in a planar world an optional
+    occupancy-grid map: ``map`` the file as the scenario names it, ``unknown`` what its unknown cells
+    count as, ``grid`` the map read (:class:`firmtool.geometry.occupancy.Map`; no TOML key of its own)."""
 
     lo: tuple[float, ...]
     hi: tuple[float, ...]
     robot_radius: float
     obstacles: tuple[Obstacle, ...]
     collision_backend: str = "numpy"
+    # Hashed only when set: the keys of every roadmap written before maps stay.
+    map: str | None = field(default=None, metadata={"digest": "when set"})
+    unknown: str | None = field(default=None, metadata={"digest": "when set"})
+    grid: Map | None = field(default=None, metadata={"digest": "when set"})
 
     @property
     def dim(self) -> int:

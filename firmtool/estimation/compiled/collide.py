@@ -6,21 +6,23 @@ The gate evaluates the same comparisons as the prefilters inside :func:`collides
 at once (so that they vectorise), so no collision is missed: only the particles where a prefilter
 passed run the exact test, one by one.
 
-The kernel's world group ``(lo, hi, C, Hs, cs, sn, blo, bhi, radius)``: the bounds, the boxes
-(centre, half size, rotation's cos and sin, bounding box) and the robot's capsule radius.
+The kernel's world group ``(lo, hi, C, Hs, cs, sn, blo, bhi, radius, map)``: the bounds, the boxes
+(centre, half size, rotation's cos and sin, bounding box), the robot's capsule radius and the
+occupancy map's group (:mod:`firmtool.estimation.compiled.maps`; empty without a map).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from firmtool.estimation.compiled.maps import map_group
 from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
 
 
 def world_group(world) -> tuple:
     """The kernel's world group of a scenario's planar ``world`` of boxes (module notes): bounds, boxes
     (centre, half size, cos and sin of the rotation, or 1 and 0 for an axis-aligned one, the rotated
-    box's bounding box) and the robot's capsule radius."""
+    box's bounding box), the robot's capsule radius and the map's group."""
     C = np.array([o.center for o in world.obstacles], dtype=float).reshape(-1, 2)
     Hs = np.array([o.half_size for o in world.obstacles], dtype=float).reshape(-1, 2)
     ang = np.array([getattr(o, "angle", 0.0) for o in world.obstacles], dtype=float)
@@ -28,10 +30,11 @@ def world_group(world) -> tuple:
     ext = np.abs(cs)[:, None] * Hs + np.abs(sn)[:, None] * Hs[:, ::-1]
     rotated = ang != 0.0
     return (np.array(world.lo, float), np.array(world.hi, float), C, Hs, np.where(rotated, cs, 1.0),
-            np.where(rotated, sn, 0.0), C - ext, C + ext, float(world.robot_radius))
+            np.where(rotated, sn, 0.0), C - ext, C + ext, float(world.robot_radius), map_group(world))
 
 
 if numba is not None:
+    from firmtool.estimation.compiled.maps import capsule_hits
     from firmtool.geometry._numba import capsule_meets_boxes, seg_seg_d2
 
     njit = cached_njit(**KERNEL_OPTIONS)
@@ -44,7 +47,8 @@ if numba is not None:
         ``Problem.points_valid`` calls it), its obstacles by the numba backend's loop
         (:func:`firmtool.geometry._numba.capsule_meets_boxes`); pinned by
         tests/test_kernels.py::test_collision_test_is_the_numpy_backends."""
-        lo, hi, C, Hs, cs, sn, blo, bhi, r = world
+        lo, hi, C, Hs, cs, sn, blo, bhi, r = world[0], world[1], world[2], world[3], world[4], world[5], \
+            world[6], world[7], world[8]
         r2, lim = r * r, 4.0 * r * r
         for l in range(n_seg):
             ax, ay, bx, by = px[l], py[l], px[l + seg_offset], py[l + seg_offset]
@@ -55,6 +59,10 @@ if numba is not None:
                 else:
                     a_, b_ = ay, by
                 if not (a_ >= lr and a_ <= hr and b_ >= lr and b_ <= hr):
+                    return True
+        if world[9][0].shape[0] > 0:  # the occupancy map (firmtool.estimation.compiled.maps)
+            for l in range(n_seg):
+                if capsule_hits(px[l], py[l], px[l + seg_offset], py[l + seg_offset], world[9]):
                     return True
         for l in range(n_seg):
             end = l + seg_offset
@@ -104,9 +112,15 @@ if numba is not None:
         world's bounds, or any prefilter of an obstacle or self pair passing (the same comparisons, on
         all particles at once so that they vectorise); elsewhere ``collides`` returns False. Pinned
         with it by tests/test_kernels.py::test_collision_test_is_the_numpy_backends."""
-        lo, hi, C, Hs, cs, sn, blo, bhi, r = world
+        lo, hi, blo, bhi, r = world[0], world[1], world[6], world[7], world[8]
         for a in range(na):
             G[a] = 0
+        if world[9][0].shape[0] > 0:  # the occupancy map: its exact test is the gate (a cell read per disc)
+            for l in range(n_seg):
+                ax_, ay_, bx_, by_ = PX[l], PY[l], PX[l + seg_offset], PY[l + seg_offset]
+                for a in range(na):
+                    if not G[a]:
+                        G[a] = capsule_hits(ax_[a], ay_[a], bx_[a], by_[a], world[9])
         for c in range(2):
             lr, hr = lo[c] + r, hi[c] - r
             P = PX if c == 0 else PY
