@@ -76,6 +76,7 @@ class SampleReport(Report):
     requested_nodes : the scenario's ``roadmap.nodes``.
     seconds : wall time of the stage.
     connect_added : nodes the connection stage added to reach stranded goal nodes.
+    notices : one-line remarks (e.g. nodes dropped where too few landmarks are visible).
     """
 
     roadmap: str
@@ -83,6 +84,7 @@ class SampleReport(Report):
     requested_nodes: int
     seconds: float
     connect_added: int = 0
+    notices: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

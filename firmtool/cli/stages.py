@@ -43,6 +43,7 @@ def sample(scenario: str = typer.Argument(..., help=SCENARIO_HELP),
     check_scenario_argument(scenario)
     report = sample_stage(scenario, output, force=force, progress=console.progress()).to_dict()
     emit(report, as_json, lambda r: f"sampled {r['nodes']} nodes in {console.seconds(r['seconds'])}")
+    print_notices(report)
     console.next_step(report["roadmap"], f"firmtool design {report['roadmap']}")
 
 

@@ -134,8 +134,9 @@ def design_node(model: LinearGaussianModel, center: np.ndarray, Wx: np.ndarray, 
         Sigma = estimate_spread(model.A, model.B, K, Qd)
         return NodeController(center, u_eq, K, S, zeros_L, np.zeros((model.n, model.n)), Sigma)
     R = model.R(center)
-    L, P, P_prior = stationary_kalman(model.A, Qd, model.H, R)
-    Sigma = estimate_spread(model.A, model.B, K, Qd, model.H, L, P_prior, R)
+    H = model.observation_jacobian(center)  # a linear model's H; a landmark model's at the centre
+    L, P, P_prior = stationary_kalman(model.A, Qd, H, R)
+    Sigma = estimate_spread(model.A, model.B, K, Qd, H, L, P_prior, R)
     return NodeController(center, u_eq, K, S, L, P, Sigma)
 
 
@@ -208,6 +209,8 @@ def periodic_kalman(A: np.ndarray, H: np.ndarray, Qd: np.ndarray,
     (before step k, ``P[0]`` the node's P_s); P_prior : (T, n, n) predicted covariance of step k.
     """
     T, n, _ = A.shape
+    if not np.any(H):  # nothing is measured along the orbit (no landmark seen): no iteration can converge
+        raise NumericalError("periodic Kalman filter: nothing is measured along the orbit (no stationary belief)")
     L = np.empty((T, n, H.shape[1]))
     P = np.empty((T, n, n))
     P_prior = np.empty((T, n, n))

@@ -33,10 +33,10 @@ from firmtool.estimation.outcomes import (  # noqa: F401
     goal_code,
     grow_swept,
 )
+from firmtool.io.roadmap_format import GOAL_INDEX, START
 from firmtool.models.base import Model
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design, local_controller, start_covariance
-from firmtool.io.roadmap_format import GOAL_INDEX, START
 from firmtool.roadmap.nodes import NodeRegions
 from firmtool.scenario import START_MODES, CostSpec
 
@@ -54,6 +54,9 @@ def filter_update(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat
     with the precomputed gain (an extended Kalman filter for a nonlinear model: the prediction and
     the innovation use ``f`` and ``h``, the gain is linearised along the nominal once per edge)."""
     pred = model.f(xhat, u)
+    measure = getattr(model, "measure", None)
+    if measure is not None:  # a measurement model (landmarks): rows not seen are NaN, bearings wrap
+        return pred + model.innovation(measure(x, v), pred) @ lc.L[k].T
     z = model.h(x) + np.sqrt(variance) * v
     return pred + (z - model.h(pred)) @ lc.L[k].T
 
@@ -74,7 +77,8 @@ def belief_step(model: Model, lc: LocalController, k: int, x: np.ndarray, xhat: 
     x, u = control_and_move(model, lc, k, x, xhat, w)
     if perfect:
         return x, x, u
-    return x, filter_update(model, lc, k, x, xhat, u, v, model.measurement_variance(x)), u
+    variance = None if hasattr(model, "measure") else model.measurement_variance(x)
+    return x, filter_update(model, lc, k, x, xhat, u, v, variance), u
 
 
 def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.ndarray, xhat: np.ndarray,
@@ -103,6 +107,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
     swept = empty_swept(problem.scenario.world.dim)
     alive = np.arange(M)
     r, nz = model.F.shape[1], model.nz
+    measures = hasattr(model, "measure")  # a measurement model: its noise is its own (landmarks)
     for k in range(lc.steps):
         if alive.size == 0:
             break
@@ -115,7 +120,7 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
         if perfect:
             xhat_a = x_a
         else:
-            variance = model.noise.variance(problem.sensing_from_points(pts))
+            variance = None if measures else model.noise.variance(problem.sensing_from_points(pts))
             xhat_a = filter_update(model, lc, k, x_a, xhat[alive], u, noise[:, r:], variance)
         x[alive], xhat[alive] = x_a, xhat_a
         effort[alive] += np.einsum("ij,ij->i", u, u)

@@ -109,7 +109,8 @@ class BeliefFilter:
                           self.u[0], z, xhat[0], nu)
         else:  # as firmtool.estimation.edges.filter_update, on the measurement given
             pred = self.model.f(self.xhat_prev, self.u)
-            innovation = z[None] - self.model.h(pred)
+            innovation = self.model.innovation(z[None], pred) if hasattr(self.model, "innovation") \
+                else z[None] - self.model.h(pred)
             xhat = pred + innovation @ lc.L[k].T
             nu = innovation[0]
         self.extend(xhat[0], lc.P[k + 1])

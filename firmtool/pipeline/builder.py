@@ -194,8 +194,10 @@ class _BuildRun:
         if existing is None and previous is not None and not r.fresh:  # replaced: never without a word
             self.notices.append(starting_over(previous, sc))
         if existing is None:
-            self.seconds["sample"] = sample_into(sc, r.target, problem=r.problem, validity=r.validity,
-                                                 session=self.session, progress=r.progress).seconds
+            sampled = sample_into(sc, r.target, problem=r.problem, validity=r.validity, session=self.session,
+                                  progress=r.progress)
+            self.seconds["sample"] = sampled.seconds
+            self.notices.extend(sampled.notices)
         elif existing.scenario_sha256 != sc.sha256:
             # the nodes' inputs are unchanged (_resumable); so are the controllers if their inputs hash matches
             keep = ("nodes",) + (("controllers",) if existing.has("controllers") and

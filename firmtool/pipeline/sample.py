@@ -22,7 +22,7 @@ from firmtool.problem import Problem, ValidityChecker, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import AddNodesReport, SampleReport
 from firmtool.roadmap.connectivity import connect_goals
-from firmtool.roadmap.design import Design, design, start_covariance
+from firmtool.roadmap.design import Design, design, start_covariance, unstabilisable_nodes
 from firmtool.roadmap.nodes import roadmap_nodes, sample_nodes
 from firmtool.scenario import Scenario
 
@@ -66,9 +66,13 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
     rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5A4D]))
     centers, kinds = roadmap_nodes(parallel_validity(problem, session) if session else problem, rng,
                                    progress=progress)
+    centers, kinds, notices = _drop_unstabilisable(problem, centers, kinds)
     check_start_apart_from_goals(problem, centers, kinds)
     budget = scenario.roadmap.bridge_nodes
     centers, kinds, added, reason = connect_goals(problem, centers, kinds, budget, rng)
+    if added:  # the bridge nodes too
+        centers, kinds, more = _drop_unstabilisable(problem, centers, kinds)
+        notices += more
     identity = problem_checker_identity(problem)
     with locked(target):
         create_roadmap(target, scenario.text, scenario.sha256, scenario.seed)
@@ -77,7 +81,25 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
                      "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: identity,
                      "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
     return SampleReport(roadmap=str(target), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
-                        seconds=time.perf_counter() - t0, connect_added=added)
+                        seconds=time.perf_counter() - t0, connect_added=added, notices=notices)
+
+
+def _drop_unstabilisable(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple:
+    """The nodes less those no stabiliser holds (a landmark sensor that sees too little there,
+    :func:`~firmtool.roadmap.design.unstabilisable_nodes`), with the notice that says how many and why;
+    InputError naming the task's start or goal if it is one of them."""
+    bad, why = unstabilisable_nodes(problem, centers, kinds)
+    if bad.size == 0:
+        return centers, kinds, ()
+    for j in bad:
+        if kinds[j] != REGULAR:
+            name = "task.start" if j == START_INDEX else "task.goal"
+            raise InputError(f"{problem.scenario.path}: {name}: expected a belief that can be held there, but too "
+                             "few landmarks are visible for it to be stationary (add landmarks near it, or raise "
+                             "measurement.max_range or fov)")
+    keep = np.ones(centers.shape[0], dtype=bool)
+    keep[bad] = False
+    return centers[keep], kinds[keep], (why,)
 
 
 def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> Design:

@@ -17,6 +17,7 @@ import numpy as np
 from firmtool import robots
 from firmtool.errors import InputError, ScenarioError, quoted
 from firmtool.models.base import Model
+from firmtool.models.landmarks import LandmarkSensing, OcclusionGrid, with_landmarks
 from firmtool.problem.goal import GoalRegion
 from firmtool.scenario import Scenario
 from firmtool.util.fingerprint import fingerprint
@@ -188,6 +189,8 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     except InputError as exc:
         raise ScenarioError(scenario.path, "model.robot", str(exc)) from None
     robot = robot_cls(scenario)
+    if isinstance(robot.model.noise, LandmarkSensing):
+        robot.model = _landmark_model(robot, scenario)
     checker = None if validity is None else (validity if isinstance(validity, ValidityChecker)
                                              else ValidityChecker(validity))
     if checker is None:
@@ -220,6 +223,33 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     if task.start_covariance is not None:
         problem = dataclasses.replace(problem, start_covariance=robot.start_belief_covariance(problem))
     return problem
+
+
+def _landmark_model(robot: "Robot", scenario: Scenario):
+    """The robot's dynamics with landmark sensing (:mod:`firmtool.models.landmarks`): a planar robot
+    whose first two state coordinates are its position (its only key point), the heading its
+    :meth:`~firmtool.robots.Robot.heading` (the unicycle's), occluded by the world's map."""
+    model = robot.model
+    probe = np.random.default_rng(0).normal(size=(3, model.n))
+    pts = np.asarray(robot.points(probe))
+    if scenario.world.dim != 2 or pts.shape[1:] != (1, 2) or not np.array_equal(pts[:, 0], probe[:, :2]):
+        raise ScenarioError(scenario.path, "measurement.model", "landmarks: expected a planar robot whose position is "
+                                                               "its state's first two coordinates (point, unicycle)")
+    heading = robot.heading(probe)
+    index = -1
+    if heading is not None:
+        hits = [j for j in range(model.n) if np.array_equal(np.asarray(heading), probe[:, j])]
+        if not hits:
+            raise ScenarioError(scenario.path, "measurement.model", "landmarks: the robot's heading is no coordinate "
+                                                                   "of its state")
+        index = hits[0]
+    return with_landmarks(model, model.noise, index, occlusion_grid(scenario))
+
+
+def occlusion_grid(scenario: Scenario) -> OcclusionGrid | None:
+    """The occupancy grid that hides landmarks: the world's map (None without one)."""
+    grid = getattr(scenario.world, "occupancy_grid", None)
+    return grid() if callable(grid) else None
 
 
 _task_cache: dict[tuple, tuple] = {}

@@ -96,6 +96,37 @@ def design_nodes(problem: Problem, centers: np.ndarray, indices: list[int] | Non
     return out
 
 
+def unstabilisable_nodes(problem: Problem, centers: np.ndarray, kinds: np.ndarray) -> tuple[np.ndarray, str]:
+    """The nodes (indices) whose belief cannot be made stationary with a measurement model that sees only
+    part of the world (landmarks): their stabiliser's filter has no stationary (or periodic) solution
+    where too few landmarks are visible. Returns the indices and why, in one line ("" if none). With
+    the robot's own sensor every node is kept (its detectability is checked once, on the model)."""
+    if problem.perfect or not hasattr(problem.model, "measure"):
+        return np.zeros(0, dtype=np.int64), ""
+    Wx, Wu = lqr_weights(problem)
+    memo: dict = {}
+    bad = []
+    # first the cheap count: a robot with a heading sees every direction on its node orbit, so the field of
+    # view is turned; fewer than the model needs can never be stationary (and a periodic filter's
+    # iteration would take its whole budget to say so)
+    enough = problem.model.visible(centers, any_heading=problem.model.heading >= 0).sum(axis=1) \
+        >= problem.model.landmarks_needed
+    for j, v in enumerate(centers):
+        if not enough[j]:
+            bad.append(j)
+            continue
+        try:
+            nc = problem.robot.design_node(problem, v, Wx, Wu, memo)
+            ok = bool(np.all(np.isfinite(nc.P)) and np.all(np.isfinite(nc.Sigma)))
+        except NumericalError:
+            ok = False
+        if not ok:
+            bad.append(j)
+    why = "" if not bad else (f"{len(bad)} of {len(centers)} nodes dropped: too few landmarks visible there (range, "
+                              "field of view, occlusion) for the belief to be stationary, so they have no stabiliser")
+    return np.asarray(bad, dtype=np.int64), why
+
+
 def region_scale(Sigmas: np.ndarray) -> np.ndarray:
     """Per-node, per-coordinate stationary std of the estimate (N, n), floored away from zero."""
     std = np.sqrt(np.diagonal(Sigmas, axis1=1, axis2=2))

@@ -73,6 +73,8 @@ class CompiledKinematics:
     stride : capsule ``l`` starts at key point ``stride l`` (3-D; 1 in 2-D).
     radii : (n_seg,) the capsules' radii (3-D; in 2-D every capsule has ``world.robot_radius``).
     sense : the 3-D sensing hook (above), None in 2-D; n_sensing : the rows it fills.
+    step : ``step(X, U, params, XN, na)``, the noise-free step ``XN = f(X, U)`` of a nonlinear model (the
+        twin of its ``Model.f``, e.g. the unicycle's), or None: the model is linear (``A X + B U``).
     """
 
     key_points: Callable
@@ -92,14 +94,15 @@ class CompiledKinematics:
     radii: np.ndarray | None = field(default=None)
     sense: Callable | None = None
     n_sensing: int = 0
+    step: Callable | None = None
 
     def __post_init__(self) -> None:
         dim, stride = int(self.dim), int(self.stride)
         if dim not in (2, 3):
             raise InputError(f"compiled kinematics: dim must be 2 or 3, found {self.dim!r}")
-        for name in ("key_points", "task_point", "task_covariance", "goal_gate", "sense"):
+        for name in ("key_points", "task_point", "task_covariance", "goal_gate", "sense", "step"):
             fn = getattr(self, name)
-            optional = name == "goal_gate" or (name == "sense" and dim == 2)
+            optional = name in ("goal_gate", "step") or (name == "sense" and dim == 2)
             # callable, not necessarily a dispatcher: with NUMBA_DISABLE_JIT=1 numba.njit gives back the function
             if not (fn is None and optional) and not callable(fn):
                 raise InputError(f"compiled kinematics: {name} must be a numba-compiled function, found {fn!r}")

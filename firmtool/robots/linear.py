@@ -254,7 +254,9 @@ def check_linear_model(problem: "Problem", noise_field: str = "model.process_noi
             np.linalg.matrix_rank(B, tol=1e-9 * max(1.0, np.abs(B).max())):
         raise ScenarioError(sc.path, equilibrium_field, "expected every configuration at rest to be an equilibrium "
                                                 "(A v + B u = v solvable for u), so nodes can be held")
-    if not sc.perfect:
+    if not sc.perfect and hasattr(model, "measure"):  # landmarks: detectability is the nodes' (their visible landmarks)
+        pass
+    elif not sc.perfect:
         H = np.asarray(model.H, dtype=float)
         bad = _uncontrollable_modes(A.T, H.T, unstable_only=True)
         if bad:

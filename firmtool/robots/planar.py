@@ -23,6 +23,8 @@ import numpy as np
 from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
 from firmtool.robots.compiled import CompiledKinematics
 
+UNICYCLE_SMALL = 1e-4  # |omega dt / 2| below which sinc is its Taylor series (models.unicycle._SMALL)
+
 if numba is not None:
     from firmtool.models.angles import sincos  # the hooks' sine and cosine (also planar.sincos for the tests)
 
@@ -62,6 +64,28 @@ if numba is not None:
         for a in range(na):
             ex, ey = XH[0, a] - cx, XH[1, a] - cy
             GG[a] = ex * ex + ey * ey < r2
+
+    # -- a unicycle ------------------------------------------------------------------------------
+
+    @hook
+    def unicycle_step(X, U, params, XN, na):
+        """``XN = f(X, U)``: the unicycle's exactly discretised step (``params[0]`` the step ``dt``),
+        the arc of a circle with ``sinc`` (its Taylor series below :data:`UNICYCLE_SMALL`). Twin of
+        :meth:`firmtool.models.unicycle.UnicycleModel.f`; pinned by
+        tests/test_landmarks.py::test_unicycle_step_is_the_models."""
+        dt = params[0]
+        for a in range(na):
+            th, v, w = X[2, a], U[0, a], U[1, a]
+            half = 0.5 * w * dt
+            if abs(half) < UNICYCLE_SMALL:
+                sc = 1.0 - half * half / 6.0
+            else:
+                sc = np.sin(half) / half
+            s_ = v * dt * sc
+            mid = th + half
+            XN[0, a] = X[0, a] + s_ * np.cos(mid)
+            XN[1, a] = X[1, a] + s_ * np.sin(mid)
+            XN[2, a] = th + 2.0 * half
 
     # -- a chain of links ------------------------------------------------------------------------
 
@@ -147,6 +171,16 @@ def point_kinematics(nz: int) -> CompiledKinematics:
                               task_covariance=point_task_covariance, goal_gate=point_goal_gate,
                               params=np.zeros(0), n_points=1, sensing=np.zeros(nz, dtype=np.int64), segments=(1, 0),
                               self_collision=False, task_block=2)
+
+
+def unicycle_kinematics(nz: int, dt: float) -> CompiledKinematics:
+    """The hooks of a unicycle (:mod:`firmtool.robots.unicycle`): a point's key point, task point, goal
+    gate and collision disc (its orbit's margin is kept by node validity only, never in the Monte
+    Carlo, which tests the true disc), and its nonlinear step (:func:`unicycle_step`, ``params = [dt]``)."""
+    return CompiledKinematics(key_points=point_key_points, task_point=point_task_point,
+                              task_covariance=point_task_covariance, goal_gate=point_goal_gate,
+                              params=np.array([dt], dtype=float), n_points=1, sensing=np.zeros(nz, dtype=np.int64),
+                              segments=(1, 0), self_collision=False, task_block=2, step=unicycle_step)
 
 
 def chain_kinematics(lengths: np.ndarray, nz: int, self_collision: bool = True) -> CompiledKinematics:

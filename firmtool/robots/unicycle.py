@@ -28,7 +28,9 @@ from firmtool.control.gains import lqr_weights
 from firmtool.control.stabilisers import OrbitSpec, cached_periodic_node
 from firmtool.errors import ScenarioError
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
+from firmtool.robots import planar
 from firmtool.robots.base import Robot
+from firmtool.robots.compiled import CompiledKinematics
 from firmtool.robots.registry import register
 from firmtool.robots.relocalisation import Relocalisation, spread_coordinate
 from firmtool.util.schema import Field
@@ -92,6 +94,13 @@ class UnicycleRobot(Robot):
         J = np.zeros((X.shape[0], 2, X.shape[1]))
         J[:, 0, 0] = J[:, 1, 1] = 1.0
         return J
+
+    def compiled_kinematics(self) -> CompiledKinematics | None:
+        """The compiled engine's hooks: a point's, and the unicycle's step (:func:`planar.unicycle_kinematics`);
+        a subclass that moves its points or changes its model opts in by overriding this."""
+        if type(self) is not UnicycleRobot or planar.numba is None:
+            return None
+        return planar.unicycle_kinematics(self.model.nz, self.model.dt)
 
     def velocity_command(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``u = (v, omega)``: forward speed and turn rate, a differential drive's ``cmd_vel``."""

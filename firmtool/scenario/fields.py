@@ -45,11 +45,17 @@ MODEL_FIELDS = (  # and the robot's model_fields
     Field("robot", "string", DEFAULT_ROBOT, doc="the robot (firmtool.robots: a built-in or a registered one)"),
     Field("dt", "number", bound="positive", unit="s", doc="control period: the step of the discrete model"),
 )
+# ``model = "landmarks"``: a measurement model that replaces the robot's sensor (its form's keys set the noise)
+MEASUREMENT_MODEL_FIELD = Field("model", "string", "", choices=lambda: _measurement_models(),
+                                doc="a measurement model in place of the robot's sensor (landmarks: range and "
+                                    "bearing to known landmarks, firmtool.models.landmarks), imperfect only",
+                                example="landmarks")
 MEASUREMENT_FIELDS = (  # and, when imperfect, the noise form's fields
     Field("kind", "string", choices=MEASUREMENT_KINDS, doc="perfect (state space, SLQR) or imperfect (belief space, SLQG)"),
     Field("noise", "string", choices=lambda: _noise_names(), doc="the noise form (firmtool.models.noise), imperfect only"),
     Field("H", "array", None, shape=(None, None), doc="observation matrix (nz, n) (default: the robot's)",
           example=[[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]),
+    MEASUREMENT_MODEL_FIELD,
 )
 WORLD_FIELDS = (
     Field("bounds", "array", None, shape=(2, None), unit="workspace",
@@ -155,6 +161,10 @@ def sections() -> dict[str, tuple[Field, ...]]:
             "world": WORLD_FIELDS, "task": TASK_FIELDS, "roadmap": ROADMAP_FIELDS,
             "controller": CONTROLLER_FIELDS, "estimation": ESTIMATION_FIELDS, "cost": COST_FIELDS,
             "execution": EXECUTION_FIELDS}
+
+
+def _measurement_models() -> tuple[str, ...]:
+    return tuple(n for n in noise.names(scenario_only=True) if getattr(noise.get(n), "measurement_model", False))
 
 
 def _noise_names() -> tuple[str, ...]:

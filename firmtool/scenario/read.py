@@ -27,6 +27,7 @@ from firmtool.scenario.fields import (
     ESTIMATION_FIELDS,
     EXECUTION_FIELDS,
     MEASUREMENT_FIELDS,
+    MEASUREMENT_MODEL_FIELD,
     MODEL_FIELDS,
     OPTIONAL_SECTIONS,
     ROADMAP_FIELDS,
@@ -77,7 +78,7 @@ def read_tables(text: str, path: str = "<string>") -> dict[str, Any]:
 
     sc = section("scenario", SCENARIO_FIELDS)
     model, robot_cls = _read_model(errors, data)
-    measurement = _read_measurement(errors, data)
+    measurement = _read_measurement(errors, data, path)
     world = _read_world(errors, data, path)
     task = _read_task(errors, data, robot_cls, world)
     tables = {key: section(key, fields, required=key not in OPTIONAL_SECTIONS)
@@ -157,8 +158,10 @@ def _read_model(errors: Errors, data: dict) -> tuple[ModelSpec | None, type | No
     return ModelSpec(robot=name, dt=values["dt"], params=dict(params)), cls
 
 
-def _read_measurement(errors: Errors, data: dict) -> MeasurementSpec | None:
-    """``[measurement]``: perfect, or imperfect with a noise form and the keys the form declares."""
+def _read_measurement(errors: Errors, data: dict, path: str = "") -> MeasurementSpec | None:
+    """``[measurement]``: perfect, or imperfect with a noise form and the keys the form declares; or
+    imperfect with ``model = "landmarks"`` (the form that is a whole measurement model,
+    :mod:`firmtool.models.landmarks`, whose side file is read relative to ``path``)."""
     if "measurement" not in data:
         errors.add("measurement", "missing required field")
         return None
@@ -172,14 +175,29 @@ def _read_measurement(errors: Errors, data: dict) -> MeasurementSpec | None:
     if kind == "perfect":
         read_table(errors, "measurement", raw, (), known_extra=("kind",))
         return MeasurementSpec(kind=kind, noise="constant")
-    form = read_value(errors, "measurement", raw, MEASUREMENT_FIELDS[1])
+    if "model" in raw:  # a measurement model (its form's keys), instead of the robot's sensor with a noise law
+        form = read_value(errors, "measurement", raw, MEASUREMENT_MODEL_FIELD)
+        if "noise" in raw:
+            errors.add("measurement.noise", "not read with measurement.model (the model's keys set its noise)")
+        if not valid(form):
+            return None
+        raw = {k: v for k, v in raw.items() if k not in ("model", "noise")}
+    else:
+        form = read_value(errors, "measurement", raw, MEASUREMENT_FIELDS[1])
     if not valid(form):
-        read_table(errors, "measurement", raw, MEASUREMENT_FIELDS[2:], known_extra=tuple(raw))
+        read_table(errors, "measurement", raw, MEASUREMENT_FIELDS[2:3], known_extra=tuple(raw))
         return None
     cls = noise.get(form)
-    values = read_table(errors, "measurement", raw, MEASUREMENT_FIELDS[2:] + cls.fields, known_extra=("kind", "noise"))
-    if not all(valid(v) for v in values.values()):
+    values = read_table(errors, "measurement", raw, MEASUREMENT_FIELDS[2:3] + cls.fields,
+                        known_extra=("kind", "noise", "model"))
+    if values is None or not all(valid(v) for v in values.values()):
         return None
+    resolve = getattr(cls, "resolve", None)
+    if resolve is not None:
+        before = len(errors.items)
+        resolve(values, path, errors, "measurement")
+        if len(errors.items) > before:
+            return None
     params = {f.name: values[f.name] for f in cls.fields}
     return MeasurementSpec(kind=kind, noise=form, H=values["H"], params=params)
 

@@ -102,6 +102,8 @@ class SimulatedSystem:
         pts = problem.points(x)  # the kinematics once, for the collision test and the sensing noise
         if problem.perfect:
             z = x[0].copy()
+        elif hasattr(model, "measure"):  # a measurement model (landmarks): NaN for what is not seen
+            z = model.measure(x, noise[:, self._r:])[0]
         else:  # as firmtool.estimation.edges.filter_update: R at the TRUE state
             variance = model.noise.variance(problem.sensing_from_points(pts))
             z = (model.h(x) + np.sqrt(variance) * noise[:, self._r:])[0]

@@ -44,7 +44,7 @@ class _Invalid:
 REQUIRED: Any = _Required()  # the default of a key that must be given
 INVALID: Any = _Invalid()  # the value of a key whose error was recorded (later checks skip it)
 
-TYPES = ("number", "integer", "string", "array", "integer_array", "tables")
+TYPES = ("number", "integer", "string", "array", "integer_array", "tables", "boolean")
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class Field:
     ----------
     name : the key.
     type : ``"number"``, ``"integer"``, ``"string"``, ``"array"`` (numbers), ``"integer_array"`` or
-        ``"tables"`` (an array of tables, read by the caller).
+        ``"tables"`` (an array of tables, read by the caller) or ``"boolean"``.
     default : the value when the key is absent (not checked), or :data:`REQUIRED`.
     shape : arrays: the size of each axis: an int, None (any size) or a name resolved from the
         ``dims`` given to :func:`read_table` (e.g. ``"D"``, the world's dimension); unknown names
@@ -223,6 +223,12 @@ def _array(f: Field, value: Any, dims: Mapping[str, int], integer: bool = False)
     return arr
 
 
+def _boolean(f: Field, value: Any, dims: Mapping[str, int]) -> bool:
+    if not isinstance(value, bool):
+        raise _Bad(f"expected true or false, found {value!r}")
+    return value
+
+
 def _tables(f: Field, value: Any, dims: Mapping[str, int]) -> list:
     if not isinstance(value, list):
         raise _Bad("expected an array of tables")
@@ -236,6 +242,7 @@ _CONVERT: dict[str, Callable[..., Any]] = {
     "array": _array,
     "integer_array": lambda f, v, d: _array(f, v, d, integer=True),
     "tables": _tables,
+    "boolean": _boolean,
 }
 
 

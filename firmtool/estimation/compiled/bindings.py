@@ -14,7 +14,9 @@ unused in 2-D) and calls, per step:
   in 3-D);
 - ``goal_gate(X, XH, PX, PY, PZ, params, center, r, E, B, GG, na)``, ``goal_test`` and ``true_inside``:
   the goal ball's gate, its test on the estimate and its test of the true task point
-  (:mod:`~firmtool.estimation.compiled.goal`, :mod:`~firmtool.estimation.compiled.goal3d`).
+  (:mod:`~firmtool.estimation.compiled.goal`, :mod:`~firmtool.estimation.compiled.goal3d`);
+- ``advance`` and ``update``: the model's true step and filter update (:mod:`~firmtool.estimation.compiled.model`:
+  linear or the robot's ``step`` hook, the robot's sensor or landmarks).
 
 The 2-D functions here only adapt the planar kernel's calls to these names: the planar arithmetic is
 the one of the planar kernel before 3-D existed (the same tests pin it).
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 from typing import Callable, Mapping
 
+from firmtool.estimation.compiled.model import model_functions
 from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba, specialise
 
 INLINE = {**KERNEL_OPTIONS, "inline": "always"}
@@ -95,6 +98,13 @@ def bindings(functions: Mapping[str, Callable | None], dim: int, cache: bool) ->
     :meth:`~firmtool.robots.compiled.CompiledKinematics.functions` gives them) in a ``dim``-D world;
     ``cache``: whether the specialisations may be cached on disk (the hooks are importable)."""
     hooks = {"task_point": functions["task_point"], "task_covariance": functions["task_covariance"]}
+    steps = model_functions(functions.get("step"), functions.get("sensor") or "")
+    return {**steps, **_geometry_bindings(functions, dim, cache, hooks)}
+
+
+def _geometry_bindings(functions: Mapping[str, Callable | None], dim: int, cache: bool,
+                       hooks: dict) -> dict[str, Callable]:
+    """The kinematics', geometry's and goal's names of :func:`bindings`."""
     if dim == 2:
         test = specialise(goal_2d.goal_test, hooks, KERNEL_OPTIONS, cache=cache)
         return {"points": specialise(points_2d, {"key_points": functions["key_points"]}, INLINE, cache=cache),

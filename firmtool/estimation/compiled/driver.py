@@ -16,6 +16,7 @@ from firmtool.estimation.compiled.collide3d import world_group_3d
 from firmtool.estimation.compiled.goal import goal_group
 from firmtool.estimation.compiled.goal3d import goal_group_3d
 from firmtool.estimation.compiled.locate import candidate_lists
+from firmtool.estimation.compiled.model import LANDMARKS, landmark_group
 from firmtool.estimation.compiled.run import kernel
 from firmtool.estimation.compiled.select import supports
 from firmtool.estimation.compiled.step import sensor_group
@@ -33,10 +34,11 @@ class _ProblemData:
 
     def __init__(self, problem) -> None:
         model = problem.model
-        self.mats = tuple(np.ascontiguousarray(M, dtype=float) for M in (model.A, model.B, model.F, model.H))
-        self.r, self.nz = model.F.shape[1], model.nz
-        self.noise = sensor_group(model.noise)
         self.hooks = hooks = problem.robot.compiled_kinematics()
+        self.mats = tuple(np.ascontiguousarray(M, dtype=float) for M in model_matrices(model, hooks.step is not None))
+        self.r, self.nz = model.F.shape[1], model.nz
+        self.sensor = LANDMARKS if getattr(model.noise, "compiled", None) == LANDMARKS else None
+        self.noise = landmark_group(model) if self.sensor else sensor_group(model.noise)
         n_seg, seg_offset = hooks.segments
         n = model.n
         limits = problem.robot.state_limits()
@@ -51,6 +53,20 @@ class _ProblemData:
         self.world = world_group(problem.scenario.world) if hooks.dim == 2 else \
             world_group_3d(problem.scenario.world, hooks.radii)
         self.goal_group = goal_group if hooks.dim == 2 else goal_group_3d
+
+
+def model_matrices(model, nonlinear: bool) -> tuple[np.ndarray, ...]:
+    """The kernel's model group ``(A, B, F, H)``: a linear model's matrices; for a nonlinear one (its step
+    the robot's hook) zeros of A's and B's shapes; for a measurement model (landmarks) zeros of H's
+    shape (nz, n); a nonlinear model's sensor must be linear, ``h = H x`` (the unicycle's position).
+    The kernel reads its dimensions from them."""
+    n, m, nz = model.n, model.m, model.nz
+    A, B = (np.zeros((n, n)), np.zeros((n, m))) if nonlinear else (model.A, model.B)
+    if hasattr(model, "measure"):
+        H = np.zeros((nz, n))
+    else:  # a nonlinear model's sensor is linear (the unicycle measures its position): its constant Jacobian
+        H = model.H if hasattr(model, "H") else model.observation_jacobian(np.zeros(n))
+    return A, B, model.F, H
 
 
 _problem_cache: dict[int, tuple[object, _ProblemData]] = {}
@@ -136,7 +152,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     simulate the same particles (the tests' particle-by-particle check of the arithmetic).
     """
     pd = _checked_problem_data(problem)
-    run = kernel(pd.hooks)
+    run = kernel(pd.hooks, pd.sensor)
     perfect = problem.perfect
     M, T = x.shape[0], lc.steps
     outcome, steps, effort = np.full(M, TIMEOUT, dtype=np.int64), np.full(M, T, dtype=np.int64), np.zeros(M)

@@ -50,18 +50,19 @@ if numba is not None:
     from firmtool.estimation.compiled.step import (
         control,
         control_effort,
-        filter_update,
         gather_columns,
         scatter_columns,
-        true_step,
     )
     from firmtool.roadmap.membership import locate
 
-#: the names of a robot's hook functions the kernel is compiled against (CompiledKinematics.functions)
-HOOK_NAMES = ("key_points", "task_point", "task_covariance", "goal_gate", "sense")
+#: the names of a robot's hook functions the kernel is compiled against (CompiledKinematics.functions), and
+#: what its model steps are specialised on (``step``: a nonlinear model's hook; ``sensor``: "landmarks" or None,
+#: :func:`firmtool.estimation.compiled.model.model_functions`)
+HOOK_NAMES = ("key_points", "task_point", "task_covariance", "goal_gate", "sense", "step", "sensor")
 # The functions of firmtool.estimation.compiled.bindings, which kernel_for binds per hook set and
 # dimension (the unbound run is never compiled).
 points = sense = sweep_points = gate = particle_collides = goal_gate = goal_test = true_inside = None
+advance = update = None
 
 
 def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, regions, sensor, robot,
@@ -120,7 +121,7 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
         else:
             draw_noise(rng_state, W, d, na)
         control(XH, x_ref[k], u_ref[k], K[k], DX, U, na)
-        true_step(A, B, F, X, U, W, XN, TMP, na)
+        advance(A, B, F, params, X, U, W, XN, TMP, na)
         X, XN = XN, X
         points(X, params, PX, PY, PZ, PHI, na)  # once per step: for the sensor noise and the collision test
         sweep_points(PX, PY, PZ, n_pts, na, swept)
@@ -130,7 +131,7 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
                     XH[j, a] = X[j, a]
         else:
             rows = sense(PX, PY, PZ, params, SB, na)
-            filter_update(A, B, H, L[k], X, XH, U, W, rows, sensor, sensing, PRED, HZ, INN, TMP, na)
+            update(A, B, H, L[k], X, XH, U, W, rows, sensor, sensing, params, PRED, HZ, INN, TMP, na)
         control_effort(U, E, na)
         gate(PX, PY, PZ, na, robot, world, G)
         if goal_on:
@@ -196,10 +197,11 @@ def disk_cached(hooks) -> bool:
     return all(importable(fn) for fn in hooks.functions().values() if fn is not None)
 
 
-def kernel(hooks) -> Callable:
+def kernel(hooks, sensor: str | None = None) -> Callable:
     """The kernel compiled against the robot's ``hooks`` (a
-    :class:`~firmtool.robots.compiled.CompiledKinematics`): :func:`kernel_for` its functions."""
-    return kernel_for(hooks.functions())
+    :class:`~firmtool.robots.compiled.CompiledKinematics`) and its model's ``sensor`` ("landmarks" or
+    None, the robot's own): :func:`kernel_for` its functions."""
+    return kernel_for({**hooks.functions(), "step": hooks.step, "sensor": sensor})
 
 
 def kernel_for(functions: Mapping[str, Callable | None]) -> Callable:
@@ -213,7 +215,7 @@ def kernel_for(functions: Mapping[str, Callable | None]) -> Callable:
     key = tuple(functions.get(name) for name in HOOK_NAMES)
     hit = _kernels.get(key)
     if hit is None:
-        cache = all(importable(fn) for fn in key if fn is not None)
+        cache = all(importable(fn) for fn in key if callable(fn))
         dim = 2 if functions.get("sense") is None else 3
         hit = _kernels[key] = specialise(run, bindings(functions, dim, cache), KERNEL_OPTIONS, cache=cache)
     return hit

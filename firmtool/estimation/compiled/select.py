@@ -4,8 +4,8 @@ Monte Carlo, the numpy one otherwise, with a one-line notice saying why.
 :func:`firmtool.estimation.edges.simulate` dispatches to the compiled engine when :func:`engine_for`
 says so: the environment variable ``FIRMTOOL_ENGINE=numpy`` forces the numpy path; unset, ``auto``
 or ``numba`` use the compiled kernel whenever numba is importable and the kernel computes exactly
-the problem's Monte Carlo (:func:`supports`: the robot's compiled hooks, a linear model, a compiled
-noise form, planar boxes of numpy/numba geometry or 3-D boxes and spheres of the fcl backend, no
+the problem's Monte Carlo (:func:`supports`: the robot's compiled hooks, a linear model or the robot's
+compiled step, a compiled noise form or landmark sensing, planar boxes of numpy/numba geometry or 3-D boxes and spheres of the fcl backend, no
 user's validity checker), and the numpy path otherwise (:func:`engine_choice`).
 
 :func:`engine_for` remembers the answer per problem object and value of the environment variable
@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 
 from firmtool.errors import InputError, quoted
+from firmtool.estimation.compiled.model import LANDMARKS
 from firmtool.estimation.compiled.run import disk_cached
 from firmtool.estimation.compiled.step import NOISE_FORMS
 from firmtool.jit import numba
@@ -31,7 +32,8 @@ def supports(problem) -> str | None:
 
     The robot offers its compiled hooks (:meth:`firmtool.robots.Robot.compiled_kinematics`, the
     twins of its key points, sensing, collision shape and task point) for the world's dimension; the
-    kernel also needs a linear model, a noise form with a compiled twin, the problem's validity to be
+    kernel also needs a linear model (or the robot's compiled step of its model), a noise form with a
+    compiled twin (or landmark sensing), the problem's validity to be
     exactly the scenario's geometry (planar: numpy/numba backend and boxes; 3-D: the fcl backend's
     boxes and spheres without self-collision; the robot's own test and state limits, no user's
     checker), and a goal ball's task point to be the robot's own."""
@@ -44,8 +46,12 @@ def supports(problem) -> str | None:
     dim = len(problem.scenario.world.lo)
     if hooks.dim != dim:
         return f"robot {quoted(problem.scenario.model.robot)}'s compiled kinematics are {hooks.dim}-D, this world is {dim}-D"
-    if type(problem.model) is not LinearGaussianModel:
-        return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
+    model = problem.model
+    base = getattr(model, "base", model) if hasattr(model, "measure") else model  # a landmark model's dynamics
+    if type(base) is not LinearGaussianModel and hooks.step is None:
+        return f"model {type(base).__name__} is not a LinearGaussianModel and the robot gives no compiled step"
+    if hasattr(model, "measure") and getattr(model.noise, "compiled", None) != LANDMARKS:
+        return f"measurement model {type(model).__name__} is not compiled"
     if problem.validity is not None:
         return "the problem has a Python validity checker, which the compiled engine does not compute"
     if not (problem.points_valid == robot.points_valid and problem.points == robot.points
@@ -57,14 +63,14 @@ def supports(problem) -> str | None:
         reason = "the compiled engine does not test self-collision in 3-D"
     if reason is not None:
         return reason
-    if hooks.sensing.size != problem.model.nz or hooks.task_block > problem.model.n:
+    if (hooks.sensing.size != problem.model.nz and not hasattr(model, "measure")) or hooks.task_block > problem.model.n:
         return (f"the robot's compiled kinematics sense {hooks.sensing.size} measurements with a task block of "
                 f"{hooks.task_block}, its model has {problem.model.nz} measurements and {problem.model.n} states")
     goal = problem.goal_region
     if goal is not None and not (goal.task_point == robot.task_point and goal.task_jacobian == robot.task_jacobian):
         return "the goal ball's task point is not the robot's own, which the compiled goal test computes"
     noise = problem.model.noise
-    if getattr(noise, "compiled", None) not in NOISE_FORMS:
+    if getattr(noise, "compiled", None) not in NOISE_FORMS and getattr(noise, "compiled", None) != LANDMARKS:
         return f"measurement noise {getattr(noise, 'form', type(noise).__name__)!r} is not compiled"
     return None
 
