@@ -146,8 +146,11 @@ def test_requests_are_read_or_refused():
     for bad in ('{"episode": 3}', '[1]', '{"episode": -1, "seed": 0}', '{"go": 1}'):
         with pytest.raises(checks.MessageError, match="reset.data"):
             checks.reset_request(bad)
-    assert checks.world_update('[{"center": [1, 2], "half_size": [0.1, 0.1]}]')[1] is None
-    assert checks.world_update('{"obstacles": [], "bounds": [[0, 0], [5, 5]]}') == ([], [[0, 0], [5, 5]])
+    assert checks.world_update('[{"center": [1, 2], "half_size": [0.1, 0.1]}]').bounds is None
+    assert checks.world_update('{"obstacles": [], "bounds": [[0, 0], [5, 5]]}') == \
+        checks.WorldRequest(obstacles=[], bounds=[[0.0, 0.0], [5.0, 5.0]])
+    assert checks.world_update('{"add": [], "remove": [0, {"center": [1, 2]}]}', 2) == \
+        checks.WorldRequest(add=(), remove=(0, {"center": [1, 2]}))
     with pytest.raises(checks.MessageError, match="world_update.data"):
         checks.world_update('{"boxes": []}')
 

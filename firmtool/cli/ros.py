@@ -51,6 +51,8 @@ def ros_sim(ctx: typer.Context,
                                                "episodes repeat 'firmtool execute''s); timed: one step per period."),
             rate: Optional[float] = RateOpt,
             policy_node: str = typer.Option("firmtool", "--policy-node", help="The policy node's name."),
+            stamped: bool = typer.Option(False, "--stamped", help="Measurements on ~/measurement_stamped "
+                                                                  "(sensor_msgs/JointState, stamped when sent)."),
             as_json: bool = JsonOpt) -> None:
     """Run firmtool's simulated robot as the ROS 2 node 'firmtool_sim' (needs the 'ros' extra):
     it resets the policy node per episode, applies its controls, publishes the measurements, and
@@ -60,7 +62,7 @@ def ros_sim(ctx: typer.Context,
     """
     from firmtool.ros import spin  # lazy, as above
     summary = spin.run_sim_node(source, episodes=episodes, seed=seed, lockstep=lockstep, rate=rate,
-                                policy_node=policy_node, ros_args=list(ctx.args))
+                                policy_node=policy_node, stamped=stamped, ros_args=list(ctx.args))
     if as_json:
         typer.echo(json.dumps(summary))
         return

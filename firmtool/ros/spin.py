@@ -59,12 +59,12 @@ def load_system(source: str | Path) -> tuple[Any, Any, Any]:
 
 def run_sim_node(source: str | Path, *, episodes: int = 1, seed: int = 0, lockstep: bool = True,
                  rate: float | None = None, policy_node: str = "firmtool", control_timeout: float = 10.0,
-                 ros_args: list[str] | None = None) -> dict[str, Any]:
+                 stamped: bool = False, ros_args: list[str] | None = None) -> dict[str, Any]:
     """Run the ``firmtool_sim`` node for ``episodes`` episodes (:class:`SimNode`); returns its summary."""
     problem, design, rm = load_system(source)
     ros.rclpy.init(args=["firmtool_sim", *(ros_args or [])])
     node = SimNode(problem, design, rm, episodes=episodes, seed=seed, lockstep=lockstep, rate=rate,
-                   policy_node=policy_node, control_timeout=control_timeout)
+                   policy_node=policy_node, control_timeout=control_timeout, stamped=stamped)
     summary: dict[str, Any] = {}
 
     def done() -> bool:
