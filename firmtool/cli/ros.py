@@ -73,4 +73,26 @@ def ros_sim(ctx: typer.Context,
         typer.echo(f"success rate {summary['success_rate']:.3f} ({summary['successes']} of {summary['episodes']})")
 
 
+@handles_errors
+def ros_up(ctx: typer.Context,
+           roadmap: Path = typer.Argument(..., help="A solved roadmap file (firmtool build + solve)."),
+           sim: bool = typer.Option(False, "--sim", help="Also start the simulated robot (firmtool ros-sim)."),
+           episodes: int = typer.Option(1, "--episodes", "-n", min=1, help="Episodes the simulated robot plays."),
+           seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
+           state_file: Optional[Path] = typer.Option(None, "--state-file",
+                                                     help="Where the node saves its belief after each control "
+                                                          "(a node started again on it resumes the run).")) -> None:
+    """Start the policy node (and with --sim the simulated robot) in one process group, and stop them
+    together: Ctrl-C stops both; the simulator's end (its last episode) stops the node. ROS's launch is
+    not a wheel: this is the launch file. Arguments after the options go to the policy node
+    (--ros-args -p timeout:=0.5).
+
+    Example: firmtool ros-up artifacts/point_lightdark.h5 --sim --episodes 5
+    """
+    check_roadmap_argument(roadmap)
+    from firmtool.ros import up  # no ROS import: the nodes load it
+    raise typer.Exit(up.run(up.commands(roadmap, sim=sim, episodes=episodes, seed=seed, node_args=list(ctx.args),
+                                        state_file=None if state_file is None else str(state_file))))
+
+
 COMMAND_SETTINGS = {"context_settings": ROS_CONTEXT}

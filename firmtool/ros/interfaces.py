@@ -11,8 +11,9 @@ topic                         QoS                        why
                                                          a driver publishing reliable still connects
 ``~/control``, ``cmd_vel``    reliable, keep last 1      only the newest control matters, and it must
                                                          arrive; a best-effort subscriber connects too
-``goal_pose``, ``~/reset``,   reliable, keep last 10     requests: each must arrive once
-``~/world_update``
+``~/reset``,                  reliable, keep last 10     requests: each must arrive once (a world
+``~/world_update``                                       update flood keeps the latest: only it counts)
+``goal_pose``                 reliable, keep last 1000   each goal of a flood read, and refused by name
 ``~/measurement_stamped``     best effort, keep last 5   as ``~/measurement``, with a time stamp
 ``~/events``                  reliable, keep last 1000   every event, in order (a test counts them; a
                                                          flood of refusals is kept whole)
@@ -49,6 +50,8 @@ except ImportError:  # the extra is missing: one line naming it (the CLI exits 2
 SENSOR_QOS = qos_profile_sensor_data
 CONTROL_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 REQUEST_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+#: goal_pose: a flood is read whole, so that each goal the node drops gets its refusal (a goal is small)
+GOAL_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 DISPLAY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 #: the simulator's ~/outcome: every episode's record to a listener that joins late
@@ -131,7 +134,7 @@ def pose_position(msg, dim: int) -> list[float]:
     return [p.x, p.y, p.z][:dim]
 
 
-__all__ = ["CONTROL_QOS", "DISPLAY_QOS", "Duration", "EVENTS_QOS", "ExternalShutdownException", "Float64MultiArray",
+__all__ = ["CONTROL_QOS", "DISPLAY_QOS", "Duration", "EVENTS_QOS", "ExternalShutdownException", "Float64MultiArray", "GOAL_QOS",
            "JointState", "LATCHED_QOS", "LATEST_QOS", "Node", "Path", "PoseStamped", "PoseWithCovarianceStamped",
            "REQUEST_QOS", "SENSOR_QOS", "String", "Twist", "array_message", "belief_message", "path_message",
            "pose_position", "rclpy", "stamp_seconds", "stamped_message", "string_message", "twist_message"]

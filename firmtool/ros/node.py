@@ -166,7 +166,7 @@ class _PolicyNodeParts:
                 ros.PoseWithCovarianceStamped, "~/measurement_pose",
                 self._safe("measurement_pose", lambda msg: self._on_pose(msg, nz)), ros.SENSOR_QOS))
         self.create_subscription(ros.PoseStamped, "goal_pose", self._safe("goal_pose", self._on_goal, "goal_refused"),
-                                 ros.REQUEST_QOS)
+                                 ros.GOAL_QOS)
         self.create_subscription(ros.String, "~/world_update",
                                  self._safe("world_update.data", lambda msg: m.world_update(msg.data),
                                             "world_update_refused"), ros.REQUEST_QOS)

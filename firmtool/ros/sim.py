@@ -91,6 +91,7 @@ class SimNode(ros.Node):
                  stamped: bool = False) -> None:
         super().__init__(NODE_NAME)
         self.stamped = bool(stamped)
+        self._z: np.ndarray | None = None
         self._lost_at: float | None = None  # when the node's control publisher went away (None: present)
         self._back_at: float | None = None
         self.problem, self.design, self.base = problem, design, base
@@ -219,6 +220,11 @@ class SimNode(ros.Node):
         try:
             event = checks.read_json(msg.data, "events.data")
         except MessageError:
+            return
+        if isinstance(event, dict) and event.get("kind") == "dropped" and self.stamped and self._z is not None and \
+                event.get("field") == "measurement_stamped.header.stamp" and self.phase == AWAIT_CONTROL and \
+                "old" in str(event.get("detail")):  # late on the way (a loaded machine): the same state, stamped now
+            self._send_measurement(self._z)
             return
         if not isinstance(event, dict) or event.get("kind") != "done" or self.phase not in (AWAIT_CONTROL, STEPPING):
             return
