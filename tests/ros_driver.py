@@ -218,19 +218,18 @@ def orders(args: dict) -> dict:
 
 
 def restart(args: dict) -> dict:
-    """The node (with a state file) and the simulator in timed mode; the node killed (SIGKILL or SIGTERM)
+    """The node (with a state file) and the simulator in lock-step; the node killed (SIGKILL or SIGTERM)
     at a random step and started again on the same file, ``args["runs"]`` times; each run's outcome."""
     rng = random.Random(args["seed"])
     runs = []
     for k in range(args["runs"]):
         probe = Probe(f"firmtool_test_restart_{k}")
         state = f"{args['log']}.{k}.state.json"
-        node_args = ["ros", args["roadmap"], "--rate", "20", "--ros-args", "-p", "autostart:=false", "-p",
-                     f"state_file:={state}"]
+        node_args = ["ros", args["roadmap"], "--ros-args", "-p", "autostart:=false", "-p", f"state_file:={state}"]
         log = f"{args['log']}.{k}"
         node = start(*node_args, log=log + ".node")
-        sim = start("ros-sim", args["roadmap"], "--timed", "--rate", "20", "--seed", str(args["seed"] + k),
-                    "--json", log=log + ".sim")
+        sim = start("ros-sim", args["roadmap"], "--seed", str(args["seed"] + k), "--control-timeout", "120",
+                    "--json", log=log + ".sim")  # lock-step: the simulator waits for the control
         at = rng.randint(3, 30)
         probe.spin_until(lambda: probe.beliefs >= at, 120)
         how = signal.SIGKILL if k % 2 == 0 else signal.SIGTERM

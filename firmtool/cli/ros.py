@@ -51,6 +51,9 @@ def ros_sim(ctx: typer.Context,
                                                "episodes repeat 'firmtool execute''s); timed: one step per period."),
             rate: Optional[float] = RateOpt,
             policy_node: str = typer.Option("firmtool", "--policy-node", help="The policy node's name."),
+            control_timeout: float = typer.Option(10.0, "--control-timeout", min=0.1,
+                                                  help="Seconds without a control before an episode ends as "
+                                                       "'stalled' (a restarted node must be back within it)."),
             stamped: bool = typer.Option(False, "--stamped", help="Measurements on ~/measurement_stamped "
                                                                   "(sensor_msgs/JointState, stamped when sent)."),
             as_json: bool = JsonOpt) -> None:
@@ -62,7 +65,7 @@ def ros_sim(ctx: typer.Context,
     """
     from firmtool.ros import spin  # lazy, as above
     summary = spin.run_sim_node(source, episodes=episodes, seed=seed, lockstep=lockstep, rate=rate,
-                                policy_node=policy_node, stamped=stamped, ros_args=list(ctx.args))
+                                policy_node=policy_node, control_timeout=control_timeout, stamped=stamped, ros_args=list(ctx.args))
     if as_json:
         typer.echo(json.dumps(summary))
         return

@@ -39,6 +39,7 @@ import math
 import os
 import threading
 import time
+import uuid
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -77,7 +78,7 @@ NODE_EVENTS: dict[str, tuple[str, ...]] = {
 POLICY_EVENTS: tuple[str, ...] = tuple(k.value for k in EventKind)
 POLICY_EVENT_FIELDS = ("step", "node", "value", "detail")
 #: the fields of the node's state (``~/state``, transient local: a late joiner gets the latest)
-STATE_FIELDS = ("state", "episode", "step", "goal", "ready", "restored", "goals_refused", "dropped")
+STATE_FIELDS = ("state", "episode", "step", "goal", "ready", "restored", "goals_refused", "dropped", "boot")
 STATE_FILE_VERSION = 1
 LATENCIES_KEPT = 10_000  # the stamp-to-control latencies a run keeps (a bounded window)
 
@@ -221,6 +222,7 @@ class PolicyMachine:
         self._resume_events: list | None = None
         self._plan_from: int | None = None
         self.restored = False
+        self.boot = uuid.uuid4().hex[:12]  # this process's run of the node: a peer tells a restart by it
         self.solution = solution
         self.policy = self._policy(solution)
         self.nz = self.problem.model.n if self.problem.perfect else self.problem.model.nz
@@ -294,7 +296,7 @@ class PolicyMachine:
         self.out.state({"state": self.state, "episode": self.episode, "step": self._offset + v.steps,
                         "goal": None if self.goal is None else [float(x) for x in self.goal],
                         "ready": True, "restored": self.restored, "goals_refused": self.goals_refused,
-                        "dropped": sum(self.dropped.values())})
+                        "dropped": sum(self.dropped.values()), "boot": self.boot})
 
     def _set_state(self, state: str) -> None:
         if state != self.state:

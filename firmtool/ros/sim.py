@@ -22,11 +22,10 @@ Two pacings:
 
 Start order and restarts: the simulator begins only once its peers matched (its subscriptions have
 the node's publishers of ``control`` and ``events``, its publishers the node's subscriptions of
-``measurement`` and ``reset``), then after :data:`QUIET_SECONDS`. When the node goes away mid-episode
-(its ``control`` publisher is gone: killed, restarting) the simulator waits for it without counting
-the wait against ``control_timeout``; once it is back it sends again what the node had not answered
-(the last measurement, or the episode's reset), and the episode goes on (``restarts`` in the
-outcome). With ``stamped=True`` measurements go on ``~/measurement_stamped`` (``sensor_msgs/JointState``,
+``measurement`` and ``reset``), then after :data:`QUIET_SECONDS`. A node started again mid-episode
+(after a kill: its ``~/state`` shows a new ``boot``) gets again, once matched, what it had not
+answered (the last measurement, or the episode's reset), and the episode goes on (``restarts`` in the
+outcome); the wait for it counts against ``control_timeout``. With ``stamped=True`` measurements go on ``~/measurement_stamped`` (``sensor_msgs/JointState``,
 stamped when sent).
 """
 
@@ -92,8 +91,9 @@ class SimNode(ros.Node):
         super().__init__(NODE_NAME)
         self.stamped = bool(stamped)
         self._z: np.ndarray | None = None
-        self._lost_at: float | None = None  # when the node's control publisher went away (None: present)
-        self._back_at: float | None = None
+        self._boot: str | None = None  # the node's run (its ~/state's boot), to tell a restarted node
+        self._restart_seen: float | None = None
+        self.restarts = 0
         self.problem, self.design, self.base = problem, design, base
         self.episodes, self.seed, self.lockstep = int(episodes), int(seed), bool(lockstep)
         self.period = 1.0 / float(rate) if rate else float(problem.model.dt)
@@ -114,6 +114,7 @@ class SimNode(ros.Node):
         self.control_sub = self.create_subscription(ros.Float64MultiArray, self.topics[0], self._on_control,
                                                     ros.CONTROL_QOS)
         self.events_sub = self.create_subscription(ros.String, self.topics[1], self._on_event, ros.EVENTS_QOS)
+        self.create_subscription(ros.String, f"{prefix}/state", self._on_state, ros.LATEST_QOS)
         self.create_timer(self.period, self._tick)
 
     # -- episodes --------------------------------------------------------------------------------------
@@ -134,8 +135,7 @@ class SimNode(ros.Node):
         self._measured_at: float | None = None
         self._answered = True
         self._waiting_since = time.monotonic()
-        self._z: np.ndarray | None = None  # the last measurement sent (sent again to a restarted node)
-        self.restarts = 0
+        self._z = None  # the last measurement sent (sent again to a restarted node)
         self.phase = AWAIT_CONTROL
         self._send_reset()
 
@@ -260,30 +260,33 @@ class SimNode(ros.Node):
         return self.control_sub.get_publisher_count() > 0 and self.events_sub.get_publisher_count() > 0 and \
             self.measurement_pub.get_subscription_count() > 0 and self.reset_pub.get_subscription_count() > 0
 
-    def _node_away(self, now: float) -> bool:
-        """Whether the node is away (killed, restarting): the wait is not the node's to answer for. Once
-        it is back and matched for :data:`QUIET_SECONDS`, what it had not answered is sent again."""
-        if self._lost_at is None:
-            if self.control_sub.get_publisher_count() > 0:
-                return False
-            self._lost_at, self._back_at = now, None
+    def _on_state(self, msg) -> None:
+        """The node's state (transient local): a new ``boot`` is a node started again (after a kill or a
+        crash); what it had not answered is sent again once it is matched (:meth:`_resend`)."""
+        try:
+            boot = checks.read_json(msg.data, "state.data").get("boot")
+        except (MessageError, AttributeError):
+            return
+        if self._boot is None:
+            self._boot = boot
+        elif boot != self._boot:
+            self._boot, self._restart_seen = boot, time.monotonic()
             self.restarts += 1
+
+    def _resend(self, now: float) -> bool:
+        """Whether a restarted node is being waited for; once it is matched for :data:`QUIET_SECONDS`, the
+        last measurement (or the episode's reset) goes to it again and the wait for its control restarts."""
+        if self._restart_seen is None:
+            return False
+        if not self._matched() or now - self._restart_seen < QUIET_SECONDS:
             return True
-        if not self._matched():
-            self._back_at = None
-            return True
-        self._back_at = self._back_at or now
-        if now - self._back_at < QUIET_SECONDS:
-            return True
-        self._lost_at = self._back_at = None
+        self._restart_seen = None
         self._waiting_since = now
         if self.phase == AWAIT_CONTROL and self._z is not None:
             self._send_measurement(self._z)
             self._measured_at, self._answered = now, False
         elif self.phase == AWAIT_CONTROL:
             self._send_reset()
-        elif self.phase == STEPPING:
-            self.arrivals.append(now)  # the timed loop's control clock restarts with the node
         return False
 
     def _tick(self) -> None:
@@ -298,7 +301,7 @@ class SimNode(ros.Node):
             else:
                 self._matched_at = None
             return
-        if self.phase in (AWAIT_CONTROL, STEPPING) and self._node_away(now):
+        if self.phase in (AWAIT_CONTROL, STEPPING) and self._resend(now):
             return
         if self.phase == AWAIT_CONTROL and now - self._waiting_since > self.control_timeout:
             self._end("stalled", self.system.steps, None)
