@@ -181,8 +181,10 @@ def malformed(args: dict) -> dict:
     probe.spin_until(lambda: "stopped" in probe.kinds(), 10)
     stopped_after = time.monotonic() - t0
     probe.spin_until(lambda: False, 0.3)
+    topics = {"published": probe.node.get_publisher_names_and_types_by_node("firmtool", "/"),
+              "subscribed": probe.node.get_subscriber_names_and_types_by_node("firmtool", "/")}
     return {"events": probe.events, "controls": probe.controls, "answered": answered,
-            "stopped_after": stopped_after, "node_rc": stop(node)}
+            "stopped_after": stopped_after, "topics": topics, "node_rc": stop(node)}
 
 
 def orders(args: dict) -> dict:

@@ -33,6 +33,15 @@ needs_namespace = pytest.mark.skipif(confinement_problem() is not None,
                                      reason=f"no private network namespace: {confinement_problem()}")
 
 
+def assert_documented(events: list[dict]) -> None:
+    """Every event kind the node published, and its fields, in the tutorial's table."""
+    from test_ros_contract import documented_events
+    table = documented_events()
+    for e in events:
+        assert e["kind"] in table, f"the node published {e['kind']!r}, which docs/tutorials/ros.md's table lacks"
+        assert set(e) - {"kind", "episode"} <= set(table[e["kind"]]), e
+
+
 def confined(tmp_path: Path, probe: str, timeout: float = 400, **args) -> dict:
     """Run the driver's ``probe`` in a new network namespace with only loopback, and the ROS settings
     that keep DDS on it (firmtool.ros.confine); its JSON result. Every ROS test runs through here."""
@@ -95,7 +104,9 @@ def test_a_goal_sent_mid_run_is_taken(lightdark, tmp_path):
     path, _ = lightdark
     got = confined(tmp_path, "goal", roadmap=str(path), seed=SEED, after_steps=15, goal=NEW_GOAL)
     kinds = [e["kind"] for e in got["events"]]
-    assert "goal_received" in kinds and "goal_accepted" in kinds, kinds
+    refusals = [e for e in got["events"] if e["kind"] == "goal_refused"]
+    assert "goal_received" in kinds and "goal_accepted" in kinds, f"{kinds}; refused: {refusals}"
+    assert_documented(got["events"])
     accepted = next(e for e in got["events"] if e["kind"] == "goal_accepted")
     assert accepted["goal"] == NEW_GOAL
     assert np.allclose(got["plans"][-1][-1], NEW_GOAL)  # the plan now ends at the new goal
@@ -123,6 +134,15 @@ def test_malformed_messages_are_dropped_and_a_gap_stops_the_robot(lightdark, tmp
     assert len(stopped) == 1 and 1.5 < got["stopped_after"] < 9.0
     assert got["controls"][-1] == [0.0, 0.0]  # the stop: a zero control
     assert got["node_rc"] == 130
+    assert_documented(got["events"])
+    from test_ros_contract import documented_topics
+    table = documented_topics()
+    for name, types in got["topics"]["published"] + got["topics"]["subscribed"]:
+        if name.startswith("/rosout") or name.startswith("/parameter_events"):
+            continue  # every ROS node's own
+        key = "~/" + name[len("/firmtool/"):] if name.startswith("/firmtool/") else name.lstrip("/")
+        assert key in table, f"the node uses {name}, which docs/tutorials/ros.md's table lacks"
+        assert types[0].replace("/msg/", "/") == table[key], (name, types)
 
 
 # -- the checks, without ROS --------------------------------------------------------------------------
@@ -247,6 +267,7 @@ def test_floods_and_hostile_messages_never_stop_the_node(lightdark, tmp_path):
     got = confined(tmp_path, "flood", roadmap=str(path), good=[1.0, 1.0], obstacles=obstacles)
     assert got["node_rc"] == 130, "the node exited on a message"
     assert got["alive_after_hostile"]
+    assert_documented(got["events"])
     refused = [e for e in got["events"] if e["kind"] == "world_update_refused"]
     assert [e["field"] for e in refused[:3]] == ["world_update.data.bounds", "world_update.data.bounds[1]",
                                                  "world_update.data"], refused

@@ -83,6 +83,34 @@ STATE_FILE_VERSION = 1
 LATENCIES_KEPT = 10_000  # the stamp-to-control latencies a run keeps (a bounded window)
 
 
+#: every topic the node publishes or subscribes (relative to its name), with its type; and the
+#: simulator's: the contract the tutorial's table states (tests/test_ros_contract.py checks it)
+TOPICS: dict[str, str] = {
+    "~/measurement": "std_msgs/Float64MultiArray",
+    "~/measurement_pose": "geometry_msgs/PoseWithCovarianceStamped",
+    "~/measurement_stamped": "sensor_msgs/JointState",
+    "~/control": "std_msgs/Float64MultiArray",
+    "cmd_vel": "geometry_msgs/Twist",
+    "~/belief": "geometry_msgs/PoseWithCovarianceStamped",
+    "~/plan": "nav_msgs/Path",
+    "~/events": "std_msgs/String",
+    "~/state": "std_msgs/String",
+    "goal_pose": "geometry_msgs/PoseStamped",
+    "~/world_update": "std_msgs/String",
+    "~/reset": "std_msgs/String",
+}
+SIM_TOPICS: dict[str, str] = {"~/outcome": "std_msgs/String"}
+
+
+def parameter_defaults(dt: float, rate: float | None = None, timeout: float | None = None) -> dict[str, Any]:
+    """The node's ROS parameters and their defaults (``rate``, ``timeout``: the command's options)."""
+    rate = float(rate) if rate else 1.0 / dt
+    return {"rate": rate, "timeout": float(timeout) if timeout else 10.0 * dt, "autostart": True,
+            "frame_id": "map", "goal_rate": 2.0, "measurement.max_age": 1.0 / rate, "state_file": "",
+            "replan.enabled": True, "replan.threshold": float(ReplanSettings().threshold),
+            "replan.deadline": 0.0, "replan.clock": "work"}
+
+
 @dataclass(frozen=True)
 class PolicyView:
     """What the node reads of the running policy, at one moment (:func:`view`)."""
@@ -575,6 +603,6 @@ class PolicyMachine:
         self._queries.shutdown(wait=False, cancel_futures=True)
 
 
-__all__ = ["DONE", "IDLE", "NODE_EVENTS", "Outputs", "POLICY_EVENTS", "POLICY_EVENT_FIELDS", "PolicyMachine",
+__all__ = ["DONE", "IDLE", "NODE_EVENTS", "SIM_TOPICS", "TOPICS", "parameter_defaults", "Outputs", "POLICY_EVENTS", "POLICY_EVENT_FIELDS", "PolicyMachine",
            "PolicyView", "RUNNING", "STATES", "STATE_FIELDS", "STOPPED", "guarded", "percentiles_ms",
            "read_state_file", "view", "write_state_file"]

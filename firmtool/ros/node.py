@@ -32,27 +32,9 @@ from firmtool.online.replanning import ReplanSettings
 from firmtool.ros import checks
 from firmtool.ros import interfaces as ros
 from firmtool.ros.checks import MessageError, quote
-from firmtool.ros.machine import PolicyMachine, PolicyView
+from firmtool.ros.machine import TOPICS, PolicyMachine, PolicyView, parameter_defaults
 
 NODE_NAME = "firmtool"
-
-#: every topic the node publishes or subscribes (relative to its name), with its type: the contract
-#: the tutorial's table states (tests/test_ros_contract.py checks both ways)
-TOPICS: dict[str, str] = {
-    "~/measurement": "std_msgs/Float64MultiArray",
-    "~/measurement_pose": "geometry_msgs/PoseWithCovarianceStamped",
-    "~/measurement_stamped": "sensor_msgs/JointState",
-    "~/control": "std_msgs/Float64MultiArray",
-    "cmd_vel": "geometry_msgs/Twist",
-    "~/belief": "geometry_msgs/PoseWithCovarianceStamped",
-    "~/plan": "nav_msgs/Path",
-    "~/events": "std_msgs/String",
-    "~/state": "std_msgs/String",
-    "goal_pose": "geometry_msgs/PoseStamped",
-    "~/world_update": "std_msgs/String",
-    "~/reset": "std_msgs/String",
-}
-
 
 def replan_settings(node: Any) -> ReplanSettings:
     """The replan settings from the node's ROS parameters (``replan.*``; ``replan.deadline`` 0: the
@@ -64,12 +46,8 @@ def replan_settings(node: Any) -> ReplanSettings:
 
 
 def declare_parameters(node: Any, dt: float, rate: float | None, timeout: float | None) -> dict[str, Any]:
-    """The node's parameters (the tutorial's table lists each with its default); their values."""
-    rate = float(rate) if rate else 1.0 / dt
-    defaults = {"rate": rate, "timeout": float(timeout) if timeout else 10.0 * dt, "autostart": True,
-                "frame_id": "map", "goal_rate": 2.0, "measurement.max_age": 1.0 / rate, "state_file": "",
-                "replan.enabled": True, "replan.threshold": float(ReplanSettings().threshold),
-                "replan.deadline": 0.0, "replan.clock": "work"}
+    """The node's parameters (:func:`firmtool.ros.machine.parameter_defaults`); their values."""
+    defaults = parameter_defaults(dt, rate, timeout)
     for name, value in defaults.items():
         node.declare_parameter(name, value)
     return {name: node.get_parameter(name).value for name in defaults}
@@ -231,4 +209,4 @@ class PolicyNode(_PolicyNodeParts, ros.Node):
         super().destroy_node()
 
 
-__all__ = ["NODE_NAME", "PolicyNode", "TOPICS", "declare_parameters", "replan_settings"]
+__all__ = ["NODE_NAME", "PolicyNode", "declare_parameters", "replan_settings"]
