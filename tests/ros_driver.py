@@ -2,7 +2,7 @@
 firmtool.ros.confine): it starts the node processes, plays a probe (a third ROS node in this process)
 and prints one JSON line of what it saw. It refuses to run outside such a namespace.
 
-    python tests/ros_driver.py PROBE ARGS_JSON      # PROBE: episodes | goal | malformed | orders | restart | flood
+    python tests/ros_driver.py PROBE ARGS_JSON      # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle
 """
 
 from __future__ import annotations
@@ -297,6 +297,52 @@ def flood(args: dict) -> dict:
             "answered": len(probe.controls) > before, "node_rc": stop(node)}
 
 
+def lifecycle(args: dict) -> dict:
+    """The managed node (``firmtool ros --lifecycle``), the probe as its supervisor and robot: a reset
+    before configure and activate, then configure, activate, a run, deactivate."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    probe = Probe()
+    node = start("ros", args["roadmap"], "--lifecycle", "--ros-args", "-p", "autostart:=false",
+                 log=args["log"] + ".node")
+    change = probe.node.create_client(ChangeState, "/firmtool/change_state")
+    get = probe.node.create_client(GetState, "/firmtool/get_state")
+
+    def call(client, request):
+        client.wait_for_service(timeout_sec=60)
+        future = client.call_async(request)
+        probe.spin_until(future.done, 60)
+        return future.result()
+
+    def transition(tid):
+        return call(change, ChangeState.Request(transition=Transition(id=tid))).success
+
+    def label():
+        return call(get, GetState.Request()).current_state.label
+
+    seen = {"unconfigured": label()}
+    seen["configure"] = transition(Transition.TRANSITION_CONFIGURE)
+    seen["configured"] = label()
+    probe.spin_until(probe.matched, 30)
+    probe.spin_until(lambda: False, 0.3)
+    probe.reset.publish(String(data="{}"))  # inactive: dropped with the reason
+    probe.spin_until(lambda: any(e["kind"] == "dropped" for e in probe.events), 10)
+    controls_inactive = len(probe.controls)
+    seen["activate"] = transition(Transition.TRANSITION_ACTIVATE)
+    seen["active"] = label()
+    probe.reset.publish(String(data="{}"))
+    probe.spin_until(lambda: len(probe.controls) >= 1, 10)
+    probe.send_measurement(args["good"])
+    probe.spin_until(lambda: len(probe.controls) >= 2, 10)
+    controls_active = len(probe.controls)
+    seen["deactivate"] = transition(Transition.TRANSITION_DEACTIVATE)
+    probe.spin_until(lambda: "stopped" in probe.kinds(), 10)
+    seen["inactive"] = label()
+    probe.spin_until(lambda: False, 0.3)
+    return {"seen": seen, "events": probe.events, "controls": probe.controls, "controls_inactive": controls_inactive,
+            "controls_active": controls_active, "node_rc": stop(node)}
+
+
 def main() -> int:
     if not inside_private_namespace():
         print("ros_driver: refusing to start ROS nodes outside a private network namespace "
@@ -304,7 +350,7 @@ def main() -> int:
         return 3
     probe, args = sys.argv[1], json.loads(sys.argv[2])
     result = {"episodes": episodes, "goal": goal, "malformed": malformed, "orders": orders, "restart": restart,
-              "flood": flood}[probe](args)
+              "flood": flood, "lifecycle": lifecycle}[probe](args)
     print(json.dumps(result))
     return 0
 

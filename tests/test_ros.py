@@ -283,3 +283,20 @@ def test_floods_and_hostile_messages_never_stop_the_node(lightdark, tmp_path):
     # the last of those)
     assert got["answered"] and len(applied) == 1 and applied[0]["superseded"] >= 1, applied
     print(f"control {got['answer_after_300_updates_s']:.3f} s after 300 updates; memory {got['rss_kib']} KiB")
+
+
+@needs_ros
+@needs_namespace
+def test_the_managed_node_acts_only_while_active(lightdark, tmp_path):
+    path, _ = lightdark
+    got = confined(tmp_path, "lifecycle", roadmap=str(path), good=[1.0, 1.0])
+    seen = got["seen"]
+    assert (seen["unconfigured"], seen["configured"], seen["active"], seen["inactive"]) == \
+        ("unconfigured", "inactive", "active", "inactive"), seen
+    assert seen["configure"] and seen["activate"] and seen["deactivate"]
+    assert got["controls_inactive"] == 0 and got["controls_active"] == 2
+    dropped = [e for e in got["events"] if e["kind"] == "dropped"]
+    assert dropped[0]["field"] == "reset.data" and "inactive" in dropped[0]["detail"]
+    assert [e["kind"] for e in got["events"]].count("stopped") == 1 and got["controls"][-1] == [0.0, 0.0]
+    assert got["node_rc"] == 130
+    assert_documented(got["events"])

@@ -25,7 +25,10 @@ def ros(ctx: typer.Context,
         timeout: Optional[float] = typer.Option(None, "--timeout", min=0.01,
                                                 help="Seconds without a measurement after a control before the "
                                                      "robot is stopped (zero control, 'stopped' event; default "
-                                                     "10 control periods).")) -> None:
+                                                     "10 control periods)."),
+        lifecycle: bool = typer.Option(False, "--lifecycle",
+                                       help="A ROS managed node (rclpy.lifecycle): configure, activate (acts), "
+                                            "deactivate (stops the robot), through ~/change_state.")) -> None:
     """Run the policy as the ROS 2 node 'firmtool' (needs the 'ros' extra): one observe per
     ~/measurement (Float64MultiArray), the control at once on ~/control (and cmd_vel for a robot
     whose control is a velocity), the belief, the plan and the events on ~/belief, ~/plan, ~/events;
@@ -36,7 +39,8 @@ def ros(ctx: typer.Context,
     """
     check_roadmap_argument(roadmap)
     from firmtool.ros import spin  # lazy: the ros extra, and rclpy only for these two commands
-    spin.run_policy_node(roadmap, query=query, rate=rate, timeout=timeout, ros_args=list(ctx.args))
+    spin.run_policy_node(roadmap, query=query, rate=rate, timeout=timeout, lifecycle=lifecycle,
+                         ros_args=list(ctx.args))
 
 
 @handles_errors
@@ -65,7 +69,8 @@ def ros_sim(ctx: typer.Context,
     """
     from firmtool.ros import spin  # lazy, as above
     summary = spin.run_sim_node(source, episodes=episodes, seed=seed, lockstep=lockstep, rate=rate,
-                                policy_node=policy_node, control_timeout=control_timeout, stamped=stamped, ros_args=list(ctx.args))
+                                policy_node=policy_node, control_timeout=control_timeout, stamped=stamped,
+                                ros_args=list(ctx.args))
     if as_json:
         typer.echo(json.dumps(summary))
         return

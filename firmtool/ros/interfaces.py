@@ -39,6 +39,7 @@ try:
     from nav_msgs.msg import Path
     from rclpy.duration import Duration
     from rclpy.executors import ExternalShutdownException
+    from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import JointState
@@ -134,7 +135,8 @@ def pose_position(msg, dim: int) -> list[float]:
     return [p.x, p.y, p.z][:dim]
 
 
-__all__ = ["CONTROL_QOS", "DISPLAY_QOS", "Duration", "EVENTS_QOS", "ExternalShutdownException", "Float64MultiArray", "GOAL_QOS",
-           "JointState", "LATCHED_QOS", "LATEST_QOS", "Node", "Path", "PoseStamped", "PoseWithCovarianceStamped",
-           "REQUEST_QOS", "SENSOR_QOS", "String", "Twist", "array_message", "belief_message", "path_message",
-           "pose_position", "rclpy", "stamp_seconds", "stamped_message", "string_message", "twist_message"]
+__all__ = ["CONTROL_QOS", "DISPLAY_QOS", "Duration", "EVENTS_QOS", "ExternalShutdownException", "Float64MultiArray",
+           "GOAL_QOS", "JointState", "LATCHED_QOS", "LATEST_QOS", "LifecycleNode", "Node", "Path", "PoseStamped",
+           "PoseWithCovarianceStamped", "REQUEST_QOS", "SENSOR_QOS", "String", "TransitionCallbackReturn", "Twist",
+           "array_message", "belief_message", "path_message", "pose_position", "rclpy", "stamp_seconds",
+           "stamped_message", "string_message", "twist_message"]

@@ -603,6 +603,6 @@ class PolicyMachine:
         self._queries.shutdown(wait=False, cancel_futures=True)
 
 
-__all__ = ["DONE", "IDLE", "NODE_EVENTS", "SIM_TOPICS", "TOPICS", "parameter_defaults", "Outputs", "POLICY_EVENTS", "POLICY_EVENT_FIELDS", "PolicyMachine",
-           "PolicyView", "RUNNING", "STATES", "STATE_FIELDS", "STOPPED", "guarded", "percentiles_ms",
-           "read_state_file", "view", "write_state_file"]
+__all__ = ["DONE", "IDLE", "NODE_EVENTS", "Outputs", "POLICY_EVENTS", "POLICY_EVENT_FIELDS", "PolicyMachine",
+           "PolicyView", "RUNNING", "SIM_TOPICS", "STATES", "STATE_FIELDS", "STOPPED", "TOPICS", "guarded",
+           "parameter_defaults", "percentiles_ms", "read_state_file", "view", "write_state_file"]

@@ -109,17 +109,19 @@ class _PolicyNodeParts:
         self._solution, self._base = solution, base
         self.machine: PolicyMachine | None = None
 
-    def _configure(self) -> None:
+    active = True  # a managed node is active only between activate and deactivate
+
+    def _configure(self, autostart: bool | None = None) -> None:
         """The machine (its policy prepared before any topic exists, so that a peer that sees the node's
         topics meets a node that answers at once), then the topics."""
         p = self.params
         self.machine = PolicyMachine(self._solution, self._base, NodeOutputs(self), settings=self.settings,
                                      period=1.0 / float(p["rate"]), timeout=float(p["timeout"]),
-                                     autostart=bool(p["autostart"]), goal_rate=float(p["goal_rate"]),
-                                     max_age=float(p["measurement.max_age"]), state_file=p["state_file"] or None,
-                                     frame_id=self.frame_id)
+                                     autostart=bool(p["autostart"]) if autostart is None else autostart,
+                                     goal_rate=float(p["goal_rate"]), max_age=float(p["measurement.max_age"]),
+                                     state_file=p["state_file"] or None, frame_id=self.frame_id)
         self._make_topics()
-        self.watchdog = self.create_timer(1.0 / float(p["rate"]), self.machine.tick)
+        self.watchdog = self.create_timer(1.0 / float(p["rate"]), lambda: self.active and self.machine.tick())
         self.machine.announce()
 
     def _make_topics(self) -> None:
@@ -143,17 +145,23 @@ class _PolicyNodeParts:
             self.measurement_subs.append(self.create_subscription(
                 ros.PoseWithCovarianceStamped, "~/measurement_pose",
                 self._safe("measurement_pose", lambda msg: self._on_pose(msg, nz)), ros.SENSOR_QOS))
-        self.create_subscription(ros.PoseStamped, "goal_pose", self._safe("goal_pose", self._on_goal, "goal_refused"),
-                                 ros.GOAL_QOS)
-        self.create_subscription(ros.String, "~/world_update",
-                                 self._safe("world_update.data", lambda msg: m.world_update(msg.data),
-                                            "world_update_refused"), ros.REQUEST_QOS)
-        self.create_subscription(ros.String, "~/reset", self._safe("reset.data", lambda msg: m.reset(msg.data)),
-                                 ros.REQUEST_QOS)
+        self._firm_subs = list(self.measurement_subs)
+        self._firm_subs.append(self.create_subscription(
+            ros.PoseStamped, "goal_pose", self._safe("goal_pose", self._on_goal, "goal_refused"),
+                                 ros.GOAL_QOS))
+        self._firm_subs.append(self.create_subscription(
+            ros.String, "~/world_update", self._safe("world_update.data", lambda msg: m.world_update(msg.data),
+                                                     "world_update_refused"), ros.REQUEST_QOS))
+        self._firm_subs.append(self.create_subscription(
+            ros.String, "~/reset", self._safe("reset.data", lambda msg: m.reset(msg.data)), ros.REQUEST_QOS))
 
     def _safe(self, field: str, callback, kind: str = "dropped"):
         """A subscription's callback that never raises (reading the message's fields included)."""
         def inner(msg) -> None:
+            if not self.active:
+                self.machine._drop(MessageError(field, "the node is inactive (managed node): activate it first"),
+                                   kind)
+                return
             try:
                 callback(msg)
             except Exception as exc:  # noqa: BLE001 - a message must never stop the node
@@ -209,4 +217,61 @@ class PolicyNode(_PolicyNodeParts, ros.Node):
         super().destroy_node()
 
 
-__all__ = ["NODE_NAME", "PolicyNode", "declare_parameters", "replan_settings"]
+class LifecyclePolicyNode(_PolicyNodeParts, ros.LifecycleNode):
+    """The ``firmtool`` node as a ROS managed node (``rclpy.lifecycle``): ``configure`` prepares the
+    policy and makes the topics, ``activate`` lets it act (a run starts once the peers matched when
+    ``autostart``, else on ``~/reset``), ``deactivate`` stops the robot (a zero control, ``stopped``)
+    and drops messages until the next ``activate``; ``cleanup`` and ``shutdown`` end it. A robot's
+    supervisor brings its nodes up in order through the standard services (``~/change_state``).
+    Parameters as :class:`PolicyNode`."""
+
+    active = False
+
+    def __init__(self, solution, base=None, *, rate: float | None = None, timeout: float | None = None,
+                 name: str = NODE_NAME) -> None:
+        ros.LifecycleNode.__init__(self, name)
+        self._setup(solution, base, rate, timeout)
+
+    def on_configure(self, state):
+        self._configure(autostart=False)
+        return ros.TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state):
+        self.active = True
+        self.machine.autostart = bool(self.params["autostart"]) and self.machine.state == "idle"
+        return super().on_activate(state)
+
+    def on_deactivate(self, state):
+        if self.machine.state == "running":
+            self.machine.stop("deactivated (managed node): zero control; activate, then ~/reset "
+                              "({\"resume\": true}) goes on")
+        self.active = False
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state):
+        self._teardown()
+        return ros.TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state):
+        self._teardown()
+        return ros.TransitionCallbackReturn.SUCCESS
+
+    def _teardown(self) -> None:
+        self.active = False
+        if self.machine is not None:
+            self.destroy_timer(self.watchdog)
+            for sub in self._firm_subs:
+                self.destroy_subscription(sub)
+            for pub in (self.control_pub, self.cmd_vel_pub, self.belief_pub, self.plan_pub, self.events_pub,
+                        self.state_pub):
+                if pub is not None:
+                    self.destroy_publisher(pub)
+            self._close()
+            self.machine = None
+
+    def destroy_node(self) -> None:
+        self._close()
+        super().destroy_node()
+
+
+__all__ = ["LifecyclePolicyNode", "NODE_NAME", "PolicyNode", "declare_parameters", "replan_settings"]

@@ -25,8 +25,9 @@ the node's publishers of ``control`` and ``events``, its publishers the node's s
 ``measurement`` and ``reset``), then after :data:`QUIET_SECONDS`. A node started again mid-episode
 (after a kill: its ``~/state`` shows a new ``boot``) gets again, once matched, what it had not
 answered (the last measurement, or the episode's reset), and the episode goes on (``restarts`` in the
-outcome); the wait for it counts against ``control_timeout``. With ``stamped=True`` measurements go on ``~/measurement_stamped`` (``sensor_msgs/JointState``,
-stamped when sent).
+outcome); the wait for it counts against ``control_timeout``. With ``stamped=True`` measurements go
+on ``~/measurement_stamped`` (``sensor_msgs/JointState``, stamped when sent; one the node drops as
+too old is sent again, stamped anew).
 """
 
 from __future__ import annotations

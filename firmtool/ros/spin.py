@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from firmtool.ros import interfaces as ros
-from firmtool.ros.node import PolicyNode
+from firmtool.ros.node import LifecyclePolicyNode, PolicyNode
 from firmtool.ros.sim import SimNode
 
 
@@ -39,11 +39,13 @@ def load_solution(roadmap: str | Path, query: str | None):
 
 
 def run_policy_node(roadmap: str | Path, *, query: str | None = None, rate: float | None = None,
-                    timeout: float | None = None, ros_args: list[str] | None = None) -> None:
-    """Run the ``firmtool`` node on a solved roadmap until shut down (:class:`PolicyNode`)."""
+                    timeout: float | None = None, lifecycle: bool = False, ros_args: list[str] | None = None) -> None:
+    """Run the ``firmtool`` node on a solved roadmap until shut down (:class:`PolicyNode`, or with
+    ``lifecycle`` the managed :class:`LifecyclePolicyNode`, unconfigured until its supervisor says)."""
     solution, rm = load_solution(roadmap, query)
     ros.rclpy.init(args=["firmtool", *(ros_args or [])])
-    _spin(PolicyNode(solution, rm, rate=rate, timeout=timeout))
+    kind = LifecyclePolicyNode if lifecycle else PolicyNode
+    _spin(kind(solution, rm, rate=rate, timeout=timeout))
 
 
 def load_system(source: str | Path) -> tuple[Any, Any, Any]:
