@@ -2,13 +2,14 @@
 firmtool.ros.confine): it starts the node processes, plays a probe (a third ROS node in this process)
 and prints one JSON line of what it saw. It refuses to run outside such a namespace.
 
-    python tests/ros_driver.py PROBE ARGS_JSON      # PROBE: episodes | goal | malformed
+    python tests/ros_driver.py PROBE ARGS_JSON      # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle
 """
 
 from __future__ import annotations
 
 import json
 import math
+import random
 import signal
 import subprocess
 import sys
@@ -21,17 +22,28 @@ try:
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
     from nav_msgs.msg import Path
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray, String
 except ImportError:  # the test skips before it gets here: pip install 'firmtool[ros]'
     sys.exit("ros_driver: needs the ros extra: pip install 'firmtool[ros]'")
 
-RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+LATEST = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def start(*args: str, log: str) -> subprocess.Popen:
     """A firmtool command as a process of its own (the same interpreter), output to ``log``."""
     return subprocess.Popen([sys.executable, "-m", "firmtool", *args], stdout=subprocess.PIPE,
-                            stderr=open(log, "w"), text=True)
+                            stderr=open(log, "a"), text=True)
+
+
+def rss_kib(pid: int) -> int:
+    """A process's resident memory (VmRSS, KiB)."""
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return -1
 
 
 def stop(proc: subprocess.Popen) -> int:
@@ -50,9 +62,11 @@ def stop(proc: subprocess.Popen) -> int:
 class Probe:
     """A ROS node of the test: records ``/firmtool/events``, controls and plans; publishes requests."""
 
-    def __init__(self) -> None:
-        rclpy.init()
-        self.node = rclpy.create_node("firmtool_test_probe")
+    def __init__(self, name: str = "firmtool_test_probe") -> None:
+        if not rclpy.ok():
+            rclpy.init()
+        self.node = rclpy.create_node(name)
+        self.states: list[dict] = []
         self.events: list[dict] = []
         self.controls: list[list[float]] = []
         self.plans: list[list[list[float]]] = []
@@ -64,6 +78,8 @@ class Probe:
         n.create_subscription(Path, "/firmtool/plan", self._plan, QoSProfile(
             depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL))
         n.create_subscription(PoseWithCovarianceStamped, "/firmtool/belief", self._belief, qos_profile_sensor_data)
+        n.create_subscription(String, "/firmtool/state", lambda m: self.states.append(json.loads(m.data)), LATEST)
+        self.stamped = n.create_publisher(JointState, "/firmtool/measurement_stamped", qos_profile_sensor_data)
         self.measurement = n.create_publisher(Float64MultiArray, "/firmtool/measurement", qos_profile_sensor_data)
         self.goal = n.create_publisher(PoseStamped, "/goal_pose", RELIABLE)
         self.world = n.create_publisher(String, "/firmtool/world_update", RELIABLE)
@@ -99,6 +115,17 @@ class Probe:
 
     def kinds(self) -> list[str]:
         return [e["kind"] for e in self.events]
+
+    def send_stamped(self, values: list[float], age: float) -> None:
+        msg = JointState()
+        t = self.node.get_clock().now().nanoseconds * 1e-9 - age
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(t), int((t - int(t)) * 1e9)
+        msg.position = [float(v) for v in values]
+        self.stamped.publish(msg)
+        return msg
+
+    def close(self) -> None:
+        self.node.destroy_node()
 
 
 def episodes(args: dict) -> dict:
@@ -154,8 +181,166 @@ def malformed(args: dict) -> dict:
     probe.spin_until(lambda: "stopped" in probe.kinds(), 10)
     stopped_after = time.monotonic() - t0
     probe.spin_until(lambda: False, 0.3)
+    topics = {"published": probe.node.get_publisher_names_and_types_by_node("firmtool", "/"),
+              "subscribed": probe.node.get_subscriber_names_and_types_by_node("firmtool", "/")}
     return {"events": probe.events, "controls": probe.controls, "answered": answered,
-            "stopped_after": stopped_after, "node_rc": stop(node)}
+            "stopped_after": stopped_after, "topics": topics, "node_rc": stop(node)}
+
+
+def orders(args: dict) -> dict:
+    """The node, the simulator and a client (the probe) started in each order of ``args["orders"]``, one
+    second apart; the simulator's summary per order, and what the client saw."""
+    out = []
+    for k, order in enumerate(args["orders"]):
+        procs: dict[str, subprocess.Popen] = {}
+        probe = None
+        log = f"{args['log']}.{k}"
+        for who in order:
+            if who == "node":
+                procs["node"] = start("ros", args["roadmap"], log=log + ".node")  # autostart: on, the default
+            elif who == "sim":
+                procs["sim"] = start("ros-sim", args["roadmap"], "--episodes", str(args["episodes"]), "--seed",
+                                     str(args["seed"]), "--json", log=log + ".sim")
+            else:
+                probe = Probe(f"firmtool_test_client_{k}")
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < args.get("gap", 1.0):
+                if probe is not None:
+                    rclpy.spin_once(probe.node, timeout_sec=0.02)
+                else:
+                    time.sleep(0.02)
+        sim_out, _ = procs["sim"].communicate(timeout=args.get("timeout", 240))
+        probe.spin_until(lambda: probe.kinds().count("done") >= args["episodes"], 10)
+        out.append({"order": order, "summary": json.loads(sim_out.strip().splitlines()[-1]),
+                    "sim_rc": procs["sim"].returncode, "node_rc": stop(procs["node"]),
+                    "ready": any(s.get("ready") for s in probe.states), "kinds": sorted(set(probe.kinds())),
+                    "dones": probe.kinds().count("done")})
+        probe.close()
+    return {"runs": out}
+
+
+def restart(args: dict) -> dict:
+    """The node (with a state file) and the simulator in lock-step; the node killed (SIGKILL or SIGTERM)
+    at a random step and started again on the same file, ``args["runs"]`` times; each run's outcome."""
+    rng = random.Random(args["seed"])
+    runs = []
+    for k in range(args["runs"]):
+        probe = Probe(f"firmtool_test_restart_{k}")
+        state = f"{args['log']}.{k}.state.json"
+        node_args = ["ros", args["roadmap"], "--ros-args", "-p", "autostart:=false", "-p", f"state_file:={state}"]
+        log = f"{args['log']}.{k}"
+        node = start(*node_args, log=log + ".node")
+        sim = start("ros-sim", args["roadmap"], "--seed", str(args["seed"] + k), "--control-timeout", "120",
+                    "--json", log=log + ".sim")  # lock-step: the simulator waits for the control
+        at = rng.randint(3, 30)
+        probe.spin_until(lambda: probe.beliefs >= at, 120)
+        how = signal.SIGKILL if k % 2 == 0 else signal.SIGTERM
+        node.send_signal(how)
+        node.wait(timeout=20)
+        killed_after = probe.beliefs
+        node = start(*node_args, log=log + ".node")
+        sim_out, _ = sim.communicate(timeout=args.get("timeout", 180))
+        probe.spin_until(lambda: False, 0.3)
+        summary = json.loads(sim_out.strip().splitlines()[-1])
+        runs.append({"at": at, "killed_after": killed_after, "signal": int(how), "summary": summary,
+                     "sim_rc": sim.returncode, "node_rc": stop(node), "resumed": probe.kinds().count("resumed")})
+        probe.close()
+    return {"runs": runs}
+
+
+def flood(args: dict) -> dict:
+    """The node alone, the probe as the robot: hostile world updates and resets, 1000 goals in a second,
+    300 distinct world updates while a control is in flight; the node's memory before and after."""
+    probe = Probe()
+    node = start("ros", args["roadmap"], "--timeout", "30", "--ros-args", "-p", "autostart:=false",
+                 log=args["log"] + ".node")
+    probe.spin_until(probe.matched, 60)
+    probe.spin_until(lambda: False, 0.3)
+    probe.reset.publish(String(data="{}"))
+    probe.spin_until(lambda: len(probe.controls) >= 1, 10)
+    hostile = ['{"obstacles": [], "bounds": "x"}', '{"obstacles": [], "bounds": [[0, 0], [1]]}',
+               '[{"center": [' + "9" * 5000 + ', 1], "half_size": [1, 1]}]']
+    for text in hostile:
+        probe.world.publish(String(data=text))
+    probe.reset.publish(String(data='{"episode": ' + "9" * 5000 + ', "seed": 0}'))
+    probe.spin_until(lambda: len([e for e in probe.events if e["kind"] == "world_update_refused"]) >= 3, 10)
+    # a measurement answers (the updates were refused at once: none was pending)
+    probe.send_measurement(args["good"])
+    probe.spin_until(lambda: len(probe.controls) >= 2, 10)
+    alive_after_hostile = len(probe.controls) >= 2
+    probe.spin_until(lambda: False, 1.0)
+    rss0 = rss_kib(node.pid)
+    t0 = time.monotonic()
+    for i in range(1000):  # 1000 goals in one second
+        probe.send_goal(1.0 + 8.0 * (i % 100) / 100, 5.0)
+        if i % 10 == 9:
+            rclpy.spin_once(probe.node, timeout_sec=0)
+            time.sleep(max(0.0, t0 + (i + 1) / 1000 - time.monotonic()))
+    sent_in = time.monotonic() - t0
+    probe.spin_until(lambda: probe.kinds().count("goal_refused") + probe.kinds().count("goal_received") >= 1000, 30)
+    probe.spin_until(lambda: False, 2.0)
+    rss1 = rss_kib(node.pid)
+    obstacles = args["obstacles"]
+    before = len(probe.controls)
+    for i in range(300):  # distinct worlds, while the node waits for the measurement of its last control
+        box = {"center": [5.0, 0.4 + 0.001 * i], "half_size": [0.2, 0.2]}
+        probe.world.publish(String(data=json.dumps(obstacles + [box])))
+    probe.spin_until(lambda: False, 1.0)
+    t1 = time.monotonic()
+    probe.send_measurement(args["good"])
+    probe.spin_until(lambda: len(probe.controls) > before, 30)
+    answer_s = time.monotonic() - t1
+    probe.spin_until(lambda: False, 0.5)
+    rss2 = rss_kib(node.pid)
+    return {"events": probe.events, "rss_kib": [rss0, rss1, rss2], "goals_sent_in_s": sent_in,
+            "alive_after_hostile": alive_after_hostile, "answer_after_300_updates_s": answer_s,
+            "answered": len(probe.controls) > before, "node_rc": stop(node)}
+
+
+def lifecycle(args: dict) -> dict:
+    """The managed node (``firmtool ros --lifecycle``), the probe as its supervisor and robot: a reset
+    before configure and activate, then configure, activate, a run, deactivate."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    probe = Probe()
+    node = start("ros", args["roadmap"], "--lifecycle", "--ros-args", "-p", "autostart:=false",
+                 log=args["log"] + ".node")
+    change = probe.node.create_client(ChangeState, "/firmtool/change_state")
+    get = probe.node.create_client(GetState, "/firmtool/get_state")
+
+    def call(client, request):
+        client.wait_for_service(timeout_sec=60)
+        future = client.call_async(request)
+        probe.spin_until(future.done, 60)
+        return future.result()
+
+    def transition(tid):
+        return call(change, ChangeState.Request(transition=Transition(id=tid))).success
+
+    def label():
+        return call(get, GetState.Request()).current_state.label
+
+    seen = {"unconfigured": label()}
+    seen["configure"] = transition(Transition.TRANSITION_CONFIGURE)
+    seen["configured"] = label()
+    probe.spin_until(probe.matched, 30)
+    probe.spin_until(lambda: False, 0.3)
+    probe.reset.publish(String(data="{}"))  # inactive: dropped with the reason
+    probe.spin_until(lambda: any(e["kind"] == "dropped" for e in probe.events), 10)
+    controls_inactive = len(probe.controls)
+    seen["activate"] = transition(Transition.TRANSITION_ACTIVATE)
+    seen["active"] = label()
+    probe.reset.publish(String(data="{}"))
+    probe.spin_until(lambda: len(probe.controls) >= 1, 10)
+    probe.send_measurement(args["good"])
+    probe.spin_until(lambda: len(probe.controls) >= 2, 10)
+    controls_active = len(probe.controls)
+    seen["deactivate"] = transition(Transition.TRANSITION_DEACTIVATE)
+    probe.spin_until(lambda: "stopped" in probe.kinds(), 10)
+    seen["inactive"] = label()
+    probe.spin_until(lambda: False, 0.3)
+    return {"seen": seen, "events": probe.events, "controls": probe.controls, "controls_inactive": controls_inactive,
+            "controls_active": controls_active, "node_rc": stop(node)}
 
 
 def main() -> int:
@@ -164,7 +349,8 @@ def main() -> int:
               "(run it through firmtool.ros.confine.confined_command)", file=sys.stderr)
         return 3
     probe, args = sys.argv[1], json.loads(sys.argv[2])
-    result = {"episodes": episodes, "goal": goal, "malformed": malformed}[probe](args)
+    result = {"episodes": episodes, "goal": goal, "malformed": malformed, "orders": orders, "restart": restart,
+              "flood": flood, "lifecycle": lifecycle}[probe](args)
     print(json.dumps(result))
     return 0
 

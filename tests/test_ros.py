@@ -8,6 +8,7 @@ message checks without ROS are in the last tests, which always run.
 from __future__ import annotations
 
 import importlib.util
+import itertools
 import json
 import os
 import subprocess
@@ -30,6 +31,15 @@ needs_ros = pytest.mark.skipif(importlib.util.find_spec("rclpy") is None,
                                reason="the ros extra is not installed (pip install 'firmtool[ros]')")
 needs_namespace = pytest.mark.skipif(confinement_problem() is not None,
                                      reason=f"no private network namespace: {confinement_problem()}")
+
+
+def assert_documented(events: list[dict]) -> None:
+    """Every event kind the node published, and its fields, in the tutorial's table."""
+    from test_ros_contract import documented_events
+    table = documented_events()
+    for e in events:
+        assert e["kind"] in table, f"the node published {e['kind']!r}, which docs/tutorials/ros.md's table lacks"
+        assert set(e) - {"kind", "episode"} <= set(table[e["kind"]]), e
 
 
 def confined(tmp_path: Path, probe: str, timeout: float = 400, **args) -> dict:
@@ -94,7 +104,9 @@ def test_a_goal_sent_mid_run_is_taken(lightdark, tmp_path):
     path, _ = lightdark
     got = confined(tmp_path, "goal", roadmap=str(path), seed=SEED, after_steps=15, goal=NEW_GOAL)
     kinds = [e["kind"] for e in got["events"]]
-    assert "goal_received" in kinds and "goal_accepted" in kinds, kinds
+    refusals = [e for e in got["events"] if e["kind"] == "goal_refused"]
+    assert "goal_received" in kinds and "goal_accepted" in kinds, f"{kinds}; refused: {refusals}"
+    assert_documented(got["events"])
     accepted = next(e for e in got["events"] if e["kind"] == "goal_accepted")
     assert accepted["goal"] == NEW_GOAL
     assert np.allclose(got["plans"][-1][-1], NEW_GOAL)  # the plan now ends at the new goal
@@ -122,6 +134,15 @@ def test_malformed_messages_are_dropped_and_a_gap_stops_the_robot(lightdark, tmp
     assert len(stopped) == 1 and 1.5 < got["stopped_after"] < 9.0
     assert got["controls"][-1] == [0.0, 0.0]  # the stop: a zero control
     assert got["node_rc"] == 130
+    assert_documented(got["events"])
+    from test_ros_contract import documented_topics
+    table = documented_topics()
+    for name, types in got["topics"]["published"] + got["topics"]["subscribed"]:
+        if name.startswith("/rosout") or name.startswith("/parameter_events"):
+            continue  # every ROS node's own
+        key = "~/" + name[len("/firmtool/"):] if name.startswith("/firmtool/") else name.lstrip("/")
+        assert key in table, f"the node uses {name}, which docs/tutorials/ros.md's table lacks"
+        assert types[0].replace("/msg/", "/") == table[key], (name, types)
 
 
 # -- the checks, without ROS --------------------------------------------------------------------------
@@ -146,8 +167,11 @@ def test_requests_are_read_or_refused():
     for bad in ('{"episode": 3}', '[1]', '{"episode": -1, "seed": 0}', '{"go": 1}'):
         with pytest.raises(checks.MessageError, match="reset.data"):
             checks.reset_request(bad)
-    assert checks.world_update('[{"center": [1, 2], "half_size": [0.1, 0.1]}]')[1] is None
-    assert checks.world_update('{"obstacles": [], "bounds": [[0, 0], [5, 5]]}') == ([], [[0, 0], [5, 5]])
+    assert checks.world_update('[{"center": [1, 2], "half_size": [0.1, 0.1]}]').bounds is None
+    assert checks.world_update('{"obstacles": [], "bounds": [[0, 0], [5, 5]]}') == \
+        checks.WorldRequest(obstacles=[], bounds=[[0.0, 0.0], [5.0, 5.0]])
+    assert checks.world_update('{"add": [], "remove": [0, {"center": [1, 2]}]}', 2) == \
+        checks.WorldRequest(add=(), remove=(0, {"center": [1, 2]}))
     with pytest.raises(checks.MessageError, match="world_update.data"):
         checks.world_update('{"boxes": []}')
 
@@ -167,3 +191,112 @@ def test_the_belief_of_the_task_point_and_which_robots_measure_a_position(lightd
     assert problem.robot.velocity_command(np.zeros(2)) is None  # a double integrator: accelerations
     full = np.array(checks.pose_covariance(cov, 0.0)).reshape(6, 6)
     assert full[0, 0] == 0.1 and full[1, 1] == 0.2 and full[2, 2] == 0.0
+
+
+# -- issue 53: start orders, restarts, floods ----------------------------------------------------------
+
+ORDERS = list(itertools.permutations(("node", "sim", "client")))
+
+
+def check_episodes(summary: dict, sol, episodes: int) -> None:
+    """The simulator's lock-step episodes are ft.simulate's, step for step."""
+    res = ft.simulate(sol, episodes, SEED, record=False)
+    assert summary["episodes"] == episodes
+    for r, ep in zip(summary["outcomes"], res.episodes):
+        assert (r["outcome"], r["steps"]) == (str(ep.outcome), ep.steps), (r, ep.outcome, ep.steps)
+
+
+def run_orders(lightdark, tmp_path, orders, episodes):
+    path, sol = lightdark
+    got = confined(tmp_path, "orders", timeout=900, roadmap=str(path), orders=orders, episodes=episodes, seed=SEED)
+    for run in got["runs"]:
+        assert run["sim_rc"] == 0 and run["node_rc"] == 130, run
+        assert run["ready"], f"{run['order']}: the client never saw the node's state (~/state is transient local)"
+        check_episodes(run["summary"], sol, episodes)
+        assert run["dones"] >= 1, run  # the client, whenever it came, saw the episodes end (those after it came)
+
+
+@needs_ros
+@needs_namespace
+def test_any_start_order_plays_ft_simulates_episodes(lightdark, tmp_path):
+    """Three of the six orders of node, simulator and client, one second apart (the node auto-starts,
+    so its first control goes out only once a subscriber matched): each plays ft.simulate's episodes.
+    All six, 20 episodes each: the slow test below (CI's time for the ROS step is short)."""
+    run_orders(lightdark, tmp_path, [ORDERS[2], ORDERS[4], ORDERS[5]], 1)
+
+
+@pytest.mark.slow
+@needs_ros
+@needs_namespace
+def test_any_start_order_plays_twenty_episodes(lightdark, tmp_path):
+    run_orders(lightdark, tmp_path, ORDERS, EPISODES)
+
+
+def run_restarts(lightdark, tmp_path, runs):
+    path, _ = lightdark
+    got = confined(tmp_path, "restart", timeout=1200, roadmap=str(path), runs=runs, seed=SEED)
+    finished = 0
+    for run in got["runs"]:
+        outcome = run["summary"]["outcomes"][0]
+        assert run["sim_rc"] == 0 and outcome["outcome"] != "stalled", run
+        assert run["summary"]["episodes"] == 1
+        finished += outcome["outcome"] in ("success", "goal_miss", "collision", "timeout", "stuck")
+        if run["killed_after"] < outcome["steps"]:  # killed mid-episode: the new node took it on
+            assert run["resumed"] == 1, run
+    assert finished == runs
+
+
+@needs_ros
+@needs_namespace
+def test_a_node_killed_mid_episode_and_started_again_finishes_it(lightdark, tmp_path):
+    run_restarts(lightdark, tmp_path, 1)
+
+
+@pytest.mark.slow
+@needs_ros
+@needs_namespace
+def test_ten_of_ten_killed_nodes_finish_their_episode(lightdark, tmp_path):
+    run_restarts(lightdark, tmp_path, 10)
+
+
+@needs_ros
+@needs_namespace
+def test_floods_and_hostile_messages_never_stop_the_node(lightdark, tmp_path):
+    path, sol = lightdark
+    obstacles = [o.to_table() for o in sol.roadmap.problem.scenario.world.obstacles]
+    got = confined(tmp_path, "flood", roadmap=str(path), good=[1.0, 1.0], obstacles=obstacles)
+    assert got["node_rc"] == 130, "the node exited on a message"
+    assert got["alive_after_hostile"]
+    assert_documented(got["events"])
+    refused = [e for e in got["events"] if e["kind"] == "world_update_refused"]
+    assert [e["field"] for e in refused[:3]] == ["world_update.data.bounds", "world_update.data.bounds[1]",
+                                                 "world_update.data"], refused
+    assert any(e["kind"] == "dropped" and e["field"] == "reset.data" for e in got["events"])
+    goals = [e for e in got["events"] if e["kind"] in ("goal_received", "goal_refused")]
+    received = [e for e in goals if e["kind"] == "goal_received"]
+    assert len(goals) == 1000 + sum(e["kind"] == "goal_refused" and "superseded" in e["detail"] for e in goals)
+    assert len(received) <= 10  # goal_rate 2 per second, over the seconds the node took to read the flood
+    rss0, rss1, rss2 = got["rss_kib"]
+    assert rss1 - rss0 < 20_000 and rss2 - rss0 < 40_000, got["rss_kib"]  # KiB: flat, not per message
+    applied = [e for e in got["events"] if e["kind"] == "world_update_applied"]
+    # one world solved before the control: the latest (DDS keeps the last 10 of a flood, the node's one slot
+    # the last of those)
+    assert got["answered"] and len(applied) == 1 and applied[0]["superseded"] >= 1, applied
+    print(f"control {got['answer_after_300_updates_s']:.3f} s after 300 updates; memory {got['rss_kib']} KiB")
+
+
+@needs_ros
+@needs_namespace
+def test_the_managed_node_acts_only_while_active(lightdark, tmp_path):
+    path, _ = lightdark
+    got = confined(tmp_path, "lifecycle", roadmap=str(path), good=[1.0, 1.0])
+    seen = got["seen"]
+    assert (seen["unconfigured"], seen["configured"], seen["active"], seen["inactive"]) == \
+        ("unconfigured", "inactive", "active", "inactive"), seen
+    assert seen["configure"] and seen["activate"] and seen["deactivate"]
+    assert got["controls_inactive"] == 0 and got["controls_active"] == 2
+    dropped = [e for e in got["events"] if e["kind"] == "dropped"]
+    assert dropped[0]["field"] == "reset.data" and "inactive" in dropped[0]["detail"]
+    assert [e["kind"] for e in got["events"]].count("stopped") == 1 and got["controls"][-1] == [0.0, 0.0]
+    assert got["node_rc"] == 130
+    assert_documented(got["events"])

@@ -61,10 +61,10 @@ app = typer.Typer(cls=OneLineErrors,
 # in the order firmtool --help lists them
 COMMANDS = (scenarios.init, scenarios.check, stages.sample, stages.design, stages.estimate, stages.build,
             stages.update, solve.solve, execute.execute, show.plot, show.inspect, run.run, scenarios.scenarios,
-            ros.ros, ros.ros_sim)
+            ros.ros, ros.ros_sim, ros.ros_up)
 for _command in COMMANDS:
     # the ROS commands pass the arguments after their own to ROS (--ros-args ...)
-    app.command(**(ros.COMMAND_SETTINGS if _command in (ros.ros, ros.ros_sim) else {}))(_command)
+    app.command(**(ros.COMMAND_SETTINGS if _command in (ros.ros, ros.ros_sim, ros.ros_up) else {}))(_command)
 
 
 def _print_version(value: bool) -> None:

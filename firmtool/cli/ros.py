@@ -25,7 +25,10 @@ def ros(ctx: typer.Context,
         timeout: Optional[float] = typer.Option(None, "--timeout", min=0.01,
                                                 help="Seconds without a measurement after a control before the "
                                                      "robot is stopped (zero control, 'stopped' event; default "
-                                                     "10 control periods).")) -> None:
+                                                     "10 control periods)."),
+        lifecycle: bool = typer.Option(False, "--lifecycle",
+                                       help="A ROS managed node (rclpy.lifecycle): configure, activate (acts), "
+                                            "deactivate (stops the robot), through ~/change_state.")) -> None:
     """Run the policy as the ROS 2 node 'firmtool' (needs the 'ros' extra): one observe per
     ~/measurement (Float64MultiArray), the control at once on ~/control (and cmd_vel for a robot
     whose control is a velocity), the belief, the plan and the events on ~/belief, ~/plan, ~/events;
@@ -36,7 +39,8 @@ def ros(ctx: typer.Context,
     """
     check_roadmap_argument(roadmap)
     from firmtool.ros import spin  # lazy: the ros extra, and rclpy only for these two commands
-    spin.run_policy_node(roadmap, query=query, rate=rate, timeout=timeout, ros_args=list(ctx.args))
+    spin.run_policy_node(roadmap, query=query, rate=rate, timeout=timeout, lifecycle=lifecycle,
+                         ros_args=list(ctx.args))
 
 
 @handles_errors
@@ -51,6 +55,11 @@ def ros_sim(ctx: typer.Context,
                                                "episodes repeat 'firmtool execute''s); timed: one step per period."),
             rate: Optional[float] = RateOpt,
             policy_node: str = typer.Option("firmtool", "--policy-node", help="The policy node's name."),
+            control_timeout: float = typer.Option(10.0, "--control-timeout", min=0.1,
+                                                  help="Seconds without a control before an episode ends as "
+                                                       "'stalled' (a restarted node must be back within it)."),
+            stamped: bool = typer.Option(False, "--stamped", help="Measurements on ~/measurement_stamped "
+                                                                  "(sensor_msgs/JointState, stamped when sent)."),
             as_json: bool = JsonOpt) -> None:
     """Run firmtool's simulated robot as the ROS 2 node 'firmtool_sim' (needs the 'ros' extra):
     it resets the policy node per episode, applies its controls, publishes the measurements, and
@@ -60,7 +69,8 @@ def ros_sim(ctx: typer.Context,
     """
     from firmtool.ros import spin  # lazy, as above
     summary = spin.run_sim_node(source, episodes=episodes, seed=seed, lockstep=lockstep, rate=rate,
-                                policy_node=policy_node, ros_args=list(ctx.args))
+                                policy_node=policy_node, control_timeout=control_timeout, stamped=stamped,
+                                ros_args=list(ctx.args))
     if as_json:
         typer.echo(json.dumps(summary))
         return
@@ -69,6 +79,28 @@ def ros_sim(ctx: typer.Context,
         typer.echo(f"episode {r['episode']}: {r['outcome']} after {r['steps']} steps{cost}")
     if summary.get("episodes"):
         typer.echo(f"success rate {summary['success_rate']:.3f} ({summary['successes']} of {summary['episodes']})")
+
+
+@handles_errors
+def ros_up(ctx: typer.Context,
+           roadmap: Path = typer.Argument(..., help="A solved roadmap file (firmtool build + solve)."),
+           sim: bool = typer.Option(False, "--sim", help="Also start the simulated robot (firmtool ros-sim)."),
+           episodes: int = typer.Option(1, "--episodes", "-n", min=1, help="Episodes the simulated robot plays."),
+           seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
+           state_file: Optional[Path] = typer.Option(None, "--state-file",
+                                                     help="Where the node saves its belief after each control "
+                                                          "(a node started again on it resumes the run).")) -> None:
+    """Start the policy node (and with --sim the simulated robot) in one process group, and stop them
+    together: Ctrl-C stops both; the simulator's end (its last episode) stops the node. ROS's launch is
+    not a wheel: this is the launch file. Arguments after the options go to the policy node
+    (--ros-args -p timeout:=0.5).
+
+    Example: firmtool ros-up artifacts/point_lightdark.h5 --sim --episodes 5
+    """
+    check_roadmap_argument(roadmap)
+    from firmtool.ros import up  # no ROS import: the nodes load it
+    raise typer.Exit(up.run(up.commands(roadmap, sim=sim, episodes=episodes, seed=seed, node_args=list(ctx.args),
+                                        state_file=None if state_file is None else str(state_file))))
 
 
 COMMAND_SETTINGS = {"context_settings": ROS_CONTEXT}

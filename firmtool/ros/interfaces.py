@@ -11,11 +11,17 @@ topic                         QoS                        why
                                                          a driver publishing reliable still connects
 ``~/control``, ``cmd_vel``    reliable, keep last 1      only the newest control matters, and it must
                                                          arrive; a best-effort subscriber connects too
-``goal_pose``, ``~/reset``,   reliable, keep last 10     requests: each must arrive once
-``~/world_update``
-``~/events``                  reliable, keep last 100    every event, in order (a test counts them)
+``~/reset``,                  reliable, keep last 10     requests: each must arrive once (a world
+``~/world_update``                                       update flood keeps the latest: only it counts)
+``goal_pose``                 reliable, keep last 1000   each goal of a flood read, and refused by name
+``~/measurement_stamped``     best effort, keep last 5   as ``~/measurement``, with a time stamp
+``~/events``                  reliable, keep last 1000   every event, in order (a test counts them; a
+                                                         flood of refusals is kept whole)
+``~/state``                   reliable, transient local, the node's state: a client started before
+                              keep last 1                the node, or after it, gets the latest
 ``~/belief``                  best effort, keep last 1   a display: the newest only
-``~/plan``                    reliable, transient local  a display that joins late (RViz) still gets it
+``~/plan``                    reliable, transient local, a display that joins late (RViz) still gets it
+                              keep last 1
 ``~/outcome`` (simulator)     reliable, transient local  a listener that joins late gets every episode
 ============================  =========================  ===========================================
 """
@@ -33,8 +39,10 @@ try:
     from nav_msgs.msg import Path
     from rclpy.duration import Duration
     from rclpy.executors import ExternalShutdownException
+    from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 except ImportError:  # the extra is missing: one line naming it (the CLI exits 2)
     raise InputError("firmtool ros: the ROS 2 client library (rclpy and its messages) is not installed: "
@@ -43,10 +51,16 @@ except ImportError:  # the extra is missing: one line naming it (the CLI exits 2
 SENSOR_QOS = qos_profile_sensor_data
 CONTROL_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 REQUEST_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-EVENTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+#: goal_pose: a flood is read whole, so that each goal the node drops gets its refusal (a goal is small)
+GOAL_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 DISPLAY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
+#: the simulator's ~/outcome: every episode's record to a listener that joins late
 LATCHED_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: ~/plan and ~/state: the latest one to a subscriber that joins late
+LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def array_message(values: np.ndarray, label: str) -> Float64MultiArray:
@@ -101,6 +115,20 @@ def path_message(points: np.ndarray, stamp, frame_id: str) -> Path:
     return msg
 
 
+def stamped_message(values: np.ndarray, stamp, frame_id: str = "") -> JointState:
+    """A measurement vector as a ``sensor_msgs/JointState`` (``position``: the values; ``header.stamp``:
+    when it was measured)."""
+    msg = JointState()
+    msg.header.stamp, msg.header.frame_id = stamp, frame_id
+    msg.position = [float(v) for v in np.asarray(values, dtype=float).reshape(-1)]
+    return msg
+
+
+def stamp_seconds(stamp) -> float:
+    """A ``builtin_interfaces/Time`` in seconds."""
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
 def pose_position(msg, dim: int) -> list[float]:
     """The first ``dim`` coordinates of a pose's position (a ``Pose``)."""
     p = msg.position
@@ -108,6 +136,7 @@ def pose_position(msg, dim: int) -> list[float]:
 
 
 __all__ = ["CONTROL_QOS", "DISPLAY_QOS", "Duration", "EVENTS_QOS", "ExternalShutdownException", "Float64MultiArray",
-           "LATCHED_QOS", "Node", "Path", "PoseStamped", "PoseWithCovarianceStamped", "REQUEST_QOS",
-           "SENSOR_QOS", "String", "Twist", "array_message", "belief_message", "path_message", "pose_position",
-           "rclpy", "string_message", "twist_message"]
+           "GOAL_QOS", "JointState", "LATCHED_QOS", "LATEST_QOS", "LifecycleNode", "Node", "Path", "PoseStamped",
+           "PoseWithCovarianceStamped", "REQUEST_QOS", "SENSOR_QOS", "String", "TransitionCallbackReturn", "Twist",
+           "array_message", "belief_message", "path_message", "pose_position", "rclpy", "stamp_seconds",
+           "stamped_message", "string_message", "twist_message"]

@@ -19,6 +19,15 @@ Two pacings:
   none came in time, counted as ``held``), as a robot's driver does. The control messages'
   inter-arrival times and the latency from a measurement to the control that answers it are
   measured here (``control_interval_ms``, ``latency_ms``; benchmarks/bench_ros.py reads them).
+
+Start order and restarts: the simulator begins only once its peers matched (its subscriptions have
+the node's publishers of ``control`` and ``events``, its publishers the node's subscriptions of
+``measurement`` and ``reset``), then after :data:`QUIET_SECONDS`. A node started again mid-episode
+(after a kill: its ``~/state`` shows a new ``boot``) gets again, once matched, what it had not
+answered (the last measurement, or the episode's reset), and the episode goes on (``restarts`` in the
+outcome); the wait for it counts against ``control_timeout``. With ``stamped=True`` measurements go
+on ``~/measurement_stamped`` (``sensor_msgs/JointState``, stamped when sent; one the node drops as
+too old is sent again, stamped anew).
 """
 
 from __future__ import annotations
@@ -78,8 +87,14 @@ class SimNode(ros.Node):
     """
 
     def __init__(self, problem, design=None, base=None, *, episodes: int = 1, seed: int = 0, lockstep: bool = True,
-                 rate: float | None = None, policy_node: str = "firmtool", control_timeout: float = 10.0) -> None:
+                 rate: float | None = None, policy_node: str = "firmtool", control_timeout: float = 10.0,
+                 stamped: bool = False) -> None:
         super().__init__(NODE_NAME)
+        self.stamped = bool(stamped)
+        self._z: np.ndarray | None = None
+        self._boot: str | None = None  # the node's run (its ~/state's boot), to tell a restarted node
+        self._restart_seen: float | None = None
+        self.restarts = 0
         self.problem, self.design, self.base = problem, design, base
         self.episodes, self.seed, self.lockstep = int(episodes), int(seed), bool(lockstep)
         self.period = 1.0 / float(rate) if rate else float(problem.model.dt)
@@ -91,12 +106,16 @@ class SimNode(ros.Node):
         self._designs: dict[tuple, Any] = {}
         self._matched_at: float | None = None
         prefix = "/" + policy_node.strip("/")
-        self.measurement_pub = self.create_publisher(ros.Float64MultiArray, f"{prefix}/measurement", ros.SENSOR_QOS)
+        self.measurement_pub = (self.create_publisher(ros.JointState, f"{prefix}/measurement_stamped", ros.SENSOR_QOS)
+                                if self.stamped else
+                                self.create_publisher(ros.Float64MultiArray, f"{prefix}/measurement", ros.SENSOR_QOS))
         self.reset_pub = self.create_publisher(ros.String, f"{prefix}/reset", ros.REQUEST_QOS)
         self.outcome_pub = self.create_publisher(ros.String, "~/outcome", ros.LATCHED_QOS)
         self.topics = (f"{prefix}/control", f"{prefix}/events")
-        self.create_subscription(ros.Float64MultiArray, self.topics[0], self._on_control, ros.CONTROL_QOS)
-        self.create_subscription(ros.String, self.topics[1], self._on_event, ros.EVENTS_QOS)
+        self.control_sub = self.create_subscription(ros.Float64MultiArray, self.topics[0], self._on_control,
+                                                    ros.CONTROL_QOS)
+        self.events_sub = self.create_subscription(ros.String, self.topics[1], self._on_event, ros.EVENTS_QOS)
+        self.create_subscription(ros.String, f"{prefix}/state", self._on_state, ros.LATEST_QOS)
         self.create_timer(self.period, self._tick)
 
     # -- episodes --------------------------------------------------------------------------------------
@@ -117,8 +136,18 @@ class SimNode(ros.Node):
         self._measured_at: float | None = None
         self._answered = True
         self._waiting_since = time.monotonic()
+        self._z = None  # the last measurement sent (sent again to a restarted node)
         self.phase = AWAIT_CONTROL
-        self.reset_pub.publish(ros.string_message(checks.to_json({"episode": i, "seed": self.seed})))
+        self._send_reset()
+
+    def _send_reset(self) -> None:
+        self.reset_pub.publish(ros.string_message(checks.to_json({"episode": self.episode, "seed": self.seed})))
+
+    def _send_measurement(self, z: np.ndarray) -> None:
+        if self.stamped:
+            self.measurement_pub.publish(ros.stamped_message(z, self.get_clock().now().to_msg()))
+        else:
+            self.measurement_pub.publish(ros.array_message(z, "z"))
 
     def _step(self, u: np.ndarray) -> None:
         """Apply ``u`` for one period and measure (a collision ends the episode)."""
@@ -127,7 +156,8 @@ class SimNode(ros.Node):
         if not valid:
             self._end(Outcome.COLLISION.value, self.system.steps, None)
             return
-        self.measurement_pub.publish(ros.array_message(z, "z"))
+        self._z = z
+        self._send_measurement(z)
         self._measured_at = time.monotonic()
         self._waiting_since = self._measured_at
         self._answered = False
@@ -135,6 +165,7 @@ class SimNode(ros.Node):
     def _end(self, outcome: str, steps: int, cost: float | None, **extra: Any) -> None:
         rec = {"episode": self.episode, "outcome": outcome, "steps": int(steps), "cost": cost,
                "sim_steps": self.system.steps, "held": self.held, "bad_controls": self.bad_controls,
+               "restarts": self.restarts,
                "latency_ms": percentiles_ms(self.latencies),
                "control_interval_ms": percentiles_ms(list(np.diff(self.arrivals))), **extra}
         self._intervals = getattr(self, "_intervals", []) + list(np.diff(self.arrivals))
@@ -191,12 +222,17 @@ class SimNode(ros.Node):
             event = checks.read_json(msg.data, "events.data")
         except MessageError:
             return
+        if isinstance(event, dict) and event.get("kind") == "dropped" and self.stamped and self._z is not None and \
+                event.get("field") == "measurement_stamped.header.stamp" and self.phase == AWAIT_CONTROL and \
+                "old" in str(event.get("detail")):  # late on the way (a loaded machine): the same state, stamped now
+            self._send_measurement(self._z)
+            return
         if not isinstance(event, dict) or event.get("kind") != "done" or self.phase not in (AWAIT_CONTROL, STEPPING):
             return
         if event.get("episode") != self.episode:
             return
         step = int(event["step"])
-        if step < len(self.states) - 1:  # timed: the held control moved it on after the policy ended
+        if not self.lockstep and step < len(self.states) - 1:  # the held control moved it on after the policy ended
             self.system.set_state(self.states[step])
         outcome = event["status"]
         extra: dict[str, Any] = {"node": event.get("node"), "goal": event.get("goal")}
@@ -219,16 +255,54 @@ class SimNode(ros.Node):
         inside = self.system.arrived(node, design)
         return (Outcome.SUCCESS.value if inside else Outcome.GOAL_MISS.value), True
 
+    def _matched(self) -> bool:
+        """Both ways matched with the node: its control and events reach this node, and this node's
+        measurements and resets reach it."""
+        return self.control_sub.get_publisher_count() > 0 and self.events_sub.get_publisher_count() > 0 and \
+            self.measurement_pub.get_subscription_count() > 0 and self.reset_pub.get_subscription_count() > 0
+
+    def _on_state(self, msg) -> None:
+        """The node's state (transient local): a new ``boot`` is a node started again (after a kill or a
+        crash); what it had not answered is sent again once it is matched (:meth:`_resend`)."""
+        try:
+            boot = checks.read_json(msg.data, "state.data").get("boot")
+        except (MessageError, AttributeError):
+            return
+        if self._boot is None:
+            self._boot = boot
+        elif boot != self._boot:
+            self._boot, self._restart_seen = boot, time.monotonic()
+            self.restarts += 1
+
+    def _resend(self, now: float) -> bool:
+        """Whether a restarted node is being waited for; once it is matched for :data:`QUIET_SECONDS`, the
+        last measurement (or the episode's reset) goes to it again and the wait for its control restarts."""
+        if self._restart_seen is None:
+            return False
+        if not self._matched() or now - self._restart_seen < QUIET_SECONDS:
+            return True
+        self._restart_seen = None
+        self._waiting_since = now
+        if self.phase == AWAIT_CONTROL and self._z is not None:
+            self._send_measurement(self._z)
+            self._measured_at, self._answered = now, False
+        elif self.phase == AWAIT_CONTROL:
+            self._send_reset()
+        return False
+
     def _tick(self) -> None:
         """The timer: wait for the peers, then (timed) step with the newest control; a control that
         does not come within ``control_timeout`` ends the episode as ``stalled``."""
         now = time.monotonic()
         if self.phase == WAITING:
-            if all(self.count_publishers(t) > 0 for t in self.topics) and \
-                    self.measurement_pub.get_subscription_count() > 0 and self.reset_pub.get_subscription_count() > 0:
+            if self._matched():
                 self._matched_at = self._matched_at or now
                 if now - self._matched_at >= QUIET_SECONDS:
                     self._begin(0)
+            else:
+                self._matched_at = None
+            return
+        if self.phase in (AWAIT_CONTROL, STEPPING) and self._resend(now):
             return
         if self.phase == AWAIT_CONTROL and now - self._waiting_since > self.control_timeout:
             self._end("stalled", self.system.steps, None)

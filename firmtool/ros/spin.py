@@ -13,7 +13,7 @@ from typing import Any
 
 from firmtool.io.file_kind import file_kind
 from firmtool.ros import interfaces as ros
-from firmtool.ros.node import PolicyNode
+from firmtool.ros.node import LifecyclePolicyNode, PolicyNode
 from firmtool.ros.sim import SimNode
 
 
@@ -40,11 +40,13 @@ def load_solution(roadmap: str | Path, query: str | None):
 
 
 def run_policy_node(roadmap: str | Path, *, query: str | None = None, rate: float | None = None,
-                    timeout: float | None = None, ros_args: list[str] | None = None) -> None:
-    """Run the ``firmtool`` node on a solved roadmap until shut down (:class:`PolicyNode`)."""
+                    timeout: float | None = None, lifecycle: bool = False, ros_args: list[str] | None = None) -> None:
+    """Run the ``firmtool`` node on a solved roadmap until shut down (:class:`PolicyNode`, or with
+    ``lifecycle`` the managed :class:`LifecyclePolicyNode`, unconfigured until its supervisor says)."""
     solution, rm = load_solution(roadmap, query)
     ros.rclpy.init(args=["firmtool", *(ros_args or [])])
-    _spin(PolicyNode(solution, rm, rate=rate, timeout=timeout))
+    kind = LifecyclePolicyNode if lifecycle else PolicyNode
+    _spin(kind(solution, rm, rate=rate, timeout=timeout))
 
 
 def load_system(source: str | Path) -> tuple[Any, Any, Any]:
@@ -61,12 +63,12 @@ def load_system(source: str | Path) -> tuple[Any, Any, Any]:
 
 def run_sim_node(source: str | Path, *, episodes: int = 1, seed: int = 0, lockstep: bool = True,
                  rate: float | None = None, policy_node: str = "firmtool", control_timeout: float = 10.0,
-                 ros_args: list[str] | None = None) -> dict[str, Any]:
+                 stamped: bool = False, ros_args: list[str] | None = None) -> dict[str, Any]:
     """Run the ``firmtool_sim`` node for ``episodes`` episodes (:class:`SimNode`); returns its summary."""
     problem, design, rm = load_system(source)
     ros.rclpy.init(args=["firmtool_sim", *(ros_args or [])])
     node = SimNode(problem, design, rm, episodes=episodes, seed=seed, lockstep=lockstep, rate=rate,
-                   policy_node=policy_node, control_timeout=control_timeout)
+                   policy_node=policy_node, control_timeout=control_timeout, stamped=stamped)
     summary: dict[str, Any] = {}
 
     def done() -> bool:
