@@ -30,13 +30,13 @@ import firmtool
 
 # The public API by group (firmtool.__all__): each name in exactly one group (checked: check_groups).
 API_GROUPS = {
-    "workflow": ["load_scenario", "build", "open_roadmap", "solve", "update", "simulate", "plot", "forward_kinematics"],
-    "objects": ["Scenario", "Roadmap", "Solution", "Query"],
+    "workflow": ["load_scenario", "check", "build", "open_roadmap", "solve", "update", "simulate", "plot", "forward_kinematics"],
+    "objects": ["Scenario", "Roadmap", "Solution", "Query", "Map"],
     "results": ["Results", "Episode", "Event", "EventKind", "Outcome", "Calibration", "EdgeCheck"],
     "online": ["Policy", "PolicyStatus", "World", "SimulatedSystem", "episode_seeds", "UserDisturbance"],
     "settings": ["ReplanSettings", "Disturbance", "SolveStatus"],
     "reports": ["SampleReport", "DesignReport", "EstimateReport", "BuildReport", "DensifyReport", "SolveReport",
-                "QueryReport", "UpdateReport", "FailedEdge", "RoadmapSummary"],
+                "QueryReport", "UpdateReport", "FailedEdge", "RoadmapSummary", "CheckReport"],
     "errors": ["FirmtoolError", "InputError", "ScenarioError", "RoadmapError", "NumericalError", "RunFailure",
                "Unreachable", "StaleScenarioWarning", "WorldUpdateWarning"],
 }

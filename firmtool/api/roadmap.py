@@ -14,6 +14,7 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.api.solution import Solution
+from firmtool.api.summary import summarize
 from firmtool.errors import InputError, StaleScenarioWarning, quoted
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
@@ -21,7 +22,7 @@ from firmtool.io import scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.io.roadmap_queries import query_names
-from firmtool.reports import BuildReport, QueryReport, UpdateReport
+from firmtool.reports import BuildReport, QueryReport, RoadmapSummary, UpdateReport
 from firmtool.scenario import Scenario, parse_scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 from firmtool.util import arguments
@@ -247,6 +248,20 @@ class Roadmap:
         stages.update(replace)
         # one atomic write, built in memory: a failure names ``path``, never a temporary file
         write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source)
+
+    def summary(self) -> RoadmapSummary:
+        """What the roadmap holds (``firmtool inspect`` prints it): stages present (each validated: a
+        damaged one is refused; ones computed from another scenario text are listed in
+        ``stale_stages``), nodes, edges, particles, estimates cached for reuse, stored queries and the
+        solve status (:class:`~firmtool.reports.RoadmapSummary`).
+
+        Raises
+        ------
+        RoadmapError, ScenarioError
+            A stage that fails its checks, or a stored scenario that is invalid.
+        """
+        source = self._image if self._image is not None else self.path
+        return summarize(self._data, self.scenario, source, str(self.path) if self.path else "in memory")
 
     # queries (firmtool.api.queries answers them)
     @property

@@ -128,13 +128,14 @@ class PolicyView:
 
 
 def view(policy: Policy) -> PolicyView:
-    """The node's only reads of :class:`~firmtool.Policy` properties (one place to port when the
-    policy's public face changes)."""
-    live = policy.status is not PolicyStatus.IDLE
-    return PolicyView(status=policy.status.value, done=policy.done, steps=policy.steps,
-                      mean=policy.mean if live else None, covariance=policy.covariance if live else None,
-                      node=policy.node, target=policy.target, cost=policy.cost if live else None,
-                      edge_per_node=policy.edge_per_node, problem=policy.problem)
+    """The node's only reads of the policy: its read-only :attr:`~firmtool.Policy.state` snapshot
+    (one place to port when the policy's public face changes)."""
+    st = policy.state
+    live = st.status is not PolicyStatus.IDLE
+    return PolicyView(status=st.status.value, done=policy.done, steps=st.steps,
+                      mean=st.mean if live else None, covariance=st.covariance if live else None,
+                      node=st.node, target=st.target, cost=st.cost if live else None,
+                      edge_per_node=st.edge_per_node, problem=st.problem)
 
 
 class Outputs(Protocol):

@@ -32,7 +32,7 @@ from firmtool.online.replanning import ReplanSettings
 from firmtool.ros import checks
 from firmtool.ros import interfaces as ros
 from firmtool.ros.checks import MessageError, quote
-from firmtool.ros.machine import TOPICS, PolicyMachine, PolicyView, parameter_defaults
+from firmtool.ros.machine import PolicyMachine, PolicyView, parameter_defaults
 
 NODE_NAME = "firmtool"
 
