@@ -516,3 +516,15 @@ def test_a_roadmap_in_another_folder_finds_its_map_in_the_working_folder(tmp_pat
     monkeypatch.chdir(tmp_path / "artifacts")  # neither beside the roadmap nor in the working folder
     with pytest.raises(ScenarioError, match=r"world\.map: 'office\.yaml' is not in the roadmap's folder"):
         ft.open_roadmap(out).scenario
+
+
+def test_a_map_worlds_backend_travels_pickled(tmp_path):
+    """Worker processes get the problem pickled: the map's backend comes back whole and gives the same verdicts."""
+    import pickle
+
+    from firmtool.problem import build_problem
+    p = build_problem(ft.load_scenario(office(tmp_path)))
+    P = p.points(np.array([[1.0, 1.0, 0.0, 0.0], [2.0, 0.5, 0.0, 0.0]]))
+    backend = pickle.loads(pickle.dumps(p.robot.collision()))
+    assert backend.capsules_collide(P, P, 0.08).tolist() == [False, True]
+    assert tuple(backend.lo) == (0.0, 0.0)  # the inner backend's attributes

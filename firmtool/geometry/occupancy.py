@@ -411,4 +411,6 @@ class MapCollisionBackend:
         return hit | self.grid.capsules_hit(starts, ends, radius)
 
     def __getattr__(self, name: str):
+        if name.startswith("__") or name in ("inner", "grid"):  # unpickling: no inner yet
+            raise AttributeError(name)
         return getattr(self.inner, name)
