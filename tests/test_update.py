@@ -189,11 +189,11 @@ def test_world_change_boxes_and_meets():
 
 
 @pytest.mark.parametrize("changes, field", [
-    ({"model": {"process_noise_std": 0.06}}, "[model]"),
-    ({"measurement": {"light_x": 3.0}}, "[measurement]"),
+    ({"model": {"process_noise_std": 0.06}}, "model.process_noise_std"),  # the field, not its section (issue 54)
+    ({"measurement": {"light_x": 3.0}}, "measurement.light_x"),
     ({"world": {"robot_radius": 0.1}}, "world.robot_radius"),
     ({"seed": 4}, "scenario.seed"),
-    ({"task": {"goal": [3.5, 0.8]}}, "[task]"),
+    ({"task": {"goal": [3.5, 0.8]}}, "task.goal"),
 ])
 def test_an_update_that_changes_more_than_the_world_is_refused(point_roadmap, tmp_path, changes, field):
     sc, path = point_roadmap
@@ -260,4 +260,4 @@ def test_cli_update_and_estimate_fresh(point_roadmap, tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(sc.replace(model={"process_noise_std": 0.06}).to_toml())
     r = runner.invoke(app, ["update", str(copy), str(bad)])
-    assert r.exit_code == 2 and r.output.count("\n") == 1 and "[model]" in r.output, r.output
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "model.process_noise_std: differs" in r.output, r.output
