@@ -554,6 +554,9 @@ def test_a_stored_query_is_read_alone_and_a_declared_one_refused(smoke_roadmap, 
     assert rm.query("own").solution().success_probability == rm.solution().success_probability
     with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 1063004405 bytes but the file stores 0"):
         rm.query("bomb")
+    from firmtool.io.roadmap_queries import query_images
+    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares"):  # all of them: each checked first
+        query_images(path)
 
 
 def test_update_world_bounds_its_obstacles_and_names_the_field(solved):
