@@ -581,13 +581,13 @@ def test_a_message_quotes_at_most_200_characters():
 
 
 def test_a_rewrite_refuses_a_size_declared_but_never_written(smoke_roadmap, tmp_path):
-    """Storing a query rewrites the file by value: a query declared 0.5 GiB but never written (a file of
+    """Storing a query rewrites the file by value: a query declared 150 MiB but never written (a file of
     kilobytes; within the copy's 1 GiB) is refused before it is read, not allocated; the file is left as it was."""
     from firmtool.io.roadmap_write import write_queries
     path = corpus.prepare(tmp_path, smoke_roadmap[0])
     corpus.edit(path, lambda f: f.create_group("queries").create_dataset(
-        "bomb", shape=(2**29,), dtype="u1", chunks=(2**20,), compression="gzip", fillvalue=0))
+        "bomb", shape=(150 * 2**20,), dtype="u1", chunks=(2**20,), compression="gzip", fillvalue=0))
     before = path.read_bytes()
-    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 536870912 bytes but the file stores"):
+    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 157286400 bytes but the file stores"):
         write_queries(path, {"new": (b"\x00" * 16, {})})
     assert path.read_bytes() == before
