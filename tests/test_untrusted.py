@@ -465,7 +465,7 @@ def test_a_tampered_swept_region_is_refused_by_the_api(kind, dataset, smoke_road
                                           ("beyond_max_steps", "steps_value"), ("one_early", "steps_value"),
                                           ("goal_in_one_step", "steps_value")])
 def test_a_tampered_step_histogram_is_refused_by_the_api(kind, dataset, smoke_roadmap, tmp_path):
-    path = _tampered(smoke_roadmap, tmp_path, corpus._steps(kind))
+    path = _tampered(smoke_roadmap, tmp_path, corpus._steps(kind, kind != "goal_in_one_step"))
     with pytest.raises(ft.RoadmapError, match=rf"'/edges/{dataset}'"):
         ft.solve(ft.open_roadmap(path), deadline=40)
 
@@ -554,6 +554,9 @@ def test_a_stored_query_is_read_alone_and_a_declared_one_refused(smoke_roadmap, 
     assert rm.query("own").solution().success_probability == rm.solution().success_probability
     with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 1063004405 bytes but the file stores 0"):
         rm.query("bomb")
+    from firmtool.io.roadmap_queries import query_images
+    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares"):  # all of them: each checked first
+        query_images(path)
 
 
 def test_update_world_bounds_its_obstacles_and_names_the_field(solved):
@@ -578,13 +581,13 @@ def test_a_message_quotes_at_most_200_characters():
 
 
 def test_a_rewrite_refuses_a_size_declared_but_never_written(smoke_roadmap, tmp_path):
-    """Storing a query rewrites the file by value: a query declared 0.99 GiB but never written (a file of
-    kilobytes) is refused before it is read, not allocated; the file is left as it was."""
+    """Storing a query rewrites the file by value: a query declared 150 MiB but never written (a file of
+    kilobytes; within the copy's 1 GiB) is refused before it is read, not allocated; the file is left as it was."""
     from firmtool.io.roadmap_write import write_queries
     path = corpus.prepare(tmp_path, smoke_roadmap[0])
     corpus.edit(path, lambda f: f.create_group("queries").create_dataset(
-        "bomb", shape=(int(0.99 * 2**30),), dtype="u1", chunks=(2**20,), compression="gzip", fillvalue=0))
+        "bomb", shape=(150 * 2**20,), dtype="u1", chunks=(2**20,), compression="gzip", fillvalue=0))
     before = path.read_bytes()
-    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 1063004405 bytes but the file stores"):
+    with pytest.raises(ft.RoadmapError, match=r"'/queries/bomb' declares 157286400 bytes but the file stores"):
         write_queries(path, {"new": (b"\x00" * 16, {})})
     assert path.read_bytes() == before

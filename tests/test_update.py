@@ -189,7 +189,7 @@ def test_world_change_boxes_and_meets():
 
 
 @pytest.mark.parametrize("changes, field", [
-    ({"model": {"process_noise_std": 0.06}}, "model.process_noise_std"),
+    ({"model": {"process_noise_std": 0.06}}, "model.process_noise_std"),  # the field, not its section (issue 54)
     ({"measurement": {"light_x": 3.0}}, "measurement.light_x"),
     ({"world": {"robot_radius": 0.1}}, "world.robot_radius"),
     ({"seed": 4}, "scenario.seed"),

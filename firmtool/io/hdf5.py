@@ -255,15 +255,17 @@ def copy_by_value(src: h5py.Group, dst: h5py.Group, where: str, path: str | Path
     stored = used = 0
     for at, obj in plan:
         if isinstance(obj, h5py.Dataset):
-            declared = element_count(obj.shape) * obj.dtype.itemsize
-            stored += declared
+            stored += element_count(obj.shape) * obj.dtype.itemsize
             used += working_bytes(obj.shape)
-            if declared > SPARSE_BYTES and _storage_size(obj) * MAX_COMPRESSION < declared:
-                raise error(f"{path}: '{at}' declares {declared} bytes but the file stores {_storage_size(obj)} for it "
-                            f"(more than {MAX_COMPRESSION} to 1: declared, never written; file damaged or crafted)")
             if stored > MAX_COPY_BYTES or used > MAX_WORKING_BYTES:
                 raise error(f"{path}: '{at}' of shape {obj.shape} makes the file too large to copy (more than "
                             f"{MAX_COPY_BYTES / 2**30:.0f} GiB of data; file damaged)")
+    for at, obj in plan:  # then each within the bound: stored, not only declared
+        if isinstance(obj, h5py.Dataset):
+            declared = element_count(obj.shape) * obj.dtype.itemsize
+            if declared > SPARSE_BYTES and _storage_size(obj) * MAX_COMPRESSION < declared:
+                raise error(f"{path}: '{at}' declares {declared} bytes but the file stores {_storage_size(obj)} for it "
+                            f"(more than {MAX_COMPRESSION} to 1: declared, never written; file damaged or crafted)")
     _copy_attributes(src, dst, where, path, error)
     groups = {where: dst}
     for at, obj in plan:

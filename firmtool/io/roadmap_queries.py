@@ -87,6 +87,19 @@ def query_image(path: str | Path | MemoryFile, name: str) -> tuple[bytes, dict[s
         raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
 
 
+def query_images(path: str | Path | MemoryFile) -> dict[str, tuple[bytes, dict[str, Any]]]:
+    """Every stored query: name -> (image bytes, attributes), each read by :func:`query_image` (its
+    declared size checked against what the file stores first). Reads them all: a command that uses
+    one query reads it alone (:func:`query_image`), one that lists them reads names only
+    (:func:`query_names`); this is for what must carry every query over (a rewrite that keeps them)."""
+    out: dict[str, tuple[bytes, dict[str, Any]]] = {}
+    for name in query_names(path):
+        found = query_image(path, name)
+        if found is not None:
+            out[name] = found
+    return out
+
+
 def _open(path: str | Path | MemoryFile) -> h5py.File:
     target = as_target(path)
     if isinstance(target, MemoryFile):
