@@ -232,7 +232,7 @@ def test_a_3d_world_gets_a_3d_panel_beside_the_top_view(tmp_path):
     assert ax.get_zlim() == (0.0, 4.0)
     lines = {ln.get_label(): ln for ln in ax.get_lines()}
     xs, ys, zs = lines["policy path"].get_data_3d()
-    tips = sol.roadmap.problem.points(sol.roadmap.execution_design.centers)[:, -1]
+    tips = sol.roadmap.problem.geometry.points(sol.roadmap.execution_design.centers)[:, -1]
     assert np.allclose([xs[0], ys[0], zs[0]], tips[0])  # from the start node, in 3-D
     assert "estimated mean" in lines
     fig.canvas.draw() if hasattr(fig.canvas, "draw") else None

@@ -326,7 +326,7 @@ def panel_3d(ax, problem: Problem, design: Design, data: PanelData, *, unit: str
     for o in sc.world.obstacles:
         a, b = (np.asarray(v, float)[:3] for v in o.aabb())
         ax.add_collection3d(Line3DCollection(_box_edges(a, b), colors=OBSTACLE_COLOR, linewidths=0.8))
-    tips = problem.points(design.centers)[:, -1, :3]
+    tips = problem.geometry.points(design.centers)[:, -1, :3]
     ax.scatter(tips[:, 0], tips[:, 1], tips[:, 2], s=3, color="tab:blue", alpha=0.5, label="roadmap nodes")
     goals = np.flatnonzero(design.kinds == GOAL)
     goal = np.asarray(problem.goal_disc[0], float)[None, :3] if problem.goal_disc is not None else tips[goals]
@@ -335,7 +335,7 @@ def panel_3d(ax, problem: Problem, design: Design, data: PanelData, *, unit: str
     ax.plot(tips[path, 0], tips[path, 1], tips[path, 2], "-", color="tab:orange", lw=2, label="policy path")
     ax.scatter(*tips[START_INDEX], color="black", s=20, label="start")
     if data.episode is not None and data.episode.estimates is not None:
-        mean = problem.points(data.episode.estimates)[:, -1, :3]
+        mean = problem.geometry.points(data.episode.estimates)[:, -1, :3]
         ax.plot(mean[:, 0], mean[:, 1], mean[:, 2], "-", color="red", lw=1.0, label="estimated mean")
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])

@@ -42,7 +42,7 @@ def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_v
     model = problem.model
     roadmap.check_model(model.n, model.m, model.nz, problem.config_dim, problem.config_lo, problem.config_hi,
                         problem.is_valid, world_dim=problem.workspace_dim,
-                        steps_past_edge=problem.scenario.controller.max_steps, points=problem.points,
+                        steps_past_edge=problem.scenario.controller.max_steps, points=problem.geometry.points,
                         reach=problem.robot.world_reach() if problem.robot is not None else 0.0)
     return problem
 

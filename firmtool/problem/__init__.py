@@ -317,7 +317,7 @@ def _check_free_space(problem: Problem, samples: int = 4096) -> None:
     if not np.any(problem.is_valid(states)):
         sc = problem.scenario
         with np.errstate(all="ignore"):
-            points = np.asarray(problem.points(states[:64]), dtype=float)
+            points = np.asarray(problem.geometry.points(states[:64]), dtype=float)
         if not np.all(np.isfinite(points)):  # the robot's own numbers overflow: no world is to blame
             bad = int(np.sum(~np.all(np.isfinite(points), axis=(-2, -1))))
             raise ScenarioError(sc.path, "model.robot", f"expected robot {quoted(sc.model.robot)}'s key points to be "
