@@ -21,8 +21,7 @@ from firmtool.api import solution as _solution
 from firmtool.api.roadmap import Roadmap
 from firmtool.api.solution import Solution
 from firmtool.errors import InputError
-from firmtool.io.roadmap_file import RoadmapFile
-from firmtool.pipeline.query import Query
+from firmtool.pipeline.query import Query, answer
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.progress import ProgressCallback
@@ -79,10 +78,10 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     for q in ([single] if queries is None else list(queries)):
         if not isinstance(q, Query):
             raise InputError(f"queries: expected firmtool.Query values, found {type(q).__name__}")
-        image, report = pipeline.answer_query(roadmap._data, q, validity=roadmap.validity, settings=settings,
-                                              progress=progress, source=roadmap._image or roadmap.path)
-        rm = Roadmap(RoadmapFile(image), path=None, report=report, validity=roadmap.validity)  # type: ignore[arg-type]
-        rm._image = image
+        # the roadmap as this call holds it (read once, its problem built once), and the query's answer
+        work, report = answer(roadmap._work, q, settings=settings, progress=progress)
+        rm = Roadmap(work.file, path=None, report=report, validity=roadmap.validity, work=work)
+        rm._image = work.target
         out.append(rm.solution())
     stranded = [sol for sol in out if not sol.start_reachable]
     if stranded and not allow_unreachable:

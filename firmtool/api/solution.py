@@ -295,7 +295,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
                                  or deadline < 1):
         raise InputError(f"deadline: expected a number of steps >= 1, found {deadline!r}")
     group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress,
-                                  deadline=deadline)
+                                  deadline=deadline, problem=roadmap._work.problem(need_validity=False))
     solution = Solution._from_group(roadmap, group)
     if not solution.start_reachable and not allow_unreachable:
         raise solution.unreachable_error()

@@ -16,8 +16,12 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from firmtool.io.atomic import write_bytes
+
+if TYPE_CHECKING:  # pragma: no cover
+    import h5py
 
 
 class MemoryFile:
@@ -71,6 +75,14 @@ def size_of(target: Path | MemoryFile) -> int:
 def readable(target: str | Path | MemoryFile) -> str | Path | io.BytesIO:
     """What ``h5py.File(..., "r")`` opens for ``target``: the path, or a view of the memory file's bytes."""
     return io.BytesIO(target.read_bytes()) if isinstance(target, MemoryFile) else target
+
+
+def open_read(target: str | Path | MemoryFile) -> "h5py.File":
+    """The one place a roadmap (a file, or a memory file's bytes) is opened for reading: every reader
+    of :mod:`firmtool.io.roadmap_file` and :mod:`firmtool.io.roadmap_queries` calls it (a test counts
+    a command's reads by replacing it). A disk file is checked to be a regular file by the caller."""
+    import h5py  # here, not at the top: the CLI's start-up imports this module without reading a roadmap
+    return h5py.File(readable(target), "r")
 
 
 def replace_bytes(target: Path | MemoryFile, data: bytes | memoryview) -> None:

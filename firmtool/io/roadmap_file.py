@@ -62,7 +62,8 @@ from firmtool.errors import FileBusyError, RoadmapError
 from firmtool.io import hdf5
 from firmtool.io.attributes import ROOT_ATTRIBUTES, check_attributes, check_stage_attributes
 from firmtool.io import scenario_source
-from firmtool.io.memory_file import MemoryFile, as_target, readable, size_of
+from firmtool.io import memory_file
+from firmtool.io.memory_file import MemoryFile, as_target, size_of
 from firmtool.io.roadmap_checks import check_edges, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
     CACHE,
@@ -118,7 +119,7 @@ class RoadmapFile:
             raise RoadmapError(f"{p}: a roadmap file larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged or "
                                "not a roadmap)")
         try:
-            f = h5py.File(readable(p), "r")
+            f = memory_file.open_read(p)
         except (OSError, ValueError) as exc:
             if "unable to lock file" in str(exc):
                 raise FileBusyError(f"{p}: the file is open for writing in another process (HDF5 file lock); "
@@ -201,6 +202,11 @@ class RoadmapFile:
         for name, (g, datasets) in groups.items():
             arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}
             self.stages[name] = (arrays, {k: _attribute(p, g.attrs, k, None, f"/{name}") for k in g.attrs})
+        self._cache = _cache_table(f, p)  # in the same read: a query or an update reuses its blocks
+
+    def edge_cache(self, nodes: int | None = None) -> dict[str, np.ndarray]:
+        """The ``/edge_cache`` table read with the file (:func:`read_edge_cache`'s checks), or {}."""
+        return _checked_cache(self.path, self._cache, nodes)
 
     def has(self, stage: str) -> bool:
         return stage in self.stages
@@ -342,17 +348,30 @@ def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None) -> 
     the particles; node ids below ``nodes`` when given) is ignored: it only saves work."""
     try:
         with _open(path) as f:
-            g = hdf5.member(f, CACHE, "/", path, RoadmapError)  # a link or external storage: not read
-            if not isinstance(g, h5py.Group):
-                return {}
-            datasets = {k: d for k, d in hdf5.members(g, f"/{CACHE}", path, RoadmapError)
-                        if isinstance(d, h5py.Dataset) and d.dtype.kind in "biuf"}
-            if sum(nbytes(d.shape, d.dtype) for d in datasets.values()) > MAX_READ_BYTES or \
-                    sum(hdf5.working_bytes(d.shape) for d in datasets.values()) > hdf5.MAX_WORKING_BYTES:
-                return {}
-            table = {k: d[()] for k, d in datasets.items()}
+            table = _cache_table(f, path)
     except (OSError, ValueError, KeyError, TypeError):  # RoadmapError included: the cache only saves work
         return {}
+    return _checked_cache(path, table, nodes)
+
+
+def _cache_table(f: h5py.File, path: Any) -> dict[str, np.ndarray]:
+    """The raw ``/edge_cache`` datasets of an open roadmap ({} if none, or not one to read)."""
+    try:
+        g = hdf5.member(f, CACHE, "/", path, RoadmapError)  # a link or external storage: not read
+        if not isinstance(g, h5py.Group):
+            return {}
+        datasets = {k: d for k, d in hdf5.members(g, f"/{CACHE}", path, RoadmapError)
+                    if isinstance(d, h5py.Dataset) and d.dtype.kind in "biuf"}
+        if sum(nbytes(d.shape, d.dtype) for d in datasets.values()) > MAX_READ_BYTES or \
+                sum(hdf5.working_bytes(d.shape) for d in datasets.values()) > hdf5.MAX_WORKING_BYTES:
+            return {}
+        return {k: d[()] for k, d in datasets.items()}
+    except (OSError, ValueError, KeyError, TypeError):  # RoadmapError included: the cache only saves work
+        return {}
+
+
+def _checked_cache(path: Any, table: dict[str, np.ndarray], nodes: int | None) -> dict[str, np.ndarray]:
+    """``table`` if it passes the checks of ``/edges`` (node ids below ``nodes`` when given), else {}."""
     if "key" not in table:
         return {}
     try:
@@ -371,8 +390,11 @@ def _open(path: str | Path | MemoryFile) -> h5py.File:
     refused before HDF5 opens it, :func:`firmtool.io.hdf5.open_regular`)."""
     target = as_target(path)
     if isinstance(target, MemoryFile):
-        return h5py.File(readable(target), "r")
-    return hdf5.open_regular(target, "HDF5 roadmap file", RoadmapError)
+        return memory_file.open_read(target)
+    why = hdf5.regular_file_error(target)
+    if why is not None:
+        raise RoadmapError(f"{target}: not a readable HDF5 roadmap file ({why})")
+    return memory_file.open_read(target)
 
 
 def is_roadmap_file(path: str | Path | MemoryFile) -> bool:
@@ -387,7 +409,7 @@ def is_roadmap_file(path: str | Path | MemoryFile) -> bool:
     if not isinstance(target, MemoryFile) and hdf5.regular_file_error(target) is not None:
         return False  # never open a FIFO or a device
     try:
-        with h5py.File(readable(target), "r") as f:
+        with memory_file.open_read(target) as f:
             return f.attrs.get("encoding-type") == ENCODING_TYPE
     except (OSError, ValueError, KeyError, TypeError) as exc:
         if "unable to lock file" in str(exc):

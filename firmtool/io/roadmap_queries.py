@@ -18,7 +18,8 @@ import h5py
 import numpy as np
 
 from firmtool.errors import RoadmapError
-from firmtool.io.memory_file import MemoryFile, readable
+from firmtool.io import memory_file
+from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_format import MAX_READ_BYTES, QUERIES, short
 
 QUERY_NAME = r"[A-Za-z0-9_.-]{1,64}"  # a query's name: what a dataset's name and a shell word both hold
@@ -35,7 +36,7 @@ def query_images(path: str | Path | MemoryFile) -> dict[str, tuple[bytes, dict[s
     """
     out: dict[str, tuple[bytes, dict[str, Any]]] = {}
     try:
-        with h5py.File(readable(path), "r") as f:
+        with memory_file.open_read(path) as f:
             if QUERIES not in f:
                 return out
             g = f[QUERIES]

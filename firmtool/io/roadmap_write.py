@@ -77,7 +77,8 @@ def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_s
 
 def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]],
-                  source: ScenarioSource | None = None) -> None:
+                  source: ScenarioSource | None = None, cache: Mapping[str, np.ndarray] | None = None,
+                  cache_attrs: Mapping[str, Any] | None = None) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
     Parameters
@@ -85,6 +86,7 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
     stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
         ``scenario_sha256`` stamp included; one without gets the stored scenario's).
     source : the scenario file the roadmap was built from (:mod:`firmtool.io.scenario_source`), if known.
+    cache, cache_attrs : an ``/edge_cache`` table and its attributes (estimates its estimate stage finds by key).
     """
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
@@ -95,6 +97,8 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
                 arrays, attrs = stages[name]
                 _write_table(f, name, arrays, {k: v for k, v in attrs.items()
                                                if k not in ("encoding-type", "encoding-version")})
+        if cache:
+            _write_table(f, CACHE, cache, dict(cache_attrs or {}))
 
 
 def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:

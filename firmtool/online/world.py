@@ -25,7 +25,8 @@ from firmtool.geometry.shapes import Obstacle
 from firmtool.graph import solve_dp
 from firmtool.io.hashing import digest
 from firmtool.problem import Problem, build_problem
-from firmtool.roadmap.world_change import WorldChange, meets, world_change
+from firmtool.estimation.touched import Change, touched
+from firmtool.roadmap.world_change import WorldChange, world_change
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -55,8 +56,10 @@ def blocked_edges(table: EdgeTable, change: WorldChange, reach: float, node_vali
     """(E,) bool: the edges a world change may alter (its boxes meet their grown swept regions) or
     whose source or target node is no longer valid (``node_valid`` (N,) bool)."""
     assert table.swept_lo is not None and table.swept_hi is not None
-    hit = meets(table.swept_lo, table.swept_hi, change, reach).any(axis=1)
-    return hit | ~node_valid[table.source] | ~node_valid[table.target]
+    # the one answer to what a change touches (queries and updates ask it too); landings are not
+    # judged here, as before: an invalid node is left out as an end, with its edges
+    rows = {"source": table.source, "target": table.target, "swept_lo": table.swept_lo, "swept_hi": table.swept_hi}
+    return touched(Change(ends=~node_valid, world=change, reach=reach), rows).edges
 
 
 def resolve(table: EdgeTable, blocked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
