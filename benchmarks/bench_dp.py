@@ -34,7 +34,7 @@ def graph(N: int, k: int = 10, seed: int = 0):
 def solve_times(N: int, repeat: int, methods=("value", "policy")) -> list[dict]:
     import resource
 
-    from firmtool.graph import solve_dp, success_probability
+    from firmtool.graph.dp import solve_dp, success_probability
     src, landing, fail, cost = graph(N)
     out = []
     for method in methods:

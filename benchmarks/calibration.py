@@ -39,7 +39,7 @@ def posterior_mean_prediction(rm, policy) -> float:
     import scipy.sparse
 
     from firmtool.estimation.calibration import posterior_rows
-    from firmtool.graph import success_probability
+    from firmtool.graph.dp import success_probability
 
     E, N = rm.edges.shape[0], rm.nodes.shape[0]
     edge, code, alpha = posterior_rows(rm.edge_counts, np.arange(E))

@@ -34,7 +34,7 @@ _EXPORTS = {
     "QueryReport": "firmtool.reports",
     "UpdateReport": "firmtool.reports",
     "simulate": "firmtool.api",
-    "plot": "firmtool.figures",
+    "plot": "firmtool.figures.paths",
     "Roadmap": "firmtool.api",
     "Solution": "firmtool.api",
     "Scenario": "firmtool.scenario",
@@ -52,7 +52,7 @@ _EXPORTS = {
     "episode_seeds": "firmtool.sim.episodes",
     "UserDisturbance": "firmtool.sim.disturbances",
     "Disturbance": "firmtool.sim.disturbances",
-    "SolveStatus": "firmtool.graph",
+    "SolveStatus": "firmtool.graph.dp",
     "SampleReport": "firmtool.reports",
     "DesignReport": "firmtool.reports",
     "EstimateReport": "firmtool.reports",
@@ -77,8 +77,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time 
     from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve, update
     from firmtool.errors import (FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError,
                                  StaleScenarioWarning, Unreachable)
-    from firmtool.figures import plot
-    from firmtool.graph import SolveStatus
+    from firmtool.figures.paths import plot
+    from firmtool.graph.dp import SolveStatus
     from firmtool.online.policy import Policy, PolicyStatus
     from firmtool.online.replanning import ReplanSettings
     from firmtool.reports import (

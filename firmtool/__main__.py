@@ -1,11 +1,11 @@
 """The ``firmtool`` console script and ``python -m firmtool``.
 
 The Ctrl-C handler is installed when this module is imported, the earliest moment firmtool's own
-code runs (before numpy, scipy and typer are imported); see :mod:`firmtool.io.interrupts`. The
+code runs (before numpy, scipy and typer are imported); see :mod:`firmtool.util.interrupts`. The
 interpreter's own start-up before it (a few tens of milliseconds) is outside firmtool's reach.
 """
 
-from firmtool.io import interrupts
+from firmtool.util import interrupts
 
 interrupts.install()
 

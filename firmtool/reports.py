@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from firmtool.graph import SolveStatus
+from firmtool.graph.dp import SolveStatus
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -426,7 +426,7 @@ class SolveReport(Report):
     method : ``"value"`` or ``"policy"`` iteration.
     start_cost_to_go : J at the start node, None when the goal is unreachable from it.
     start_success_probability : success probability of the policy from the start node (whenever).
-    deadline_steps, deadline_success_probability : with a deadline (:mod:`firmtool.deadline`): its
+    deadline_steps, deadline_success_probability : with a deadline (:mod:`firmtool.graph.deadline`): its
         steps, and P(goal within them) from the start under the time-indexed policy (None without).
     shortest_path_start_success_probability : the same for the shortest-path baseline.
     unreachable_nodes : nodes (goal excluded) that cannot reach the goal.

@@ -5,9 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from firmtool.io.roadmap_format import GOAL
 from firmtool.models import planar_arm
 from firmtool.problem import build_problem
-from firmtool.roadmap.nodes import GOAL, roadmap_nodes
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,7 +55,7 @@ def test_goal_nodes_put_the_tip_in_the_goal_disc(arm):
 @pytest.mark.slow
 def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     """The paper's Fig. 1 claim, end to end (about 1-2 minutes on 2 cores)."""
-    from firmtool.graph import policy_path
+    from firmtool.graph.dp import policy_path
     from firmtool.io.roadmap_file import RoadmapFile
     from firmtool.online import Policy
     from firmtool.pipeline import build, design_of, problem_of, solve_stage

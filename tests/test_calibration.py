@@ -18,7 +18,7 @@ from firmtool.estimation.calibration import (
     predicted_interval,
 )
 from firmtool.estimation.edges import FAILURE, TIMEOUT
-from firmtool.graph import expected_visits, success_probability, success_probability_samples
+from firmtool.graph.dp import expected_visits, success_probability, success_probability_samples
 from firmtool.results import Episode, Outcome
 
 # -- Holm's step-down correction --------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Tasks with a deadline (issue 37 part 2, firmtool.deadline): the DP over (node, steps left) against
+"""Tasks with a deadline (issue 37 part 2, firmtool.graph.deadline): the DP over (node, steps left) against
 brute-force enumeration of every time-indexed policy and against a Monte Carlo of the chain; the
 untimed solve as the deadline grows; the step histograms the Monte Carlo records; execution ending at
 the deadline, its success inside the prediction's interval; the refusals."""
@@ -16,9 +16,9 @@ from typer.testing import CliRunner
 
 import firmtool as ft
 from firmtool.cli import app
-from firmtool.deadline import StepRows, smallest_feasible_deadline, solve_deadline
 from firmtool.errors import InputError, RunFailure
 from firmtool.estimation.edge_table import edge_keys
+from firmtool.graph.deadline import StepRows, smallest_feasible_deadline, solve_deadline
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline.reading import design_of
 from firmtool.problem import build_problem

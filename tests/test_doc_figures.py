@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT
 
 from firmtool.estimation.edge_table import ENGINE_VERSION
-from firmtool.figures import png_text
+from firmtool.io.figure_file import png_text
 from firmtool.scenario import load_scenario
 
 spec = importlib.util.spec_from_file_location("make_figures", ROOT / "docs" / "make_figures.py")

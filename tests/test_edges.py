@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
+from firmtool.io.roadmap_format import GOAL
 from firmtool.roadmap.design import design
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, simulate, initial_ensemble
 from firmtool.roadmap.design import local_controller
-from firmtool.roadmap.nodes import GOAL, roadmap_nodes
 from firmtool.problem import build_problem
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.scenario import parse_scenario
 from conftest import PERFECT, open_world
 

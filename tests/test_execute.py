@@ -14,12 +14,12 @@ from firmtool.estimation.calibration import edge_counts_of, predicted_interval
 from firmtool.estimation.edges import initial_ensemble, simulate
 from firmtool.io.episodes import load_episodes
 from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.online import Policy, ReplanSettings
 from firmtool.online.innovation import reset_belief
 from firmtool.pipeline import design_of, problem_of
 from firmtool.results import EventKind, wilson_interval
 from firmtool.roadmap.design import local_controller
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.sim import SimulatedSystem, run_episodes
 from firmtool.sim.disturbances import Disturbance, parse_disturbance, parse_disturbances
 
@@ -426,7 +426,7 @@ def test_unicycle_start_state_gets_a_belief_and_an_initial_controller():
     """--start on a nonlinear model (no model.A): the belief at a start state is the periodic
     filter's at phase 0 of the orbit through it (at rest its heading is not observable)."""
     from firmtool.roadmap.design import design as design_stage
-    from firmtool.roadmap.nodes import GOAL, START
+    from firmtool.io.roadmap_format import GOAL, START
 
     problem = _tiny_unicycle()
     centers = problem.state_of(np.array([[0.4, 1.4], [2.4, 1.2]]))

@@ -22,10 +22,11 @@ from scipy.stats import multivariate_normal, ncx2
 from firmtool.estimation import compiled as kernels
 from firmtool.estimation.compiled import goal as compiled_goal
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble, simulate
+from firmtool.io.roadmap_format import GOAL, GOAL_INDEX
 from firmtool.problem import build_problem
 from firmtool.problem.goal import GoalRegion, ball_probability, confidence_bounds, meets_confidence
 from firmtool.roadmap.design import design, local_controller
-from firmtool.roadmap.nodes import GOAL, GOAL_INDEX, roadmap_nodes
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.scenario import parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

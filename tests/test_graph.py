@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse
 
 from firmtool.errors import NumericalError
-from firmtool.graph import SolveStatus, solve_dp, success_probability
+from firmtool.graph.dp import SolveStatus, solve_dp, success_probability
 
 
 def graph(n, edges):
@@ -129,7 +129,7 @@ def test_iteration_budget_is_reported():
 
 
 def test_shortest_path_policy_ignores_risk():
-    from firmtool.graph import shortest_path_policy
+    from firmtool.graph.dp import shortest_path_policy
     # Same two routes: the direct edge is shorter (length 1) than the detour (2 + 2).
     src = np.array([0, 0, 2])
     dst = np.array([1, 2, 1])

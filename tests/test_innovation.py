@@ -237,7 +237,7 @@ def test_the_mission_false_alarm_is_a_budget_over_the_policy_path():
     from types import SimpleNamespace
 
     from firmtool.online import replanning as rp
-    from firmtool.roadmap.nodes import GOAL, REGULAR, START
+    from firmtool.io.roadmap_format import GOAL, REGULAR, START
 
     kinds = np.array([START, GOAL, REGULAR, REGULAR])
     # edges: 0: 0->2 (40 steps), 1: 2->3 (60), 2: 3->1 (25), 3: 3->2 (10)

@@ -23,9 +23,10 @@ from firmtool.estimation import compiled as kernels
 from firmtool.estimation.compiled import collide, driver, rng, step
 from firmtool.estimation.compiled.run import disk_cached
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble, simulate
+from firmtool.io.roadmap_format import GOAL_INDEX
 from firmtool.problem import build_problem
 from firmtool.roadmap.design import design, local_controller
-from firmtool.roadmap.nodes import GOAL_INDEX, roadmap_nodes
+from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.robots import CompiledKinematics, planar, register
 from firmtool.robots.point import PointRobot
 from firmtool.scenario import parse_scenario

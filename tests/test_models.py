@@ -26,7 +26,7 @@ from firmtool.problem import build_problem
 from firmtool.robots import register
 from firmtool.robots.point import PointRobot
 from firmtool.scenario import parse_scenario
-from firmtool.io.schema import Field
+from firmtool.util.schema import Field
 
 ROOT = Path(__file__).resolve().parents[1]
 POINT = (ROOT / "scenarios" / "point_lightdark.toml").read_text()

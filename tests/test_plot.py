@@ -9,7 +9,7 @@ from conftest import ROOT
 from typer.testing import CliRunner
 
 from firmtool.cli import app
-from firmtool.figures import point_covariance, point_jacobian
+from firmtool.figures.paths import point_covariance, point_jacobian
 from firmtool.models import planar_arm
 from firmtool.problem import build_problem
 from firmtool.scenario import load_scenario
@@ -43,7 +43,7 @@ def test_figures_fit_for_a_paper(scenario, smoke_roadmap, tmp_path):
     """Axis labels with units, a colour bar for the sensing field, one legend under the panels (outside
     the data), and no text outside the canvas (the arm's tick labels used to be cut at the bottom)."""
     import firmtool as ft
-    from firmtool.figures import plot_policies
+    from firmtool.figures.paths import plot_policies
 
     if scenario == "smoke":
         rm = ft.open_roadmap(smoke_roadmap[0])
@@ -70,7 +70,7 @@ def test_figures_fit_for_a_paper(scenario, smoke_roadmap, tmp_path):
 
 def test_calibration_figure_draws_every_checked_edge(smoke_roadmap):
     import firmtool as ft
-    from firmtool.figures import calibration_figure
+    from firmtool.figures.calibration import calibration_figure
 
     sol = ft.open_roadmap(smoke_roadmap[0]).solution()
     res = ft.simulate(sol, episodes=60, seed=0, record=False)
@@ -126,7 +126,7 @@ def test_the_format_follows_the_extension_and_the_title_says_which_episodes(smok
     """A .pdf is a PDF and a .svg an SVG (they used to hold PNG bytes), each replaceable by firmtool
     without --force; the panel's executed rate names its episodes and seed (issue 42, 3)."""
     import firmtool as ft
-    from firmtool.figures import FigureOptions, make_figure
+    from firmtool.api.figures import FigureOptions, make_figure
 
     roadmap, _ = smoke_roadmap
     for suffix, magic in ((".pdf", b"%PDF"), (".svg", b"<?xml")):
@@ -150,7 +150,7 @@ def test_ellipses_are_thinned_by_distance_and_the_start_belief_is_drawn(smoke_ro
     import matplotlib.patches
 
     import firmtool as ft
-    from firmtool.figures import ELLIPSE_SPACING, plot, thinned
+    from firmtool.figures.paths import ELLIPSE_SPACING, plot, thinned
 
     pts = np.array([[0.0, 0.0]] * 30 + [[0.1 * k, 0.0] for k in range(1, 21)])
     keep = thinned(pts, 0.25)
@@ -175,7 +175,7 @@ def test_firm_and_rollout_side_by_side_draw_the_same_episode(smoke_roadmap):
     """``--policy firm-rollout``: two panels, each drawing the first episode that succeeded under both
     policies (common seeds: the same noise and start), titled with its index."""
     import firmtool as ft
-    from firmtool.figures import _common_success, plot_policies
+    from firmtool.figures.paths import _common_success, plot_policies
 
     roadmap, _ = smoke_roadmap
     sol = ft.open_roadmap(roadmap).solution()

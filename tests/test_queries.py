@@ -14,7 +14,8 @@ from firmtool.errors import InputError
 from firmtool.estimation.edge_table import from_arrays
 from firmtool.estimation.edges import GOAL_MISS
 from firmtool.io.memory_file import MemoryFile
-from firmtool.io.roadmap_file import GOAL, RoadmapFile
+from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.io.roadmap_format import GOAL
 from firmtool.pipeline import query as pq
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.reading import design_of, problem_of

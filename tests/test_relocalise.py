@@ -494,7 +494,7 @@ def test_probe_state_machine_timeout_outside_belief_and_no_decision(tiny_solutio
 def test_goal_node_arrival_is_judged_modulo_a_turn_in_the_heading(tiny_solution):
     """A true heading a turn away from the goal node's is the same pose: execution counts it as
     arrived when told the angle coordinates; the Monte Carlo's test (no angles) does not."""
-    from firmtool.roadmap.nodes import GOAL
+    from firmtool.io.roadmap_format import GOAL
 
     rm = tiny_solution.roadmap
     regions = rm.execution_design.regions(rm.problem)

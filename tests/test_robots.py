@@ -1,4 +1,4 @@
-"""Robots as plugins (firmtool.robots) and the declarative scenario schema (firmtool.io.schema).
+"""Robots as plugins (firmtool.robots) and the declarative scenario schema (firmtool.util.schema).
 
 - the built-in robots are one module each behind the registry; no robot-name or holonomy branch
   is left outside firmtool/robots/;
@@ -19,11 +19,11 @@ import pytest
 
 from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
-from firmtool.io.schema import Field, describe
 from firmtool.problem import build_problem
 from firmtool.robots import installed
 from firmtool.robots.point import PointRobot
 from firmtool.scenario import parse_scenario, sections
+from firmtool.util.schema import Field, describe
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = (ROOT / "scenarios" / "smoke.toml").read_text()

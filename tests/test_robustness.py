@@ -829,7 +829,7 @@ def test_probabilities_not_summing_to_one_exit_1():
     import scipy.sparse
 
     from firmtool.errors import NumericalError
-    from firmtool.graph import solve_dp
+    from firmtool.graph.dp import solve_dp
     landing = scipy.sparse.csr_matrix(np.array([[0.0, 0.5]]))
     with pytest.raises(NumericalError, match="sum to"):
         solve_dp(2, 1, np.array([0]), np.array([1.0]), landing, np.array([0.0]), 100.0)
@@ -857,7 +857,7 @@ def test_a_closed_loop_policy_gives_probability_0_without_warnings(recwarn):
     MatrixRankWarning on stderr (solve used to print two before its error)."""
     import scipy.sparse
 
-    from firmtool.graph import success_probability
+    from firmtool.graph.dp import success_probability
     landing = scipy.sparse.csr_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]))
     p = success_probability(3, 2, np.array([0, 1, -1]), landing)
     assert p.tolist() == [0.0, 0.0, 1.0]

@@ -7,9 +7,9 @@ from typer.testing import CliRunner
 
 import firmtool as ft
 from firmtool.cli import app
+from firmtool.io.roadmap_format import GOAL, REGULAR
 from firmtool.online import rollout
 from firmtool.online.policy import with_mode
-from firmtool.roadmap.nodes import GOAL, REGULAR
 
 
 @pytest.fixture(scope="module")

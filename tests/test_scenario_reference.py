@@ -21,7 +21,6 @@ from firmtool import robots
 from firmtool.cli import app
 from firmtool.errors import ScenarioError
 from firmtool.geometry.shapes import KINDS
-from firmtool.io.schema import Errors, read_value
 from firmtool.scenario import OPTIONAL_SECTIONS, parse_scenario, sections
 from firmtool.scenario.docs import (
     builtin_noise_forms,
@@ -32,6 +31,7 @@ from firmtool.scenario.docs import (
     template_robots,
     toml_value,
 )
+from firmtool.util.schema import Errors, read_value
 
 runner = CliRunner()
 PROBE = "zz_probe"

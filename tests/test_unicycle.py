@@ -11,11 +11,11 @@ from firmtool.control.gains import kalman_update
 from firmtool.control.local import plan_local_controller
 from firmtool.control.stabilisers import OrbitSpec, design_periodic_node
 from firmtool.estimation.edges import GOAL_MISS, belief_step, estimate_edge, initial_ensemble
+from firmtool.io.roadmap_format import GOAL, REGULAR, START
 from firmtool.models.linear import LightDarkNoise, LinearGaussianModel
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
 from firmtool.problem import build_problem
 from firmtool.roadmap.design import design, local_controller, node_controller
-from firmtool.roadmap.nodes import GOAL, REGULAR, START
 from firmtool.scenario import parse_scenario
 
 DT = 0.1

@@ -171,7 +171,7 @@ def test_the_corpus_counts_by_class(capsys):
 
 
 def test_solve_statuses_are_the_graphs():
-    from firmtool.graph import SolveStatus
+    from firmtool.graph.dp import SolveStatus
     assert SOLVE_STATUSES == tuple(s.name for s in SolveStatus)
 
 

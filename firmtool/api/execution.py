@@ -9,14 +9,14 @@ import numpy as np
 
 from firmtool.api.solution import Solution
 from firmtool.estimation.budgets import MAX_EXECUTION_STEPS, check_execution, check_push_size
-from firmtool.io import arguments
+from firmtool.io.roadmap_format import START_INDEX
 from firmtool.online.policy import ROLLOUT, Policy
 from firmtool.online.replanning import ReplanSettings
 from firmtool.results import Results
-from firmtool.roadmap.nodes import START_INDEX
 from firmtool.sim.disturbances import PUSH, Disturbance, as_disturbances
 from firmtool.sim.environment import SimulatedSystem
 from firmtool.sim.episodes import run_episodes
+from firmtool.util import arguments
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.progress import ProgressCallback

@@ -51,7 +51,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     allow_unreachable : return the solutions also when a goal cannot be reached from its start
         (see :func:`firmtool.api.solution.solve`).
     deadline : steps within which the goal is to be reached (default: the scenario's
-        ``task.deadline_steps``): the time-indexed policy of :mod:`firmtool.deadline` too (see
+        ``task.deadline_steps``): the time-indexed policy of :mod:`firmtool.graph.deadline` too (see
         :func:`firmtool.api.solution.solve`).
 
     Raises

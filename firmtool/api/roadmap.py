@@ -17,14 +17,15 @@ from firmtool.api.solution import Solution
 from firmtool.errors import InputError, StaleScenarioWarning
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
-from firmtool.io import arguments, scenario_source
+from firmtool.io import scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.io.roadmap_queries import query_images
 from firmtool.pipeline.working import WorkingRoadmap
 from firmtool.reports import BuildReport, QueryReport, UpdateReport
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
+from firmtool.util import arguments
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.estimation.calibration import EdgeCounts

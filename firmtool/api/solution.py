@@ -13,12 +13,12 @@ from firmtool import pipeline
 from firmtool.errors import ArgumentTypeError, InputError, Unreachable
 from firmtool.estimation.calibration import predicted_interval
 from firmtool.estimation.edge_table import edge_costs
-from firmtool.graph import SolveStatus, policy_path
-from firmtool.io import arguments
+from firmtool.graph.dp import SolveStatus, policy_path
 from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.io.roadmap_format import START_INDEX
 from firmtool.online.world import EdgeTable
 from firmtool.reports import SolveReport
-from firmtool.roadmap.nodes import START_INDEX
+from firmtool.util import arguments
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api.roadmap import Roadmap
@@ -55,7 +55,7 @@ class Solution:
     method : ``"value"`` or ``"policy"`` iteration.
     seconds : wall time of the solve (0 for a policy read from a file).
     deadline_policy, deadline_success : (T + 1, N), with a deadline of T steps
-        (:mod:`firmtool.deadline`): the edge to take at node i with t steps left, and P(goal within t
+        (:mod:`firmtool.graph.deadline`): the edge to take at node i with t steps left, and P(goal within t
         steps) under it; None without a deadline.
     """
 
@@ -272,7 +272,7 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         ``start_reachable`` is False, ``success_probability`` 0 and ``start_cost_to_go`` inf).
     deadline : int, optional
         Steps within which the goal is to be reached (default: the scenario's ``task.deadline_steps``,
-        none without one): the DP over (node, steps left) too (:mod:`firmtool.deadline`), whose
+        none without one): the DP over (node, steps left) too (:mod:`firmtool.graph.deadline`), whose
         time-indexed policy :class:`firmtool.Policy` follows and whose P(goal within T) is
         :attr:`Solution.deadline_success_probability`; execution ends at the deadline.
 

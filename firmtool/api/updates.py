@@ -7,9 +7,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from firmtool.api.roadmap import Roadmap, load_scenario
-from firmtool.io import arguments
 from firmtool.pipeline.update import update_and_read
 from firmtool.scenario import Scenario
+from firmtool.util import arguments
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.progress import ProgressCallback

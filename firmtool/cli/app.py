@@ -44,7 +44,7 @@ import typer
 from firmtool import __version__
 from firmtool.cli import execute, ros, run, scenarios, show, solve, stages
 from firmtool.cli.exits import OneLineErrors
-from firmtool.io import interrupts
+from firmtool.util import interrupts
 
 app = typer.Typer(cls=OneLineErrors,
     name="firmtool",

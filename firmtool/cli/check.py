@@ -20,11 +20,11 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.estimation.budgets import check_budget
+from firmtool.io.roadmap_format import GOAL, START
 from firmtool.pipeline import as_scenario, check_start_apart_from_goals
 from firmtool.problem import build_problem
 from firmtool.reports import Report
 from firmtool.roadmap.goal_confidence import goal_confidence_shortfall
-from firmtool.roadmap.nodes import GOAL, START
 from firmtool.scenario import Scenario
 
 

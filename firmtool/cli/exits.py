@@ -19,8 +19,8 @@ from typer.core import TyperGroup
 
 from firmtool.cli import console
 from firmtool.errors import FirmtoolError, InputError, NumericalError, RunFailure, ScenarioError
-from firmtool.io import interrupts
 from firmtool.io.atomic import write_failure
+from firmtool.util import interrupts
 
 # The click that typer's commands raise from: recent typer vendors its own copy as typer._click,
 # whose exceptions are not the click package's; older typer uses the click package (typer.core.click),

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, read_edge_cache
+from firmtool.io.roadmap_format import START_INDEX
 from firmtool.io.roadmap_queries import query_images
 from firmtool.reports import RoadmapSummary
-from firmtool.roadmap.nodes import START_INDEX
 from firmtool.scenario import parse_scenario
 
 

@@ -3,9 +3,6 @@ arguments that name files."""
 
 from __future__ import annotations
 
-import os
-import stat
-import tomllib
 import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -13,6 +10,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from firmtool.errors import InputError
+from firmtool.io.file_kind import file_kind
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api import Roadmap
@@ -41,46 +39,22 @@ QuietOpt = typer.Option(False, "--quiet", "-q", metavar="",
                         help="Print only errors, notices and --json output: no progress bar, no summary, no next step.")
 
 
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"  # the first 8 bytes of an HDF5 file without a user block (h5py writes none)
-SNIFF_BYTES = 65536  # enough of a file to tell a scenario's TOML from a roadmap's HDF5
-
-
 def check_exists(path: Path, what: str) -> None:
     if not path.exists():
         raise InputError(f"{path}: no such {what}")
-
-
-def _head(path: Path) -> bytes | None:
-    """The first bytes of a regular file (None for anything else: a link, a FIFO, a device are not read)."""
-    try:
-        if not stat.S_ISREG(os.lstat(path).st_mode):
-            return None
-        with open(path, "rb") as f:
-            return f.read(SNIFF_BYTES)
-    except OSError:
-        return None
-
-
-def _is_scenario_text(head: bytes) -> bool:
-    try:
-        return "scenario" in tomllib.loads(head.decode("utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
-        return False
 
 
 def check_roadmap_argument(path: Path) -> None:
     """A roadmap argument that exists; a scenario file given where a roadmap is expected is told
     which command makes its roadmap (rather than HDF5's "file signature not found")."""
     check_exists(path, "roadmap file")
-    head = _head(path)
-    if head is not None and not head.startswith(HDF5_SIGNATURE) and _is_scenario_text(head):
+    if file_kind(path) == "scenario":
         raise InputError(f"{path}: a scenario file, not a roadmap; build its roadmap first: firmtool build {path}")
 
 
 def check_scenario_argument(scenario: str) -> None:
     """A roadmap given where a scenario is expected is told what it is and what takes it."""
-    head = _head(Path(scenario))
-    if head is not None and head.startswith(HDF5_SIGNATURE):
+    if file_kind(scenario) == "roadmap":
         raise InputError(f"{scenario}: an HDF5 file (a roadmap?), not a scenario; a roadmap is what solve, execute, "
                          f"plot and inspect take: firmtool inspect {scenario}")
 

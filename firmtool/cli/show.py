@@ -53,7 +53,8 @@ def plot(roadmap: Path = typer.Argument(..., help="Solved roadmap file."),
     """
     # lazy: saves firmtool --help the library's and matplotlib's import, 2 s (firmtool.cli.app)
     from firmtool.estimation.budgets import check_execution
-    from firmtool.figures import FIGURE_KINDS, FigureOptions, check_output, figure_provenance, make_figure, save_figure
+    from firmtool.api.figures import FIGURE_KINDS, FigureOptions, figure_provenance, make_figure
+    from firmtool.io.figure_file import check_output, save_figure
     check_roadmap_argument(roadmap)
     names = {"both": ["firm", "shortest-path"], "firm": ["firm"], "shortest-path": ["shortest-path"],
              "rollout": ["rollout"], "firm-rollout": ["firm", "rollout"]}

@@ -16,7 +16,7 @@ were estimated off by 2-5x in execution, and the DP preferred edges whose estima
    * **policy edges**, by the delta method: the start's success probability ``p_0`` moves with an
      edge ``e`` of node ``i`` through ``d p_0 = v_i * d E_e[p(next)]``, ``v_i`` the expected visits to
      ``i`` from the start (the fundamental matrix of the policy's absorbing chain,
-     :func:`firmtool.graph.expected_visits`), so ``Var p_0 ~= sum_e a_e / n_e`` with
+     :func:`firmtool.graph.dp.expected_visits`), so ``Var p_0 ~= sum_e a_e / n_e`` with
      ``a_e = v_i^2 Var_{o ~ theta_e}[p(o)]`` (``p(o)`` the success probability after outcome ``o``,
      0 for a failure; ``theta_e`` the posterior mean of the edge's outcomes, so an edge that never
      failed still counts). The particles that reach the target variance at the least simulation
@@ -44,9 +44,9 @@ import scipy.sparse
 from firmtool.estimation.calibration import INTERVAL_SAMPLES, PRIOR, counts_of_table, predicted_interval
 from firmtool.estimation.edge_table import edge_costs, outcome_probabilities, to_arrays
 from firmtool.estimation.edges import EdgeEstimate
-from firmtool.graph import expected_visits, solve_dp, success_probability
+from firmtool.graph.dp import expected_visits, solve_dp, success_probability
+from firmtool.io.roadmap_format import START_INDEX
 from firmtool.reports import AdaptiveReport, AdaptiveRound
-from firmtool.roadmap.nodes import START_INDEX
 from firmtool.scenario import CostSpec
 
 # Bump when the allocation changes what it asks for: a stored table refined by an older version is

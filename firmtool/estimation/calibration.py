@@ -18,9 +18,9 @@ import numpy as np
 from scipy.stats import fisher_exact
 
 from firmtool.estimation.edges import FAILURE
-from firmtool.graph import success_probability_samples
+from firmtool.graph.dp import success_probability_samples
+from firmtool.io.roadmap_format import START_INDEX
 from firmtool.results import Calibration, EdgeCheck, Episode, wilson_interval
-from firmtool.roadmap.nodes import START_INDEX
 
 CI_KEY = 0xC1B0  # stable key of the prediction-interval stream
 MIN_EDGE_TRAVERSALS = 20  # executed traversals an edge needs before its calibration is checked
@@ -109,7 +109,7 @@ def predicted_interval(counts: EdgeCounts, n_nodes: int, goals: np.ndarray, poli
     Each policy edge's outcome distribution is drawn from its Dirichlet posterior (:data:`PRIOR` on
     every outcome it showed and on failure, which always stays possible; :func:`posterior_rows`),
     and the absorbing chain of the policy is solved per draw
-    (:func:`firmtool.graph.success_probability_samples`). The interval is the shortest one holding
+    (:func:`firmtool.graph.dp.success_probability_samples`). The interval is the shortest one holding
     95% of the draws and ``point`` (the plan's point estimate; :func:`interval_containing`). Draws
     come from ``SeedSequence([seed, CI_KEY])``: the roadmap's seed, so the interval is a property
     of the solved roadmap.

@@ -24,10 +24,10 @@ import scipy.sparse
 
 from firmtool.estimation.compiled import engine_for
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, cost_weights
-from firmtool.io.hashing import digest
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
 from firmtool.scenario import CostSpec
+from firmtool.util.hashing import digest
 
 # Bump when the Monte Carlo's results change meaning (not for rounding-level changes): stored
 # estimates with an older version are then estimated again instead of reused.

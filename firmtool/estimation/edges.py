@@ -36,7 +36,8 @@ from firmtool.estimation.outcomes import (  # noqa: F401
 from firmtool.models.base import Model
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design, local_controller, start_covariance
-from firmtool.roadmap.nodes import GOAL_INDEX, START, NodeRegions
+from firmtool.io.roadmap_format import GOAL_INDEX, START
+from firmtool.roadmap.nodes import NodeRegions
 from firmtool.scenario import START_MODES, CostSpec
 
 
@@ -158,7 +159,7 @@ class EdgeEstimate:
     # candidates a region start tested); None for an estimate stored before regions were recorded
     swept: np.ndarray | None = None
     # (3, H) the step histogram per outcome: rows outcome code, steps taken, particles (sorted by code,
-    # then steps; a deadline's DP reads it, firmtool.deadline); None for an estimate stored before
+    # then steps; a deadline's DP reads it, firmtool.graph.deadline); None for an estimate stored before
     step_histogram: np.ndarray | None = None
 
     def cost_mean(self, spec: CostSpec) -> float:

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmtool.control.local import LocalController
+from firmtool.io.roadmap_format import GOAL
 from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import GOAL, first_goal
+from firmtool.roadmap.nodes import first_goal
 from firmtool.scenario import CostSpec
 
 # Outcome codes besides node ids: a constraint violated, no node reached in time, and a belief that

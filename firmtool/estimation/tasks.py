@@ -14,9 +14,9 @@ from firmtool.control.stabilisers import NodeController
 from firmtool.estimation.compiled import FIRST_SEGMENT_PAST_EDGE, engine_for
 from firmtool.estimation.edges import estimate_blocks, estimate_edge
 from firmtool.estimation.jobs import EstimationJob, ProblemJob, job_context, job_problem
-from firmtool.io import interrupts
 from firmtool.roadmap.design import design_nodes, local_controllers
 from firmtool.roadmap.nodes import segments_valid, trajectory_is_valid
+from firmtool.util import interrupts
 
 
 def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:

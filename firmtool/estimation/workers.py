@@ -38,8 +38,8 @@ from threadpoolctl import threadpool_limits
 
 from firmtool.errors import InputError
 from firmtool.estimation.jobs import forget_context
-from firmtool.io import interrupts
 from firmtool.io.locking import forget_inherited
+from firmtool.util import interrupts
 
 _jobs: dict[str, Any] = {}  # token -> job: the jobs of running stages (forked workers inherit them)
 _MAX_JOBS = 4  # jobs a worker keeps that it read from their files

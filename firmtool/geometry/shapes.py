@@ -28,7 +28,7 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from firmtool.io import mesh_file
-from firmtool.io.schema import Field
+from firmtool.util.schema import Field
 
 
 class Obstacle:
@@ -73,7 +73,7 @@ class Box(Obstacle):
     center: tuple[float, ...]
     half_size: tuple[float, ...]
     # added after roadmaps were keyed on boxes without it: hashed only when set, so that an
-    # axis-aligned box keys every stage as before (firmtool.io.hashing)
+    # axis-aligned box keys every stage as before (firmtool.util.hashing)
     rpy: tuple[float, float, float] | None = field(default=None, metadata={"digest": "when set"})
 
     kind: ClassVar[str] = "box"

@@ -32,7 +32,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from firmtool.errors import OutputError, WriteFailure
-from firmtool.io import interrupts
+from firmtool.util import interrupts
 
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)  # reading the umask means setting it; restored at once (at import, before any thread)

@@ -20,7 +20,7 @@ import numpy as np
 
 from firmtool.errors import RoadmapError
 
-# The names of firmtool.graph.SolveStatus (io sits below graph; tests/test_untrusted.py checks they agree)
+# The names of firmtool.graph.dp.SolveStatus (io sits below graph; tests/test_untrusted.py checks they agree)
 SOLVE_STATUSES = ("CONVERGED", "MAX_ITERATIONS")
 SOLVE_METHODS = ("value", "policy")
 

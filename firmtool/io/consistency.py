@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Iterable
 
 from firmtool.errors import FileBusyError
-from firmtool.io.hashing import digest
 from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.util.hashing import digest
 
 
 def stage_digest(roadmap: RoadmapFile, stage: str) -> bytes:

@@ -18,7 +18,7 @@ import numpy as np
 from firmtool.errors import RoadmapError
 from firmtool.io.attributes import check_stage_attributes
 from firmtool.io.roadmap_format import GOAL, REGULAR, START, START_INDEX
-from firmtool.io.schema import MAX_STATE_DIM
+from firmtool.util.schema import MAX_STATE_DIM
 
 # What a reader holds: stage name -> (arrays, attributes), as read from the file.
 Stages = Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]
@@ -270,7 +270,7 @@ def _check_policy(p: Path, arrays: Mapping[str, np.ndarray], attrs: Mapping[str,
     for name in ("success_probability", "shortest_path_success_probability", "deadline_success"):
         if name in arrays:
             _finite(at(name), arrays[name], low=0.0, high=1.0)
-    if "deadline_edge" in arrays:  # the time-indexed policy (firmtool.deadline): rows t = 0 .. T steps left
+    if "deadline_edge" in arrays:  # the time-indexed policy (firmtool.graph.deadline): rows t = 0 .. T steps left
         e = np.asarray(arrays["deadline_edge"])
         _index(at("deadline_edge"), e, -1, F, "F")
         if source is not None and e.size:

@@ -68,16 +68,11 @@ from firmtool.io.roadmap_checks import check_edges, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
     CACHE,
     ENCODING_TYPE,
-    GOAL,
-    GOAL_INDEX,
     MAX_ATTRIBUTE_BYTES,
     MAX_READ_BYTES,
-    REGULAR,
     SCHEMA_VERSION,
     STAGE_COMMANDS,
     STAGES,
-    START,
-    START_INDEX,
     nbytes,
     short,
 )
@@ -91,8 +86,8 @@ from firmtool.io.roadmap_write import (
     write_stage,
 )
 
-__all__ = ["CACHE", "ENCODING_TYPE", "GOAL", "GOAL_INDEX", "MAX_ATTRIBUTE_BYTES", "MAX_READ_BYTES", "REGULAR",
-           "SCHEMA_VERSION", "STAGES", "STAGE_COMMANDS", "START", "START_INDEX", "RoadmapFile", "concat_edge_tables",
+__all__ = ["CACHE", "ENCODING_TYPE", "MAX_ATTRIBUTE_BYTES", "MAX_READ_BYTES",
+           "SCHEMA_VERSION", "STAGES", "STAGE_COMMANDS", "RoadmapFile", "concat_edge_tables",
            "create_roadmap", "is_roadmap_file", "read_edge_cache", "restamp", "update_scenario", "write_edge_cache",
            "write_roadmap", "write_stage"]
 

@@ -32,7 +32,7 @@ from typing import Any, Callable, ClassVar, Mapping
 import numpy as np
 
 from firmtool.errors import InputError
-from firmtool.io.schema import Field
+from firmtool.util.schema import Field
 
 
 class NoiseModel:

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from firmtool.io.roadmap_format import GOAL
 from firmtool.online.belief import BeliefFilter
 from firmtool.online.innovation import JumpTests
 from firmtool.online.replanning import GOAL_CHECK_OLDER, ReplanSettings
 from firmtool.online.running import RunningController
 from firmtool.results import Event, EventKind
-from firmtool.roadmap.nodes import GOAL, NodeRegions, first_goal
+from firmtool.roadmap.nodes import NodeRegions, first_goal
 
 
 class Arrival:

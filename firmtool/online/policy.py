@@ -62,15 +62,14 @@ starts a :class:`~firmtool.online.run.PolicyRun`, which coordinates the collabor
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
+from collections.abc import Iterable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from collections.abc import Iterable, Mapping
-from typing import Any
-
 from firmtool.errors import InputError
 from firmtool.geometry.shapes import Obstacle
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.online.arrival import Arrival
 from firmtool.online.decision import KeepOrReplan
 from firmtool.online.record import Traversal
@@ -82,7 +81,7 @@ from firmtool.online.world import Worlds
 from firmtool.problem import Problem
 from firmtool.results import Event
 from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import GOAL, START_INDEX, NodeRegions
+from firmtool.roadmap.nodes import NodeRegions
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.api import Solution

@@ -46,11 +46,12 @@ from firmtool.control.gains import lqr_weights
 from firmtool.control.local import LocalController, plan_local_controller
 from firmtool.errors import InputError, NumericalError
 from firmtool.estimation.edges import simulate
-from firmtool.graph import policy_path
+from firmtool.graph.dp import policy_path
+from firmtool.io.roadmap_format import GOAL
 from firmtool.online.running import RunningController, running_controller
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design, node_controller
-from firmtool.roadmap.nodes import GOAL, NodeRegions, segment_is_valid
+from firmtool.roadmap.nodes import NodeRegions, segment_is_valid
 
 DEFAULT_REPLAN_THRESHOLD = 3.0  # rms-scaled deviation (node regions use 1.5 by default)
 MAX_REPLANS_PER_EPISODE = 50  # then the current controller runs on without replanning

@@ -37,8 +37,9 @@ import numpy as np
 
 from firmtool.control.local import LocalController
 from firmtool.errors import NumericalError
+from firmtool.io.roadmap_format import GOAL
 from firmtool.online.replanning import Decision, DecisionBudget, Replanner
-from firmtool.roadmap.nodes import GOAL, segment_is_valid
+from firmtool.roadmap.nodes import segment_is_valid
 
 # A switch needs its mean gain over the running controller above this many standard errors of the
 # paired differences (a decision every step tests again and again: point robot, 100 episodes, 64

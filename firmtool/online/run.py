@@ -31,6 +31,7 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.estimation.edges import TIMEOUT as EDGE_TIMEOUT
+from firmtool.io.roadmap_format import GOAL
 from firmtool.online.alarms import InnovationAlarms
 from firmtool.online.arrival import Arrival, GoalCheck
 from firmtool.online.belief import BeliefFilter
@@ -43,7 +44,7 @@ from firmtool.online.running import EdgeControllers, RunningController, remainde
 from firmtool.online.timing import Timing
 from firmtool.problem import Problem
 from firmtool.results import Event, EventKind
-from firmtool.roadmap.nodes import GOAL, NodeRegions
+from firmtool.roadmap.nodes import NodeRegions
 from firmtool.robots.relocalisation import Relocalisation
 
 
@@ -72,7 +73,7 @@ class Prepared:
     world_updated : the world changed since the roadmap was solved (:meth:`firmtool.online.Policy.update_world`):
         a node the re-solved policy has no edge from (its edges blocked) is left by a run-time
         controller to the best node, not declared stuck.
-    timed_policy : (T + 1, N) with a deadline of T steps (:mod:`firmtool.deadline`): the edge at a node
+    timed_policy : (T + 1, N) with a deadline of T steps (:mod:`firmtool.graph.deadline`): the edge at a node
         with t steps left (where it has none, the untimed policy's); None without a deadline.
     """
 

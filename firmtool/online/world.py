@@ -22,11 +22,11 @@ import scipy.sparse
 
 from firmtool.errors import InputError, ScenarioError
 from firmtool.geometry.shapes import Obstacle
-from firmtool.graph import solve_dp
-from firmtool.io.hashing import digest
+from firmtool.graph.dp import solve_dp
 from firmtool.problem import Problem, build_problem
 from firmtool.estimation.touched import Change, touched
 from firmtool.roadmap.world_change import WorldChange, world_change
+from firmtool.util.hashing import digest
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity

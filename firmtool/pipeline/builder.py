@@ -20,9 +20,10 @@ from firmtool.errors import InputError, RunFailure
 from firmtool.estimation import warmup
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.executors import Workers, default_workers
-from firmtool.graph import reachable_from
-from firmtool.io import arguments, scenario_source
+from firmtool.graph.dp import reachable_from
+from firmtool.io import scenario_source
 from firmtool.io.roadmap_file import RoadmapFile, restamp, update_scenario
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.io.roadmap_write import record_source
 from firmtool.pipeline.design import design_into
 from firmtool.pipeline.estimate import estimate_into
@@ -45,8 +46,8 @@ from firmtool.progress import ProgressCallback
 from firmtool.reports import BuildReport, ConnectivityReport, DensifyReport, DensifyRound, EstimateReport, FailedEdge
 from firmtool.roadmap.connectivity import connectivity_report
 from firmtool.roadmap.goal_confidence import goal_confidence_shortfall
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario
+from firmtool.util import arguments
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,7 +105,7 @@ def build_request(scenario: Scenario | str | Path, output: str | Path | None, *,
         A scenario that is not valid, an output that must not be replaced, a ``p_min`` outside
         (0, 1], a checker that is not callable, workers this machine cannot run, an unknown executor.
     """
-    # each argument of its type first (one line naming it: firmtool.io.arguments); a Scenario is checked by its type
+    # each argument of its type first (one line naming it: firmtool.util.arguments); a Scenario is checked by its type
     arguments.check_build(None if isinstance(scenario, Scenario) else scenario, workers=workers, output=output,
                           fresh=fresh, p_min=p_min, max_nodes=max_nodes, add_nodes=add_nodes, progress=progress,
                           checkpoint_seconds=checkpoint_seconds, force=force, validity=validity)

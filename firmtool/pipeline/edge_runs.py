@@ -18,14 +18,14 @@ from firmtool.estimation.adaptive import AdaptiveReport, AdaptiveSettings, refin
 from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, to_arrays
 from firmtool.estimation.edges import EdgeEstimate, merge_estimates
 from firmtool.estimation.executors import BatchResult, EstimationJob, Workers, run_edges
-from firmtool.io import interrupts
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import concat_edge_tables, write_edge_cache
+from firmtool.io.roadmap_format import GOAL
 from firmtool.pipeline.settings import WorkerSettings
 from firmtool.pipeline.target import RoadmapTarget
 from firmtool.progress import Counter
-from firmtool.roadmap.nodes import GOAL
 from firmtool.scenario import Scenario
+from firmtool.util import interrupts
 
 
 class EdgeRuns:

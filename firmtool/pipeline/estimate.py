@@ -13,7 +13,6 @@ from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import ENGINE_VERSION, edge_keys, from_arrays
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate
 from firmtool.estimation.executors import EstimationJob, Workers, default_workers, job_extras, remember_problem
-from firmtool.io import interrupts
 from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache, restamp, write_stage
 from firmtool.pipeline.edge_runs import EdgeRuns
 from firmtool.pipeline.inputs import edges_inputs
@@ -25,6 +24,7 @@ from firmtool.progress import ESTIMATE, Counter, ProgressCallback
 from firmtool.reports import EstimateReport, FailedEdge
 from firmtool.roadmap.design import Design
 from firmtool.scenario import Scenario
+from firmtool.util import interrupts
 
 
 class EstimationInterrupted(FirmtoolError, KeyboardInterrupt):

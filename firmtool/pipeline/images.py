@@ -10,11 +10,11 @@ import numpy as np
 
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import write_roadmap
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.design import DESIGN_ARRAYS
 from firmtool.pipeline.inputs import VALIDITY_ATTR, design_inputs, nodes_inputs
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.scenario import Scenario
 
 

@@ -13,11 +13,11 @@ import numpy as np
 from firmtool import robots
 from firmtool.estimation.adaptive import ADAPTIVE_VERSION
 from firmtool.estimation.edge_table import ENGINE_VERSION
-from firmtool.io.hashing import digest, inputs_hash
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.problem import Problem, ValidityChecker
 from firmtool.scenario import Scenario, load_scenario
 from firmtool.scenario.core import synced
+from firmtool.util.hashing import digest, inputs_hash
 
 # /nodes attribute: the identity of the Python validity checker the roadmap was built with ("" none)
 VALIDITY_ATTR = "validity_checker"

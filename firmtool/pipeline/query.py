@@ -43,9 +43,9 @@ from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, edge_keys, fro
 from firmtool.estimation.edges import EdgeEstimate
 from firmtool.estimation.executors import Workers
 from firmtool.estimation.touched import Change, touched, touches
-from firmtool.io.hashing import digest
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache
+from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
 from firmtool.io.roadmap_queries import QUERY_NAME, query_images
 from firmtool.io.roadmap_write import write_queries
 from firmtool.pipeline.estimate import estimate_into
@@ -61,9 +61,9 @@ from firmtool.problem import build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import QueryReport
 from firmtool.roadmap.design import Design, design_nodes, region_scale
-from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX
 from firmtool.roadmap.queries import query_edges, query_goal_nodes
 from firmtool.scenario import Scenario
+from firmtool.util.hashing import digest
 
 _TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance")
 # the option each task key comes from on the command line (messages name what the user typed)

@@ -13,6 +13,7 @@ from firmtool.errors import InputError
 from firmtool.estimation.budgets import check_budget
 from firmtool.estimation.executors import Workers, parallel_validity
 from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_stage
+from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
 from firmtool.pipeline.inputs import VALIDITY_ATTR, as_checker, as_scenario, nodes_inputs, problem_checker_identity
 from firmtool.pipeline.reading import problem_of
 from firmtool.pipeline.restart import check_same_scenario, previous_roadmap
@@ -22,7 +23,7 @@ from firmtool.progress import ProgressCallback
 from firmtool.reports import AddNodesReport, SampleReport
 from firmtool.roadmap.connectivity import connect_goals
 from firmtool.roadmap.design import Design, design, start_covariance
-from firmtool.roadmap.nodes import GOAL, REGULAR, START_INDEX, roadmap_nodes, sample_nodes
+from firmtool.roadmap.nodes import roadmap_nodes, sample_nodes
 from firmtool.scenario import Scenario
 
 

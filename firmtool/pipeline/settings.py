@@ -13,8 +13,8 @@ import dataclasses
 
 from firmtool.errors import InputError
 from firmtool.estimation.budgets import check_workers
-from firmtool.io import arguments
 from firmtool.problem import Problem
+from firmtool.util import arguments
 
 # Seconds between checkpoints of the estimate stage (finished edges written to /edge_cache).
 CHECKPOINT_SECONDS = 10.0
@@ -69,7 +69,7 @@ def worker_settings(workers: int | None, executor: str = "process", scheduler: s
     InputError
         A count that is not an integer >= 1, more than this machine's cores allow, or more than its
         memory holds (:func:`firmtool.estimation.budgets.check_workers`); an unknown executor, a
-        scheduler address that is not one (:func:`firmtool.io.arguments.scheduler_address`).
+        scheduler address that is not one (:func:`firmtool.util.arguments.scheduler_address`).
     """
     count = check_workers(default if workers is None else workers, problem)
     check_executor(executor, scheduler)

@@ -11,21 +11,21 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from firmtool.deadline import StepRows, smallest_feasible_deadline, solve_deadline
 from firmtool.errors import RunFailure, Unreachable
 from firmtool.estimation.calibration import INTERVAL_METHOD, INTERVAL_SAMPLES, PRIOR, edge_counts_of, predicted_interval
 from firmtool.estimation.edge_table import edge_costs
-from firmtool.graph import SolveStatus, policy_path, shortest_path_policy, solve_dp, success_probability
+from firmtool.graph.deadline import StepRows, smallest_feasible_deadline, solve_deadline
+from firmtool.graph.dp import SolveStatus, policy_path, shortest_path_policy, solve_dp, success_probability
 from firmtool.io.consistency import check_unchanged
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, write_stage
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.inputs import policy_inputs
 from firmtool.pipeline.reading import edge_probabilities, node_task_points, problem_of
 from firmtool.pipeline.target import RoadmapTarget, locked
 from firmtool.problem import Problem
 from firmtool.progress import SOLVE, Counter, ProgressCallback
 from firmtool.reports import SolveReport
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,7 +64,7 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
         (the DP, the success probabilities, the shortest-path baseline).
     deadline : steps within which the goal is to be reached (default: the scenario's
         ``task.deadline_steps``; None: none): then also the DP over (node, steps left)
-        (:mod:`firmtool.deadline`), its time-indexed policy ``deadline_edge`` and ``deadline_success``
+        (:mod:`firmtool.graph.deadline`), its time-indexed policy ``deadline_edge`` and ``deadline_success``
         (T + 1, N), and the start's P(goal within T) (attribute ``deadline_success_probability``).
     problem : the roadmap's problem, when the caller holds it (:class:`firmtool.pipeline.working.WorkingRoadmap`);
         default: rebuilt from the stored scenario.

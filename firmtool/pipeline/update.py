@@ -39,9 +39,9 @@ from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.touched import Change, touched, touches
 from firmtool.estimation.executors import Workers, default_workers
 from firmtool.io import scenario_source
-from firmtool.io.hashing import digest
 from firmtool.io.memory_file import MemoryFile, replace_bytes
 from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.io.roadmap_write import record_source
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
@@ -55,9 +55,9 @@ from firmtool.problem import Problem, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import UpdateReport
 from firmtool.roadmap.design import Design, connect
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 from firmtool.roadmap.world_change import WorldChange, world_change
 from firmtool.scenario import Scenario
+from firmtool.util.hashing import digest
 
 # The sections an update may change besides [world]: they change no Monte Carlo (the cost's weights
 # apply at solve time, the execution settings only in simulation).

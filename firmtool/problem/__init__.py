@@ -16,11 +16,11 @@ import numpy as np
 
 from firmtool import robots
 from firmtool.errors import InputError, ScenarioError
-from firmtool.io.fingerprint import fingerprint
-from firmtool.io.hashing import digest
 from firmtool.models.base import Model
 from firmtool.problem.goal import GoalRegion
 from firmtool.scenario import Scenario
+from firmtool.util.fingerprint import fingerprint
+from firmtool.util.hashing import digest
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.robots.base import Robot
@@ -33,7 +33,7 @@ class ValidityChecker:
     Its :attr:`identity` enters the edge keys (estimates made with one checker are never reused
     with another or without it) and the roadmap: the checker's ``firmtool_key`` attribute if it has
     one (a string the user changes when its behaviour changes), else a fingerprint of its code and
-    data (:func:`firmtool.io.fingerprint.fingerprint`: the same in every process and run for the same
+    data (:func:`firmtool.util.fingerprint.fingerprint`: the same in every process and run for the same
     source). It reaches worker processes and dask workers pickled with cloudpickle (:attr:`pickled`).
     """
 

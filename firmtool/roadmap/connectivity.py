@@ -38,9 +38,10 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
+from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
 from firmtool.problem import Problem
 from firmtool.reports import ConnectivityReport, GoalComponent
-from firmtool.roadmap.nodes import GOAL, REGULAR, SEGMENT_CHECK_SPACING, START_INDEX, valid_pairs
+from firmtool.roadmap.nodes import SEGMENT_CHECK_SPACING, valid_pairs
 
 CLOSEST_PAIRS = 8  # closest node pairs across a gap whose blocked segments seed the narrow-passage targets
 BRIDGE_TRIES = 64  # bridge-test candidates per blocked segment

@@ -15,17 +15,10 @@ from firmtool.control.gains import lqr_weights
 from firmtool.control.local import LocalController, plan_local_controller, plan_local_controllers
 from firmtool.control.stabilisers import NodeController
 from firmtool.errors import NumericalError
+from firmtool.io.roadmap_format import GOAL, START, START_INDEX
 from firmtool.problem import Problem
 from firmtool.progress import DESIGN_EDGES, DESIGN_NODES, Counter, ProgressCallback
-from firmtool.roadmap.nodes import (
-    GOAL,
-    START,
-    START_INDEX,
-    NodeRegions,
-    start_belief_targets,
-    trajectory_is_valid,
-    valid_pairs,
-)
+from firmtool.roadmap.nodes import NodeRegions, start_belief_targets, trajectory_is_valid, valid_pairs
 
 
 @dataclass(frozen=True)

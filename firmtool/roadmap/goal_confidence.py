@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from firmtool.io.roadmap_format import GOAL
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import GOAL
 
 
 def goal_confidence_shortfall(problem: Problem, design: Design) -> str | None:

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from firmtool.errors import RunFailure, ScenarioError
-from firmtool.io.roadmap_file import GOAL, GOAL_INDEX, REGULAR, START, START_INDEX  # node kinds: the file format's
+from firmtool.io.roadmap_format import GOAL, GOAL_INDEX, REGULAR, START, START_INDEX
 from firmtool.models.angles import wrap
 from firmtool.problem import Problem
 from firmtool.problem.goal import GoalRegion

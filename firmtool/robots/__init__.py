@@ -11,7 +11,6 @@ question (:class:`RobotModel`, :class:`RobotGeometry`, :class:`TaskSpace`, :clas
 :mod:`firmtool.robots.registry` for the registry.
 """
 
-from firmtool.io.schema import Field  # a robot declares its [model] keys with it
 from firmtool.robots.base import Robot
 from firmtool.robots.compiled import CompiledKinematics
 from firmtool.robots.drawing import Drawable
@@ -25,6 +24,7 @@ from firmtool.robots.relocalisation import Relocalising
 from firmtool.robots.stabilisers import NodeStabilisers
 from firmtool.robots.task import TaskSpace
 from firmtool.robots.urdf_arm import urdf  # a URDF's chain, read and checked as robot = "urdf" reads it
+from firmtool.util.schema import Field  # a robot declares its [model] keys with it
 
 __all__ = ["ENTRY_POINT_GROUP", "CompiledKinematics", "Drawable", "Field", "JumpAnswers", "LinearRobot",
            "NodeStabilisers", "Nominals", "Relocalising", "Robot", "RobotGeometry", "RobotModel", "TaskSpace", "get",

@@ -19,12 +19,12 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 
 from firmtool.errors import ScenarioError
-from firmtool.io.schema import Errors, Field, valid
 from firmtool.models import planar_arm
 from firmtool.robots import planar
 from firmtool.robots.compiled import CompiledKinematics
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
 from firmtool.robots.registry import register
+from firmtool.util.schema import Errors, Field, valid
 
 
 class ArmRobot(LinearRobot):

@@ -12,7 +12,7 @@ linear model, node stabilisers at rest and rest-to-rest nominals), so that a rob
 what differs:
 
 - :class:`~firmtool.robots.model.RobotModel` (:mod:`firmtool.robots.model`): its ``[model]`` keys
-  (:attr:`Robot.model_fields`, declarative, see :mod:`firmtool.io.schema`) and their cross-checks
+  (:attr:`Robot.model_fields`, declarative, see :mod:`firmtool.util.schema`) and their cross-checks
   (:meth:`Robot.read_model`), its discrete model (:attr:`Robot.model`, a
   :class:`firmtool.models.base.Model`) and configuration space (:attr:`config_dim`,
   :attr:`config_lo`, :attr:`config_hi`), its code identity and its checks of the problem;

@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from firmtool.errors import InputError, ScenarioError
-from firmtool.io.schema import INVALID, MAX_STATE_DIM, Errors, Field, shape_text, valid
 from firmtool.models.linear import LinearGaussianModel, discretize, discretize_statespace, noise_factor
 from firmtool.robots.base import Robot
+from firmtool.util.schema import INVALID, MAX_STATE_DIM, Errors, Field, shape_text, valid
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.problem import Problem

@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from firmtool.io.fingerprint import _by_reference, fingerprint
-from firmtool.io.schema import Errors, Field
 from firmtool.models import noise as noise_models
+from firmtool.util.fingerprint import _by_reference, fingerprint
+from firmtool.util.schema import Errors, Field
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.models.base import Model
@@ -30,7 +30,7 @@ class RobotModel(Protocol):
 
     Attributes
     ----------
-    model_fields : the ``[model]`` keys the robot reads (declarative, :mod:`firmtool.io.schema`).
+    model_fields : the ``[model]`` keys the robot reads (declarative, :mod:`firmtool.util.schema`).
     bounds_name, rest_state_text : what messages call the configuration bounds, and what they say a
         node state's coordinates past the configuration must be.
     template : the tables of a small scenario for ``firmtool init --robot NAME``, or None.
@@ -112,7 +112,7 @@ class ModelDefaults:
     @classmethod
     def read_model(cls, values: dict[str, Any], errors: Errors) -> dict[str, Any]:
         """Cross-checks of this robot's ``[model]`` values, read one by one from
-        :attr:`model_fields` (a value that failed its own check is :data:`firmtool.io.schema.INVALID`).
+        :attr:`model_fields` (a value that failed its own check is :data:`firmtool.util.schema.INVALID`).
         Record problems in ``errors`` (``errors.add("model.KEY", "expected ...")``) and return the
         values to keep (derived ones may be added)."""
         return values
@@ -138,7 +138,7 @@ class ModelDefaults:
     def code_identity(cls) -> str:
         """The class's module, name and ``version`` attribute (raise it when a packaged robot's
         behaviour changes), and for a class of the user's own code (a script, a notebook, a module
-        outside site-packages) a fingerprint of its code (:mod:`firmtool.io.fingerprint`), so that
+        outside site-packages) a fingerprint of its code (:mod:`firmtool.util.fingerprint`), so that
         editing it re-estimates instead of reusing estimates of the old code."""
         head = f"{cls.__module__}.{cls.__qualname__}:{getattr(cls, 'version', '')}"
         return head if _by_reference(cls) else f"{head}:{fingerprint(cls)}"

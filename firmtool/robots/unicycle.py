@@ -27,11 +27,11 @@ import numpy as np
 from firmtool.control.gains import lqr_weights
 from firmtool.control.stabilisers import OrbitSpec, cached_periodic_node
 from firmtool.errors import ScenarioError
-from firmtool.io.schema import Field
 from firmtool.models.unicycle import UnicycleModel, turn_drive_turn
 from firmtool.robots.base import Robot
 from firmtool.robots.registry import register
 from firmtool.robots.relocalisation import Relocalisation, spread_coordinate
+from firmtool.util.schema import Field
 
 
 class UnicycleRobot(Robot):

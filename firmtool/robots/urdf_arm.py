@@ -39,12 +39,12 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 
 from firmtool.errors import InputError, ScenarioError
-from firmtool.io.schema import Errors, Field, valid
 from firmtool.models import serial_chain
 from firmtool.robots import urdf_compiled
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
 from firmtool.robots.registry import register
 from firmtool.robots.urdf_file import SHIPPED_PREFIX, UrdfChain, UrdfError, read_urdf, resolve
+from firmtool.util.schema import Errors, Field, valid
 
 URDF_PATH_ENV = "FIRMTOOL_URDF_PATH"
 STORED = ":scenario_toml"  # the suffix of a roadmap's stored scenario's path

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from firmtool.graph import policy_path
+from firmtool.graph.dp import policy_path
 from firmtool.results import Event
 
 
@@ -172,7 +172,7 @@ def pose_covariance(cov: np.ndarray, heading_variance: float) -> list[float]:
 def plan_points(problem, centers: np.ndarray, edge_per_node: np.ndarray, edge_targets: np.ndarray,
                 goals: np.ndarray, node: int) -> np.ndarray:
     """The task points (K, D) of the policy's nominal node sequence from ``node`` to the goal (what
-    ``~/plan`` shows): each chosen edge's target in turn (:func:`firmtool.graph.policy_path`)."""
+    ``~/plan`` shows): each chosen edge's target in turn (:func:`firmtool.graph.dp.policy_path`)."""
     if node < 0:
         return np.zeros((0, len(problem.scenario.world.lo)))
     path = policy_path(edge_per_node, edge_targets, int(node), goals)

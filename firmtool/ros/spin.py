@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from firmtool.io.file_kind import file_kind
 from firmtool.ros import interfaces as ros
 from firmtool.ros.node import PolicyNode
 from firmtool.ros.sim import SimNode
@@ -51,7 +52,7 @@ def load_system(source: str | Path) -> tuple[Any, Any, Any]:
     import firmtool.api as ft
     from firmtool.problem import build_problem
     path = Path(source)
-    if path.suffix in (".h5", ".hdf5") or (path.is_file() and path.read_bytes()[:8] == b"\x89HDF\r\n\x1a\n"):
+    if path.suffix in (".h5", ".hdf5") or file_kind(path) == "roadmap":
         rm = ft.open_roadmap(path)
         return rm.problem, rm.execution_design, rm
     return build_problem(ft.load_scenario(source)), None, None

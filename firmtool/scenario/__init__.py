@@ -1,6 +1,6 @@
 """Scenarios: a problem stated in a TOML file (or in Python), validated into frozen, typed dataclasses.
 
-Every key is declared once (:mod:`firmtool.io.schema`): the sections' keys in
+Every key is declared once (:mod:`firmtool.util.schema`): the sections' keys in
 :mod:`firmtool.scenario.fields`, a robot's ``[model]`` keys by the robot
 (:attr:`firmtool.robots.Robot.model_fields`), a noise form's ``[measurement]`` keys by the form
 (:mod:`firmtool.models.noise`), an obstacle kind's keys by the kind (:mod:`firmtool.geometry.shapes`).

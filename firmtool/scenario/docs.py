@@ -1,6 +1,6 @@
 """The scenario reference and the scenario templates, both generated from the loader's own schema.
 
-Every key a scenario file may hold is declared once, as a :class:`firmtool.io.schema.Field` (the
+Every key a scenario file may hold is declared once, as a :class:`firmtool.util.schema.Field` (the
 sections' keys in :mod:`firmtool.scenario`, a robot's ``[model]`` keys by the robot, a noise form's
 ``[measurement]`` keys by the form, an obstacle kind's keys by the kind). This module reads those
 declarations and nothing else, so neither the documentation nor the templates can drift from what
@@ -31,11 +31,11 @@ from firmtool import robots as robot_registry
 from firmtool.errors import InputError, OutputError
 from firmtool.geometry.shapes import KIND_FIELD, KINDS
 from firmtool.io.atomic import check_target, write_bytes
-from firmtool.io.schema import Field
 from firmtool.models import noise
 from firmtool.robots.registry import DEFAULT_ROBOT, _builtin, get, names
 from firmtool.scenario.core import shipped_scenarios
 from firmtool.scenario.fields import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, _name_problem, sections
+from firmtool.util.schema import Field
 
 # What each section is, for the reference and the templates (one line each).
 SECTION_DOCS = {
@@ -68,7 +68,7 @@ class KeyDoc:
     allowed : allowed values in words: the choices of a string, ``"> 0"`` or ``">= 0"`` for numbers.
     doc : one line saying what the key is.
     example : one TOML line with an example value (``"dt = 0.1"``).
-    field : the :class:`~firmtool.io.schema.Field` documented.
+    field : the :class:`~firmtool.util.schema.Field` documented.
     """
 
     section: str
@@ -208,7 +208,7 @@ def toml_value(value: Any) -> str:
 # the reference
 
 
-# How a shape's symbolic sizes read in the reference (firmtool.io.schema.Field.shape).
+# How a shape's symbolic sizes read in the reference (firmtool.util.schema.Field.shape).
 SHAPE_WORDS = {None: "any", "D": "D", "start": "len(start)"}
 
 

@@ -1,4 +1,4 @@
-"""The declarative schema of each section of a scenario file (:class:`firmtool.io.schema.Field`): every
+"""The declarative schema of each section of a scenario file (:class:`firmtool.util.schema.Field`): every
 key once, with its type, default, bounds and documentation. Robots, noise forms and obstacle kinds
 declare their own keys (:attr:`firmtool.robots.Robot.model_fields`, :mod:`firmtool.models.noise`,
 :mod:`firmtool.geometry.shapes`)."""
@@ -10,11 +10,11 @@ import math
 import numpy as np
 
 from firmtool.geometry.registry import backend_names
-from firmtool.io.schema import Field
 from firmtool.models import noise
 from firmtool.robots.linear import psd_problem
 from firmtool.robots.registry import DEFAULT_ROBOT
 from firmtool.scenario.specs import DEFAULT_START, DEFAULT_TARGET_HALFWIDTH, MEASUREMENT_KINDS, START_MODES
+from firmtool.util.schema import Field
 
 # ---------------------------------------------------------------------------------------------------
 # the declarative schema of each section (robots, noise forms and obstacle kinds declare their own)

@@ -17,7 +17,6 @@ from firmtool.geometry.registry import backends_for, get_backend
 from firmtool.geometry.shapes import KIND_FIELD, KINDS, Mesh, Obstacle, obstacle_from_values
 from firmtool.io.limits import MAX_SCENARIO_BYTES, data_limit_error, toml_nesting_error
 from firmtool.io.mesh_file import read_mesh, stored_scenario_mesh_path
-from firmtool.io.schema import INVALID, Errors, Field, read_table, read_value, valid
 from firmtool.models import noise
 from firmtool.scenario.fields import (
     CONTROLLER_FIELDS,
@@ -44,6 +43,7 @@ from firmtool.scenario.specs import (
     TaskSpec,
     WorldSpec,
 )
+from firmtool.util.schema import INVALID, Errors, Field, read_table, read_value, valid
 
 
 def read_tables(text: str, path: str = "<string>") -> dict[str, Any]:

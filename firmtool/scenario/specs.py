@@ -117,7 +117,7 @@ class TaskSpec:
     goal_confidence: float = 0.95
     start_covariance: np.ndarray | None = None
     true_start: np.ndarray | None = None
-    # the mission's deadline in control steps (alpha-T reachability; firmtool.deadline); None: none.
+    # the mission's deadline in control steps (alpha-T reachability; firmtool.graph.deadline); None: none.
     # Hashed only when set: the keys of every roadmap written before it stay.
     deadline_steps: int | None = field(default=None, metadata={"digest": "when set"})
 

@@ -17,7 +17,7 @@ under ``e = pi(i, t)``. A timeout or failure of an edge is a failure whenever it
 landing after the deadline.
 
 Written here (no library solves a finite-horizon MDP on sparse stochastic transitions with step
-distributions, and the untimed solver of :mod:`firmtool.graph` has no time index): one sweep of
+distributions, and the untimed solver of :mod:`firmtool.graph.dp` has no time index): one sweep of
 ``t = 0 .. T``, each a sum over the histogram rows that fit (sorted by steps, a prefix), so
 ``O(T * rows)`` arithmetic, vectorised; ~0.1-1 s for the shipped roadmaps' deadlines.
 """

@@ -1,9 +1,9 @@
-"""Figures of a roadmap, its policies and executed episodes (the paper's Fig. 1), for any robot.
+"""The paper's Fig. 1 for any robot: a roadmap, its policies and executed episodes, drawn.
 
 :func:`panel` draws one panel into a matplotlib Axes; the public calls are :func:`firmtool.plot`
 (one panel) and :func:`plot_policies` (panels side by side, ``firmtool plot``). Nothing
-here selects a matplotlib backend, so a notebook keeps its own. (Named ``figures``, not ``plot``: a
-submodule ``firmtool.plot`` would replace the function ``firmtool.plot`` as soon as it was imported.)
+here selects a matplotlib backend, so a notebook keeps its own, and nothing here runs an episode:
+the figure kinds that do (:mod:`firmtool.api.figures`) pass the results in.
 
 The robot draws itself (:meth:`firmtool.robots.Robot.draw`; by default a polyline of its key points,
 the last one, the arm's tip or the point robot itself, being the one followed), so a new robot
@@ -14,32 +14,26 @@ Jacobian of that point (central finite differences of ``problem.points``).
 
 from __future__ import annotations
 
-import io
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Ellipse, Rectangle
 
-from firmtool import __version__
-from firmtool.api import Solution, simulate
 from firmtool.errors import InputError
-from firmtool.estimation.budgets import MAX_EXECUTION_STEPS
-from firmtool.estimation.edge_table import ENGINE_VERSION
-from firmtool.graph import policy_path
-from firmtool.io.atomic import check_target, write_bytes
+from firmtool.graph.dp import policy_path
+from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.problem import Problem
 from firmtool.results import Episode, Outcome, Results
 from firmtool.roadmap.design import Design
-from firmtool.roadmap.nodes import GOAL, START_INDEX
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
+
+    from firmtool.api import Solution
 
 OBSTACLE_COLOR = "#8c564b"  # brown, as in the paper
 GOAL_COLOR = "#9467bd"  # purple
@@ -239,241 +233,6 @@ def legend_below(fig: Figure, ax) -> None:
     fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
 
 
-# -- the calibration of the policy edges -----------------------------------------------------------------
-
-def calibration_panels(axes, calibration, *, title: str = "") -> None:
-    """Predicted (Monte Carlo) against executed frequencies of every checked policy edge, each with
-    its 95% interval: failure (collision or timeout) on ``axes[0]``, landing in the edge's target on
-    ``axes[1]``; flagged edges in red and labelled with their ids.
-
-    Parameters
-    ----------
-    axes : two matplotlib Axes.
-    calibration : a :class:`firmtool.results.Calibration` (``Results.calibration``).
-    """
-    checks = list(calibration.edges)
-    for ax, what, name in zip(axes, ("failure", "target"), ("failure: collision or timeout", "landing in the target")):
-        ax.plot([0, 1], [0, 1], "--", color="0.5", lw=1, zorder=1, label="executed = predicted")
-        for c in checks:
-            x, y = getattr(c, f"{what}_estimated"), getattr(c, f"{what}_executed")
-            xlo, xhi = getattr(c, f"{what}_estimated_ci95")
-            ylo, yhi = getattr(c, f"{what}_executed_ci95")
-            flagged = what in c.flagged
-            xerr = np.maximum([[x - xlo], [xhi - x]], 0.0)  # an interval holds its estimate (rounding aside)
-            yerr = np.maximum([[y - ylo], [yhi - y]], 0.0)
-            ax.errorbar([x], [y], xerr=xerr, yerr=yerr, fmt="o",
-                        ms=3 + 3 * min(c.traversals, 200) / 200, color="tab:red" if flagged else "tab:blue",
-                        elinewidth=0.8, capsize=2, alpha=0.85, zorder=3)
-            if flagged:
-                ax.annotate(str(c.edge), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7,
-                            color="tab:red")
-        ax.set_xlim(-0.02, 1.02)
-        ax.set_ylim(-0.02, 1.02)
-        ax.set_aspect("equal")
-        ax.set_xlabel("predicted probability (edge Monte Carlo, 95% interval)")
-        ax.set_ylabel("executed frequency (episodes, 95% interval)")
-        ax.set_title(name, fontsize=9)
-    axes[0].legend(loc="upper left", fontsize=7, frameon=False)
-    if title:
-        axes[0].figure.suptitle(title, fontsize=10)
-
-
-def calibration_figure(results, *, dpi: int = 120, title: str | None = None) -> Figure:
-    """The calibration plot of executed episodes (:func:`calibration_panels`) on a bare Figure.
-
-    Parameters
-    ----------
-    results : :class:`firmtool.Results` with a calibration check (``simulate`` on a roadmap).
-    dpi : resolution.
-    title : the figure's title (default: how many edges were checked and which were flagged).
-
-    Raises
-    ------
-    InputError
-        The results have no calibration check (no edge counts) or no edge was taken often enough.
-    """
-
-    cal = results.calibration
-    if cal is None or not cal.edges:
-        raise InputError("calibration: no policy edge was taken often enough to be checked "
-                         f"(>= {cal.min_traversals if cal else '?'} clean traversals); run more episodes")
-    fig = Figure(figsize=(9.0, 4.8), dpi=dpi, layout="constrained")
-    axes = fig.subplots(1, 2)
-    flagged = ", ".join(map(str, cal.flagged_edges)) or "none"
-    calibration_panels(axes, cal, title=title if title is not None else
-                       f"{cal.edges_checked} of {cal.edges_taken} policy edges checked (>= {cal.min_traversals} "
-                       f"traversals) in {len(results.episodes)} episodes; flagged: {flagged}; marker size: "
-                       "traversals")
-    return fig
-
-
-# -- figure kinds (firmtool plot --kind KIND) --------------------------------------------------------------
-
-@dataclass(frozen=True)
-class FigureOptions:
-    """What ``firmtool plot`` asks of a figure kind.
-
-    Attributes
-    ----------
-    episodes : episodes to run per policy (0: none).
-    seed : seed of the episodes (as in ``firmtool execute``).
-    policies : the policies to draw (``"firm"``, ``"shortest-path"``).
-    dpi : resolution.
-    unit : length unit of the axes.
-    progress : ``progress(stage, done, total)`` (:mod:`firmtool.progress`), or None.
-    max_total_steps : the bound of the episodes' worst-case control steps (``--max-total-steps``).
-    """
-
-    episodes: int = 20
-    seed: int = 0
-    policies: tuple[str, ...] = ("firm", "shortest-path")
-    dpi: int = 120
-    unit: str = DEFAULT_UNIT
-    progress: Callable[[str, int, int], None] | None = None
-    max_total_steps: float = MAX_EXECUTION_STEPS
-
-
-def _relabel(progress, stage: str):
-    """A progress callback reporting under ``stage`` (episodes run for a figure)."""
-    return None if progress is None else (lambda _stage, done, total: progress(stage, done, total))
-
-
-def paths_figure(solution, options: FigureOptions) -> Figure:
-    """The paper's Fig. 1, one panel per policy (:func:`plot_policies`)."""
-    results = [simulate(solution, options.episodes, options.seed, policy=name,
-                           progress=_relabel(options.progress, f"plot: {name} episodes"),
-                           max_total_steps=options.max_total_steps)
-               if options.episodes else None for name in options.policies]
-    return plot_policies(solution, results, list(options.policies), dpi=options.dpi, unit=options.unit)
-
-
-def calibration_kind_figure(solution, options: FigureOptions) -> Figure:
-    """The calibration plot of the FIRM policy's edges over ``options.episodes`` episodes."""
-    results = simulate(solution, max(options.episodes, 1), options.seed, record=False,
-                          progress=_relabel(options.progress, "plot: episodes"),
-                          max_total_steps=options.max_total_steps)
-    return calibration_figure(results, dpi=options.dpi)
-
-
-FIGURE_KINDS: dict[str, Callable[..., Figure]] = {"paths": paths_figure, "calibration": calibration_kind_figure}
-
-
-def register_figure(kind: str, make: Callable[..., Figure]) -> None:
-    """Add a figure kind to ``firmtool plot --kind``: ``make(solution, options: FigureOptions) -> Figure``
-    (a bare matplotlib Figure, saved by :func:`save_figure`). The disturbance sweep and the
-    reliability diagram plug in here."""
-    FIGURE_KINDS[kind] = make
-
-
-def make_figure(kind: str, solution, options: FigureOptions) -> Figure:
-    """The figure of a kind (:data:`FIGURE_KINDS`) for a solved roadmap."""
-
-    if kind not in FIGURE_KINDS:
-        raise InputError(f"--kind: expected one of {', '.join(FIGURE_KINDS)}, found {kind!r}")
-    return FIGURE_KINDS[kind](solution, options)
-
-
-PNG_SOFTWARE = f"firmtool {__version__}"  # the PNG's Software text: marks a figure firmtool may replace
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-FIGURE_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}  # the output's format follows its extension
-_TAIL = 1 << 16  # a PDF's document information (its Creator) is written at its end
-
-
-def figure_format(path: str | Path) -> str:
-    """The format of a figure file from its extension (``png``, ``pdf`` or ``svg``).
-
-    Raises
-    ------
-    InputError
-        Any other extension, naming the file.
-    """
-    fmt = FIGURE_FORMATS.get(Path(path).suffix.lower())
-    if fmt is None:
-        raise InputError(f"{path}: expected a .png, .pdf or .svg file (the figure's format follows its extension)")
-    return fmt
-
-
-def png_text(data: bytes) -> dict[str, str]:
-    """The tEXt chunks (keyword -> text) of a PNG's bytes before its image data (where matplotlib
-    writes them): the ``Software`` mark and a figure's provenance (:func:`figure_provenance`). Empty
-    for bytes that are not a PNG."""
-    if not data.startswith(_PNG_SIGNATURE):
-        return {}
-    out, pos = {}, len(_PNG_SIGNATURE)
-    while pos + 8 <= len(data):
-        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
-        if kind == b"IDAT":
-            break
-        if kind == b"tEXt":
-            key, _, value = data[pos + 8:pos + 8 + length].partition(b"\x00")
-            out[key.decode("latin-1")] = value.decode("latin-1")
-        pos += 12 + length
-    return out
-
-
-def is_firmtool_figure(path: str | Path) -> bool:
-    """Whether ``path`` is a figure firmtool wrote (so that it may replace it): a PNG whose
-    ``Software`` text names firmtool, a PDF whose ``Creator`` does, or an SVG whose creator does."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(_TAIL)
-            fh.seek(0, 2)
-            size = fh.tell()
-            fh.seek(max(0, size - _TAIL))
-            tail = fh.read(_TAIL)
-    except OSError:
-        return False
-    if head.startswith(b"%PDF"):
-        return b"/Creator (firmtool" in tail
-    if head.lstrip().startswith(b"<?xml") or b"<svg" in head[:4096]:
-        return b"<dc:title>firmtool" in head
-    return png_text(head).get("Software", "").startswith("firmtool")
-
-
-def check_output(path: str | Path, force: bool = False) -> Path:
-    """Refuse a figure output path whose extension is not .png, .pdf or .svg, one that is not a
-    firmtool figure (unless ``force``), a folder, a device, or lies under a file
-    (:func:`firmtool.io.atomic.check_target`)."""
-    checked = check_target(path, "figure", is_firmtool_figure, force)
-    figure_format(path)
-    return checked
-
-
-def figure_provenance(solution: Solution, options: FigureOptions | None = None) -> dict[str, str]:
-    """What a figure's numbers come from, for its PNG text chunks (:func:`save_figure`): the scenario's
-    name and the hash of its text, the Monte Carlo engine's version (a change of either moves the
-    numbers), and the episodes drawn. The documentation's test compares a committed figure's
-    against the shipped scenario and this engine, so that a figure made by other numbers fails it."""
-    data = solution.roadmap._data
-    out = {"firmtool:scenario": solution.roadmap.scenario.name, "firmtool:scenario_sha256": str(data.scenario_sha256),
-           "firmtool:engine_version": str(ENGINE_VERSION)}
-    if options is not None:
-        out["firmtool:episodes"] = f"{options.episodes} episodes, seed {options.seed}"
-    return out
-
-
-def save_figure(fig: Figure, path: str | Path, force: bool = False, provenance: dict[str, str] | None = None) -> None:
-    """Write a figure atomically, in the format of its extension (PNG, PDF or SVG: :func:`figure_format`):
-    rendered in memory, then :func:`firmtool.io.atomic.write_bytes` (an existing file there is
-    replaced only if firmtool wrote it, or with ``force``). A PNG also carries ``provenance``
-    (:func:`figure_provenance`) as text chunks."""
-    try:
-        check_output(path, force)
-        fmt = figure_format(path)
-        image = io.BytesIO()
-        metadata = {"Software": PNG_SOFTWARE, **(provenance or {})} if fmt == "png" else {"Creator": PNG_SOFTWARE}
-        # bbox_inches="tight": nothing outside the figure's edge is cut (tick labels, outside legends)
-        fig.savefig(image, format=fmt, metadata=metadata, bbox_inches="tight", pad_inches=0.05)
-        write_bytes(path, image.getbuffer())
-    finally:
-        if fig.canvas.manager is not None:  # a pyplot figure: let pyplot forget it
-            import matplotlib.pyplot as plt  # only for a figure pyplot made (pyplot's import is ~0.9 s)
-
-            plt.close(fig)
-
-
 def plot(solution: Solution, results: Results | None = None, ax: "Axes | None" = None, *,
          policy: str | None = None, episode: int | None = None, unit: str = "m", legend: bool = True) -> "Axes":
     """Draw one panel of the paper's Fig. 1 for a policy: obstacles, sensing field, goal, roadmap,
@@ -549,7 +308,7 @@ def _common_success(results: Sequence[Results | None]) -> int | None:
 def plot_policies(solution: Solution, results: Sequence[Results | None], policies: Sequence[str], *,
                   dpi: int = 120, unit: str = "m") -> "Figure":
     """Panels side by side, one :func:`plot` per policy (``firmtool plot``), on a bare matplotlib
-    Figure (no pyplot, no backend; write it with :func:`firmtool.figures.save_figure`).
+    Figure (no pyplot, no backend; write it with :func:`firmtool.io.figure_file.save_figure`).
 
     Parameters
     ----------
