@@ -16,14 +16,18 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from firmtool import pipeline
 from firmtool.api import solution as _solution
 from firmtool.api.roadmap import Roadmap
 from firmtool.api.solution import Solution
 from firmtool.errors import InputError
+from firmtool.online.policy import Policy
 from firmtool.pipeline.query import Query, answer
 
 if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.online.replanning import ReplanSettings
     from firmtool.progress import ProgressCallback
 
 
@@ -87,3 +91,19 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     if stranded and not allow_unreachable:
         raise stranded[0].unreachable_error()
     return out[0] if queries is None else out
+
+
+def goal_policy(roadmap: Roadmap, goal: Any, *, replan: "ReplanSettings | None" = None,
+                world: tuple[Any, Any] | None = None) -> tuple[Solution, "Policy"]:
+    """A new goal's answer as a running agent takes it (what the ROS node does with a ``goal_pose``):
+    the query's solution (:func:`solve` with ``goal``) and its prepared policy, in ``world``
+    (obstacles, bounds) if the world changed since the roadmap was built.
+
+    The roadmap is the one the caller holds: its file read once, its problem built once, whatever the
+    number of goals (:class:`firmtool.pipeline.working.WorkingRoadmap`)."""
+    sol = solve(roadmap, goal=np.asarray(goal, dtype=float).tolist())
+    policy = Policy(sol, replan=replan)
+    policy.prepare()
+    if world is not None:
+        policy.update_world(world[0], bounds=world[1])
+    return sol, policy  # type: ignore[return-value]

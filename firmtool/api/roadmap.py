@@ -20,7 +20,6 @@ from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.io import scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
-from firmtool.io.roadmap_queries import query_images
 from firmtool.pipeline.working import WorkingRoadmap
 from firmtool.reports import BuildReport, QueryReport, UpdateReport
 from firmtool.scenario import Scenario
@@ -246,7 +245,7 @@ class Roadmap:
         """The names of the queries stored in the roadmap's file (:meth:`save_queries`); [] in memory."""
         if self.path is None:
             return []
-        return sorted(query_images(self._data.path))
+        return list(self._data.query_names)  # read with the file
 
     def query(self, name: str) -> "Roadmap":
         """The roadmap of the stored query ``name`` (in memory; :meth:`solution` gives its policy).

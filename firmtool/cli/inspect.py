@@ -6,9 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from firmtool.io.roadmap_file import STAGES, RoadmapFile, read_edge_cache
+from firmtool.io.roadmap_file import STAGES, RoadmapFile
 from firmtool.io.roadmap_format import START_INDEX
-from firmtool.io.roadmap_queries import query_images
 from firmtool.reports import RoadmapSummary
 from firmtool.scenario import parse_scenario
 
@@ -48,10 +47,10 @@ def summarize(path: str | Path) -> RoadmapSummary:
         out["estimated_edges"] = int(e["particles"].size)
         out["swept_regions"] = "swept_lo" in rm.table("edges")
         out["densify_rounds"] = int(rm.attrs("nodes").get("densify_rounds", 0)) if rm.has("nodes") else 0
-    cache = read_edge_cache(path, nodes=out.get("nodes"))
+    cache = rm.edge_cache(nodes=out.get("nodes"))  # read with the file: it is opened once
     if cache:  # an interrupted estimate stage (or a superseded design) left estimates to reuse
         out["cached_edges"] = int(cache["source"].size)
-    out["queries"] = tuple(sorted(query_images(path)))
+    out["queries"] = rm.query_names
     if rm.has("policy"):
         a = rm.attrs("policy")
         p = rm.require("policy", "success_probability", "cost_to_go", fresh=False)

@@ -78,7 +78,16 @@ def dirichlet_draws(edge: np.ndarray, alpha: np.ndarray, samples: int, rng: np.r
     (normalised gamma draws)."""
     g = rng.gamma(alpha, size=(samples, alpha.size))
     total = np.zeros((samples, int(edge.max(initial=-1)) + 1))
-    np.add.at(total, (slice(None), edge), g)
+    # the sums np.add.at made, bit for bit, without its per-element loop (a query's adaptive rounds
+    # spent a tenth of their time there): pass k adds the k-th row of every edge, so each edge's
+    # rows are added in their order, as add.at adds them, and no edge twice in one pass
+    order = np.argsort(edge, kind="stable")
+    first = np.searchsorted(edge[order], edge[order], side="left")
+    rank = np.empty(edge.size, dtype=np.int64)
+    rank[order] = np.arange(edge.size) - first
+    for k in range(int(rank.max(initial=-1)) + 1):
+        rows = np.flatnonzero(rank == k)
+        total[:, edge[rows]] += g[:, rows]
     return g / total[:, edge]
 
 

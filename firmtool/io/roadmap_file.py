@@ -65,6 +65,7 @@ from firmtool.io import scenario_source
 from firmtool.io import memory_file
 from firmtool.io.memory_file import MemoryFile, as_target, size_of
 from firmtool.io.roadmap_checks import check_edges, check_shapes, check_stage
+from firmtool.io.roadmap_queries import stored_queries
 from firmtool.io.roadmap_format import (
     CACHE,
     ENCODING_TYPE,
@@ -198,6 +199,23 @@ class RoadmapFile:
             arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}
             self.stages[name] = (arrays, {k: _attribute(p, g.attrs, k, None, f"/{name}") for k in g.attrs})
         self._cache = _cache_table(f, p)  # in the same read: a query or an update reuses its blocks
+        try:  # the names of the stored queries, in the same read (their images are read when asked for)
+            self._queries: tuple[str, ...] | RoadmapError = tuple(sorted(stored_queries(f, p)))
+        except RoadmapError as exc:  # said when the queries are asked for, as before
+            self._queries = exc
+
+    @property
+    def query_names(self) -> tuple[str, ...]:
+        """The names of the queries stored in the file (``/queries``), sorted.
+
+        Raises
+        ------
+        RoadmapError
+            A ``/queries`` entry that is not a stored query (:func:`firmtool.io.roadmap_queries.query_images`).
+        """
+        if isinstance(self._queries, RoadmapError):
+            raise self._queries
+        return self._queries
 
     def edge_cache(self, nodes: int | None = None) -> dict[str, np.ndarray]:
         """The ``/edge_cache`` table read with the file (:func:`read_edge_cache`'s checks), or {}."""

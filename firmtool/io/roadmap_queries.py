@@ -37,21 +37,35 @@ def query_images(path: str | Path | MemoryFile) -> dict[str, tuple[bytes, dict[s
     out: dict[str, tuple[bytes, dict[str, Any]]] = {}
     try:
         with memory_file.open_read(path) as f:
-            if QUERIES not in f:
-                return out
-            g = f[QUERIES]
-            if not isinstance(g, h5py.Group) or not isinstance(f.get(QUERIES, getlink=True), h5py.HardLink):
-                raise RoadmapError(f"{path}: '/{QUERIES}' is not a group (file damaged)")
-            for name in g:
-                at = f"{path}: '/{QUERIES}/{name}'"
-                if not isinstance(g.get(name, getlink=True), h5py.HardLink):
-                    raise RoadmapError(f"{at} is a link, not a stored query")
-                d = g[name]
-                if not isinstance(d, h5py.Dataset) or d.dtype != np.uint8 or d.ndim != 1 or d.external or d.is_virtual:
-                    raise RoadmapError(f"{at} is not a stored query (a uint8 dataset in the file)")
-                if d.size > MAX_READ_BYTES:
-                    raise RoadmapError(f"{at} is larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged)")
+            for name, d in stored_queries(f, path).items():
                 out[name] = (d[()].tobytes(), {k: d.attrs[k] for k in d.attrs})
     except OSError as exc:
         raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
+    return out
+
+
+def stored_queries(f: h5py.File, path: Any) -> dict[str, h5py.Dataset]:
+    """The ``/queries`` datasets of an open roadmap by name, checked (nothing read of their data).
+
+    Raises
+    ------
+    RoadmapError
+        As :func:`query_images`.
+    """
+    out: dict[str, h5py.Dataset] = {}
+    if QUERIES not in f:
+        return out
+    g = f[QUERIES]
+    if not isinstance(g, h5py.Group) or not isinstance(f.get(QUERIES, getlink=True), h5py.HardLink):
+        raise RoadmapError(f"{path}: '/{QUERIES}' is not a group (file damaged)")
+    for name in g:
+        at = f"{path}: '/{QUERIES}/{name}'"
+        if not isinstance(g.get(name, getlink=True), h5py.HardLink):
+            raise RoadmapError(f"{at} is a link, not a stored query")
+        d = g[name]
+        if not isinstance(d, h5py.Dataset) or d.dtype != np.uint8 or d.ndim != 1 or d.external or d.is_virtual:
+            raise RoadmapError(f"{at} is not a stored query (a uint8 dataset in the file)")
+        if d.size > MAX_READ_BYTES:
+            raise RoadmapError(f"{at} is larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged)")
+        out[name] = d
     return out

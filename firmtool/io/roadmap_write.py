@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 
 from firmtool import __version__
-from firmtool.errors import RoadmapError
+from firmtool.errors import InputError, RoadmapError
 from firmtool.io import hdf5
 from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
 from firmtool.io.scenario_source import SOURCE_ATTRIBUTES, ScenarioSource
@@ -235,13 +235,28 @@ def restamp(path: str | Path | MemoryFile, stages: tuple[str, ...]) -> None:
                 f[stage].attrs["scenario_sha256"] = sha
 
 
-def write_queries(path: str | Path | MemoryFile, images: Mapping[str, tuple[bytes, Mapping[str, Any]]]) -> None:
+def write_queries(path: str | Path | MemoryFile, images: Mapping[str, tuple[bytes, Mapping[str, Any]]], *,
+                  keep_existing: bool = False, stamp_edges: bool = False) -> None:
     """Store query answers (:mod:`firmtool.io.roadmap_queries`) in ``/queries``, one uint8 dataset of
-    each query's roadmap image by name (a name there is replaced), atomically; the stages stay."""
+    each query's roadmap image by name (a name there is replaced), atomically; the stages stay.
+
+    Checked in the file as this write reads it (no second read): ``keep_existing`` refuses a name
+    stored already (:class:`~firmtool.errors.InputError`); ``stamp_edges`` gives each query the
+    attribute ``base_edges_sha256``, the ``inputs_sha256`` of the file's ``/edges`` it was answered on."""
     p = as_target(path)
     if not p.exists():
         raise RoadmapError(f"{p}: no such roadmap file")
     with _atomic_copy(p) as f:
+        old = f.get(QUERIES)
+        existing = set(old) if isinstance(old, h5py.Group) else set()
+        for name in images:
+            if keep_existing and name in existing:
+                raise InputError(f"{path}: a query named {name!r} is stored already; give --force to replace it, "
+                                 "or another --name")
+        edges = f.get("edges")
+        stamp = {"base_edges_sha256": str(edges.attrs.get("inputs_sha256", "")) if isinstance(edges, h5py.Group)
+                 else ""} if stamp_edges else {}
+        images = {name: (data, {**stamp, **attrs}) for name, (data, attrs) in images.items()}
         g = f.require_group(QUERIES)
         g.attrs["encoding-type"] = f"firmtool.{QUERIES}"
         g.attrs["encoding-version"] = SCHEMA_VERSION

@@ -175,7 +175,7 @@ def build_and_read(request: BuildRequest) -> tuple[BuildReport, RoadmapFile]:
     with locked(request.target), kept(request.target), Workers(s.workers, s.executor, s.scheduler) as session:
         # a fresh install: compile the engine while sampling and designing (a user's validity checker
         # runs the numpy engine: nothing to compile)
-        if request.validity is None and not warmup.engine_is_cached():
+        if request.validity is None and not warmup.engine_is_cached(request.problem):  # its robot's kernel
             warmup.start(engine_choice(request.problem)[0], request.problem)  # with the kernel of its robot
         run = _BuildRun(request, session)
         report = run.run()

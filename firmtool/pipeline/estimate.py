@@ -13,7 +13,7 @@ from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import ENGINE_VERSION, edge_keys, from_arrays
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate
 from firmtool.estimation.executors import EstimationJob, Workers, default_workers, job_extras, remember_problem
-from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache, restamp, write_stage
+from firmtool.io.roadmap_file import RoadmapFile, restamp, write_stage
 from firmtool.pipeline.edge_runs import EdgeRuns
 from firmtool.pipeline.inputs import edges_inputs
 from firmtool.pipeline.reading import design_of, problem_of
@@ -96,7 +96,7 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
                                 settings.workers if settings.requested else 0, settings.executor,
                                 time.perf_counter() - t0, up_to_date=True, notices=notices, engine=engine)
     known: dict[bytes, EdgeEstimate] = {} if fresh else from_arrays(roadmap.table("edges"))
-    cache = {} if fresh else read_edge_cache(path, nodes=d.centers.shape[0])
+    cache = {} if fresh else roadmap.edge_cache(nodes=d.centers.shape[0])  # read with it: not opened again
     known.update(from_arrays(cache))
     todo = [e for e in range(E) if bytes(keys[e]) not in known]
     reused = E - len(todo)

@@ -397,15 +397,9 @@ def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]],
         A name that exists without ``force``.
     """
     with locked(path):  # one writer at a time, as every stage writes; the check and the write under it
-        base = RoadmapFile(path)
-        edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
-        existing = query_images(path)
-        for name in answers:
-            if name in existing and not force:
-                raise InputError(f"{path}: a query named {name!r} is stored already; give --force to replace it, "
-                                 "or another --name")
-        write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **_summary(report)})
-                             for name, (image, report) in answers.items()})
+        # the names and the edges checked in the file as the write reads it (no read of its own)
+        write_queries(path, {name: (image.read_bytes(), _summary(report)) for name, (image, report) in answers.items()},
+                      keep_existing=not force, stamp_edges=True)
 
 
 def _summary(report: QueryReport) -> dict[str, Any]:
