@@ -189,3 +189,28 @@ def test_dirichlet_draws_are_add_at_bit_for_bit():
         total = np.zeros((200, int(edge.max()) + 1))
         np.add.at(total, (slice(None), edge), g)
         assert np.array_equal(got, g / total[:, edge]), trial
+
+
+def test_the_solve_after_a_query_reuses_its_last_interval(monkeypatch):
+    """The estimate stage's last adaptive round and the solve stage draw the prediction interval of the
+    same table once (firmtool.estimation.calibration keeps it by its whole input), and the interval is
+    the one drawn afresh."""
+    from firmtool.estimation import calibration
+    rm = ft.build(ROOT / "scenarios" / "smoke.toml", workers=1)
+    calls = []
+    original = calibration.success_probability_samples
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(calibration, "success_probability_samples", counting)
+    calibration._intervals.clear()
+    sol = ft.solve(rm, goal=NEW_GOAL)
+    kept = len(calls)
+    calibration._intervals.clear()
+    monkeypatch.setattr(calibration, "_KEPT_INTERVALS", 0)  # none kept: every interval drawn
+    again = ft.solve(rm, goal=NEW_GOAL)
+    assert len(calls) - kept == kept + 1, (kept, len(calls))  # the solve's firm interval drawn again
+    assert sol.success_probability_ci95 == again.success_probability_ci95
+    assert np.array_equal(sol.policy, again.policy)

@@ -41,6 +41,10 @@ class MemoryFile:
     def __init__(self, name: str | Path) -> None:
         self.name = Path(name)
         self.data: bytes | None = None
+        # True once this process's writers made its bytes (replace_bytes): a later write may then
+        # edit them in place (firmtool.io.roadmap_write); bytes from elsewhere (a stored query's
+        # image) are only ever copied by value
+        self.written_here = False
 
     def __str__(self) -> str:
         return str(self.name)
@@ -90,5 +94,6 @@ def replace_bytes(target: Path | MemoryFile, data: bytes | memoryview) -> None:
     or by keeping a copy of the bytes in memory."""
     if isinstance(target, MemoryFile):
         target.data = bytes(data)
+        target.written_here = True
     else:
         write_bytes(target, data)

@@ -47,7 +47,7 @@ from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache
 from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
 from firmtool.io.roadmap_queries import QUERY_NAME, query_images
-from firmtool.io.roadmap_write import write_queries
+from firmtool.io.roadmap_write import compacted_bytes, write_queries
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
 from firmtool.pipeline.inputs import problem_checker_identity
@@ -398,8 +398,8 @@ def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]],
     """
     with locked(path):  # one writer at a time, as every stage writes; the check and the write under it
         # the names and the edges checked in the file as the write reads it (no read of its own)
-        write_queries(path, {name: (image.read_bytes(), _summary(report)) for name, (image, report) in answers.items()},
-                      keep_existing=not force, stamp_edges=True)
+        write_queries(path, {name: (compacted_bytes(image), _summary(report)) for name, (image, report)
+                             in answers.items()}, keep_existing=not force, stamp_edges=True)
 
 
 def _summary(report: QueryReport) -> dict[str, Any]:

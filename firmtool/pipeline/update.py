@@ -42,7 +42,7 @@ from firmtool.io import scenario_source
 from firmtool.io.memory_file import MemoryFile, replace_bytes
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.io.roadmap_format import GOAL, START_INDEX
-from firmtool.io.roadmap_write import record_source
+from firmtool.io.roadmap_write import compacted_bytes, record_source
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
 from firmtool.pipeline.inputs import as_scenario
@@ -163,7 +163,8 @@ def update_and_read(path: str | Path, scenario: Scenario | str | Path, *, worker
         if source is not None:
             record_source(image, source)
         seconds["solve"] = time.perf_counter() - t1
-        replace_bytes(Path(path), image.read_bytes())  # one atomic rename: the old file until it is done
+        # one atomic rename: the old file until it is done; compacted (the image was edited in place)
+        replace_bytes(Path(path), compacted_bytes(image))
         final = RoadmapFile(image)  # the bytes just written, read from memory
         final.path = Path(path)
     seconds["total"] = time.perf_counter() - t0
