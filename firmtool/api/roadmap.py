@@ -87,6 +87,8 @@ class Roadmap:
         self._data = data
         # what every call on it shares: the file as read, its scenario, problem and design, made once
         self._work = work if work is not None else WorkingRoadmap(data, validity=validity)
+        self._stored_queries: set[str] = set()  # stored by save_queries since the file was read
+        self._queries_in_file = True  # the file read is the file at path (save writes one without queries)
         self._image = None  # the memory file it lives in (a query's, or a build's in memory): queries read it
         self.path = path
         self.report = report
@@ -229,6 +231,7 @@ class Roadmap:
         path = arguments.path(path, "path")
         self._write(path, {})
         self.path = self._data.path = path
+        self._queries_in_file, self._stored_queries = False, set()  # a saved roadmap holds no queries
         return path
 
     def _write(self, path: Path, replace: dict[str, tuple[dict, dict]]) -> None:
@@ -245,7 +248,9 @@ class Roadmap:
         """The names of the queries stored in the roadmap's file (:meth:`save_queries`); [] in memory."""
         if self.path is None:
             return []
-        return list(self._data.query_names)  # read with the file
+        # read with the file, and those stored since through this object
+        read = self._data.query_names if self._queries_in_file else ()
+        return sorted(set(read) | self._stored_queries)
 
     def query(self, name: str) -> "Roadmap":
         """The roadmap of the stored query ``name`` (in memory; :meth:`solution` gives its policy).
@@ -286,6 +291,7 @@ class Roadmap:
                 raise InputError(f"save_queries: two queries named {report.name!r}")
             answers[report.name] = (image, report)
         pipeline.store_queries(self.path, answers, force=force)
+        self._stored_queries.update(answers)
         return list(answers)
 
     def solution(self) -> "Solution":

@@ -114,6 +114,7 @@ class RoadmapFile:
         if size_of(p) > MAX_READ_BYTES:  # bounds what any attribute (stored in the file) can hold
             raise RoadmapError(f"{p}: a roadmap file larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged or "
                                "not a roadmap)")
+        self.stat = _identity(p)  # before the read: a file replaced meanwhile has another identity
         try:
             f = memory_file.open_read(p)
         except (OSError, ValueError) as exc:
@@ -326,6 +327,24 @@ class RoadmapFile:
         self.require("edges", fresh=False)
         assert self._edge_rows is not None
         return self._edge_rows
+
+
+def _identity(target: Path | MemoryFile) -> tuple[int, int, int, int] | None:
+    """A disk file's (device, inode, size, modification time in ns), or None (a memory file, or no
+    stat): firmtool replaces a roadmap file only by a rename (a new inode), so the same identity later
+    means the same bytes (:func:`firmtool.io.consistency.check_unchanged`)."""
+    if isinstance(target, MemoryFile):
+        return None
+    try:
+        st = target.stat()
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def file_identity(path: str | Path) -> tuple[int, int, int, int] | None:
+    """:func:`_identity` of the file at ``path`` now."""
+    return _identity(Path(path))
 
 
 def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any, where: str = "/") -> Any:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+import numpy as np
+
 from firmtool.errors import FirmtoolError
 from firmtool.estimation import warmup
 from firmtool.estimation.adaptive import AdaptiveReport
@@ -76,16 +78,20 @@ def estimate_stage(path: str | RoadmapTarget, *, workers: int | None = None, exe
 
 def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Problem, settings: WorkerSettings, *,
                   progress: ProgressCallback | None = None, checkpoint_seconds: float = CHECKPOINT_SECONDS,
-                  session: Workers | None = None, fresh: bool = False) -> EstimateReport:
+                  session: Workers | None = None, fresh: bool = False, keys: np.ndarray | None = None
+                  ) -> EstimateReport:
     """:func:`estimate_stage` on the roadmap read at ``path`` and its problem (:func:`problem_of`),
-    with checked worker settings, under the caller's lock."""
+    with checked worker settings, under the caller's lock; ``keys``: (E, 32) the design's edge keys
+    for the engine :func:`~firmtool.estimation.compiled.engine_choice` picks, when the caller computed
+    them (a query: not computed again)."""
     t0 = time.perf_counter()
     d = design_of(roadmap)
     sc = problem.scenario
     E = d.edge_source.size
     engine, notice = engine_choice(problem)  # chosen once: the keys record it, the workers run it
     notices = (notice,) if notice else ()
-    keys = edge_keys(problem, d, engine=engine)
+    if keys is None or keys.shape[0] != E:
+        keys = edge_keys(problem, d, engine=engine)
     table_hash = edges_inputs(roadmap, sc, keys)
     if not fresh and roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
         warmup.stop()  # nothing to estimate: no compile to wait for

@@ -218,7 +218,8 @@ def query_change(unusable: np.ndarray, goal_changed: bool) -> Change:
 
 
 def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design: Design, problem: Any, d: Design,
-                  ns: _NodeSet, engine: str) -> tuple[dict[str, np.ndarray] | None, int, int]:
+                  ns: _NodeSet, engine: str, keys: np.ndarray | None = None
+                  ) -> tuple[dict[str, np.ndarray] | None, int, int]:
     """The roadmap's reusable estimates (every stored particle block) under the query's keys, as an
     ``/edge_cache`` table; and how many of the query's edges they cover, and how many of the
     roadmap's estimated edges the query must estimate again."""
@@ -227,7 +228,7 @@ def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design
     change = query_change(ns.changed[:N0] | ns.retired[:N0], bool(ns.retired[:N0].any()))
     keep = ~touched(change, table).edges
     return rekeyed_estimates(base, source, (base_problem, base_design, engine), (problem, d, engine), keep,
-                             lambda x: not touches(change, x))
+                             lambda x: not touches(change, x), new_keys=keys)
 
 
 def estimate_usable(x: EdgeEstimate, unusable: np.ndarray, goal_changed: bool) -> bool:
@@ -237,8 +238,8 @@ def estimate_usable(x: EdgeEstimate, unusable: np.ndarray, goal_changed: bool) -
 
 
 def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, str], new: tuple[Any, Design, str],
-                      keep: np.ndarray, usable: Callable[[EdgeEstimate], bool] | None = None
-                      ) -> tuple[dict[str, np.ndarray] | None, int, int]:
+                      keep: np.ndarray, usable: Callable[[EdgeEstimate], bool] | None = None,
+                      new_keys: np.ndarray | None = None) -> tuple[dict[str, np.ndarray] | None, int, int]:
     """The kept rows of a roadmap's ``/edges`` (``keep`` (E0,) bool), with every particle block stored
     of them (in ``/edges`` and in ``source``'s ``/edge_cache``: a file, or its table as read), under their keys in a new roadmap,
     as an ``/edge_cache`` table for its estimate stage to find; and how many of the new roadmap's
@@ -248,7 +249,8 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
     is taken only when its key is the old edge's (not a stale estimate), only for an edge the new
     design has between the same two nodes, and only where ``usable`` (if given) says so of it: a
     block stored in the cache may hold particles the table's row has not (more blocks).
-    If the two engines differ, nothing is taken (their draws differ)."""
+    If the two engines differ, nothing is taken (their draws differ). ``new_keys``: (E, 32) the keys
+    of every edge of the new design, when the caller has them (not computed again)."""
     (base_problem, base_design, base_engine), (problem, d, engine) = old, new
     table = base.table("edges")
     N0 = base_design.centers.shape[0]
@@ -261,7 +263,9 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
     if not rows or base_engine != engine:
         return None, 0, again if base_engine == engine else len(estimated & set(pairs))
     base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=base_engine)
-    new_keys = edge_keys(problem, d, [e for e, _ in rows], engine=engine)
+    # the new design's keys when the caller computed them (every edge's, once per command)
+    new_keys = edge_keys(problem, d, [e for e, _ in rows], engine=engine) if new_keys is None else \
+        new_keys[np.array([e for e, _ in rows], dtype=np.int64)]
     of_edge = {(int(d.edge_source[e]), int(d.edge_target[e])): (bk, nk) for (e, _), bk, nk in
                zip(rows, base_keys, new_keys)}
     B = base_problem.scenario.estimation.particles
@@ -333,13 +337,14 @@ def answer(base: WorkingRoadmap, query: Query, *, settings: WorkerSettings | Non
         raise InputError(f"{rm0.path}: the query's goal nodes have no collision-free edge to the roadmap's nodes")
     engine = engine_choice(problem)[0]
     cache = rm0.edge_cache(base_design.centers.shape[0]) if source is None else source
-    cache, reused, again = _reused_table(rm0, cache, base_problem, base_design, problem, d, ns, engine)
+    keys = edge_keys(problem, d, engine=engine)  # every edge's key, once (the reuse and the estimate stage)
+    cache, reused, again = _reused_table(rm0, cache, base_problem, base_design, problem, d, ns, engine, keys)
     image = _write_image(rm0, sc, problem, d, ns, cache, name)
     seconds["design"] = time.perf_counter() - t0 - seconds["nodes"]
     rm = RoadmapFile(image)
     settings = settings or WorkerSettings(workers=1)
     # the query's problem as built above: its image's nodes are the ones it was checked with
-    e = estimate_into(image, rm, problem, settings, progress=progress, session=session)
+    e = estimate_into(image, rm, problem, settings, progress=progress, session=session, keys=keys)
     seconds["estimate"] = e.seconds
     t1 = time.perf_counter()
     group = solve_policy(RoadmapFile(image), problem=problem)

@@ -36,6 +36,7 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.estimation.compiled import engine_choice
+from firmtool.estimation.edge_table import edge_keys
 from firmtool.estimation.touched import Change, touched, touches
 from firmtool.estimation.executors import Workers, default_workers
 from firmtool.io import scenario_source
@@ -146,15 +147,17 @@ def update_and_read(path: str | Path, scenario: Scenario | str | Path, *, worker
         change = Change(ends=np.zeros(d.centers.shape[0], dtype=bool) if d.retired is None else d.retired,
                         landings=retired_now, world=up.change, reach=up.problem.robot.world_reach())
         keep, reasons = _kept_rows(up, d, change)
+        engine = engine_choice(up.problem)[0]
+        keys = edge_keys(up.problem, d, engine=engine)  # every edge's key, once (the reuse and the estimate)
         cache, kept_edges, _ = rekeyed_estimates(
             up.base, up.base.edge_cache(up.base_design.centers.shape[0]),
             (up.base_problem, up.base_design, engine_choice(up.base_problem)[0]),
-            (up.problem, d, engine_choice(up.problem)[0]), keep, lambda x: not touches(change, x))
+            (up.problem, d, engine), keep, lambda x: not touches(change, x), new_keys=keys)
         image = _image(up.base, sc, up.problem, d, cache)
         rm = RoadmapFile(image)
         settings = worker_settings(workers, executor, scheduler, default=default_workers(), problem=up.problem)
         # the new world's problem, built once above (the image's nodes are the ones it checked)
-        e = estimate_into(image, rm, up.problem, settings, progress=progress, session=session)
+        e = estimate_into(image, rm, up.problem, settings, progress=progress, session=session, keys=keys)
         seconds["estimate"] = e.seconds
         t1 = time.perf_counter()
         group = solve_policy(RoadmapFile(image), problem=up.problem)
