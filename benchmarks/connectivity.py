@@ -31,7 +31,7 @@ def passage(problem, q: np.ndarray) -> str:
     first crossing of the row of obstacles), '?' if they do not cross it."""
     obstacles = problem.scenario.world.obstacles
     y = float(np.mean([o.center[1] for o in obstacles]))
-    P = problem.points(q[None])[0]
+    P = problem.geometry.points(q[None])[0]
     xs = [p0[0] + (y - p0[1]) / (p1[1] - p0[1]) * (p1[0] - p0[0])
           for p0, p1 in zip(P[:-1], P[1:]) if (p0[1] - y) * (p1[1] - y) < 0]
     if not xs:

@@ -101,7 +101,7 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     from firmtool.sim.sweep import DECISIONS, informed
 
     policy, system, t_push, size, seed = (_JOB[k] for k in ("policy", "system", "step", "size", "seed"))
-    problem = policy.problem
+    problem = policy.state.problem
     n, d = problem.model.n, problem.config_dim
     kind, value = mode
     seeds = episode_seeds(seed, i)
@@ -112,7 +112,7 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
         system.set_state(problem.true_start)
     policy.reset(rng=np.random.default_rng(seeds.policy))
     key = tuple(seeds.disturbances)
-    due = schedule(as_disturbances((f"push:{t_push}:{size:g}",)), policy.max_steps,
+    due = schedule(as_disturbances((f"push:{t_push}:{size:g}",)), policy.state.max_steps,
                    np.random.default_rng(np.random.SeedSequence([*key])))
     pushed = detector = acted = None
     fed = 0  # the recorded filter steps the told detector has taken in
@@ -121,7 +121,7 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
     with recording() if kind in ("detector", "onset") else contextlib.nullcontext(([], [])) as (steps, moves):
         while not policy.done:
             u = policy.act()
-            now = policy.steps - 1
+            now = policy.state.steps - 1
             if due and due[0][0] <= now:
                 _, dist = due.pop(0)
                 system.disturb(dist, np.random.default_rng(np.random.SeedSequence([*key, 1])))
@@ -145,13 +145,13 @@ def episode(i: int, mode: tuple[str, float]) -> tuple[str, int | None]:
                 acted = now - pushed + 1
             elif detector is not None and detector.fires():
                 shift, cov, _ = detector.test.correction(0)
-                policy.relocalise(policy.mean + shift, policy.covariance + cov)
+                policy.relocalise(policy.state.mean + shift, policy.state.covariance + cov)
                 detector, acted = None, now - pushed + 1
-    if policy.status == PolicyStatus.GOAL:
-        inside = policy.regions.true_arrival(np.array([policy.node]), system.state,
+    if policy.state.status == PolicyStatus.GOAL:
+        inside = policy.state.regions.true_arrival(np.array([policy.state.node]), system.state,
                                              angles=problem.robot.angle_coordinates)[0]
         return ("success" if inside else "goal_miss"), acted
-    return str(policy.status), acted
+    return str(policy.state.status), acted
 
 
 def _undisturbed(task: tuple[int, int]) -> tuple[int, int, int]:
@@ -217,16 +217,17 @@ def main() -> None:
 
     sol = solution(ROBOTS[args.robot][0], args.roadmaps)
     policy = policies_of(sol, modes=("replan",))["replan"]
-    n, d = policy.problem.model.n, policy.problem.config_dim
+    policy.prepare()  # the jump test's false-alarm level is resolved when prepared
+    n, d = policy.state.problem.model.n, policy.state.problem.config_dim
     families = 2 if d < n else 1
-    alpha = policy.jump_false_alarm
-    split = alpha / (families * policy.settings.jump_window)
+    alpha = policy.state.jump_false_alarm
+    split = alpha / (families * policy.state.settings.jump_window)
     columns = {"policy": [(("policy", 0), "policy")],
                "late": [(("told", k), f"told {k} late") for k in args.delays],
                "direction": [(("detector", alpha), f"told onset+direction, {alpha:.2g}"),
                              (("detector", split), f"the same at {split:.2g} (the policy's split)")],
                "onset": [(("onset", a), f"told onset only, {a:.2g}") for a in (args.onset_alphas or [alpha])]}
-    _JOB.update(policy=policy, system=SimulatedSystem(policy.problem), size=args.size, seed=args.seed)
+    _JOB.update(policy=policy, system=SimulatedSystem(policy.state.problem), size=args.size, seed=args.seed)
     if args.measure_rate:  # the rate the test really rejects at: a told-onset column at it
         counts = np.sum(_map(_undisturbed, [(i0, min(args.measure_rate, i0 + 25))
                                             for i0 in range(0, args.measure_rate, 25)], args.workers), axis=0)

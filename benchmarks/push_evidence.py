@@ -108,11 +108,12 @@ def main() -> None:
     scenario = ROBOTS[args.robot][0]
     sol = solution(scenario, args.roadmaps)
     policy = policies_of(sol, modes=("replan",))["replan"]
-    system = SimulatedSystem(policy.problem)
-    n, d = policy.problem.model.n, policy.problem.config_dim
+    policy.prepare()  # the jump test's false-alarm level is resolved when prepared
+    system = SimulatedSystem(policy.state.problem)
+    n, d = policy.state.problem.model.n, policy.state.problem.config_dim
     families = 2 if d < n else 1  # a push (the configuration) and, when there is more, a kidnap (the state)
-    window = policy.settings.jump_window
-    alpha = policy.jump_false_alarm
+    window = policy.state.settings.jump_window
+    alpha = policy.state.jump_false_alarm
     bound = chi2.isf(alpha / (families * window), d)
     told_onset = chi2.isf(alpha, d)
     decisions = {EventKind.INNOVATION_ALARM, EventKind.REPLAN, EventKind.KEPT_CONTROLLER, EventKind.REPLAN_FAILED}

@@ -85,7 +85,7 @@ def run(solution, episodes: int, seed: int, every: int = 10, out=sys.stdout) -> 
         seeds = ft.episode_seeds(seed, i)  # the streams ft.simulate gives episode i
         events = policy.reset(rng=np.random.default_rng(seeds.policy))
         robot = robot_of(solution, np.random.default_rng(seeds.system))
-        robot.start(policy.mean, policy.covariance)
+        robot.start(policy.state.mean, policy.state.covariance)
         true_start = solution.roadmap.problem.true_start
         if true_start is not None:  # the task says where the robot truly is (after the same draw as ft.simulate)
             robot.x = np.asarray(true_start, dtype=float)[None].copy()
@@ -96,30 +96,30 @@ def run(solution, episodes: int, seed: int, every: int = 10, out=sys.stdout) -> 
         while not policy.done:
             u = policy.act()
             z, collided = robot.apply(u)
-            if policy.steps % every == 0:
-                print(f"  step {policy.steps:4d}  u = {np.array2string(u, precision=3, sign='+')}", file=out)
+            if policy.state.steps % every == 0:
+                print(f"  step {policy.state.steps:4d}  u = {np.array2string(u, precision=3, sign='+')}", file=out)
             if collided:
                 outcome = "collision"
-                events.append(ft.Event(policy.steps, ft.EventKind.COLLISION, policy.target))
-                print(f"  step {policy.steps:4d}  collision ({policy.controller})", file=out)
+                events.append(ft.Event(policy.state.steps, ft.EventKind.COLLISION, policy.state.target))
+                print(f"  step {policy.state.steps:4d}  collision ({policy.state.controller})", file=out)
                 break
             new = policy.observe(z)
             events += new
             for ev in new:
                 show(ev, out)
-        if outcome is None and policy.status is ft.PolicyStatus.GOAL:
+        if outcome is None and policy.state.status is ft.PolicyStatus.GOAL:
             # the policy declares arrival on its belief; whether the robot is there is the world's to say
             # (here the scenario's goal region, tested at the robot's true state, as ft.simulate does)
-            node = policy.node
-            inside = policy.arrived_in_goal(robot.x)
+            node = policy.state.node
+            inside = policy.state.arrived_in_goal(robot.x)
             outcome = "success" if inside else "goal_miss"
             if not inside:
                 j = max(j for j, ev in enumerate(events) if ev.kind == ft.EventKind.GOAL)
                 events[j] = ft.Event(events[j].step, ft.EventKind.GOAL_MISS, node,
                                      detail="arrival declared; the true state is not in the goal")
-                print(f"  step {policy.steps:4d}  the robot is not in the goal", file=out)
-        outcome = outcome or policy.status.value
-        runs.append({"outcome": outcome, "steps": policy.steps, "cost": policy.cost,
+                print(f"  step {policy.state.steps:4d}  the robot is not in the goal", file=out)
+        outcome = outcome or policy.state.status.value
+        runs.append({"outcome": outcome, "steps": policy.state.steps, "cost": policy.state.cost,
                      "events": [(e.step, str(e.kind), e.node) for e in events]})
     return runs
 

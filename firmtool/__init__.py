@@ -26,6 +26,8 @@ __version__ = "0.2.0"
 # public name -> module that defines it
 _EXPORTS = {
     "load_scenario": "firmtool.api",
+    "check": "firmtool.api",
+    "CheckReport": "firmtool.api",
     "build": "firmtool.api",
     "open_roadmap": "firmtool.api",
     "solve": "firmtool.api",
@@ -74,7 +76,8 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["__version__", "robots"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs; at run time names load lazily
-    from firmtool.api import Query, Roadmap, Solution, build, load_scenario, open_roadmap, simulate, solve, update
+    from firmtool.api import (CheckReport, Query, Roadmap, Solution, build, check, load_scenario, open_roadmap, simulate,
+                              solve, update)
     from firmtool.errors import (FirmtoolError, InputError, NumericalError, RoadmapError, RunFailure, ScenarioError,
                                  StaleScenarioWarning, Unreachable)
     from firmtool.figures.paths import plot

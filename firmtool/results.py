@@ -227,7 +227,8 @@ class Results(Report):
     replan_latency : ``"0"`` or ``"measured"`` (a new controller applied after the decision's time).
     jump_false_alarm, goal_check, jump_window, goal_lookback : the jump test's false-alarm probability
         per step, the goal check's level per onset, the onsets the running test rejects on and those
-        the goal check asks, as the policy ran them (None: no jump test ran; :attr:`Policy.jump_levels`).
+        the goal check asks, as the policy ran them (None: no jump test ran;
+        :attr:`firmtool.online.state.PolicyState.jump_levels`).
     calibration : executed vs estimated edge frequencies (None without the edge counts).
     estimate_success_rate, estimate_success_rate_ci95 : the episodes whose policy declared arrival,
         whatever the true state (the criterion before issue 15: the estimate reached the goal).

@@ -72,3 +72,61 @@ def test_the_engine_names_no_robot():
     found = [f"{p.relative_to(ROOT)}:{i}" for p in PACKAGE.rglob("*.py") if "robots" not in p.relative_to(PACKAGE).parts
              for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
     assert not found, found
+
+
+def _package_bullets(text: str) -> dict[str, str]:
+    """docs/architecture.md's "What lives where" bullets: ``- `name/`: ...`` (continued on indented lines)
+    by package name, and the top-level modules' bullet under ``""``."""
+    import re
+
+    section = text.split("## What lives where, package by package", 1)[1].split("\n## ", 1)[0]
+    bullets: dict[str, str] = {}
+    for item in re.split(r"\n(?=- )", section):
+        m = re.match(r"- `([a-z_]+)/`:", item)
+        if m:
+            bullets[m.group(1)] = item
+        elif item.startswith("- Top-level modules:"):
+            bullets[""] = item
+    return bullets
+
+
+def _undescribed(text: str) -> list[str]:
+    """What docs/architecture.md's ``text`` does not describe (see the test below)."""
+    table = text.split("## The layers", 1)[1].split("\n## ", 1)[0]
+    bullets = _package_bullets(text)
+    missing = []
+    for p in sorted(PACKAGE.iterdir()):
+        if (p / "__init__.py").is_file():
+            if f"`firmtool.{p.name}`" not in table:
+                missing.append(f"firmtool.{p.name}: not in the layers table")
+            bullet = bullets.get(p.name)
+            if bullet is None:
+                missing.append(f"{p.name}/: no bullet in 'What lives where'")
+                continue
+            for module in sorted(p.rglob("*.py")):
+                if module.stem != "__init__" and f"`{module.stem}`" not in bullet:
+                    missing.append(f"{module.relative_to(PACKAGE)}: not named in the {p.name}/ bullet")
+            for sub in sorted(q for q in p.rglob("*") if (q / "__init__.py").is_file()):
+                if f"`{sub.name}/`" not in bullet:
+                    missing.append(f"{sub.relative_to(PACKAGE)}/: not named in the {p.name}/ bullet")
+        elif p.suffix == ".py" and p.stem != "__init__":
+            if f"`firmtool.{p.stem}`" not in table or f"`{p.stem}`" not in bullets.get("", ""):
+                missing.append(f"firmtool.{p.stem}: not in the layers table and the top-level modules' bullet")
+    return missing
+
+
+def test_the_architecture_page_describes_every_module():
+    """docs/architecture.md names every package and top-level module in its layers table, and every
+    module of a package (a subpackage's too) in that package's bullet: a module added without a word
+    there fails here."""
+    missing = _undescribed((ROOT / "docs" / "architecture.md").read_text())
+    assert not missing, missing
+
+
+def test_the_architecture_check_sees_what_is_missing():
+    """The check can fail: a page without a module, a package's bullet or a layer row is caught."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    assert _undescribed(text.replace("`file_kind`", "file kind")) == ["io/file_kind.py: not named in the io/ bullet"]
+    assert "util/: no bullet in 'What lives where'" in _undescribed(text.replace("- `util/`:", "- util:"))
+    assert "firmtool.jit: not in the layers table and the top-level modules' bullet" in _undescribed(
+        text.replace("`firmtool.jit`", "firmtool.jit"))

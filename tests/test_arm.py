@@ -36,19 +36,19 @@ def test_sensor_noise_follows_eq14_at_each_link_end(arm):
     expected = (m.eta * np.abs(ends_x - m.light_x) + m.sigma_b) ** 2
     np.testing.assert_allclose(arm.model.measurement_variance(X), expected, rtol=1e-12)
     # the points-based path used by the Monte Carlo gives the same numbers
-    np.testing.assert_allclose(arm.model.noise.variance(arm.sensing_from_points(arm.points(X))), expected, rtol=1e-12)
+    np.testing.assert_allclose(arm.model.noise.variance(arm.geometry.sensing_from_points(arm.geometry.points(X))), expected, rtol=1e-12)
 
 
 def test_goal_nodes_put_the_tip_in_the_goal_disc(arm):
     centers, kinds = roadmap_nodes(arm, np.random.default_rng(1))
     goals = centers[kinds == GOAL]
     center, radius = arm.goal_disc
-    tips = arm.points(goals)[:, -1]
+    tips = arm.geometry.points(goals)[:, -1]
     assert goals.shape[0] == arm.scenario.roadmap.goal_nodes
     assert np.all(np.linalg.norm(tips - center, axis=1) < radius)
     assert np.all(arm.is_valid(centers))
     # a goal reachable through both passages: goal configurations on both sides of the central bar
-    min_x = arm.points(goals)[:, :, 0].min(axis=1)
+    min_x = arm.geometry.points(goals)[:, :, 0].min(axis=1)
     assert (min_x < -0.3).any() and (min_x >= -0.05).any()
 
 
@@ -69,7 +69,7 @@ def test_firm_takes_the_lit_left_passage_and_beats_shortest_path(tmp_path):
     pol = rm.require("policy", "edge", "shortest_path_edge", "success_probability")
     goals = np.flatnonzero(design.kinds == GOAL)
     paths = {k: policy_path(pol[k], design.edge_target, 0, goals) for k in ("edge", "shortest_path_edge")}
-    min_x = {k: problem.points(design.centers[p])[:, :, 0].min() for k, p in paths.items()}
+    min_x = {k: problem.geometry.points(design.centers[p])[:, :, 0].min() for k, p in paths.items()}
     assert min_x["edge"] < -0.3  # FIRM: through the left passage, near the light
     assert min_x["shortest_path_edge"] > -0.3  # baseline: the shorter right passage
     firm = run_episodes(Policy.from_design(problem, design, pol["edge"]), 100, 1,

@@ -52,6 +52,11 @@ def agent(smoke, **kw):
     return Policy.from_design(problem, design, pol["edge"].astype(np.int64), **kw)
 
 
+def replanner_of(policy):
+    policy.prepare()  # the replanner is built when the policy is prepared
+    return policy.state.replanner
+
+
 # -- disturbance specifications -------------------------------------------------------------------
 
 @pytest.mark.parametrize("spec, expected", [
@@ -90,6 +95,7 @@ def test_executed_step_is_the_monte_carlo_step(smoke):
     a collision."""
     _, _, problem, design, pol = smoke
     policy = agent(smoke, replan=ReplanSettings(enabled=False))
+    policy.prepare()  # its node regions
     system = SimulatedSystem(problem)
     edge = int(pol["edge"][START_INDEX])
     i, j = int(design.edge_source[edge]), int(design.edge_target[edge])
@@ -98,7 +104,7 @@ def test_executed_step_is_the_monte_carlo_step(smoke):
     for seed in range(12):
         rng = np.random.default_rng(seed)
         x_mc, xhat_mc = initial_ensemble(problem, design, i, 1, rng)
-        out = simulate(problem, lc, policy.regions, x_mc, xhat_mc, rng, numpy_noise=True)  # updates x_mc, xhat_mc
+        out = simulate(problem, lc, policy.state.regions, x_mc, xhat_mc, rng, numpy_noise=True)  # updates x_mc, xhat_mc
         mean, covariance = policy.start_belief()
         system.reset(mean, covariance, np.random.default_rng(seed))  # the same draws as above
         policy.reset()
@@ -106,10 +112,10 @@ def test_executed_step_is_the_monte_carlo_step(smoke):
         for _ in range(int(out.steps[0])):
             z, valid = system.step(policy.act())
             events = policy.observe(z, decide=valid)
-        assert np.array_equal(system.state, x_mc[0]) and np.array_equal(policy.mean, xhat_mc[0])
+        assert np.array_equal(system.state, x_mc[0]) and np.array_equal(policy.state.mean, xhat_mc[0])
         if out.outcome[0] >= 0:
             assert valid and events[0].kind == EventKind.NODE and events[0].node == out.outcome[0]
-            assert events[0].step == out.steps[0] == policy.steps
+            assert events[0].step == out.steps[0] == policy.state.steps
         elif out.outcome[0] == -1:  # failure: the true state left the free space at that step
             assert not valid
         outcomes.add(int(out.outcome[0]))
@@ -122,6 +128,7 @@ def test_executor_membership_is_the_node_regions_one(smoke):
     with random covariance candidates. (Also checked on the point and arm roadmaps: 40,000 cases.)"""
     _, _, problem, design, pol = smoke
     ex = agent(smoke)
+    ex.prepare()  # its node regions
     rng = np.random.default_rng(0)
     N, n = design.centers.shape
     landed = 0
@@ -129,7 +136,7 @@ def test_executor_membership_is_the_node_regions_one(smoke):
         j = rng.integers(N)
         xhat = design.centers[j] + rng.normal(size=n) * design.scale[j] * rng.uniform(0.2, 2.5)
         mask = rng.random(N) < rng.choice([0.3, 1.0])
-        want = int(ex.regions.locate(xhat[None], mask)[0])
+        want = int(ex.state.regions.locate(xhat[None], mask)[0])
         assert ex._prepared().arrival.locate(xhat[None], mask) == want
         landed += want >= 0
     assert 300 < landed < 2700  # both decisions were exercised
@@ -236,7 +243,9 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
                             "--json"])
     assert r.exit_code == 0, r.output
     report = json.loads(r.stdout)  # the levels the policy ran with
-    ran = ft.Policy(sol, replan=ReplanSettings(**setting)).jump_levels
+    agent = ft.Policy(sol, replan=ReplanSettings(**setting))
+    agent.prepare()  # the jump test's levels are resolved when the policy is prepared
+    ran = agent.state.jump_levels
     assert (report["jump_false_alarm"], report["goal_check"], report["jump_window"], report["goal_lookback"]) == ran
     assert ran[1] == setting.get("goal_check", 0.1) and ran[0] == setting.get("jump_false_alarm", ran[0])
     assert ran[2] == setting.get("jump_window", 20)
@@ -320,7 +329,7 @@ def test_reset_belief_is_the_update_redone_from_the_inflated_prior(smoke):
 
 def test_valid_estimate_leaves_the_obstacle(smoke):
     _, _, problem, design, pol = smoke
-    ex = agent(smoke).replanner
+    ex = replanner_of(agent(smoke))
     rng = np.random.default_rng(0)
     inside = problem.state_of(np.array([2.0, 1.2]))  # the obstacle's centre
     out = ex.valid_estimate(inside, 0.3 * np.eye(2), rng)
@@ -335,7 +344,7 @@ def test_monte_carlo_score_charges_failures(smoke):
     """A run-time controller straight through the obstacle scores at least J_F; one in free space
     scores its cost plus the cost-to-go of where it lands."""
     _, _, problem, design, pol = smoke
-    ex = agent(smoke, cost_to_go=pol["cost_to_go"]).replanner
+    ex = replanner_of(agent(smoke, cost_to_go=pol["cost_to_go"]))
     x0, P = problem.state_of(np.array([1.2, 1.2])), design.P[7]
     rng = np.random.default_rng(1)
     through = ex.runtime_controller(x0, P, 11)  # (2.78, 0.78): behind the obstacle

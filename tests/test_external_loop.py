@@ -63,10 +63,10 @@ def test_a_push_in_the_users_robot_is_a_callable_disturbance_of_simulate(smoke):
         seeds = ft.episode_seeds(5, i)
         policy.reset(rng=np.random.default_rng(seeds.policy))
         robot = external_loop.robot_of(smoke, np.random.default_rng(seeds.system))
-        robot.start(policy.mean, policy.covariance)
+        robot.start(policy.state.mean, policy.state.covariance)
         u, collided = policy.step(None), False  # step(z): observe the last measurement, then act
         while u is not None:
-            if policy.steps - 1 == 8:
+            if policy.state.steps - 1 == 8:
                 robot.x[0, :2] += push
             z, collided = robot.apply(u)
             if collided:
@@ -75,11 +75,11 @@ def test_a_push_in_the_users_robot_is_a_callable_disturbance_of_simulate(smoke):
         # the policy declares arrival ("goal"); the simulation judges it on the true state ("goal_miss")
         kinds = [(e.step, "goal" if e.kind == ft.EventKind.GOAL_MISS else str(e.kind), e.node)
                  for e in ep.events if e.kind != ft.EventKind.DISTURBANCE]
-        own = [(e.step, str(e.kind), e.node) for e in policy.events]
+        own = [(e.step, str(e.kind), e.node) for e in policy.record.events]
         assert own == [k for k in kinds if k[1] != "collision"]
-        assert collided == (ep.outcome == ft.Outcome.COLLISION) and policy.steps == ep.steps
-        assert policy.cost == ep.cost
-        replans += policy.replans
+        assert collided == (ep.outcome == ft.Outcome.COLLISION) and policy.state.steps == ep.steps
+        assert policy.state.cost == ep.cost
+        replans += policy.record.replans
     assert res.disturbances_applied == 10 and replans >= 1
     assert res.disturbances == ("user:shove",)
 
@@ -117,20 +117,20 @@ def test_the_users_loop_starts_where_the_task_says_and_in_an_open_world(capsys):
 
 
 def test_the_timing_summary_and_the_goal_judgement_of_a_users_loop(smoke):
-    """``Policy.timing_summary()`` is the raw record per call kind (mean, p99, max as numpy computes
-    them); ``Policy.arrived_in_goal`` refuses what is not a goal node or a state (issue 42, 5); its
+    """``Policy.record.timing_summary()`` is the raw record per call kind (mean, p99, max as numpy computes
+    them); ``Policy.state.arrived_in_goal`` refuses what is not a goal node or a state (issue 42, 5); its
     verdicts are those of ft.simulate (the goal-miss test above runs the example that uses it)."""
     policy = ft.Policy(smoke)
     policy.reset(rng=np.random.default_rng(0))
     robot = external_loop.robot_of(smoke, np.random.default_rng(1))
-    robot.start(policy.mean, policy.covariance)
+    robot.start(policy.state.mean, policy.state.covariance)
     u = policy.step(None)
     while u is not None:
         z, collided = robot.apply(u)
         if collided:
             break
         u = policy.step(z)
-    raw, summary = policy.timing, policy.timing_summary()
+    raw, summary = policy.record.timing, policy.record.timing_summary()
     for kind in ("act", "observe", "decision", "decision_cpu"):
         times, got = raw[kind], getattr(summary, kind)
         assert got.calls == times.size
@@ -138,11 +138,11 @@ def test_the_timing_summary_and_the_goal_judgement_of_a_users_loop(smoke):
             assert (got.mean, got.p99, got.max) == (times.mean(), np.percentile(times, 99), times.max())
         else:
             assert (got.mean, got.p99, got.max) == (None, None, None)
-    assert summary.act.calls == policy.steps and summary.deadline_hits == int(raw["deadline_hit"].sum())
+    assert summary.act.calls == policy.state.steps and summary.deadline_hits == int(raw["deadline_hit"].sum())
     with pytest.raises(ft.InputError, match="not a goal node"):
-        policy.arrived_in_goal(robot.x[0], node=0)  # the start node
+        policy.state.arrived_in_goal(robot.x[0], node=0)  # the start node
     goal = int(smoke.roadmap.goals[0])
     with pytest.raises(ft.InputError, match="true_state: expected shape"):
-        policy.arrived_in_goal(np.zeros(7), node=goal)
+        policy.state.arrived_in_goal(np.zeros(7), node=goal)
     centre = smoke.roadmap.nodes[goal]
-    assert policy.arrived_in_goal(centre, node=goal)  # the goal node's own centre is in its goal
+    assert policy.state.arrived_in_goal(centre, node=goal)  # the goal node's own centre is in its goal

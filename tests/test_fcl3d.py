@@ -168,7 +168,7 @@ def test_a_3d_world_of_every_kind_is_read_and_checked(tmp_path):
     assert [o.kind for o in sc.world.obstacles] == ["box", "sphere", "capsule", "mesh"] and sc.world.dim == 3
     assert sc.world.obstacles[3].closed and np.array_equal(sc.world.obstacles[3].vertices, mesh.vertices)
     problem = build_problem(sc)
-    assert problem.config_dim == 3 and problem.points(problem.start[None]).shape == (1, 1, 3)
+    assert problem.config_dim == 3 and problem.geometry.points(problem.start[None]).shape == (1, 1, 3)
     # the wall at x in [2.5, 3.5] fills the room: the goal cannot be reached, but the states decide right
     X = problem.state_of(np.array([[1.0, 2.5, 3.0], [3.0, 1.0, 1.0], [1.0, 4.0, 3.0], [5.0, 2.0, 0.5],
                                    [1.0, 1.0, 1.0]]))

@@ -278,12 +278,12 @@ def test_control_and_true_step_are_the_numpy_step(robot, arm_problem):
 
 @pytest.mark.parametrize("robot", ["point", "arm"])
 def test_kinematics_are_the_robots_points(robot, arm_problem):
-    """The robot's compiled key points (planar point / planar chain, with the hooks' sincos) against Problem.points."""
+    """The robot's compiled key points (planar point / planar chain, with the hooks' sincos) against Problem.geometry.points."""
     problem = arm_problem if robot == "arm" else _point_problem()
     rng = np.random.default_rng(4)
     X = _random_states(problem, 500, rng, spread=3.0)
     hooks = driver._problem_data(problem).hooks
-    P = problem.points(X)
+    P = problem.geometry.points(X)
     PX, PY, PHI = np.empty((P.shape[1], 500)), np.empty((P.shape[1], 500)), np.empty(500)
     hooks.key_points(_columns(X), hooks.params, PX, PY, PHI, 500)
     np.testing.assert_allclose(PX.T, P[:, :, 0], rtol=0, atol=1e-14)
@@ -308,7 +308,7 @@ def test_measurement_variance_is_the_noise_models(measurement):
 @pytest.mark.parametrize("robot", ["point", "arm"])
 def test_filter_update_is_the_numpy_update(robot, arm_problem):
     """step.filter_update against edges.filter_update with the variance at the TRUE state's
-    sensing points (model.noise.variance(problem.sensing_from_points(problem.points(x))))."""
+    sensing points (model.noise.variance(problem.geometry.sensing_from_points(problem.geometry.points(x))))."""
     from firmtool.estimation.edges import control_and_move, filter_update
 
     problem = arm_problem if robot == "arm" else _point_problem(LIGHTDARK_VARIANCE)
@@ -319,12 +319,12 @@ def test_filter_update_is_the_numpy_update(robot, arm_problem):
     r, nz = model.F.shape[1], model.nz
     noise = rng.normal(size=(M, r + nz))
     x, u = control_and_move(model, lc, 0, x0, xhat, noise[:, :r])
-    variance = model.noise.variance(problem.sensing_from_points(problem.points(x)))
+    variance = model.noise.variance(problem.geometry.sensing_from_points(problem.geometry.points(x)))
     want = filter_update(model, lc, 0, x, xhat, u, noise[:, r:], variance)[:na]
     pd = driver._problem_data(problem)
     hooks = pd.hooks
     A, B, F, H = pd.mats
-    n_pts = problem.points(x[:1]).shape[1]
+    n_pts = problem.geometry.points(x[:1]).shape[1]
     PX, PY, PHI = np.empty((n_pts, M)), np.empty((n_pts, M)), np.empty(M)
     X, XH, U, W = _columns(x), _columns(xhat), _columns(u), _columns(noise)
     hooks.key_points(X, hooks.params, PX, PY, PHI, na)
@@ -362,7 +362,7 @@ def test_collision_test_is_the_numpy_backends(robot, rotated, arm_problem):
     hooks = pd.hooks
     M = 6000
     X = _random_states(problem, M, rng, spread=2.0 if robot == "arm" else 1.0)
-    P = problem.points(X)
+    P = problem.geometry.points(X)
     centers, halves = np.array([o.center for o in w.obstacles]), np.array([o.half_size for o in w.obstacles])
     backend = make_backend("numpy", centers, halves, np.array(w.lo), np.array(w.hi),
                            self_collision=hooks.self_collision, obstacle_angles=angles)

@@ -39,7 +39,7 @@ def test_relocalise_replaces_the_belief_and_decides(smoke):
     problem = smoke.roadmap.problem
     policy.reset()
     system = ft.SimulatedSystem(problem)
-    system.reset(policy.mean, policy.covariance, np.random.default_rng(0))
+    system.reset(policy.state.mean, policy.state.covariance, np.random.default_rng(0))
     for _ in range(5):
         z, valid = system.step(policy.act())
         policy.observe(z)
@@ -47,8 +47,8 @@ def test_relocalise_replaces_the_belief_and_decides(smoke):
     cov = policy.start_belief(where)[1]
     events = policy.relocalise(where, cov)
     assert [e.kind for e in events][-1] in (ft.EventKind.REPLAN, ft.EventKind.KEPT_CONTROLLER)
-    np.testing.assert_allclose(policy.mean, where)
-    np.testing.assert_allclose(policy.covariance, cov)
+    np.testing.assert_allclose(policy.state.mean, where)
+    np.testing.assert_allclose(policy.state.covariance, cov)
     policy.act()
     with pytest.raises(ft.InputError, match="between observe"):
         policy.relocalise(where, cov)
@@ -121,13 +121,13 @@ def test_the_informed_mode_widens_the_belief_by_the_push_law_and_decides(smoke):
     for _ in range(5):
         z, _ = system.step(policy.act())
         policy.observe(z)
-    before_mean, before_cov = policy.mean, policy.covariance
+    before_mean, before_cov = policy.state.mean, policy.state.covariance
     events = informed(0.8)(policy, system)
     d = problem.config_dim
     expected = before_cov.copy()
     expected[:d, :d] += 0.8 ** 2 / d * np.eye(d)
-    np.testing.assert_allclose(policy.covariance, expected)
-    np.testing.assert_allclose(policy.mean, before_mean)
+    np.testing.assert_allclose(policy.state.covariance, expected)
+    np.testing.assert_allclose(policy.state.mean, before_mean)
     assert events and events[-1].kind in (ft.EventKind.REPLAN, ft.EventKind.KEPT_CONTROLLER,
                                           ft.EventKind.REPLAN_FAILED)
 

@@ -251,7 +251,7 @@ def test_policy_runs_the_probe_a_probe_plans_when_its_steps_run_out(tiny_solutio
     found = 0
     for seed in range(6):
         policy = ft.Policy(sol, rng=seed)
-        robot, problem = policy.problem.robot, policy.problem
+        robot, problem = policy.state.problem.robot, policy.state.problem
         real = type(robot).relocalisation
         asked = []
 
@@ -291,7 +291,7 @@ def test_a_probe_of_no_steps_is_refused_naming_the_robot(tiny_solution, monkeypa
     from firmtool.sim import SimulatedSystem
 
     policy = ft.Policy(tiny_solution, rng=0)
-    robot = policy.problem.robot
+    robot = policy.state.problem.robot
     real = type(robot).relocalisation
 
     def empty(problem_, mean, covariance):
@@ -431,7 +431,7 @@ def _until_probing(policy, system, rng_seed=0, steps=200):
     return once the policy's probe runs (its events so far), or None."""
     rng = np.random.default_rng(rng_seed)
     events = list(policy.reset(rng=np.random.default_rng(rng_seed)))
-    system.reset(policy.mean, policy.covariance, rng)
+    system.reset(policy.state.mean, policy.state.covariance, rng)
     for k in range(steps):
         new = _turned_and_moved(k, system.state, rng)
         if new is not None:
@@ -464,7 +464,7 @@ def test_probe_state_machine_timeout_outside_belief_and_no_decision(tiny_solutio
         if events is None:
             continue
         found += 1
-        started = policy.steps
+        started = policy.state.steps
         # a belief from outside ends the probe
         out = policy.relocalise(system.state, np.diag([1e-4, 1e-4, 1e-3]))
         assert [e.kind for e in out][0] == ft.EventKind.RELOCALISED and "from outside" in out[0].detail
@@ -478,15 +478,15 @@ def test_probe_state_machine_timeout_outside_belief_and_no_decision(tiny_solutio
         while not budget.done:
             z, _ = system.step(budget.act())
             budget.observe(z)
-        assert budget.status == ft.PolicyStatus.TIMEOUT and budget.steps == started + 3
-        assert [e.kind for e in budget.events][-2:] == [ft.EventKind.RELOCALISED, ft.EventKind.TIMEOUT]
+        assert budget.state.status == ft.PolicyStatus.TIMEOUT and budget.state.steps == started + 3
+        assert [e.kind for e in budget.record.events][-2:] == [ft.EventKind.RELOCALISED, ft.EventKind.TIMEOUT]
         # no decision: the hypotheses are updated, the probe goes on
         quiet = ft.Policy(sol, rng=seed)
         assert _until_probing(quiet, system, seed) is not None
-        before = quiet.mean
+        before = quiet.state.mean
         z, _ = system.step(quiet.act())
         assert quiet.observe(z, decide=False) == []
-        assert not np.array_equal(quiet.mean, before)
+        assert not np.array_equal(quiet.state.mean, before)
         quiet.act()
     assert found >= 3
 

@@ -31,7 +31,8 @@ def _decide(sol, budget, seed=1):
     policy = Policy(sol, replan=settings)
     design = sol.roadmap.execution_design
     x0 = sol.roadmap.problem.state_of(np.array([1.5, 1.8]))  # by the obstacle's corner: 7 candidates scored
-    return policy.replanner.decide(x0, 4 * design.P[7], np.random.default_rng(seed))
+    policy.prepare()  # its replanner
+    return policy.state.replanner.decide(x0, 4 * design.P[7], np.random.default_rng(seed))
 
 
 def test_an_anytime_decision_returns_the_best_candidate_scored_so_far(smoke):
@@ -110,7 +111,7 @@ def test_a_replanned_controller_takes_over_after_its_latency(smoke, latency):
         pending = None  # (step the new controller is due, its target)
         while not policy.done:
             u = policy.act()
-            if policy.steps == 9:
+            if policy.state.steps == 9:
                 system.set_state(system.state + np.array([1.0, 1.0]))
             z, valid = system.step(u)
             if not valid:
@@ -119,24 +120,24 @@ def test_a_replanned_controller_takes_over_after_its_latency(smoke, latency):
             kinds = [e.kind for e in events]
             if pending is not None and ft.EventKind.NODE in kinds:
                 pending = None  # a node first: the stored policy resumed there
-            if pending is not None and policy.steps == pending[0]:
-                assert policy.controller == f"run-time controller to node {pending[1]}"
-                assert policy.controller_step == 0
+            if pending is not None and policy.state.steps == pending[0]:
+                assert policy.state.controller == f"run-time controller to node {pending[1]}"
+                assert policy.state.controller_step == 0
                 checked += 1
                 pending = None
             elif pending is not None:
-                assert policy.controller_step > 0  # the controller that was running goes on
+                assert policy.state.controller_step > 0  # the controller that was running goes on
             for e in events:
                 if e.kind == ft.EventKind.REPLAN:
-                    work = policy.timing["decision_work"][-1]
+                    work = policy.record.timing["decision_work"][-1]
                     wait = 0 if latency == "0" else math.ceil(work / dt - 1e-12)
                     assert latency == "0" or wait >= 1
                     if wait == 0:
-                        assert policy.controller == f"run-time controller to node {e.node}"
-                        assert policy.controller_step == 0
+                        assert policy.state.controller == f"run-time controller to node {e.node}"
+                        assert policy.state.controller_step == 0
                         checked += 1
                     else:
-                        pending = (policy.steps + wait, e.node)
+                        pending = (policy.state.steps + wait, e.node)
     assert checked >= 2
 
 
@@ -160,8 +161,11 @@ def test_cli_deadline_options(smoke):
 def test_the_work_clock_charges_each_robot_its_measured_cost(smoke):
     from firmtool.robots.unicycle import UnicycleRobot
     _, sol = smoke
-    assert Policy(sol).replanner.candidate_seconds == sol.roadmap.problem.robot.replan_candidate_seconds == 1e-3
-    assert Policy(sol, replan=ReplanSettings(candidate_seconds=0.5)).replanner.candidate_seconds == 0.5
+    default, asked = Policy(sol), Policy(sol, replan=ReplanSettings(candidate_seconds=0.5))
+    default.prepare()
+    asked.prepare()
+    assert default.state.replanner.candidate_seconds == sol.roadmap.problem.robot.replan_candidate_seconds == 1e-3
+    assert asked.state.replanner.candidate_seconds == 0.5
     assert UnicycleRobot.replan_candidate_seconds > 0.1 / 4  # at most 3 candidates in its 0.1 s period
     with pytest.raises(ft.InputError, match="candidate_seconds"):
         ReplanSettings(candidate_seconds=0.0)

@@ -151,33 +151,36 @@ def test_every_key_is_declared_with_a_type_and_a_doc_line():
 
 
 def test_the_robot_interface_is_the_small_protocols_composed():
-    """Robot is the composition of one mixin per protocol: every public member of Robot belongs to
-    exactly one protocol (the compiled hook aside) and comes from that protocol's mixin, and the
+    """Robot is the composition of its protocols, each declared once (one class naming what the
+    stages call and holding the defaults): every public member of Robot belongs to exactly one
+    protocol, no protocol is declared twice (no typing.Protocol beside a defaults class), and the
     built-in robots answer every protocol."""
-    from firmtool.robots import base, drawing, geometry, jumps, model, nominals, relocalisation, stabilisers, task
+    import inspect
+    import typing
+
+    from firmtool.robots import (base, compiled, drawing, geometry, jumps, model, nominals, relocalisation,
+                                 stabilisers, task)
     from firmtool.scenario import load_scenario
 
-    pairs = [(model.RobotModel, model.ModelDefaults), (geometry.RobotGeometry, geometry.GeometryDefaults),
-             (task.TaskSpace, task.TaskSpaceDefaults), (stabilisers.NodeStabilisers, stabilisers.StabiliserDefaults),
-             (nominals.Nominals, nominals.NominalDefaults), (jumps.JumpAnswers, jumps.JumpDefaults),
-             (relocalisation.Relocalising, relocalisation.RelocalisationDefaults),
-             (drawing.Drawable, drawing.DrawingDefaults)]
+    protocols = [model.RobotModel, geometry.RobotGeometry, task.TaskSpace, stabilisers.NodeStabilisers,
+                 nominals.Nominals, jumps.JumpAnswers, relocalisation.Relocalising, compiled.CompiledHooks,
+                 drawing.Drawable]
+    assert [c for c in base.Robot.__mro__[1:-1]] == protocols  # exactly these, composed in this order
     owner: dict[str, type] = {}
-    for protocol, mixin in pairs:
-        members = {k for k in vars(protocol) if not k.startswith("_")} | set(protocol.__annotations__)
-        for k in members:
+    for protocol in protocols:
+        assert typing.Protocol not in protocol.__mro__, protocol  # one declaration, not a Protocol and a mixin
+        # what it defines (its annotations without a value are what it reads of the robot, e.g. model)
+        for k in [k for k in vars(protocol) if not k.startswith("_")]:
             assert k not in owner, f"{k} is in {owner.get(k)} and {protocol}"
             owner[k] = protocol
-            assert k in vars(mixin) or k in getattr(mixin, "__annotations__", {}), f"{mixin.__name__} lacks {k}"
-        assert mixin in base.Robot.__mro__
     public = {k for c in base.Robot.__mro__[:-1] for k in vars(c) if not k.startswith("_")}
-    # the compiled engine's hooks: compiled_kinematics, or what the mixin that defines it defines
-    hook_cls = next(c for c in base.Robot.__mro__ if "compiled_kinematics" in vars(c))
-    hooks = {k for k in vars(hook_cls) if not k.startswith("_")} if hook_cls is not base.Robot else \
-        {"compiled_kinematics"}
-    assert public - set(owner) == hooks
+    assert public <= set(owner), public - set(owner)
+    for module in (model, geometry, task, stabilisers, nominals, jumps, relocalisation, compiled, drawing):
+        declared = [c for _, c in inspect.getmembers(module, inspect.isclass) if c.__module__ == module.__name__
+                    and (typing.Protocol in c.__mro__ or c.__name__.endswith("Defaults"))]
+        assert not declared, declared  # no second declaration of a protocol left in its module
     for name in ("smoke", "arm8_lightdark", "unicycle_lightdark"):
         sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
         robot = robots.get(sc.model.robot)(sc)
-        for protocol, _ in pairs:
+        for protocol in protocols:
             assert isinstance(robot, protocol), (name, protocol)

@@ -45,11 +45,11 @@ def test_every_option_of_a_decision_is_scored_on_the_same_particles(smoke, monke
     monkeypatch.setattr(replanning, "simulate", spy)
     policy = ft.Policy(smoke, mode="rollout", rng=3)
     policy.reset()
-    replanner = policy.replanner
+    replanner = policy.state.replanner
     run = policy._now.run
     P = run.lc.P[1]
     xhat = run.lc.x_ref[1] + 0.01
-    candidates = np.flatnonzero(policy.design.kinds != GOAL)[1:4]  # nodes other than the start
+    candidates = np.flatnonzero(policy.state.design.kinds != GOAL)[1:4]  # nodes other than the start
     decision = rollout.rollout_decision(replanner, xhat, P, run.lc, candidates, seed=12345)
     assert decision.scored == len(seen) >= 2
     x0, xh0, state0 = seen[0]
@@ -69,8 +69,8 @@ def test_a_switch_needs_a_gain_beyond_the_paired_error(smoke, monkeypatch):
     is better on every particle is."""
     policy = ft.Policy(smoke, mode="rollout")
     policy.reset()
-    replanner, run = policy.replanner, policy._now.run
-    candidates = np.flatnonzero(policy.design.kinds != GOAL)[1:3]
+    replanner, run = policy.state.replanner, policy._now.run
+    candidates = np.flatnonzero(policy.state.design.kinds != GOAL)[1:3]
     base = np.linspace(10.0, 20.0, 64)
 
     def scores_with(offset):
@@ -134,5 +134,5 @@ def test_no_candidate_no_monte_carlo(smoke, monkeypatch):
     policy.reset()
     run = policy._now.run
     monkeypatch.setattr(rollout, "particle_scores", lambda *a: pytest.fail("scored without a candidate"))
-    d = rollout.rollout_decision(policy.replanner, run.lc.x_ref[0], run.lc.P[0], run.lc, np.array([], int), 1)
+    d = rollout.rollout_decision(policy.state.replanner, run.lc.x_ref[0], run.lc.P[0], run.lc, np.array([], int), 1)
     assert d.controller is None and d.scored == 0

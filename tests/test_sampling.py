@@ -75,7 +75,7 @@ def reference_goal_region_nodes(problem, count, rng, existing, batches=200):
         if len(found) >= count:
             break
         X = problem.state_of(rng.uniform(problem.config_lo, problem.config_hi, size=(4096, d)))
-        X = X[np.linalg.norm(problem.points(X)[:, -1] - center, axis=1) < radius]
+        X = X[np.linalg.norm(problem.geometry.points(X)[:, -1] - center, axis=1) < radius]
         X = X[problem.is_valid(X)]
         for x in X:
             others = np.concatenate([existing[:, :d]] + [f[None, :d] for f in found])

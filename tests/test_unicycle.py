@@ -223,13 +223,13 @@ def test_noise_free_edge_lands_in_its_target():
 def test_points_and_validity():
     problem = build_problem(tiny())
     X = np.array([[0.4, 0.4, 0.3], [1.5, 0.5, 0.0]])
-    P = problem.points(X)
+    P = problem.geometry.points(X)
     assert P.shape == (2, 1, 2)
     np.testing.assert_array_equal(P[:, -1], X[:, :2])
-    assert problem.points_valid(P).tolist() == [True, False]
+    assert problem.geometry.points_valid(P).tolist() == [True, False]
     # nodes keep the orbit's reach clear; the simulation tests the true disc
     near = np.array([[1.5 - 0.15 - 0.05 - 0.1, 0.5, 0.0]])  # 0.15 from the obstacle: 0.05 < 0.15 < 0.05 + 0.16
-    assert problem.points_valid(problem.points(near))[0] and not problem.is_valid(near)[0]
+    assert problem.geometry.points_valid(problem.geometry.points(near))[0] and not problem.is_valid(near)[0]
 
 
 def test_scenario_rejects_mismatched_dynamics():

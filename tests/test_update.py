@@ -153,7 +153,7 @@ def test_swept_regions_are_the_numpy_engines_and_hold_every_tested_point(point_r
         # the particles' final states lie in their region (the last step tested each of them)
         x = np.repeat(d.centers[s][None], 16, axis=0) + 0.01
         simulate(problem, lc, regions, x, x.copy(), np.random.default_rng(e), engine="numpy", numpy_noise=True)
-        pts = problem.points(x).reshape(-1, 2)
+        pts = problem.geometry.points(x).reshape(-1, 2)
         lo, hi = out["numpy"].swept
         assert np.all(pts >= lo - 1e-12) and np.all(pts <= hi + 1e-12)
     assert kernels.engine_for(problem) == "numba"

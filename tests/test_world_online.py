@@ -35,25 +35,25 @@ def test_update_world_blocks_the_edges_the_box_meets_and_resolves(solution):
     events = policy.update_world(OWN + [ACROSS])
     assert events[0].kind is EventKind.WORLD_UPDATE and events[0].detail == "added box"
     table = solution._world_edges()
-    change = world_change(solution.roadmap.scenario.world, policy.problem.scenario.world)
-    blocked = meets(table.swept_lo, table.swept_hi, change, policy.problem.robot.world_reach()).any(axis=1)
+    change = world_change(solution.roadmap.scenario.world, policy.state.problem.scenario.world)
+    blocked = meets(table.swept_lo, table.swept_hi, change, policy.state.problem.robot.world_reach()).any(axis=1)
     assert events[0].value == blocked.sum() and 0 < blocked.sum() < blocked.size
-    taken = policy.edge_per_node[policy.edge_per_node >= 0]
+    taken = policy.state.edge_per_node[policy.state.edge_per_node >= 0]
     assert not blocked[taken].any()  # the re-solved policy takes no blocked edge
     assert np.any(blocked[solution.policy[solution.policy >= 0]])  # the old one did: the test says something
     # fewer edges to choose from: no node's optimal cost-to-go can fall
     old, new = solution.cost_to_go, policy._cost_to_go
     assert np.all(new[np.isfinite(old)] >= old[np.isfinite(old)] - 1e-9)
     # the replanner now tests the new world
-    assert not policy.problem.is_valid(np.array([[3.0, 2.1]]))[0]
-    assert policy.problem.is_valid(np.array([[3.0, 2.8]]))[0]
+    assert not policy.state.problem.is_valid(np.array([[3.0, 2.1]]))[0]
+    assert policy.state.problem.is_valid(np.array([[3.0, 2.8]]))[0]
 
 
 def test_update_world_back_to_the_roadmaps_world_is_the_solution(solution):
     policy = ft.Policy(solution)
     policy.update_world(OWN + [ACROSS])
     policy.update_world(OWN)
-    np.testing.assert_array_equal(policy.edge_per_node, solution.policy)
+    np.testing.assert_array_equal(policy.state.edge_per_node, solution.policy)
     np.testing.assert_array_equal(policy._cost_to_go, solution.cost_to_go)
 
 

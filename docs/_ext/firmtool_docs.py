@@ -26,13 +26,13 @@ logger = logging.getLogger(__name__)
 
 # The public API by group (firmtool.__all__): each name in exactly one group.
 API_GROUPS = {
-    "workflow": ["load_scenario", "build", "open_roadmap", "solve", "update", "simulate", "plot"],
+    "workflow": ["load_scenario", "check", "build", "open_roadmap", "solve", "update", "simulate", "plot"],
     "objects": ["Scenario", "Roadmap", "Solution", "Query"],
     "results": ["Results", "Episode", "Event", "EventKind", "Outcome", "Calibration", "EdgeCheck"],
     "online": ["Policy", "PolicyStatus", "SimulatedSystem", "episode_seeds", "UserDisturbance"],
     "settings": ["ReplanSettings", "Disturbance", "SolveStatus"],
     "reports": ["SampleReport", "DesignReport", "EstimateReport", "BuildReport", "DensifyReport", "SolveReport",
-                "QueryReport", "UpdateReport", "FailedEdge", "RoadmapSummary"],
+                "QueryReport", "UpdateReport", "FailedEdge", "RoadmapSummary", "CheckReport"],
     "errors": ["FirmtoolError", "InputError", "ScenarioError", "RoadmapError", "NumericalError", "RunFailure",
                "Unreachable", "StaleScenarioWarning"],
 }

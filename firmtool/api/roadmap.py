@@ -14,6 +14,7 @@ import numpy as np
 
 from firmtool import pipeline
 from firmtool.api.solution import Solution
+from firmtool.api.summary import summarize
 from firmtool.errors import InputError, StaleScenarioWarning
 from firmtool.estimation.calibration import edge_counts_of
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
@@ -21,7 +22,7 @@ from firmtool.io import scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.working import WorkingRoadmap
-from firmtool.reports import BuildReport, QueryReport, UpdateReport
+from firmtool.reports import BuildReport, QueryReport, RoadmapSummary, UpdateReport
 from firmtool.scenario import Scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 from firmtool.util import arguments
@@ -88,7 +89,6 @@ class Roadmap:
         # what every call on it shares: the file as read, its scenario, problem and design, made once
         self._work = work if work is not None else WorkingRoadmap(data, validity=validity)
         self._stored_queries: set[str] = set()  # stored by save_queries since the file was read
-        self._queries_in_file = True  # the file read is the file at path (save writes one without queries)
         self._image = None  # the memory file it lives in (a query's, or a build's in memory): queries read it
         self.path = path
         self.report = report
@@ -231,7 +231,8 @@ class Roadmap:
         path = arguments.path(path, "path")
         self._write(path, {})
         self.path = self._data.path = path
-        self._queries_in_file, self._stored_queries = False, set()  # a saved roadmap holds no queries
+        self._data.forget_extras()  # the saved file holds no edge cache and no queries
+        self._stored_queries = set()
         return path
 
     def _write(self, path: Path, replace: dict[str, tuple[dict, dict]]) -> None:
@@ -242,6 +243,20 @@ class Roadmap:
         # one atomic write, built in memory: a failure names ``path``, never a temporary file
         write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source)
 
+    def summary(self) -> RoadmapSummary:
+        """What the roadmap holds (``firmtool inspect`` prints it): stages present (each validated: a
+        damaged one is refused; ones computed from another scenario text are listed in
+        ``stale_stages``), nodes, edges, particles, estimates cached for reuse, stored queries and the
+        solve status (:class:`~firmtool.reports.RoadmapSummary`).
+
+        Raises
+        ------
+        RoadmapError, ScenarioError
+            A stage that fails its checks, or a stored scenario that is invalid.
+        """
+        source = self._image if self._image is not None else self.path
+        return summarize(self._data, self.scenario, source, str(self.path) if self.path else "in memory")
+
     # queries (firmtool.api.queries answers them)
     @property
     def queries(self) -> list[str]:
@@ -249,8 +264,7 @@ class Roadmap:
         if self.path is None:
             return []
         # read with the file, and those stored since through this object
-        read = self._data.query_names if self._queries_in_file else ()
-        return sorted(set(read) | self._stored_queries)
+        return sorted(set(self._data.query_names) | self._stored_queries)
 
     def query(self, name: str) -> "Roadmap":
         """The roadmap of the stored query ``name`` (in memory; :meth:`solution` gives its policy).

@@ -26,8 +26,8 @@ machine kind (2 cores, load ~1.5), min of 5 runs each: the house before the spli
 
 (15 more runs of the first three, house against lazy: 0.46 / 0.47 s, 0.28 / 0.30 s, 0.41 / 0.44 s.)
 What each lazy import saves ``firmtool --help`` (its import after ``import firmtool.cli``, min of
-7): firmtool.api 2.0 s, the pipeline 1.6 s, the figures with matplotlib 1.9 s, firmtool.cli.check
-1.4 s, firmtool.cli.inspect 1.6 s, the budgets 1.3 s, the replanning settings 1.35 s, the
+7): firmtool.api 2.0 s, the pipeline 1.6 s, the figures with matplotlib 1.9 s, firmtool.api.check
+(the API's import) 2.0 s, the budgets 1.3 s, the replanning settings 1.35 s, the
 disturbances 1.45 s, the scenario package 0.5 s, its docs 0.7 s, the robots 0.6 s, the engine's
 warm-up 1.3 s, scipy.linalg 0.22 s, h5py with the roadmap file's module 0.05 s and the episode
 files' 0.03 s, rich's progress bars 0.035 s: each 7% or more of ``--help``. At the top, costing a

@@ -110,12 +110,12 @@ def simulate(problem: Problem, lc: LocalController, regions: NodeRegions, x: np.
         # the same step as belief_step, with the robot's kinematics computed once for both the
         # collision test and the state-dependent sensor noise
         x_a, u = control_and_move(model, lc, k, x[alive], xhat[alive], noise[:, :r])
-        pts = problem.points(x_a)
+        pts = problem.geometry.points(x_a)
         grow_swept(swept, pts)
         if perfect:
             xhat_a = x_a
         else:
-            variance = model.noise.variance(problem.sensing_from_points(pts))
+            variance = model.noise.variance(problem.geometry.sensing_from_points(pts))
             xhat_a = filter_update(model, lc, k, x_a, xhat[alive], u, noise[:, r:], variance)
         x[alive], xhat[alive] = x_a, xhat_a
         effort[alive] += np.einsum("ij,ij->i", u, u)
@@ -217,7 +217,7 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
         x = xhat if chol_p is None else xhat + rng.standard_normal(xhat.shape) @ chol_p.T
         alive = problem.is_valid(x)  # a robot that arrived is alive: its true state is valid
         if swept is not None:
-            grow_swept(swept, problem.points(x))
+            grow_swept(swept, problem.geometry.points(x))
         xs.append(x[alive])
         xhats.append(xhat[alive])
         drawn += int(alive.sum())

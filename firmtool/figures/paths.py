@@ -9,7 +9,7 @@ The robot draws itself (:meth:`firmtool.robots.Robot.draw`; by default a polylin
 the last one, the arm's tip or the point robot itself, being the one followed), so a new robot
 needs no change here. A 3-D world is drawn from above (its x-y plane). The belief of the followed
 point is drawn as its mean path with 3-sigma ellipses of the covariance pushed through the
-Jacobian of that point (central finite differences of ``problem.points``).
+Jacobian of that point (central finite differences of ``problem.geometry.points``).
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def point_jacobian(problem: Problem, X: np.ndarray, eps: float = 1e-6) -> np.nda
     for i in range(n):  # loop over state coordinates, each vectorised over the T states
         d = np.zeros(n)
         d[i] = eps
-        J[:, :, i] = (problem.points(X + d)[:, -1, :2] - problem.points(X - d)[:, -1, :2]) / (2 * eps)
+        J[:, :, i] = (problem.geometry.points(X + d)[:, -1, :2] - problem.geometry.points(X - d)[:, -1, :2]) / (2 * eps)
     return J
 
 
@@ -169,7 +169,7 @@ def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = 
     data (a figure of several panels draws one legend for all: :func:`legend_below`)."""
 
     image = _background(ax, problem, unit)
-    tips = problem.points(design.centers)[:, -1, :2]
+    tips = problem.geometry.points(design.centers)[:, -1, :2]
     segs = np.stack([tips[design.edge_source], tips[design.edge_target]], axis=1)
     ax.add_collection(LineCollection(segs, colors="tab:blue", alpha=0.06, lw=0.5, zorder=3))
     ax.plot(tips[:, 0], tips[:, 1], ".", color="tab:blue", ms=2.5, alpha=0.6, zorder=3, label="roadmap nodes")
@@ -194,7 +194,7 @@ def panel(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = 
 
     ep = data.episode
     if ep is not None and ep.estimates is not None:
-        mean = problem.points(ep.estimates)[:, -1, :2]
+        mean = problem.geometry.points(ep.estimates)[:, -1, :2]
         ax.plot(mean[:, 0], mean[:, 1], "-", color="red", lw=1.2, zorder=5, label="estimated mean")
         lo, hi = problem.scenario.world.lo[:2], problem.scenario.world.hi[:2]
         idx = thinned(mean, ELLIPSE_SPACING * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo))))

@@ -205,6 +205,10 @@ class RoadmapFile:
         except RoadmapError as exc:  # said when the queries are asked for, as before
             self._queries = exc
 
+    def forget_extras(self) -> None:
+        """Hold the stages only: after a save that wrote no ``/edge_cache`` and no ``/queries``."""
+        self._cache, self._queries = {}, ()
+
     @property
     def query_names(self) -> tuple[str, ...]:
         """The names of the queries stored in the file (``/queries``), sorted.

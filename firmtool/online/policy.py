@@ -42,7 +42,7 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
 
 The policy ends when it declares the goal (its belief entered a goal node), when it is stuck (no
 controller from the start belief, a node without an edge), or on a timeout (its controller ran out
-of steps, or the mission's step budget :attr:`max_steps` is spent). A collision is not its to
+of steps, or the mission's step budget ``state.max_steps`` is spent). A collision is not its to
 decide: the robot (or the simulated system) stops the loop.
 
 Each step (but a re-localisation's probe, which is open loop) is the same math as the Monte Carlo
@@ -69,14 +69,13 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.geometry.shapes import Obstacle
-from firmtool.io.roadmap_format import GOAL, START_INDEX
+from firmtool.io.roadmap_format import START_INDEX
 from firmtool.online.arrival import Arrival
 from firmtool.online.decision import KeepOrReplan
-from firmtool.online.record import Traversal
 from firmtool.online.replanning import DEADLINE_FALSE_ALARMS, Replanner, ReplanSettings, mission_false_alarm
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
-from firmtool.online.timing import TimingSummary
 from firmtool.online.running import EdgeControllers
+from firmtool.online.state import PolicyRecord, PolicyState
 from firmtool.online.world import Worlds
 from firmtool.problem import Problem
 from firmtool.results import Event
@@ -137,11 +136,10 @@ class Policy:
 
     Attributes
     ----------
-    problem, design : the roadmap's problem (model, validity, bounds) and design.
-    edge_per_node : (N,) int64, the policy's edge at each node (-1: none).
-    settings : the :class:`ReplanSettings`.
-    regions, replanner : the node regions and the :class:`~firmtool.online.replanning.Replanner`
-        (built by :meth:`prepare`).
+    state : what it knows now, a read-only snapshot (:class:`~firmtool.online.state.PolicyState`: its
+        problem, design, policy edges and settings; status, steps, belief, node, controller, cost).
+    record : what the run since the last reset did (:class:`~firmtool.online.state.PolicyRecord`).
+    done : the run is over (goal declared, stuck, timed out) or not started.
 
     Examples
     --------
@@ -160,10 +158,10 @@ class Policy:
         rm = solution.roadmap
         self._setup(rm.problem, rm.execution_design, edges, solution.cost_to_go, solution.failure_cost, replan,
                     rng, max_steps)
-        self.name: str | None = ROLLOUT if replan.rollout and policy == "firm" else policy
+        self._name: str | None = ROLLOUT if replan.rollout and policy == "firm" else policy
         if solution.deadline is not None:  # the mission ends at the deadline; FIRM's edges by the steps left
             self._timed = solution.deadline_policy if policy == "firm" else None
-            self.max_steps = min(self.max_steps, solution.deadline) if max_steps is None else self.max_steps
+            self._max_steps = min(self._max_steps, solution.deadline) if max_steps is None else self._max_steps
         self._worlds = Worlds(rm.problem, rm.execution_design.centers, solution._world_edges)
 
     @classmethod
@@ -185,19 +183,19 @@ class Policy:
         """
         self = cls.__new__(cls)
         self._setup(problem, design_, policy, cost_to_go, failure_cost, replan, rng, max_steps)
-        self.name = None
+        self._name = None
         return self
 
     def _setup(self, problem: Problem, design_: Design, policy: np.ndarray, cost_to_go: np.ndarray | None,
                failure_cost: float | None, replan: ReplanSettings | None, rng, max_steps: int | None) -> None:
         """Store the inputs; the work is :meth:`prepare`'s."""
-        self.problem, self.design = problem, design_
-        self.edge_per_node = np.asarray(policy, dtype=np.int64)
-        self.failure_cost = float(problem.scenario.cost.failure_cost if failure_cost is None else failure_cost)
-        self.settings = replan or ReplanSettings()
+        self._problem, self._design = problem, design_
+        self._edge_per_node = np.asarray(policy, dtype=np.int64)
+        self._failure_cost = float(problem.scenario.cost.failure_cost if failure_cost is None else failure_cost)
+        self._settings = replan or ReplanSettings()
         self._cost_to_go = (np.zeros(design_.centers.shape[0]) if cost_to_go is None
                             else np.asarray(cost_to_go, dtype=float))
-        self.max_steps = problem.scenario.execution.max_steps if max_steps is None else int(max_steps)
+        self._max_steps = problem.scenario.execution.max_steps if max_steps is None else int(max_steps)
         self._rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
         self._parts: Prepared | None = None
         self._now: PolicyRun | None = None  # the run since the last reset
@@ -211,16 +209,16 @@ class Policy:
         robot's first control period."""
         if self._parts is not None:
             return
-        self._parts = self._build(self.problem, self.edge_per_node, self._cost_to_go, self.design.regions(self.problem),
-                                  False)
-        if self.settings.enabled and self.settings.risk_particles > 0:  # the engine compiled now, not in a replan
-            self._parts.controllers.warm_up(self.edge_per_node)
+        self._parts = self._build(self._problem, self._edge_per_node, self._cost_to_go,
+                                  self._design.regions(self._problem), False)
+        if self._settings.enabled and self._settings.risk_particles > 0:  # the engine compiled now, not in a replan
+            self._parts.controllers.warm_up(self._edge_per_node)
 
     def _build(self, problem: Problem, edge_per_node: np.ndarray, cost_to_go: np.ndarray,
                regions: NodeRegions, world_updated: bool) -> Prepared:
         """The collaborators of runs in ``problem``'s world under the policy ``edge_per_node``."""
-        design_, s = self.design, self.settings
-        replanner = Replanner(problem, design_, regions, edge_per_node, cost_to_go, self.failure_cost, s)
+        design_, s = self._design, self._settings
+        replanner = Replanner(problem, design_, regions, edge_per_node, cost_to_go, self._failure_cost, s)
         jump_false_alarm = (s.jump_false_alarm if s.jump_false_alarm is not None
                             else mission_false_alarm(design_, edge_per_node, START_INDEX))
         if self._timed is not None and s.jump_false_alarm is None:  # a deadline's budget
@@ -265,196 +263,44 @@ class Policy:
         regions = self._prepared().regions
         self._parts, update = self._worlds.answer(
             obstacles, bounds, lambda u: self._build(u.problem, u.policy, u.cost_to_go, regions, bool(u.changes)))
-        self.problem, self.edge_per_node, self._cost_to_go = update.problem, update.policy, update.cost_to_go
+        self._problem, self._edge_per_node, self._cost_to_go = update.problem, update.policy, update.cost_to_go
         if self._now is None:
             return []
         return self._now.world_changed(self._parts, int(update.blocked.sum()),
                                        ", ".join(update.changes) or "the roadmap's own world")
 
     def __repr__(self) -> str:
-        where = f"at node {self.node}" if self.status is not PolicyStatus.RUNNING else self.controller
-        return f"<firmtool.Policy {self.name or 'policy'}: {self.status.value}, step {self.steps}, {where}>"
+        st = self.state
+        where = f"at node {st.node}" if st.status is not PolicyStatus.RUNNING else st.controller
+        return f"<firmtool.Policy {st.name or 'policy'}: {st.status.value}, step {st.steps}, {where}>"
 
-    # -- what it is doing ------------------------------------------------------------------------------
-
-    @property
-    def regions(self) -> NodeRegions:
-        """The roadmap's node regions (the stopping regions of the local controllers)."""
-        return self._prepared().regions
+    # -- what it knows ------------------------------------------------------------------------------------
 
     @property
-    def replanner(self) -> Replanner:
-        """The :class:`~firmtool.online.replanning.Replanner` of its decisions."""
-        return self._prepared().replanner
+    def state(self) -> PolicyState:
+        """A read-only snapshot of what the policy knows now (:class:`~firmtool.online.state.PolicyState`):
+        its problem, design, policy edges and settings in the world it was last told of, and its run's
+        status, steps, belief, node, running controller and cost."""
+        return PolicyState.of(self._name, self._problem, self._design, self._edge_per_node, self._settings,
+                              self._max_steps, self._failure_cost, self._parts, self._now)
 
     @property
-    def jump_false_alarm(self) -> float:
-        """The jump test's per-step false-alarm probability (the settings', or the mission's budget)."""
-        return self._prepared().jump_false_alarm
-
-    @property
-    def status(self) -> PolicyStatus:
-        """:class:`PolicyStatus`."""
-        return PolicyStatus.IDLE if self._now is None else self._now.status
+    def record(self) -> PolicyRecord:
+        """What the run since the last :meth:`reset` did (:class:`~firmtool.online.state.PolicyRecord`):
+        events, nodes, edges, replans, clean traversals, compute times, recorded beliefs."""
+        return PolicyRecord(self._now)
 
     @property
     def done(self) -> bool:
         """True once the policy has declared the goal, is stuck or timed out (act() then refuses)."""
-        return self.status is not PolicyStatus.RUNNING
-
-    @property
-    def jump_levels(self) -> tuple[float, float, int, int] | None:
-        """The jump test's per-step false-alarm probability, the goal check's level per onset, the
-        onsets the running test rejects on and the onsets the goal check asks (:class:`ReplanSettings`
-        ``jump_false_alarm`` as resolved, ``goal_check``, ``jump_window``, and
-        :attr:`ReplanSettings.goal_onsets`), or None when no jump test runs (replanning off, the
-        innovation tests off, perfect measurements)."""
-        s = self.settings
-        if not innovation_tests(s, self.problem)[1]:
-            return None
-        return float(self.jump_false_alarm), float(s.goal_check), int(s.jump_window), int(s.goal_onsets)
-
-    @property
-    def steps(self) -> int:
-        """Control periods since :meth:`reset` (the number of act() calls)."""
-        return 0 if self._now is None else self._now.total
-
-    @property
-    def mean(self) -> np.ndarray:
-        """(n,) the belief's mean, the estimate ``xhat`` (a copy)."""
-        return self._now.belief.xhat[0].copy()
-
-    @property
-    def covariance(self) -> np.ndarray:
-        """(n, n) the belief's covariance ``P`` (a copy)."""
-        return np.array(self._now.belief.P, dtype=float)
-
-    @property
-    def node(self) -> int:
-        """The last node the belief entered (the start node after a reset there), or -1."""
-        nodes = [] if self._now is None else self._now.record.nodes
-        return nodes[-1] if nodes else -1
-
-    @property
-    def target(self) -> int:
-        """The node the running controller drives to, or -1."""
-        run = None if self._now is None else self._now.run
-        return run.target if run is not None else -1
-
-    @property
-    def edge(self) -> int:
-        """The policy edge being run (an index into the roadmap's edges), or -1 (a run-time controller, or none)."""
-        run = None if self._now is None else self._now.run
-        return run.edge if run is not None else -1
-
-    @property
-    def controller(self) -> str:
-        """The running controller in words (``policy edge 3->7``, ``run-time controller to node 12``), or ""."""
-        run = None if self._now is None else self._now.run
-        return run.describe() if run is not None else ""
-
-    @property
-    def controller_step(self) -> int:
-        """The running controller's step (0 at its start)."""
-        return self._now.k
-
-    @property
-    def cost(self) -> float:
-        """The cost incurred so far (eq. 16: ``alpha1 sum tr P_k + alpha2 T``, plus the control effort if weighted)."""
-        return self._now.cost
-
-    @property
-    def events(self) -> list[Event]:
-        """Every event since :meth:`reset`, in order."""
-        return list(self._now.record.events)
-
-    @property
-    def nodes(self) -> list[int]:
-        """The nodes the belief entered, in order (the start node first, when it started in one)."""
-        return list(self._now.record.nodes)
-
-    @property
-    def edges(self) -> list[int]:
-        """The policy edges taken, in order."""
-        return list(self._now.record.edges)
-
-    @property
-    def replans(self) -> int:
-        return self._now.record.replans
-
-    @property
-    def rollouts(self) -> int:
-        """Rollout decisions that took a new controller (``mode="rollout"``; 0 otherwise)."""
-        return self._now.record.rollouts
-
-    @property
-    def replan_failures(self) -> int:
-        return self._now.record.replan_failures
-
-    @property
-    def traversals(self) -> list[Traversal]:
-        """Policy edges run from their node to their end without a belief reset (:class:`Traversal`)."""
-        return list(self._now.record.traversals)
-
-    @property
-    def running_traversal(self) -> tuple[int, int] | None:
-        """``(edge, first_step)`` of the policy edge running now if it still counts as a clean
-        traversal (run from its node, no belief reset), else None."""
-        return self._now.record.running(self._now.run)
-
-    @property
-    def timing(self) -> dict[str, np.ndarray]:
-        """Seconds of compute: ``act`` and ``observe`` (T,) per control period (decisions apart),
-        ``decision`` per replan decision (wall), ``decision_cpu`` (its thread's CPU time),
-        ``decision_work`` (its time on the deadline's clock), ``decision_scored`` (candidates scored
-        by Monte Carlo, the running controller included), ``deadline_hit`` (bool per decision: the
-        deadline cut the search)."""
-        return self._now.timing.as_dict()
-
-    def timing_summary(self) -> TimingSummary:
-        """:attr:`timing` per call kind: calls, mean, p99 and max seconds of ``act``, ``observe`` and
-        the decisions (:class:`~firmtool.online.timing.TimingSummary`)."""
-        return self._now.timing.summary()
-
-    def arrived_in_goal(self, true_state: np.ndarray, node: int | None = None) -> bool:
-        """Whether a TRUE state is in the goal the policy declared: the world's judgement of an arrival
-        the policy declares on its belief, as ``ft.simulate``'s system and the edge Monte Carlo judge
-        it (:meth:`NodeRegions.true_arrival <firmtool.roadmap.nodes.NodeRegions.true_arrival>`: in a
-        goal ball the true task point in the ball, else the true state in the goal node's region).
-
-        Parameters
-        ----------
-        true_state : (n,) the robot's true state (your own loop's, e.g. from a motion-capture system).
-        node : the goal node to judge by (default: the node the policy declared, :attr:`node`).
-        """
-        node = self.node if node is None else int(node)
-        if node < 0 or node not in set(np.flatnonzero(self.design.kinds == GOAL).tolist()):
-            raise InputError(f"arrived_in_goal: node {node} is not a goal node (the policy declares at one)")
-        x = np.asarray(true_state, dtype=float).reshape(-1)
-        if x.shape != (self.problem.model.n,):
-            raise InputError(f"arrived_in_goal: true_state: expected shape ({self.problem.model.n},), found {x.shape}")
-        return bool(self.regions.true_arrival(np.array([node]), x, angles=self.problem.robot.angle_coordinates)[0])
-
-    @property
-    def history(self) -> dict[str, np.ndarray] | None:
-        """With ``reset(..., record=True)``: ``estimates`` (T + 1, n), ``covariances`` (T + 1, n, n)
-        (row 0 the reset belief) and ``controls`` (T, m); else None."""
-        return None if self._now is None else self._now.belief.history()
+        return self._now is None or self._now.status is not PolicyStatus.RUNNING
 
     # -- start ---------------------------------------------------------------------------------------------
 
     def start_belief(self, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The belief at the start node, or at a given state the stationary filter's there.
-
-        Parameters
-        ----------
-        state : (n,) array, optional
-
-        Returns
-        -------
-        mean : (n,); covariance : (n, n) (zeros with perfect measurements).
-        """
-        d, problem = self.design, self.problem
+        """The belief ``(mean (n,), covariance (n, n))`` at the start node, or at a given state (n,) the
+        stationary filter's there (the covariance zeros with perfect measurements)."""
+        d, problem = self._design, self._problem
         if state is None:  # the start node's: the task's start belief when it gives one
             P0 = (np.zeros_like(d.P[START_INDEX]) if problem.perfect else problem.start_covariance
                   if problem.start_covariance is not None else d.P[START_INDEX])
@@ -479,7 +325,7 @@ class Policy:
         rng : numpy Generator, optional
             The policy's own random draws from now on (default: keep the current generator).
         record : bool
-            Keep the beliefs and controls of this episode (:attr:`history`).
+            Keep the beliefs and controls of this episode (``record.history``).
 
         Returns
         -------
@@ -488,7 +334,7 @@ class Policy:
             or ``stuck``, or ``goal`` when the start is a goal node.
         """
         parts = self._prepared()
-        n = self.problem.model.n
+        n = self._problem.model.n
         if mean is None:
             if covariance is not None:
                 raise InputError("Policy.reset: a covariance without a mean")
@@ -507,7 +353,7 @@ class Policy:
             node = parts.arrival.start_node(mean, covariance)
         if rng is not None:
             self._rng = rng
-        self._now = PolicyRun(parts, mean, covariance, self._rng, record, self.max_steps)
+        self._now = PolicyRun(parts, mean, covariance, self._rng, record, self._max_steps)
         return self._now.start(node)
 
     # -- the control period ------------------------------------------------------------------------------
@@ -525,8 +371,9 @@ class Policy:
         InputError
             If the policy is done (or not reset), or the previous control's measurement was not observed.
         """
-        if self.status is not PolicyStatus.RUNNING:
-            raise InputError(f"Policy.act: the policy is {self.status.value}; call reset() to start again")
+        if self.done:
+            status = PolicyStatus.IDLE if self._now is None else self._now.status
+            raise InputError(f"Policy.act: the policy is {status.value}; call reset() to start again")
         return self._now.act()
 
     def observe(self, z: np.ndarray, *, decide: bool = True) -> list[Event]:
@@ -555,7 +402,7 @@ class Policy:
         """
         if self._now is None or not self._now.awaiting:
             raise InputError("Policy.observe: call act() first (one measurement per control)")
-        problem, model = self.problem, self.problem.model
+        problem, model = self._problem, self._problem.model
         z = np.asarray(z, dtype=float).reshape(-1)
         want = model.n if problem.perfect else model.nz
         if z.shape != (want,):
@@ -564,7 +411,7 @@ class Policy:
 
     def step(self, z: np.ndarray | None) -> np.ndarray | None:
         """:meth:`observe` the measurement of the last control (None on the first call after a reset),
-        then :meth:`act`: the control to apply now, or None when the policy is done. Events: :attr:`events`."""
+        then :meth:`act`: the control to apply now, or None when the policy is done. Events: ``record.events``."""
         if z is not None:
             self.observe(z)
         return None if self.done else self.act()
@@ -586,9 +433,9 @@ class Policy:
             ``relocalised`` if it ended a re-localisation's probe, then the decision's: ``replan``,
             ``kept_controller`` or ``replan_failed``.
         """
-        if self.status is not PolicyStatus.RUNNING or self._now.awaiting:
+        if self.done or self._now.awaiting:
             raise InputError("Policy.relocalise: only while running, between observe() and act()")
-        n = self.problem.model.n
+        n = self._problem.model.n
         mean, covariance = np.asarray(mean, dtype=float), np.asarray(covariance, dtype=float)
         if mean.shape != (n,) or covariance.shape != (n, n) or not (np.all(np.isfinite(mean))
                                                                     and np.all(np.isfinite(covariance))):
@@ -596,4 +443,4 @@ class Policy:
         return self._now.relocalise(mean, covariance)
 
 
-__all__ = ["Policy", "PolicyStatus", "ReplanSettings", "Traversal"]
+__all__ = ["Policy", "PolicyStatus", "ReplanSettings"]

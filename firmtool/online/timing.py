@@ -1,8 +1,8 @@
 """The online policy's timing record: seconds of compute per control period and per decision.
 
-A run's :attr:`firmtool.online.Policy.timing` reads it. ``act`` and ``observe`` are wall seconds per
-control period with the decisions apart; each decision (an initial controller, a replan) records its
-wall and thread CPU seconds, its time on the deadline's clock (:attr:`ReplanSettings.clock
+A run's record reads it (:attr:`firmtool.online.state.PolicyRecord.timing`). ``act`` and ``observe``
+are wall seconds per control period with the decisions apart; each decision (an initial controller, a
+replan) records its wall and thread CPU seconds, its time on the deadline's clock (:attr:`ReplanSettings.clock
 <firmtool.online.replanning.ReplanSettings>`: on the work clock ``scored x candidate_seconds``, so
 deterministic; on the wall clock the wall seconds), the candidates it scored and whether the
 deadline cut its search.
@@ -36,7 +36,7 @@ class CallTimes:
 
 @dataclass(frozen=True)
 class TimingSummary:
-    """What a run's compute cost, per call kind (:meth:`firmtool.online.Policy.timing_summary`).
+    """What a run's compute cost, per call kind (:meth:`firmtool.online.state.PolicyRecord.timing_summary`).
 
     Attributes
     ----------

@@ -24,6 +24,7 @@ from firmtool.util.hashing import digest
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.robots.base import Robot
+    from firmtool.robots.geometry import RobotGeometry
 
 
 class ValidityChecker:
@@ -94,8 +95,9 @@ class Problem:
     is_valid : maps states (M, n) to a bool (M,) that is False on a constraint violation (the
         robot's validity, and the user's checker if any).
     start, goal : (n,) start and goal states.
-    points : maps states (M, n) to the robot's key points in the workspace (M, P, D), D = 2 or 3; the
-        last one is the point a user follows (the point robot itself, the arm's tip).
+    robot : the robot plugin (:class:`firmtool.robots.Robot`) that built the problem. The problem holds
+        it, not copies of its functions: a caller names the protocol it uses (:attr:`geometry`, the
+        robot's compiled hooks, its model).
     workspace_gain : bound on how far any robot point moves per unit of configuration change
         (1 for a point robot, the arm's total length), to space collision checks along paths.
     goal_disc : (center (D,), radius) when the goal is a ball in the robot's task space (its last key point).
@@ -106,11 +108,6 @@ class Problem:
         start node's stationary belief is the start belief).
     true_start : (n,) the true start of simulations when the task gives one, else None (drawn from
         the start belief).
-    points_valid : the scenario's geometry on key points (M, P, D) -> bool (M,), so that a caller
-        that already has the points (the Monte Carlo: kinematics once per step) does not recompute
-        them. Without the user's checker: see :meth:`states_valid`.
-    sensing_from_points : key points (M, P, D) -> the sensing coordinate of each measurement (M, nz).
-    robot : the robot plugin (:class:`firmtool.robots.Robot`) that built the problem.
     validity : the user's checker (:class:`ValidityChecker`) or None.
     """
 
@@ -123,16 +120,22 @@ class Problem:
     is_valid: Callable[[np.ndarray], np.ndarray]
     start: np.ndarray
     goal: np.ndarray
-    points: Callable[[np.ndarray], np.ndarray]
+    robot: "Robot"
     workspace_gain: float = 1.0
     goal_disc: tuple[np.ndarray, float] | None = None
-    points_valid: Callable[[np.ndarray], np.ndarray] | None = None
-    sensing_from_points: Callable[[np.ndarray], np.ndarray] | None = None
-    robot: "Robot | None" = None
     validity: ValidityChecker | None = None
     goal_region: "GoalRegion | None" = None
     start_covariance: np.ndarray | None = None
     true_start: np.ndarray | None = None
+
+    @property
+    def geometry(self) -> "RobotGeometry":
+        """The robot as its geometry protocol (:class:`firmtool.robots.geometry.RobotGeometry`): key
+        points ``points(X)`` (M, n) -> (M, P, D), D = 2 or 3, the last one the point a user follows;
+        ``points_valid(P)`` the scenario's geometry on key points (so that a caller that already has
+        the points, the Monte Carlo, does not recompute them; without the user's checker: see
+        :meth:`states_valid`); ``sensing_from_points(P)`` the sensing coordinate of each measurement."""
+        return self.robot
 
     @property
     def velocity_dim(self) -> int:
@@ -158,8 +161,8 @@ class Problem:
         """The validity the Monte Carlo and execution test on the TRUE states ``X`` (M, n), given
         their key points ``points`` (M, P, D): the scenario's geometry, the robot's state limits
         (:meth:`~firmtool.robots.RobotGeometry.state_limits`) and the user's checker."""
-        ok = self.points_valid(points)
-        limits = None if self.robot is None else self.robot.state_limits()
+        ok = self.robot.points_valid(points)
+        limits = self.robot.state_limits()
         if limits is not None:
             ok = ok & np.all((X >= limits[0]) & (X <= limits[1]), axis=1)
         if self.validity is not None:
@@ -211,10 +214,8 @@ def build_problem(scenario: Scenario, *, validity: Callable[[np.ndarray], np.nda
     true_start = None if task.true_start is None else robot._task_state("task.true_start", task.true_start)
     problem = Problem(scenario=scenario, model=robot.model, perfect=scenario.perfect, config_dim=robot.config_dim,
                       config_lo=np.asarray(robot.config_lo), config_hi=np.asarray(robot.config_hi),
-                      is_valid=is_valid, start=start, goal=goal, points=robot.points,
-                      workspace_gain=float(robot.workspace_gain), goal_disc=goal_disc,
-                      points_valid=robot.points_valid, sensing_from_points=robot.sensing_from_points,
-                      robot=robot, validity=checker, goal_region=goal_region, true_start=true_start)
+                      is_valid=is_valid, start=start, goal=goal, robot=robot,
+                      workspace_gain=float(robot.workspace_gain), goal_disc=goal_disc, validity=checker, goal_region=goal_region, true_start=true_start)
     _check_task(problem)
     robot.check(problem)
     if task.start_covariance is not None:
@@ -259,7 +260,7 @@ def _check_task(problem: Problem) -> None:
                                                f"found {np.array2string(config, precision=4)}")
         # the true start is tested as the Monte Carlo tests true states (a robot's node validity may
         # keep a margin, as the unicycle's does)
-        ok = (problem.states_valid(state[None], problem.points(state[None])) if name == "task.true_start"
+        ok = (problem.states_valid(state[None], problem.geometry.points(state[None])) if name == "task.true_start"
               else problem.is_valid(state[None]))[0]
         if not ok:
             _check_free_space(problem)

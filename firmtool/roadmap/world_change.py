@@ -3,7 +3,7 @@ which edges' swept regions they meet.
 
 An edge's particles read the world only through their collision tests: the robot's shape (balls or
 capsules of ``world.robot_radius`` over its key points, or the margin a robot keeps: its
-:meth:`~firmtool.robots.geometry.GeometryDefaults.world_reach`) against the obstacles and the bounds.
+:meth:`~firmtool.robots.geometry.RobotGeometry.world_reach`) against the obstacles and the bounds.
 The Monte Carlo records, per edge, the box around every key point it tested
 (:attr:`firmtool.estimation.edges.EdgeEstimate.swept`). A world change is a set of boxes (the
 bounding box of every obstacle added or removed, a moved one being both, and the slab between an

@@ -6,10 +6,10 @@ robot-specific lives in the robot's class, so that a new robot is ONE new module
 user's package, or in a script) and nothing else in firmtool changes: the planner, the Monte Carlo,
 execution and plots see only its answers.
 
-What a robot says, one protocol each (a ``typing.Protocol`` naming what the stages call, and a
-mixin holding the default that :class:`Robot` inherits; the defaults suit a holonomic robot with a
-linear model, node stabilisers at rest and rest-to-rest nominals), so that a robot overrides only
-what differs:
+What a robot says, one protocol each, declared once: a class naming what the stages call and holding
+the defaults :class:`Robot` inherits (they suit a holonomic robot with a linear model, node stabilisers
+at rest and rest-to-rest nominals), so that a robot overrides only what differs, and a caller names the
+protocol it uses (the engine the compiled hooks, the problem the geometry):
 
 - :class:`~firmtool.robots.model.RobotModel` (:mod:`firmtool.robots.model`): its ``[model]`` keys
   (:attr:`Robot.model_fields`, declarative, see :mod:`firmtool.util.schema`) and their cross-checks
@@ -46,23 +46,23 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from firmtool.robots.compiled import CompiledHooks
-from firmtool.robots.drawing import DrawingDefaults
-from firmtool.robots.geometry import GeometryDefaults
-from firmtool.robots.jumps import JumpDefaults
-from firmtool.robots.model import ModelDefaults
-from firmtool.robots.nominals import NominalDefaults
-from firmtool.robots.relocalisation import RelocalisationDefaults
-from firmtool.robots.stabilisers import StabiliserDefaults
-from firmtool.robots.task import TaskSpaceDefaults
+from firmtool.robots.drawing import Drawable
+from firmtool.robots.geometry import RobotGeometry
+from firmtool.robots.jumps import JumpAnswers
+from firmtool.robots.model import RobotModel
+from firmtool.robots.nominals import Nominals
+from firmtool.robots.relocalisation import Relocalising
+from firmtool.robots.stabilisers import NodeStabilisers
+from firmtool.robots.task import TaskSpace
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.scenario import Scenario
 
 
-class Robot(ModelDefaults, GeometryDefaults, TaskSpaceDefaults, StabiliserDefaults, NominalDefaults, JumpDefaults,
-            RelocalisationDefaults, CompiledHooks, DrawingDefaults):
-    """Base class of robots: the defaults of every protocol of the module docs, composed (see there
-    for what a subclass says; each mixin's module has its protocol).
+class Robot(RobotModel, RobotGeometry, TaskSpace, NodeStabilisers, Nominals, JumpAnswers,
+            Relocalising, CompiledHooks, Drawable):
+    """Base class of robots: every protocol of the module docs with its defaults, composed (see there
+    for what a subclass says; each protocol's module has its defaults).
 
     A subclass sets, in ``__init__`` after ``super().__init__(scenario)``: :attr:`model`,
     :attr:`config_dim`, :attr:`config_lo`, :attr:`config_hi` and (if not 1) :attr:`workspace_gain`,

@@ -1,13 +1,13 @@
 """How a robot looks in a 2-D figure (a 3-D robot is drawn from above).
 
-:class:`Drawable` is what the figures (:mod:`firmtool.figures`) ask of a robot; :class:`DrawingDefaults`
-holds the defaults :class:`firmtool.robots.Robot` inherits: no heading, a disc for one key point
+:class:`Drawable` is what the figures (:mod:`firmtool.figures`) ask of a robot, declared once with the
+defaults :class:`firmtool.robots.Robot` inherits: no heading, a disc for one key point
 and a polyline through several.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -15,25 +15,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.scenario import Scenario
 
 
-@runtime_checkable
-class Drawable(Protocol):
-    """How a robot is drawn (the defaults: :class:`DrawingDefaults`)."""
+class Drawable:
+    """How a robot is drawn.
 
-    def heading(self, X: np.ndarray) -> np.ndarray | None:
-        """The heading in the workspace's x-y plane (radians) at states (M, n) -> (M,), or None."""
-        ...
-
-    def draw(self, ax: Any, state: np.ndarray, *, color: str, label: str, lw: float = 2.0) -> None:
-        """Draw the robot at ``state`` (n,) on a matplotlib Axes."""
-        ...
-
-    def sensing_field(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The sensing coordinate at points (N, 2) of the x-y plane and the light's (2,), or None."""
-        ...
-
-
-class DrawingDefaults:
-    """The defaults of :class:`Drawable` (see the module docs)."""
+    Declared once: its methods are the protocol and hold the defaults :class:`firmtool.robots.Robot`
+    inherits (see the module docs); a robot overrides what differs."""
 
     scenario: "Scenario"
 

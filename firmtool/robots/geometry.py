@@ -2,7 +2,7 @@
 
 :class:`RobotGeometry` is what sampling, the nominals' checks, the Monte Carlo and execution ask
 of a robot (through :class:`firmtool.problem.Problem`'s ``points``, ``points_valid``,
-``sensing_from_points`` and ``is_valid``); :class:`GeometryDefaults` holds the defaults
+``sensing_from_points`` and ``is_valid``), declared once with the defaults
 :class:`firmtool.robots.Robot` inherits. A robot defines :meth:`~RobotGeometry.points`; the rest
 has a default: balls of ``world.robot_radius`` at the key points, measurements sensed at the
 first one's x.
@@ -10,7 +10,7 @@ first one's x.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -23,54 +23,16 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.scenario import Scenario
 
 
-@runtime_checkable
-class RobotGeometry(Protocol):
-    """A robot's key points, collision shape, validity and sensing points (the defaults:
-    :class:`GeometryDefaults`).
+class RobotGeometry:
+    """A robot's key points, collision shape, validity and sensing points.
 
     Attributes
     ----------
     shape : ``"spheres"`` (a ball of ``world.robot_radius`` at each key point) or ``"chain"``
         (capsules between consecutive ones, non-adjacent ones also tested against each other).
-    """
 
-    shape: ClassVar[str]
-
-    def points(self, X: np.ndarray) -> np.ndarray:
-        """Key points in the workspace: states (M, n) -> (M, P, D)."""
-        ...
-
-    def sensing_from_points(self, P: np.ndarray) -> np.ndarray:
-        """The sensing coordinate of each measurement: key points (M, P, D) -> (M, nz)."""
-        ...
-
-    def sensing_x(self, X: np.ndarray) -> np.ndarray:
-        """The sensing coordinate of each measurement: states (M, n) -> (M, nz)."""
-        ...
-
-    def collision(self) -> "CollisionBackend":
-        """The world's collision backend."""
-        ...
-
-    def points_valid(self, P: np.ndarray) -> np.ndarray:
-        """The scenario's geometry on key points (M, P, D) -> bool (M,)."""
-        ...
-
-    def is_valid(self, X: np.ndarray) -> np.ndarray:
-        """Validity of states (M, n) -> bool (M,) for sampling nodes and checking nominals."""
-        ...
-
-    def world_reach(self) -> float:
-        """How far from its key points any of its world tests reaches (a world update's margin)."""
-        ...
-
-    def state_limits(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """Bounds ``(lo, hi)`` (n,) on the true state it must keep (a URDF arm's joint limits), or None."""
-        ...
-
-
-class GeometryDefaults:
-    """The defaults of :class:`RobotGeometry` (see the module docs); :meth:`points` has none."""
+    Declared once: its methods are the protocol and hold the defaults :class:`firmtool.robots.Robot`
+    inherits (see the module docs); a robot overrides what differs; :meth:`points` has none."""
 
     #: the collision shape over the key points: ``"spheres"`` (a ball of ``world.robot_radius`` at
     #: each) or ``"chain"`` (capsules between consecutive ones, non-adjacent ones also tested

@@ -1,15 +1,15 @@
 """A robot's answers to a jump the online policy found (a kidnap, a push, a collision).
 
 :class:`JumpAnswers` is what the online policy's jump tests (:class:`firmtool.online.innovation.JumpTests`),
-the simulated disturbances (:mod:`firmtool.sim.disturbances`) and the goal check ask of a robot;
-:class:`JumpDefaults` holds the defaults :class:`firmtool.robots.Robot` inherits: velocities kept
+the simulated disturbances (:mod:`firmtool.sim.disturbances`) and the goal check ask of a robot,
+declared once with the defaults :class:`firmtool.robots.Robot` inherits: velocities kept
 or stopped, equally likely (:func:`mixed_velocity`), a jump anywhere in the configuration's range,
 no angle coordinates.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -17,28 +17,15 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.problem import Problem
 
 
-@runtime_checkable
-class JumpAnswers(Protocol):
-    """What a robot says about jumps (the defaults: :class:`JumpDefaults`).
+class JumpAnswers:
+    """What a robot says about jumps.
 
     Attributes
     ----------
     angle_coordinates : state coordinates that are angles kept continuous along a run (not wrapped).
-    """
 
-    angle_coordinates: ClassVar[tuple[int, ...]]
-
-    def after_jump(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The belief ``(mean (n,), covariance (n, n))`` after a jump the jump test found."""
-        ...
-
-    def jump_prior(self, problem: "Problem") -> np.ndarray:
-        """(n,) prior variance of a sudden jump of each state coordinate."""
-        ...
-
-
-class JumpDefaults:
-    """The defaults of :class:`JumpAnswers` (see the module docs)."""
+    Declared once: its methods are the protocol and hold the defaults :class:`firmtool.robots.Robot`
+    inherits (see the module docs); a robot overrides what differs."""
 
     #: state coordinates that are angles kept continuous along a run (not wrapped): a kidnap draws
     #: those past the configuration uniformly and puts them on the turn nearest their old value

@@ -1,15 +1,15 @@
 """What a robot is: its ``[model]`` keys, its discrete model and its configuration space.
 
 :class:`RobotModel` is what the scenario loader, the problem bundle
-(:func:`firmtool.problem.build_problem`) and every stage read of a robot; :class:`ModelDefaults`
-holds the defaults :class:`firmtool.robots.Robot` inherits. A robot sets :attr:`~RobotModel.model`,
+(:func:`firmtool.problem.build_problem`) and every stage read of a robot, declared once with the
+defaults :class:`firmtool.robots.Robot` inherits. A robot sets :attr:`~RobotModel.model`,
 :attr:`~RobotModel.config_dim`, :attr:`~RobotModel.config_lo`, :attr:`~RobotModel.config_hi` (and,
 if not 1, :attr:`~RobotModel.workspace_gain`) in its ``__init__``; everything else here has a default.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -24,9 +24,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.scenario import Scenario
 
 
-@runtime_checkable
-class RobotModel(Protocol):
-    """The model and configuration space of a robot (the defaults: :class:`ModelDefaults`).
+class RobotModel:
+    """The model and configuration space of a robot.
 
     Attributes
     ----------
@@ -39,55 +38,9 @@ class RobotModel(Protocol):
     config_dim : d, the first d state coordinates are the configuration.
     config_lo, config_hi : (d,) the configuration's sampling bounds.
     workspace_gain : bound on how far any key point moves per unit of configuration change.
-    """
 
-    model_fields: ClassVar[tuple[Field, ...]]
-    bounds_name: ClassVar[str]
-    rest_state_text: ClassVar[str]
-    template: ClassVar[dict[str, dict[str, Any]] | None]
-    scenario: "Scenario"
-    world_dim: int
-    model: "Model"
-    config_dim: int
-    config_lo: np.ndarray
-    config_hi: np.ndarray
-    workspace_gain: float
-
-    @classmethod
-    def read_model(cls, values: dict[str, Any], errors: Errors) -> dict[str, Any]:
-        """Cross-checks of the ``[model]`` values; the values to keep."""
-        ...
-
-    @property
-    def name(self) -> str:
-        """The name the scenario gave the robot."""
-        ...
-
-    @property
-    def identity(self) -> str:
-        """Which code the robot is (edge keys and a roadmap's nodes include it)."""
-        ...
-
-    @classmethod
-    def code_identity(cls) -> str:
-        """The class's module, name and version (and a fingerprint of a user's own code)."""
-        ...
-
-    def noise(self) -> "NoiseModel":
-        """The measurement noise law the scenario's ``[measurement]`` names."""
-        ...
-
-    def check(self, problem: "Problem") -> None:
-        """Robot-specific input checks of the assembled problem (ScenarioError)."""
-        ...
-
-    def velocity_command(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The control as a body velocity command, or None when it is none (an acceleration, a torque)."""
-        ...
-
-
-class ModelDefaults:
-    """The defaults of :class:`RobotModel`: no ``[model]`` keys of its own, the scenario's noise law,
+    Declared once: its methods are the protocol and hold the defaults :class:`firmtool.robots.Robot`
+    inherits; a robot overrides what differs. The defaults: no ``[model]`` keys of its own, the scenario's noise law,
     a code identity by module, name and ``version``, no robot-specific checks."""
 
     #: the ``[model]`` keys this robot reads (besides ``robot`` and ``dt``)

@@ -1,15 +1,15 @@
 """A robot's nominal trajectories between nodes (design) and from a belief (execution's replanning).
 
 :class:`Nominals` is what the design stage (:mod:`firmtool.roadmap.design`, the executors' nominal
-lengths) and execution's replanning (:mod:`firmtool.online.replanning`) ask of a robot;
-:class:`NominalDefaults` holds the defaults :class:`firmtool.robots.Robot` inherits: rest-to-rest
+lengths) and execution's replanning (:mod:`firmtool.online.replanning`) ask of a robot, declared once
+with the defaults :class:`firmtool.robots.Robot` inherits: rest-to-rest
 minimum-energy trajectories of the linear model (:func:`firmtool.control.trajectories.min_energy_trajectory`)
 whose length respects the scenario's speed and input limits.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -20,43 +20,16 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.problem import Problem
 
 
-@runtime_checkable
-class Nominals(Protocol):
-    """A robot's nominal trajectories (the defaults: :class:`NominalDefaults`).
+class Nominals:
+    """A robot's nominal trajectories.
 
     Attributes
     ----------
     replan_candidate_seconds : seconds of compute to score one replan candidate, what the
         deterministic work clock of a replan decision charges.
-    """
 
-    replan_candidate_seconds: ClassVar[float]
-
-    def nominals_are_straight(self) -> bool:
-        """Whether a nominal between two nodes follows the straight configuration segment."""
-        ...
-
-    def nominal_steps_bound(self, problem: "Problem", x0: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """Analytic length (steps) of the nominals from ``x0`` (n,) to each of ``targets`` (K, n): (K,)."""
-        ...
-
-    def nominal_trajectory(self, problem: "Problem", x0: np.ndarray, xf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The nominal (x (T+1, n), u (T, m)) from ``x0`` to ``xf`` (design stage)."""
-        ...
-
-    def nominal_trajectories(self, problem: "Problem", x0: np.ndarray,
-                             xf: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """:meth:`nominal_trajectory` of many node pairs (``x0``, ``xf`` (E, n))."""
-        ...
-
-    def runtime_nominal(self, problem: "Problem", x0: np.ndarray, xf: np.ndarray,
-                        tries: int) -> tuple[np.ndarray, np.ndarray]:
-        """A nominal from a (possibly moving) state designed in real time (execution)."""
-        ...
-
-
-class NominalDefaults:
-    """The defaults of :class:`Nominals` (see the module docs)."""
+    Declared once: its methods are the protocol and hold the defaults :class:`firmtool.robots.Robot`
+    inherits (see the module docs); a robot overrides what differs."""
 
     #: seconds of compute to score one replan candidate (design of a controller from a belief and
     #: its 32-particle Monte Carlo), what the deterministic work clock of a replan decision charges
@@ -111,7 +84,7 @@ class NominalDefaults:
         computed together (:func:`firmtool.control.trajectories.min_energy_trajectories`, bit for bit the
         single-pair trajectory)."""
         x0, xf = np.atleast_2d(x0), np.atleast_2d(xf)
-        if type(self).nominal_trajectory is not NominalDefaults.nominal_trajectory:
+        if type(self).nominal_trajectory is not Nominals.nominal_trajectory:
             return [self.nominal_trajectory(problem, a, b) for a, b in zip(x0, xf)]
 
         model, c = problem.model, problem.scenario.controller

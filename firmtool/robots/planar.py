@@ -37,7 +37,7 @@ if numba is not None:
     @hook
     def point_key_points(X, params, PX, PY, lane, na):
         """The key point of a planar point robot: its first two state coordinates. Twin of the point
-        robot's ``Problem.points`` (:mod:`firmtool.problem`); pinned by
+        robot's ``Problem.geometry.points`` (:mod:`firmtool.problem`); pinned by
         tests/test_kernels.py::test_kinematics_are_the_robots_points."""
         for a in range(na):
             PX[0, a] = X[0, a]

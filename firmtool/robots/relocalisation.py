@@ -3,14 +3,14 @@ relocalisation protocol, :meth:`firmtool.robots.Robot.relocalisation`): the hypo
 coordinate its sensor cannot see at rest, and a probe motion that tells them apart. The policy runs
 them as a Gaussian sum (:class:`firmtool.online.relocalise.GaussianSum`).
 
-:class:`Relocalising` is the optional protocol the online policy asks; :class:`RelocalisationDefaults`
-holds the default :class:`firmtool.robots.Robot` inherits (none: the belief stays one Gaussian).
+:class:`Relocalising` is the optional protocol the online policy asks, declared once with the default
+:class:`firmtool.robots.Robot` inherits (none: the belief stays one Gaussian).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -62,18 +62,11 @@ class Relocalisation:
         return True if self.allowed is None else bool(self.allowed(mean, covariance))
 
 
-@runtime_checkable
-class Relocalising(Protocol):
-    """What a robot says when the online policy asks how to re-localise after a jump (the default,
-    :class:`RelocalisationDefaults`: no re-localisation, the belief stays one Gaussian)."""
+class Relocalising:
+    """What a robot says when the online policy asks how to re-localise after a jump.
 
-    def relocalisation(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> Relocalisation | None:
-        """The hypotheses of a coordinate the sensor cannot see at rest and a probe, or None."""
-        ...
-
-
-class RelocalisationDefaults:
-    """The default of :class:`Relocalising`: none (the policy decides from the belief at once)."""
+    Declared once: its method is the protocol and holds the default :class:`firmtool.robots.Robot`
+    inherits: none (the policy decides from the belief at once)."""
 
     def relocalisation(self, problem: "Problem", mean: np.ndarray, covariance: np.ndarray) -> Relocalisation | None:
         """After a jump the online policy found, the hypotheses of a coordinate its sensor cannot see

@@ -1,7 +1,7 @@
 """A robot's node stabilisers: how a node holds the robot, and the belief at a start that is no node.
 
 :class:`NodeStabilisers` is what the design stage (:mod:`firmtool.roadmap.design`), the roadmap's
-loader and execution ask of a robot; :class:`StabiliserDefaults` holds the defaults
+loader and execution ask of a robot, declared once with the defaults
 :class:`firmtool.robots.Robot` inherits: stationary SLQR / SLQG of the linear model
 (:func:`firmtool.control.stabilisers.design_node`) with the stored arrays as they are, and a start
 belief from the stationary Kalman filter at the start. A robot that cannot be held still designs
@@ -10,7 +10,7 @@ periodic ones instead (the unicycle: :mod:`firmtool.control.stabilisers`).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,26 +22,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.problem import Problem
 
 
-@runtime_checkable
-class NodeStabilisers(Protocol):
-    """A robot's node stabilisers (the defaults: :class:`StabiliserDefaults`)."""
+class NodeStabilisers:
+    """A robot's node stabilisers.
 
-    def design_node(self, problem: "Problem", center: np.ndarray, Wx: np.ndarray, Wu: np.ndarray,
-                    memo: dict) -> "NodeController":
-        """The stabiliser of a node at ``center`` (n,) (design stage)."""
-        ...
-
-    def node_controller(self, problem: "Problem", center: np.ndarray, stored: "NodeController") -> "NodeController":
-        """A node's stabiliser with everything local controllers need, from what the roadmap stores."""
-        ...
-
-    def start_covariance(self, problem: "Problem", state: np.ndarray) -> np.ndarray:
-        """The belief covariance (n, n) at a start state (n,) that is no node (imperfect measurements)."""
-        ...
-
-
-class StabiliserDefaults:
-    """The defaults of :class:`NodeStabilisers` (see the module docs)."""
+    Declared once: its methods are the protocol and hold the defaults :class:`firmtool.robots.Robot`
+    inherits (see the module docs); a robot overrides what differs."""
 
     def design_node(self, problem: "Problem", center: np.ndarray, Wx: np.ndarray, Wu: np.ndarray,
                     memo: dict) -> "NodeController":

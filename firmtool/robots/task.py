@@ -2,7 +2,7 @@
 
 :class:`TaskSpace` is what the problem bundle (:func:`firmtool.problem.build_problem`: the start and
 goal, the start belief), the goal regions (:mod:`firmtool.problem.goal`, :mod:`firmtool.roadmap.nodes`)
-and the figures ask of a robot; :class:`TaskSpaceDefaults` holds the defaults
+and the figures ask of a robot, declared once with the defaults
 :class:`firmtool.robots.Robot` inherits: the task's states as given, the last key point as the task
 point (its Jacobian by central differences), a goal ball's state at rest with the configuration's
 first D coordinates at the ball's centre.
@@ -10,7 +10,7 @@ first D coordinates at the ball's centre.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -22,35 +22,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from firmtool.scenario import Scenario
 
 
-@runtime_checkable
-class TaskSpace(Protocol):
-    """A robot's start and goal states and its task space (the defaults: :class:`TaskSpaceDefaults`)."""
+class TaskSpace:
+    """A robot's start and goal states and its task space.
 
-    def task_point(self, X: np.ndarray) -> np.ndarray:
-        """The point of the task space a goal ball is stated in: states (M, n) -> (M, D)."""
-        ...
-
-    def task_jacobian(self, X: np.ndarray) -> np.ndarray:
-        """d task_point / d state at states (M, n) -> (M, D, n)."""
-        ...
-
-    def task_states(self, is_valid: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray,
-                                                                                tuple[np.ndarray, float] | None]:
-        """Start and goal states (n,), and the goal ball ``(center (D,), radius)`` or None."""
-        ...
-
-    def goal_state(self, center: np.ndarray, start: np.ndarray,
-                   is_valid: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-        """A valid state (n,) at rest whose task point is ``center`` (D,): a goal ball's goal node."""
-        ...
-
-    def start_belief_covariance(self, problem: "Problem") -> np.ndarray | None:
-        """The start belief's covariance (n, n) the task gives, or None."""
-        ...
-
-
-class TaskSpaceDefaults:
-    """The defaults of :class:`TaskSpace` (see the module docs). A robot whose task point is not at
+    Declared once: its methods are the protocol and hold the defaults :class:`firmtool.robots.Robot`
+    inherits (see the module docs); a robot overrides what differs. A robot whose task point is not at
     its configuration's first D coordinates (the arm's tip) overrides :meth:`goal_state`."""
 
     scenario: "Scenario"

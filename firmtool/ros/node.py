@@ -142,13 +142,13 @@ class PolicyNode(ros.Node):
         self._last_control = self.get_clock().now()  # the node's clock: simulated time with use_sim_time
 
     def _publish_belief(self) -> None:
-        p = self.policy
+        p = self.policy.state
         point, cov, heading, heading_var = checks.task_belief(p.problem, p.mean, p.covariance)
         self.belief_pub.publish(ros.belief_message(point, cov, heading, heading_var, self.get_clock().now().to_msg(),
                                                    self.frame_id))
 
     def _publish_plan(self) -> None:
-        p, rm = self.policy, self.solution.roadmap
+        p, rm = self.policy.state, self.solution.roadmap
         node = p.target if p.target >= 0 else p.node
         points = checks.plan_points(p.problem, p.design.centers, p.edge_per_node, rm.edges[:, 1], rm.goals, node)
         self.plan_pub.publish(ros.path_message(points, self.get_clock().now().to_msg(), self.frame_id))
@@ -165,7 +165,7 @@ class PolicyNode(ros.Node):
         self.episode, self._offset = request.episode, 0
         self._say({"kind": "reset", "detail": "resume" if request.resume else "start"})
         if request.resume and self.state != IDLE:
-            events = p.reset(p.mean, p.covariance, rng=rng)
+            events = p.reset(p.state.mean, p.state.covariance, rng=rng)
         else:
             events = p.reset(rng=rng)
         self.state = RUNNING
@@ -180,14 +180,15 @@ class PolicyNode(ros.Node):
             return
         self._publish_control(p.act())
         self._publish_belief()
-        node = p.target if p.target >= 0 else p.node
+        st = p.state
+        node = st.target if st.target >= 0 else st.node
         if node != getattr(self, "_plan_from", None):
             self._publish_plan()
 
     def _finish(self) -> None:
         """The policy ended (goal, stuck, timeout): say so; a velocity robot is told to stand still
         (``~/control`` stays quiet: a zero acceleration or torque is no stop)."""
-        p = self.policy
+        p = self.policy.state
         self.state = DONE
         if self.cmd_vel_pub is not None:
             self.cmd_vel_pub.publish(ros.twist_message(self.problem.robot.velocity_command(np.zeros(p.problem.model.m))))
@@ -249,7 +250,7 @@ class PolicyNode(ros.Node):
         if self.state == RUNNING and gap > timeout:
             self.state = STOPPED
             self._publish_control(np.zeros(self.problem.model.m))
-            self._say({"kind": "stopped", "step": self.policy.steps,
+            self._say({"kind": "stopped", "step": self.policy.state.steps,
                        "detail": f"no measurement for {timeout:g} s after a control: zero control, "
                                  "waiting for ~/reset ({\"resume\": true}) or a new goal"})
             self._take_world()  # updates that waited for the next measurement: no control is in flight now
@@ -322,12 +323,12 @@ class PolicyNode(ros.Node):
         if self.state == IDLE:
             events = policy.reset()
         else:
-            events = policy.reset(old.mean, old.covariance)
-        if policy.done and policy.status is not PolicyStatus.GOAL:
+            events = policy.reset(old.state.mean, old.state.covariance)
+        if policy.done and policy.state.status is not PolicyStatus.GOAL:
             self._drop(MessageError("goal_pose", f"no controller from the current belief to the new goal's "
-                                                 f"roadmap ({policy.status.value})"), "goal_refused")
+                                                 f"roadmap ({policy.state.status.value})"), "goal_refused")
             return
-        self._offset += old.steps if self.state != IDLE else 0
+        self._offset += old.state.steps if self.state != IDLE else 0
         self.policy, self.solution, self.goal = policy, sol, goal
         self._say({"kind": "goal_accepted", "goal": goal.tolist(), "detail": repr(sol)})
         self._events(events)

@@ -99,11 +99,11 @@ class SimulatedSystem:
         u = np.asarray(u, dtype=float).reshape(1, -1)
         noise = self._rng.standard_normal((1, self._width))
         x = model.f(self._x, u) + noise[:, :self._r] @ model.F.T  # as firmtool.estimation.edges.control_and_move
-        pts = problem.points(x)  # the kinematics once, for the collision test and the sensing noise
+        pts = problem.geometry.points(x)  # the kinematics once, for the collision test and the sensing noise
         if problem.perfect:
             z = x[0].copy()
         else:  # as firmtool.estimation.edges.filter_update: R at the TRUE state
-            variance = model.noise.variance(problem.sensing_from_points(pts))
+            variance = model.noise.variance(problem.geometry.sensing_from_points(pts))
             z = (model.h(x) + np.sqrt(variance) * noise[:, self._r:])[0]
         self._x = x
         self._steps += 1

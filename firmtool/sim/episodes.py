@@ -164,9 +164,10 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
         :func:`firmtool.sim.sweep.oracle`); None in a plain simulation.
     """
     rng = np.random.default_rng(seeds.system)
-    world = system.design if system.design is not None else policy.design  # whose goal regions judge
-    disturber = _Disturber(disturbances, tuple(seeds.disturbances), policy.max_steps)
-    own_world = [o.to_table() for o in policy.problem.scenario.world.obstacles]  # restored after a told change
+    known = policy.state  # what the policy runs on: its design, budget and world
+    world = system.design if system.design is not None else known.design  # whose goal regions judge
+    disturber = _Disturber(disturbances, tuple(seeds.disturbances), known.max_steps)
+    own_world = [o.to_table() for o in known.problem.scenario.world.obstacles]  # restored after a told change
     mean, covariance = policy.start_belief(start)
     x0 = system.reset(mean, covariance, rng)  # drawn from the start belief (drawn either way: the same streams)
     true_start = system.problem.true_start
@@ -181,18 +182,20 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
     states = [x0] if record else []
     running = None  # the clean traversal a collision ended
     judged: dict[int, bool] = {}  # traversal -> its goal arrival held the true state (arrivals questioned)
+    now = -1
     while not policy.done:
         u = policy.act()
-        now = policy.steps - 1  # steps completed before this one
+        now += 1  # steps completed before this one (one act() per control period since the reset)
         disturber.before(now, system, ep.events)  # due now: they move the true state before this step
         z, valid = system.step(u)
         if record:
             states.append(system.state)
         if not valid:  # the true state violated a constraint: the system stops the run
-            running = policy.running_traversal
+            running = policy.state.running_traversal
             policy.observe(z, decide=False)  # the belief of the last step, for the record
             ep.outcome = Outcome.COLLISION
-            ep.events.append(Event(policy.steps, EventKind.COLLISION, policy.target, detail=policy.controller))
+            st = policy.state
+            ep.events.append(Event(st.steps, EventKind.COLLISION, st.target, detail=st.controller))
             break
         events = policy.observe(z)
         while disturber.told and not policy.done:  # a map update, once the policy observed the step
@@ -211,7 +214,7 @@ def run_episode(policy: Policy, system: SimulatedSystem, seeds: EpisodeSeeds, *,
         if disturber.policy_told:
             policy.update_world(own_world)
     if record:
-        history = policy.history
+        history = policy.record.history
         ep.states = np.array(states)
         ep.estimates, ep.covariances, ep.controls = history["estimates"], history["covariances"], history["controls"]
     return ep
@@ -224,7 +227,7 @@ def _judge_questioned(policy: Policy, system: SimulatedSystem, world: Design, ev
     questioned = [ev.step for ev in events if ev.kind == EventKind.GOAL_QUESTIONED]
     if not questioned:
         return
-    done = policy.traversals
+    done = policy.record.traversals
     ended = len(done) - 1
     if ended >= 0 and ended not in judged and done[ended][3] == questioned[0]:
         judged[ended] = system.arrived(done[ended][1], world)
@@ -236,11 +239,12 @@ def _judged_traversals(policy: Policy, system: SimulatedSystem, world: Design, e
     a declared goal the true state is not in is a goal miss (the policy's goal event becomes
     ``goal_miss``, its own log keeps it), and so is a questioned arrival judged outside; a collision ends
     the traversal running (``running``) in a failure."""
-    traversals = [(t[0], t[1], t[2], t[3]) for t in policy.traversals]
+    traversals = [(t[0], t[1], t[2], t[3]) for t in policy.record.traversals]
+    st = policy.state
     if ep.outcome != Outcome.COLLISION:
-        ep.outcome = _OUTCOME[policy.status]
-        node = policy.node
-        if policy.status == PolicyStatus.GOAL and not system.arrived(node, world):
+        ep.outcome = _OUTCOME[st.status]
+        node = st.node
+        if st.status == PolicyStatus.GOAL and not system.arrived(node, world):
             ep.outcome = Outcome.GOAL_MISS
             i = max(j for j, ev in enumerate(ep.events) if ev.kind == EventKind.GOAL)
             ep.events[i] = Event(ep.events[i].step, EventKind.GOAL_MISS, node,
@@ -254,16 +258,17 @@ def _judged_traversals(policy: Policy, system: SimulatedSystem, world: Design, e
             e, _, first, last = traversals[i]
             traversals[i] = (e, GOAL_MISS, first, last)
     if ep.outcome == Outcome.COLLISION and running is not None:
-        traversals.append((running[0], FAILURE, running[1], policy.steps))
+        traversals.append((running[0], FAILURE, running[1], st.steps))
     return traversals
 
 
 def _fill(ep: Episode, policy: Policy) -> None:
     """The episode's counts, cost and compute from the policy's report of its run."""
-    ep.steps, ep.cost = policy.steps, policy.cost
-    ep.nodes, ep.edges = policy.nodes, policy.edges
-    ep.replans, ep.replan_failures = policy.replans, policy.replan_failures
-    timing = policy.timing
+    st, rec = policy.state, policy.record
+    ep.steps, ep.cost = st.steps, st.cost
+    ep.nodes, ep.edges = rec.nodes, rec.edges
+    ep.replans, ep.replan_failures = rec.replans, rec.replan_failures
+    timing = rec.timing
     ep.step_times = timing["act"] + timing["observe"]
     ep.replan_times = timing["decision"].tolist()
     ep.replan_cpu_times = timing["decision_cpu"].tolist()
@@ -300,7 +305,8 @@ def run_episodes(policy: Policy, episodes: int, seed: int, *, start: np.ndarray 
     Results
     """
     dists = dist_mod.as_disturbances(disturbances)
-    system = system or SimulatedSystem(policy.problem, policy.design)
+    known = policy.state
+    system = system or SimulatedSystem(known.problem, known.design)
     start = start_state(system.problem, start)
     t0 = time.perf_counter()
     counter = Counter(progress, EXECUTE, episodes).start()
@@ -330,12 +336,13 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
     for e in eps:
         for ev in e.events:
             kinds[str(ev.kind)] = kinds.get(str(ev.kind), 0) + 1
-    settings = policy.settings
-    deadline = settings.deadline if settings.deadline is not None else policy.problem.model.dt
+    known = policy.state
+    settings = known.settings
+    deadline = settings.deadline if settings.deadline is not None else known.problem.model.dt
     replans = int(sum(e.replans for e in eps))
     us = lambda a, f: 1e6 * float(f(a)) if a.size else None  # noqa: E731
     p99 = lambda a: np.percentile(a, 99)  # noqa: E731
-    levels = policy.jump_levels or (None, None, None, None)  # None: no jump test ran
+    levels = known.jump_levels or (None, None, None, None)  # None: no jump test ran
     return Results(
         episodes=eps, successes=successes, collisions=count(Outcome.COLLISION), timeouts=count(Outcome.TIMEOUT),
         stuck=count(Outcome.STUCK), success_rate=successes / episodes if episodes else 0.0,
@@ -353,7 +360,7 @@ def summarize(eps: list[Episode], policy: Policy, *, seed: int, seconds: float, 
         replan_time_us_mean=us(replan_times, np.mean), replan_time_us_p99=us(replan_times, p99),
         replan_time_us_max=us(replan_times, np.max),
         replans_per_episode=replans / episodes if episodes else 0.0,
-        calibration=calibration, policy=policy.name,
+        calibration=calibration, policy=known.name,
         act_time_us_mean=us(act_times, np.mean) or 0.0, act_time_us_p99=us(act_times, p99) or 0.0,
         observe_time_us_mean=us(observe_times, np.mean) or 0.0, observe_time_us_p99=us(observe_times, p99) or 0.0,
         replan_decisions=int(replan_times.size), replan_deadline_s=float(deadline), replan_clock=settings.clock,

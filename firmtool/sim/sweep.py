@@ -153,9 +153,9 @@ def informed(size: float):
 
     def tell(policy: Policy, system: SimulatedSystem) -> list:
         d = system.problem.config_dim
-        covariance = policy.covariance
+        covariance = policy.state.covariance
         covariance[:d, :d] += (size * size / d) * np.eye(d)
-        return policy.relocalise(policy.mean, covariance)
+        return policy.relocalise(policy.state.mean, covariance)
 
     return tell
 
@@ -221,7 +221,8 @@ def disturbance_sweep(policies: dict[str, Policy], times: list[int], sizes: list
     tasks = _tasks(conditions, policies, episodes, baseline_episodes or 2 * episodes)
     any_policy = next(iter(policies.values()))
     # the policies' roadmap is the world: its problem, and its design for the goals the policies declare
-    _JOB.update(conditions=conditions, policies=policies, system=SimulatedSystem(any_policy.problem, any_policy.design),
+    known = any_policy.state
+    _JOB.update(conditions=conditions, policies=policies, system=SimulatedSystem(known.problem, known.design),
                 seed=seed, immediate=immediate)
     try:
         if workers > 1:
@@ -295,7 +296,7 @@ def _one_thread() -> None:
 
 def typical_steps(policy: Policy, episodes: int, seed: int) -> float:
     """Median length of the successful undisturbed episodes (nan when none succeeds)."""
-    system = SimulatedSystem(policy.problem, policy.design)
+    system = SimulatedSystem(policy.state.problem, policy.state.design)
     steps = [ep.steps for ep in (run_episode(policy, system, episode_seeds(seed, i)) for i in range(episodes))
              if ep.outcome == Outcome.SUCCESS]
     return float(np.median(steps)) if steps else math.nan

@@ -148,7 +148,7 @@ class FirmtoolWorker:
         u = None
         for _ in range(self.statement["horizon"]):
             if policy.done:
-                ep.outcome = f"policy_{policy.status.value}"  # stopped (declared arrival, or failed) outside the ball
+                ep.outcome = f"policy_{policy.state.status.value}"  # stopped (declared arrival, or failed) outside the ball
                 break
             c0, w0 = time.thread_time(), time.perf_counter()
             u = np.asarray(policy.act(), dtype=float)
@@ -188,7 +188,7 @@ class FirmtoolWorker:
         elif ep.outcome == "hazard":
             return False
         inside = np.linalg.norm(s[:2] - ep.goal) <= env.goal_state_radius
-        return bool(policy.done and policy.status.value == "goal" and inside)
+        return bool(policy.done and policy.state.status.value == "goal" and inside)
 
 
 class PeerWorker:

@@ -41,7 +41,7 @@ if numba is not None:
         """Capsules [p[l], p[l + seg_offset]] for l < n_seg (seg_offset 0: discs at the points);
         ``half[l]`` bounds half the length of segment l (for the self-collision prefilter). Twin of
         the numpy backend's ``capsules_collide`` (:mod:`firmtool.geometry.backends`, as
-        ``Problem.points_valid`` calls it), its obstacles by the numba backend's loop
+        ``Problem.geometry.points_valid`` calls it), its obstacles by the numba backend's loop
         (:func:`firmtool.geometry._numba.capsule_meets_boxes`); pinned by
         tests/test_kernels.py::test_collision_test_is_the_numpy_backends."""
         lo, hi, C, Hs, cs, sn, blo, bhi, r = world

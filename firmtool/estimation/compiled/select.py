@@ -15,12 +15,17 @@ user's validity checker), and the numpy path otherwise (:func:`engine_choice`).
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 from firmtool.errors import InputError
 from firmtool.estimation.compiled.run import disk_cached
 from firmtool.estimation.compiled.step import NOISE_FORMS
 from firmtool.jit import numba
 from firmtool.models.linear import LinearGaussianModel
+
+if TYPE_CHECKING:  # pragma: no cover - the protocol the engine reads of a robot, named (no import at run time)
+    from firmtool.robots.compiled import CompiledHooks
+    from firmtool.robots.task import TaskSpace
 
 ENGINE_ENV = "FIRMTOOL_ENGINE"
 COMPILED_BACKENDS = ("numpy", "numba")  # the collision geometry the kernel reproduces exactly
@@ -37,8 +42,8 @@ def supports(problem) -> str | None:
     checker), and a goal ball's task point to be the robot's own."""
     if numba is None:
         return "numba is not installed"
-    robot = problem.robot
-    hooks = None if robot is None else robot.compiled_kinematics()
+    engine_hooks: "CompiledHooks" = problem.robot  # what the engine reads of a robot: its compiled hooks
+    hooks = engine_hooks.compiled_kinematics()
     if hooks is None:
         return f"robot {problem.scenario.model.robot!r} has no compiled kinematics"
     dim = len(problem.scenario.world.lo)
@@ -48,12 +53,9 @@ def supports(problem) -> str | None:
         return f"model {type(problem.model).__name__} is not a LinearGaussianModel"
     if problem.validity is not None:
         return "the problem has a Python validity checker, which the compiled engine does not compute"
-    if not (problem.points_valid == robot.points_valid and problem.points == robot.points
-            and problem.sensing_from_points == robot.sensing_from_points):
-        return "the problem's key points, sensing or validity are not its robot's own"
     w = problem.scenario.world
     reason = _geometry_reason(w, dim)
-    if reason is None and dim == 3 and getattr(robot.collision(), "self_collision", False):
+    if reason is None and dim == 3 and getattr(problem.geometry.collision(), "self_collision", False):
         reason = "the compiled engine does not test self-collision in 3-D"
     if reason is not None:
         return reason
@@ -61,7 +63,8 @@ def supports(problem) -> str | None:
         return (f"the robot's compiled kinematics sense {hooks.sensing.size} measurements with a task block of "
                 f"{hooks.task_block}, its model has {problem.model.nz} measurements and {problem.model.n} states")
     goal = problem.goal_region
-    if goal is not None and not (goal.task_point == robot.task_point and goal.task_jacobian == robot.task_jacobian):
+    task: "TaskSpace" = problem.robot  # the task space the compiled goal test computes
+    if goal is not None and not (goal.task_point == task.task_point and goal.task_jacobian == task.task_jacobian):
         return "the goal ball's task point is not the robot's own, which the compiled goal test computes"
     noise = problem.model.noise
     if getattr(noise, "compiled", None) not in NOISE_FORMS:

@@ -114,7 +114,7 @@ if numba is not None:
         ``H X`` with noise ``W[r:]`` scaled by the standard deviation at the TRUE state (its sensing
         points' x in ``PX[sensing]``), innovation against ``H`` of the prediction, correction by the
         precomputed gain ``L_k``. Twin of :func:`firmtool.estimation.edges.filter_update` (the variance as
-        ``model.noise.variance(problem.sensing_from_points(points))``); pinned by
+        ``model.noise.variance(problem.geometry.sensing_from_points(points))``); pinned by
         tests/test_kernels.py::test_filter_update_is_the_numpy_update."""
         n, nz, r = A.shape[0], H.shape[0], W.shape[0] - H.shape[0]
         linear_step(A, B, XH, U, PRED, TMP, na)

@@ -1,4 +1,4 @@
-"""A summary of what a roadmap file holds (``firmtool inspect``)."""
+"""A summary of what a roadmap holds (:meth:`firmtool.Roadmap.summary`; ``firmtool inspect`` prints it)."""
 
 from __future__ import annotations
 
@@ -6,25 +6,31 @@ from pathlib import Path
 
 import numpy as np
 
+from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import STAGES, RoadmapFile
 from firmtool.io.roadmap_format import START_INDEX
 from firmtool.reports import RoadmapSummary
-from firmtool.scenario import parse_scenario
+from firmtool.scenario import Scenario
 
 
-def summarize(path: str | Path) -> RoadmapSummary:
-    """Stages present, sizes, and the solve status of the roadmap file at ``path``.
+def summarize(rm: RoadmapFile, scenario: Scenario, source: Path | MemoryFile | None, name: str) -> RoadmapSummary:
+    """Stages present, sizes, and the solve status of a roadmap.
 
     Every stage present is validated (a damaged one is refused); stages computed from another
     scenario text than the stored one are listed in ``stale_stages``, not refused.
+
+    Parameters
+    ----------
+    rm : the roadmap file as read; scenario : the scenario it stores.
+    source : the file (or memory file) it was read from (its edge cache and stored queries are read
+        with ``rm``: not opened again); None for a roadmap that has neither.
+    name : what the summary calls the roadmap (its path, or ``"in memory"``).
 
     Raises
     ------
     RoadmapError, ScenarioError
         A file that is not a valid roadmap, or whose stored scenario is invalid.
     """
-    rm = RoadmapFile(path)
-    scenario = parse_scenario(rm.scenario_text, f"{path}:scenario_toml")
     out: dict = {"stale_stages": tuple(rm.stale_stages())}
     for stage in STAGES:
         rm.table(stage)  # validates it (and the stages before it) if present
@@ -47,10 +53,11 @@ def summarize(path: str | Path) -> RoadmapSummary:
         out["estimated_edges"] = int(e["particles"].size)
         out["swept_regions"] = "swept_lo" in rm.table("edges")
         out["densify_rounds"] = int(rm.attrs("nodes").get("densify_rounds", 0)) if rm.has("nodes") else 0
-    cache = rm.edge_cache(nodes=out.get("nodes"))  # read with the file: it is opened once
+    # the cache and the queries' names as read with the roadmap: the file is opened once
+    cache = {} if source is None else rm.edge_cache(nodes=out.get("nodes"))
     if cache:  # an interrupted estimate stage (or a superseded design) left estimates to reuse
         out["cached_edges"] = int(cache["source"].size)
-    out["queries"] = rm.query_names
+    out["queries"] = () if source is None else rm.query_names
     if rm.has("policy"):
         a = rm.attrs("policy")
         p = rm.require("policy", "success_probability", "cost_to_go", fresh=False)
@@ -61,6 +68,6 @@ def summarize(path: str | Path) -> RoadmapSummary:
             out["start_success_probability_ci95"] = tuple(float(v) for v in a["success_probability_ci95"])
         j = float(p["cost_to_go"][START_INDEX])
         out["start_cost_to_go"] = j if np.isfinite(j) else None
-    return RoadmapSummary(roadmap=str(path), schema_version=rm.schema_version, scenario=scenario.name,
+    return RoadmapSummary(roadmap=name, schema_version=rm.schema_version, scenario=scenario.name,
                           measurement=scenario.measurement.kind, seed=rm.seed, created=rm.created,
                           stages=tuple(s for s in STAGES if rm.has(s)), **out)

@@ -1,6 +1,6 @@
-"""Check a scenario without building anything (``firmtool check``).
+"""Check a scenario without building anything (``ft.check``; ``firmtool check`` prints it).
 
-:func:`check_scenario` runs every check a build runs before it samples its first node: the file
+:func:`check` runs every check a build runs before it samples its first node: the file
 (every mistake at once, :class:`firmtool.errors.ScenarioError`), then the problem it describes
 (:func:`firmtool.problem.build_problem`: start and goal inside the bounds, collision-free and at
 rest; the robot's own checks, e.g. a linear model's stabilisability and detectability), the work
@@ -30,7 +30,7 @@ from firmtool.scenario import Scenario
 
 @dataclasses.dataclass(frozen=True)
 class CheckReport(Report):
-    """What ``firmtool check`` found: the scenario is valid, and what it describes.
+    """What :func:`check` (``firmtool check``) found: the scenario is valid, and what it describes.
 
     Attributes
     ----------
@@ -76,7 +76,7 @@ class CheckReport(Report):
     notices: tuple[str, ...] = ()
 
 
-def check_scenario(scenario: Scenario | str | Path, *, validity: Callable | None = None) -> CheckReport:
+def check(scenario: Scenario | str | Path, *, validity: Callable | None = None) -> CheckReport:
     """Validate a scenario and the problem it describes, without sampling, designing or writing.
 
     Parameters
