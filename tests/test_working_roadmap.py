@@ -149,7 +149,7 @@ def test_ros_goal_path(roadmap, counts):
     rm.problem  # the node's start: the roadmap's problem (the running policy needs it)
     start = counts.problems
     sol, policy = goal_policy(rm, np.array(NEW_GOAL))
-    assert sol.start_reachable and policy.status.name == "IDLE"
+    assert sol.start_reachable and policy.state.status.name == "IDLE"
     assert counts.problems - start == 1 and counts.disk_reads == 1 and counts.disk_writes == 0, counts
 
 
