@@ -104,7 +104,7 @@ class RoadmapFile:
         and sizes checked, values not yet: use :meth:`require`).
     """
 
-    def __init__(self, path: str | Path | MemoryFile) -> None:
+    def __init__(self, path: str | Path | MemoryFile, *, with_cache: bool = True) -> None:
         p = as_target(path)
         self.path = p.name if isinstance(p, MemoryFile) else p  # what messages name
         if not p.exists():
@@ -115,6 +115,7 @@ class RoadmapFile:
             raise RoadmapError(f"{p}: a roadmap file larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged or "
                                "not a roadmap)")
         self.stat = _identity(p)  # before the read: a file replaced meanwhile has another identity
+        self._with_cache = with_cache
         try:
             f = memory_file.open_read(p)
         except (OSError, ValueError) as exc:
@@ -199,7 +200,8 @@ class RoadmapFile:
         for name, (g, datasets) in groups.items():
             arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}
             self.stages[name] = (arrays, {k: _attribute(p, g.attrs, k, None, f"/{name}") for k in g.attrs})
-        self._cache = _cache_table(f, p)  # in the same read: a query or an update reuses its blocks
+        # in the same read: a query or an update reuses its blocks (a reader that needs none skips it)
+        self._cache = _cache_table(f, p) if self._with_cache else {}
         try:  # the names of the stored queries, in the same read (their images are read when asked for)
             self._queries: tuple[str, ...] | RoadmapError = tuple(sorted(stored_queries(f, p)))
         except RoadmapError as exc:  # said when the queries are asked for, as before

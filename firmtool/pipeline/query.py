@@ -218,7 +218,7 @@ def query_change(unusable: np.ndarray, goal_changed: bool) -> Change:
 
 
 def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design: Design, problem: Any, d: Design,
-                  ns: _NodeSet, engine: str, keys: np.ndarray | None = None
+                  ns: _NodeSet, engine: str, keys: np.ndarray | None = None, old_keys: np.ndarray | None = None
                   ) -> tuple[dict[str, np.ndarray] | None, int, int]:
     """The roadmap's reusable estimates (every stored particle block) under the query's keys, as an
     ``/edge_cache`` table; and how many of the query's edges they cover, and how many of the
@@ -228,7 +228,7 @@ def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design
     change = query_change(ns.changed[:N0] | ns.retired[:N0], bool(ns.retired[:N0].any()))
     keep = ~touched(change, table).edges
     return rekeyed_estimates(base, source, (base_problem, base_design, engine), (problem, d, engine), keep,
-                             lambda x: not touches(change, x), new_keys=keys)
+                             lambda x: not touches(change, x), new_keys=keys, old_keys=old_keys)
 
 
 def estimate_usable(x: EdgeEstimate, unusable: np.ndarray, goal_changed: bool) -> bool:
@@ -239,7 +239,8 @@ def estimate_usable(x: EdgeEstimate, unusable: np.ndarray, goal_changed: bool) -
 
 def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, str], new: tuple[Any, Design, str],
                       keep: np.ndarray, usable: Callable[[EdgeEstimate], bool] | None = None,
-                      new_keys: np.ndarray | None = None) -> tuple[dict[str, np.ndarray] | None, int, int]:
+                      new_keys: np.ndarray | None = None, old_keys: np.ndarray | None = None
+                      ) -> tuple[dict[str, np.ndarray] | None, int, int]:
     """The kept rows of a roadmap's ``/edges`` (``keep`` (E0,) bool), with every particle block stored
     of them (in ``/edges`` and in ``source``'s ``/edge_cache``: a file, or its table as read), under their keys in a new roadmap,
     as an ``/edge_cache`` table for its estimate stage to find; and how many of the new roadmap's
@@ -250,7 +251,8 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
     design has between the same two nodes, and only where ``usable`` (if given) says so of it: a
     block stored in the cache may hold particles the table's row has not (more blocks).
     If the two engines differ, nothing is taken (their draws differ). ``new_keys``: (E, 32) the keys
-    of every edge of the new design, when the caller has them (not computed again)."""
+    of every edge of the new design, when the caller has them (not computed again); ``old_keys``: the
+    same of the roadmap's design."""
     (base_problem, base_design, base_engine), (problem, d, engine) = old, new
     table = base.table("edges")
     N0 = base_design.centers.shape[0]
@@ -262,7 +264,9 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
     again = sum(1 for p in pairs if p in estimated and p not in kept)  # estimated before, and again now
     if not rows or base_engine != engine:
         return None, 0, again if base_engine == engine else len(estimated & set(pairs))
-    base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=base_engine)
+    # the roadmap's keys when the caller keeps them (a roadmap asked many queries: computed once)
+    base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=base_engine) if old_keys is None \
+        else old_keys[np.array([b for _, b in rows], dtype=np.int64)]
     # the new design's keys when the caller computed them (every edge's, once per command)
     new_keys = edge_keys(problem, d, [e for e, _ in rows], engine=engine) if new_keys is None else \
         new_keys[np.array([e for e, _ in rows], dtype=np.int64)]
@@ -338,7 +342,9 @@ def answer(base: WorkingRoadmap, query: Query, *, settings: WorkerSettings | Non
     engine = engine_choice(problem)[0]
     cache = rm0.edge_cache(base_design.centers.shape[0]) if source is None else source
     keys = edge_keys(problem, d, engine=engine)  # every edge's key, once (the reuse and the estimate stage)
-    cache, reused, again = _reused_table(rm0, cache, base_problem, base_design, problem, d, ns, engine, keys)
+    old_keys = base.edge_keys(engine_choice(base_problem)[0])  # kept by the roadmap: once per roadmap
+    cache, reused, again = _reused_table(rm0, cache, base_problem, base_design, problem, d, ns, engine, keys,
+                                         old_keys)
     image = _write_image(rm0, sc, problem, d, ns, cache, name)
     seconds["design"] = time.perf_counter() - t0 - seconds["nodes"]
     rm = RoadmapFile(image)
@@ -347,7 +353,7 @@ def answer(base: WorkingRoadmap, query: Query, *, settings: WorkerSettings | Non
     e = estimate_into(image, rm, problem, settings, progress=progress, session=session, keys=keys)
     seconds["estimate"] = e.seconds
     t1 = time.perf_counter()
-    group = solve_policy(RoadmapFile(image), problem=problem)
+    group = solve_policy(RoadmapFile(image, with_cache=False), problem=problem)  # the cache is the estimate's
     write_policy(image, group)
     seconds["solve"] = time.perf_counter() - t1
     seconds["total"] = time.perf_counter() - t0

@@ -160,7 +160,7 @@ def update_and_read(path: str | Path, scenario: Scenario | str | Path, *, worker
         e = estimate_into(image, rm, up.problem, settings, progress=progress, session=session, keys=keys)
         seconds["estimate"] = e.seconds
         t1 = time.perf_counter()
-        group = solve_policy(RoadmapFile(image), problem=up.problem)
+        group = solve_policy(RoadmapFile(image, with_cache=False), problem=up.problem)  # the cache is the estimate's
         write_policy(image, group)
         source = scenario_source.source_of(sc.path, sc.sha256) if sc.path else None
         if source is not None:

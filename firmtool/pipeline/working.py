@@ -16,6 +16,9 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 
+import numpy as np
+
+from firmtool.estimation.edge_table import edge_keys
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline.reading import design_of, execution_design, problem_of, refuse_without_checker
@@ -44,6 +47,7 @@ class WorkingRoadmap:
         self.validity = validity
         self._problem = problem
         self._checked = False
+        self._keys: dict[str, np.ndarray] = {}
 
     @classmethod
     def open(cls, target: RoadmapTarget | str, *, validity: Callable | None = None,
@@ -87,6 +91,14 @@ class WorkingRoadmap:
     def execution_design(self) -> Design:
         """The design with one edge row per estimated edge (:func:`firmtool.pipeline.reading.execution_design`)."""
         return execution_design(self.file)
+
+    def edge_keys(self, engine: str) -> np.ndarray:
+        """(E, 32) the keys of every designed edge for ``engine``
+        (:func:`firmtool.estimation.edge_table.edge_keys`), computed once per roadmap and engine: a
+        roadmap asked many queries (the ROS node's) keys its edges once."""
+        if engine not in self._keys:
+            self._keys[engine] = edge_keys(self.problem(need_validity=False), self.design, engine=engine)
+        return self._keys[engine]
 
     def reread(self) -> "WorkingRoadmap":
         """The roadmap after this command wrote its target: read once more, the problem kept (the
