@@ -16,15 +16,18 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from firmtool import pipeline
 from firmtool.api import solution as _solution
 from firmtool.api.roadmap import Roadmap
 from firmtool.api.solution import Solution
 from firmtool.errors import InputError
-from firmtool.io.roadmap_file import RoadmapFile
-from firmtool.pipeline.query import Query, check_query_name
+from firmtool.online.policy import Policy
+from firmtool.pipeline.query import Query, answer, check_query_name
 
 if TYPE_CHECKING:  # pragma: no cover
+    from firmtool.online.replanning import ReplanSettings
     from firmtool.progress import ProgressCallback
 
 
@@ -82,12 +85,28 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     for q in ([single] if queries is None else list(queries)):
         if not isinstance(q, Query):
             raise InputError(f"queries: expected firmtool.Query values, found {type(q).__name__}")
-        image, report = pipeline.answer_query(roadmap._data, q, validity=roadmap.validity, settings=settings,
-                                              progress=progress, source=roadmap._image or roadmap.path)
-        rm = Roadmap(RoadmapFile(image), path=None, report=report, validity=roadmap.validity)  # type: ignore[arg-type]
-        rm._image = image
+        # the roadmap as this call holds it (read once, its problem built once), and the query's answer
+        work, report = answer(roadmap._work, q, settings=settings, progress=progress)
+        rm = Roadmap(work.file, path=None, report=report, validity=roadmap.validity, work=work)
+        rm._image = work.target
         out.append(rm.solution())
     stranded = [sol for sol in out if not sol.start_reachable]
     if stranded and not allow_unreachable:
         raise stranded[0].unreachable_error()
     return out[0] if queries is None else out
+
+
+def goal_policy(roadmap: Roadmap, goal: Any, *, replan: "ReplanSettings | None" = None,
+                world: tuple[Any, Any] | None = None) -> tuple[Solution, "Policy"]:
+    """A new goal's answer as a running agent takes it (what the ROS node does with a ``goal_pose``):
+    the query's solution (:func:`solve` with ``goal``) and its prepared policy, in ``world``
+    (obstacles, bounds) if the world changed since the roadmap was built.
+
+    The roadmap is the one the caller holds: its file read once, its problem built once, whatever the
+    number of goals (:class:`firmtool.pipeline.working.WorkingRoadmap`)."""
+    sol = solve(roadmap, goal=np.asarray(goal, dtype=float).tolist())
+    policy = Policy(sol, replan=replan)
+    policy.prepare()
+    if world is not None:
+        policy.update_world(world[0], bounds=world[1])
+    return sol, policy  # type: ignore[return-value]

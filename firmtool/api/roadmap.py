@@ -21,9 +21,9 @@ from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT
 from firmtool.io import scenario_source
 from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
-from firmtool.io.roadmap_queries import query_names
+from firmtool.pipeline.working import WorkingRoadmap
 from firmtool.reports import BuildReport, QueryReport, RoadmapSummary, UpdateReport
-from firmtool.scenario import Scenario, parse_scenario
+from firmtool.scenario import Scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 from firmtool.util import arguments
 
@@ -84,8 +84,12 @@ class Roadmap:
     """
 
     def __init__(self, data: RoadmapFile, *, path: Path | None = None,
-                 report: BuildReport | QueryReport | UpdateReport | None = None, validity: "Callable | None" = None) -> None:
+                 report: BuildReport | QueryReport | UpdateReport | None = None, validity: "Callable | None" = None,
+                 work: "WorkingRoadmap | None" = None) -> None:
         self._data = data
+        # what every call on it shares: the file as read, its scenario, problem and design, made once
+        self._work = work if work is not None else WorkingRoadmap(data, validity=validity)
+        self._stored_queries: set[str] = set()  # stored by save_queries since the file was read
         self._image = None  # the memory file it lives in (a query's, or a build's in memory): queries read it
         self.path = path
         self.report = report
@@ -100,18 +104,18 @@ class Roadmap:
     @functools.cached_property
     def scenario(self) -> Scenario:
         """The scenario the roadmap was built from (parsed from the text it stores)."""
-        return parse_scenario(self._data.scenario_text, f"{self._data.path}:scenario_toml")
+        return self._work.scenario
 
     @functools.cached_property
     def problem(self) -> "Problem":
         """The problem (models, validity, bounds) rebuilt from the stored scenario (and the Python
         validity checker the roadmap was built with)."""
-        return pipeline.problem_of(self._data, self.validity)
+        return self._work.problem()
 
     @functools.cached_property
     def design(self) -> "Design":
         """The design: node stabilisers (``K``, ``L``, ``P``, ...) and the designed edges."""
-        return pipeline.design_of(self._data)
+        return self._work.design
 
     @property
     def seed(self) -> int:
@@ -201,7 +205,7 @@ class Roadmap:
     @functools.cached_property
     def execution_design(self) -> "Design":
         """The design with one edge row per estimated edge (what a policy's edge indices address)."""
-        return pipeline.execution_design(self._data)
+        return self._work.execution_design
 
     def deadline_budget(self) -> "DeadlineBudget":
         """The largest deadline :func:`firmtool.solve` takes on this roadmap (:func:`firmtool.graph.deadline.deadline_budget`:
@@ -239,6 +243,8 @@ class Roadmap:
         path = arguments.path(path, "path")
         self._write(path, {})
         self.path = self._data.path = path
+        self._data.forget_extras()  # the saved file holds no edge cache and no queries
+        self._stored_queries = set()
         return path
 
     def _write(self, path: Path, replace: dict[str, tuple[dict, dict]]) -> None:
@@ -269,7 +275,8 @@ class Roadmap:
         """The names of the queries stored in the roadmap's file (:meth:`save_queries`); [] in memory."""
         if self.path is None:
             return []
-        return query_names(self._data.path)
+        # read with the file, and those stored since through this object
+        return sorted(set(self._data.query_names) | self._stored_queries)
 
     def query(self, name: str) -> "Roadmap":
         """The roadmap of the stored query ``name`` (in memory; :meth:`solution` gives its policy).
@@ -310,6 +317,7 @@ class Roadmap:
                 raise InputError(f"save_queries: two queries named {quoted(report.name)}")
             answers[report.name] = (image, report)
         pipeline.store_queries(self.path, answers, force=force)
+        self._stored_queries.update(answers)
         return list(answers)
 
     def solution(self) -> "Solution":
@@ -419,11 +427,13 @@ def build(scenario: Scenario | str | Path, *, workers: int | None = None, output
                                      executor=executor, scheduler=scheduler, progress=progress, fresh=fresh,
                                      p_min=p_min, max_nodes=max_nodes, add_nodes=add_nodes,
                                      checkpoint_seconds=checkpoint_seconds, force=force, validity=validity)
-    report = pipeline.build_roadmap(request)
-    data = RoadmapFile(request.target)  # read back from the file, or from the bytes kept in memory
+    report, data = pipeline.build_and_read(request)  # the roadmap as the build last read it: not read again
+    # the problem its request built (checked against the stages on first use, not built again)
+    work = WorkingRoadmap(data, target=request.target, validity=request.validity, problem=request.problem)
     if output is not None:
-        return Roadmap(data, path=Path(output), report=report, validity=request.validity)
-    rm = Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None), validity=request.validity)
+        return Roadmap(data, path=Path(output), report=report, validity=request.validity, work=work)
+    rm = Roadmap(data, path=None, report=dataclasses.replace(report, roadmap=None), validity=request.validity,
+                 work=work)
     rm._image = request.target  # its /edge_cache: the earlier particle blocks a query reuses
     return rm
 

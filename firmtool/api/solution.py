@@ -294,8 +294,12 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     if deadline is not None and (isinstance(deadline, bool) or not isinstance(deadline, (int, np.integer))
                                  or deadline < 1):
         raise InputError(f"deadline: expected a number of steps >= 1, found {quoted(deadline)}")
+    try:  # the problem the roadmap holds (built once per roadmap); the DP reads its settings only
+        problem = roadmap._work.problem(need_validity=False)
+    except InputError:  # a checker the file does not record: the DP needs none (solved as before)
+        problem = None
     group = pipeline.solve_policy(roadmap._data, failure_cost=failure_cost, method=method, progress=progress,
-                                  deadline=deadline)
+                                  deadline=deadline, problem=problem)
     solution = Solution._from_group(roadmap, group)
     if not solution.start_reachable and not allow_unreachable:
         raise solution.unreachable_error()

@@ -7,9 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from firmtool.io.memory_file import MemoryFile
-from firmtool.io.roadmap_file import STAGES, RoadmapFile, read_edge_cache
+from firmtool.io.roadmap_file import STAGES, RoadmapFile
 from firmtool.io.roadmap_format import START_INDEX
-from firmtool.io.roadmap_queries import query_names
 from firmtool.reports import RoadmapSummary
 from firmtool.scenario import Scenario
 
@@ -23,8 +22,8 @@ def summarize(rm: RoadmapFile, scenario: Scenario, source: Path | MemoryFile | N
     Parameters
     ----------
     rm : the roadmap file as read; scenario : the scenario it stores.
-    source : the file (or memory file) it was read from, for its edge cache and stored queries; None
-        for a roadmap that has neither.
+    source : the file (or memory file) it was read from (its edge cache and stored queries are read
+        with ``rm``: not opened again); None for a roadmap that has neither.
     name : what the summary calls the roadmap (its path, or ``"in memory"``).
 
     Raises
@@ -54,10 +53,11 @@ def summarize(rm: RoadmapFile, scenario: Scenario, source: Path | MemoryFile | N
         out["estimated_edges"] = int(e["particles"].size)
         out["swept_regions"] = "swept_lo" in rm.table("edges")
         out["densify_rounds"] = int(rm.attrs("nodes").get("densify_rounds", 0)) if rm.has("nodes") else 0
-    cache = {} if source is None else read_edge_cache(source, nodes=out.get("nodes"))
+    # the cache and the queries' names as read with the roadmap: the file is opened once
+    cache = {} if source is None else rm.edge_cache(nodes=out.get("nodes"))
     if cache:  # an interrupted estimate stage (or a superseded design) left estimates to reuse
         out["cached_edges"] = int(cache["source"].size)
-    out["queries"] = () if source is None else tuple(query_names(source))
+    out["queries"] = () if source is None else rm.query_names
     if rm.has("policy"):
         a = rm.attrs("policy")
         p = rm.require("policy", "success_probability", "cost_to_go", fresh=False)

@@ -7,8 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from firmtool.api.roadmap import Roadmap, load_scenario
-from firmtool.io.roadmap_file import RoadmapFile
-from firmtool.pipeline.update import update_world
+from firmtool.pipeline.update import update_and_read
 from firmtool.scenario import Scenario
 from firmtool.util import arguments
 
@@ -53,5 +52,6 @@ def update(roadmap: str | Path, scenario: Scenario | str | Path, *, workers: int
     """
     arguments.path(roadmap, "roadmap")
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    report = update_world(roadmap, sc, workers=workers, executor=executor, scheduler=scheduler, progress=progress)
-    return Roadmap(RoadmapFile(roadmap), path=Path(roadmap), report=report)
+    report, data = update_and_read(roadmap, sc, workers=workers, executor=executor, scheduler=scheduler,
+                                   progress=progress)
+    return Roadmap(data, path=Path(roadmap), report=report)  # as written: not read again

@@ -8,7 +8,8 @@ ones. So the writer, holding the file's writer lock (:mod:`firmtool.io.locking`)
 again and compares the stages the result depends on with those it was computed from
 (:func:`check_unchanged`): their datasets (dtype, shape, bytes), their attributes (the inputs'
 hashes among them) and the stored scenario's sha256. A difference is refused in one line; nothing
-is written.
+is written. A file whose identity (device, inode, size, modification time) is the one read is the
+file read (firmtool replaces a roadmap only by an atomic rename): it is not read again.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 from typing import Iterable
 
 from firmtool.errors import FileBusyError
-from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.io.roadmap_file import RoadmapFile, file_identity
 from firmtool.util.hashing import digest
 
 
@@ -38,6 +39,8 @@ def check_unchanged(path: str | Path, source: RoadmapFile, stages: Iterable[str]
     FileBusyError
         One line naming the file and the first stage that changed (exit 2: run the command again).
     """
+    if source.stat is not None and file_identity(path) == source.stat:
+        return  # the very file read (firmtool replaces a roadmap only by a rename): not read again
     current = RoadmapFile(path)
     if current.scenario_sha256 != source.scenario_sha256:
         raise FileBusyError(f"{path}: its stored scenario changed since it was read (another process rewrote the "

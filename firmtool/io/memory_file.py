@@ -16,8 +16,12 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from firmtool.io.atomic import write_bytes
+
+if TYPE_CHECKING:  # pragma: no cover
+    import h5py
 
 
 class MemoryFile:
@@ -37,6 +41,10 @@ class MemoryFile:
     def __init__(self, name: str | Path) -> None:
         self.name = Path(name)
         self.data: bytes | None = None
+        # True once this process's writers made its bytes (replace_bytes): a later write may then
+        # edit them in place (firmtool.io.roadmap_write); bytes from elsewhere (a stored query's
+        # image) are only ever copied by value
+        self.written_here = False
 
     def __str__(self) -> str:
         return str(self.name)
@@ -73,10 +81,19 @@ def readable(target: str | Path | MemoryFile) -> str | Path | io.BytesIO:
     return io.BytesIO(target.read_bytes()) if isinstance(target, MemoryFile) else target
 
 
+def open_read(target: str | Path | MemoryFile) -> "h5py.File":
+    """The one place a roadmap (a file, or a memory file's bytes) is opened for reading: every reader
+    of :mod:`firmtool.io.roadmap_file` and :mod:`firmtool.io.roadmap_queries` calls it (a test counts
+    a command's reads by replacing it). A disk file is checked to be a regular file by the caller."""
+    import h5py  # here, not at the top: the CLI's start-up imports this module without reading a roadmap
+    return h5py.File(readable(target), "r")
+
+
 def replace_bytes(target: Path | MemoryFile, data: bytes | memoryview) -> None:
     """Replace the file's contents with ``data``: atomically on disk (:func:`firmtool.io.atomic.write_bytes`),
     or by keeping a copy of the bytes in memory."""
     if isinstance(target, MemoryFile):
         target.data = bytes(data)
+        target.written_here = True
     else:
         write_bytes(target, data)

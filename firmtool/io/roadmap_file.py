@@ -59,9 +59,9 @@ import numpy as np
 
 from firmtool import __version__
 from firmtool.errors import FileBusyError, RoadmapError
-from firmtool.io import hdf5, scenario_source
+from firmtool.io import hdf5, memory_file, scenario_source
 from firmtool.io.attributes import ROOT_ATTRIBUTES, check_attributes, check_stage_attributes
-from firmtool.io.memory_file import MemoryFile, as_target, readable, size_of
+from firmtool.io.memory_file import MemoryFile, as_target, size_of
 from firmtool.io.roadmap_checks import check_edges, check_edges_model, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
     CACHE,
@@ -74,6 +74,7 @@ from firmtool.io.roadmap_format import (
     nbytes,
     short,
 )
+from firmtool.io.roadmap_queries import stored_query_names
 from firmtool.io.roadmap_write import (
     concat_edge_tables,
     create_roadmap,
@@ -101,7 +102,7 @@ class RoadmapFile:
         and sizes checked, values not yet: use :meth:`require`).
     """
 
-    def __init__(self, path: str | Path | MemoryFile) -> None:
+    def __init__(self, path: str | Path | MemoryFile, *, with_cache: bool = True) -> None:
         p = as_target(path)
         self.path = p.name if isinstance(p, MemoryFile) else p  # what messages name
         if not p.exists():
@@ -111,8 +112,10 @@ class RoadmapFile:
         if size_of(p) > MAX_READ_BYTES:  # bounds what any attribute (stored in the file) can hold
             raise RoadmapError(f"{p}: a roadmap file larger than {MAX_READ_BYTES / 2**30:.0f} GiB (file damaged or "
                                "not a roadmap)")
+        self.stat = _identity(p)  # before the read: a file replaced meanwhile has another identity
+        self._with_cache = with_cache
         try:
-            f = h5py.File(readable(p), "r")
+            f = memory_file.open_read(p)
         except (OSError, ValueError) as exc:
             if "unable to lock file" in str(exc):
                 raise FileBusyError(f"{p}: the file is open for writing in another process (HDF5 file lock); "
@@ -196,6 +199,33 @@ class RoadmapFile:
         for name, (g, datasets) in groups.items():
             arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}
             self.stages[name] = (arrays, {k: _attribute(p, g.attrs, k, None, f"/{name}") for k in g.attrs})
+        # in the same read: a query or an update reuses its blocks (a reader that needs none skips it)
+        self._cache = _cache_table(f, p) if self._with_cache else {}
+        try:  # the names of the stored queries, in the same read (their images are read when asked for)
+            self._queries: tuple[str, ...] | RoadmapError = tuple(stored_query_names(f, p))
+        except RoadmapError as exc:  # said when the queries are asked for, as before
+            self._queries = exc
+
+    def forget_extras(self) -> None:
+        """Hold the stages only: after a save that wrote no ``/edge_cache`` and no ``/queries``."""
+        self._cache, self._queries = {}, ()
+
+    @property
+    def query_names(self) -> tuple[str, ...]:
+        """The names of the queries stored in the file (``/queries``), sorted.
+
+        Raises
+        ------
+        RoadmapError
+            A ``/queries`` entry that is not a stored query (:func:`firmtool.io.roadmap_queries.query_images`).
+        """
+        if isinstance(self._queries, RoadmapError):
+            raise self._queries
+        return self._queries
+
+    def edge_cache(self, nodes: int | None = None, world_dim: int | None = None) -> dict[str, np.ndarray]:
+        """The ``/edge_cache`` table read with the file (:func:`read_edge_cache`'s checks), or {}."""
+        return _checked_cache(self.path, self._cache, nodes, world_dim)
 
     def has(self, stage: str) -> bool:
         return stage in self.stages
@@ -317,6 +347,24 @@ class RoadmapFile:
         return self._edge_rows
 
 
+def _identity(target: Path | MemoryFile) -> tuple[int, int, int, int] | None:
+    """A disk file's (device, inode, size, modification time in ns), or None (a memory file, or no
+    stat): firmtool replaces a roadmap file only by a rename (a new inode), so the same identity later
+    means the same bytes (:func:`firmtool.io.consistency.check_unchanged`)."""
+    if isinstance(target, MemoryFile):
+        return None
+    try:
+        st = target.stat()
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def file_identity(path: str | Path) -> tuple[int, int, int, int] | None:
+    """:func:`_identity` of the file at ``path`` now."""
+    return _identity(Path(path))
+
+
 def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any, where: str = "/") -> Any:
     """An attribute's value, its size checked before it is read (fixed-size data) or after (a
     variable-length string, whose size HDF5 tells only by reading it; the file's size bounds it)."""
@@ -352,17 +400,32 @@ def read_edge_cache(path: str | Path | MemoryFile, nodes: int | None = None,
     ``nodes`` and regions of ``world_dim`` coordinates when given) is ignored: it only saves work."""
     try:
         with _open(path) as f:
-            g = hdf5.member(f, CACHE, "/", path, RoadmapError)  # a link or external storage: not read
-            if not isinstance(g, h5py.Group):
-                return {}
-            datasets = {k: d for k, d in hdf5.members(g, f"/{CACHE}", path, RoadmapError)
-                        if isinstance(d, h5py.Dataset) and d.dtype.kind in "biuf"}
-            if sum(nbytes(d.shape, d.dtype) for d in datasets.values()) > MAX_READ_BYTES or \
-                    sum(hdf5.working_bytes(d.shape) for d in datasets.values()) > hdf5.MAX_WORKING_BYTES:
-                return {}
-            table = {k: d[()] for k, d in datasets.items()}
+            table = _cache_table(f, path)
     except (OSError, ValueError, KeyError, TypeError):  # RoadmapError included: the cache only saves work
         return {}
+    return _checked_cache(path, table, nodes, world_dim)
+
+
+def _cache_table(f: h5py.File, path: Any) -> dict[str, np.ndarray]:
+    """The raw ``/edge_cache`` datasets of an open roadmap ({} if none, or not one to read)."""
+    try:
+        g = hdf5.member(f, CACHE, "/", path, RoadmapError)  # a link or external storage: not read
+        if not isinstance(g, h5py.Group):
+            return {}
+        datasets = {k: d for k, d in hdf5.members(g, f"/{CACHE}", path, RoadmapError)
+                    if isinstance(d, h5py.Dataset) and d.dtype.kind in "biuf"}
+        if sum(nbytes(d.shape, d.dtype) for d in datasets.values()) > MAX_READ_BYTES or \
+                sum(hdf5.working_bytes(d.shape) for d in datasets.values()) > hdf5.MAX_WORKING_BYTES:
+            return {}
+        return {k: d[()] for k, d in datasets.items()}
+    except (OSError, ValueError, KeyError, TypeError):  # RoadmapError included: the cache only saves work
+        return {}
+
+
+def _checked_cache(path: Any, table: dict[str, np.ndarray], nodes: int | None,
+                   world_dim: int | None = None) -> dict[str, np.ndarray]:
+    """``table`` if it passes the checks of ``/edges`` (node ids below ``nodes`` and swept regions of
+    ``world_dim`` coordinates when given), else {}."""
     if "key" not in table:
         return {}
     try:
@@ -383,8 +446,11 @@ def _open(path: str | Path | MemoryFile) -> h5py.File:
     refused before HDF5 opens it, :func:`firmtool.io.hdf5.open_regular`)."""
     target = as_target(path)
     if isinstance(target, MemoryFile):
-        return h5py.File(readable(target), "r")
-    return hdf5.open_regular(target, "HDF5 roadmap file", RoadmapError)
+        return memory_file.open_read(target)
+    why = hdf5.regular_file_error(target)
+    if why is not None:
+        raise RoadmapError(f"{target}: not a readable HDF5 roadmap file ({why})")
+    return memory_file.open_read(target)
 
 
 def is_roadmap_file(path: str | Path | MemoryFile) -> bool:
@@ -399,7 +465,7 @@ def is_roadmap_file(path: str | Path | MemoryFile) -> bool:
     if not isinstance(target, MemoryFile) and hdf5.regular_file_error(target) is not None:
         return False  # never open a FIFO or a device
     try:
-        with h5py.File(readable(target), "r") as f:
+        with memory_file.open_read(target) as f:
             return f.attrs.get("encoding-type") == ENCODING_TYPE
     except (OSError, ValueError, KeyError, TypeError) as exc:
         if "unable to lock file" in str(exc):

@@ -44,10 +44,7 @@ def query_names(path: str | Path | MemoryFile) -> list[str]:
     """
     try:
         with _open(path) as f:
-            g = _group(f, path)
-            if g is None:
-                return []
-            return sorted(name for name, _ in _entries(g, path))
+            return stored_query_names(f, path)
     except OSError as exc:
         raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
 
@@ -124,3 +121,17 @@ def _entries(g: h5py.Group, path: Any) -> list[tuple[str, Any]]:
                                "file)")
         out.append((name, d))
     return out
+
+
+def stored_query_names(f: h5py.File, path: Any) -> list[str]:
+    """The names of the queries of an open roadmap, sorted, each checked to be a dataset stored in the
+    file (nothing read of their data): what :class:`~firmtool.io.roadmap_file.RoadmapFile` reads in
+    the one opening of a file.
+
+    Raises
+    ------
+    RoadmapError
+        As :func:`query_names`.
+    """
+    g = _group(f, path)
+    return [] if g is None else sorted(name for name, _ in _entries(g, path))

@@ -19,10 +19,9 @@ import h5py
 import numpy as np
 
 from firmtool import __version__
-from firmtool.errors import RoadmapError
+from firmtool.errors import InputError, RoadmapError, quoted
 from firmtool.io import hdf5
 from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
-from firmtool.io.scenario_source import SOURCE_ATTRIBUTES, ScenarioSource
 from firmtool.io.roadmap_format import (
     CACHE,
     ENCODING_TYPE,
@@ -33,6 +32,7 @@ from firmtool.io.roadmap_format import (
     read_table,
     short,
 )
+from firmtool.io.scenario_source import SOURCE_ATTRIBUTES, ScenarioSource
 
 
 @contextmanager
@@ -46,6 +46,15 @@ def _atomic_copy(path: Path | MemoryFile, fresh: bool = False) -> Iterator[h5py.
     does not accumulate over rewrites.
     """
     edited = io.BytesIO()
+    if isinstance(path, MemoryFile) and path.written_here and path.exists() and not fresh:
+        # an image this process wrote (a query's, an update's, a build's in memory): edited in place,
+        # not copied by value (each copy of a query's image cost a tenth of the query); the space a
+        # replaced group leaves is reclaimed when the image is stored (compacted_bytes)
+        edited.write(path.read_bytes())
+        with h5py.File(edited, "r+") as f:
+            yield f
+        replace_bytes(path, edited.getbuffer())
+        return
     if path.exists() and not fresh:
         try:  # a regular file of bounded size (never a FIFO), copied by value: no link or external storage kept
             original = io.BytesIO(_image(path))
@@ -59,6 +68,19 @@ def _atomic_copy(path: Path | MemoryFile, fresh: bool = False) -> Iterator[h5py.
         with h5py.File(edited, "w") as f:
             yield f
     replace_bytes(path, edited.getbuffer())
+
+
+def compacted_bytes(path: Path | MemoryFile) -> bytes:
+    """The file's bytes with every group copied by value into a new file (no space left by replaced
+    groups): what a query's image is stored as (:func:`write_queries`)."""
+    edited = io.BytesIO()
+    try:
+        src = h5py.File(io.BytesIO(_image(path)), "r")
+    except OSError as exc:
+        raise RoadmapError(f"{path}: not a readable HDF5 roadmap file ({short(exc)})") from None
+    with src, h5py.File(edited, "w") as f:
+        hdf5.copy_by_value(src, f, "/", path, RoadmapError)
+    return bytes(edited.getbuffer())
 
 
 def _image(path: Path | MemoryFile) -> bytes:
@@ -77,7 +99,8 @@ def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_s
 
 def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]],
-                  source: ScenarioSource | None = None) -> None:
+                  source: ScenarioSource | None = None, cache: Mapping[str, np.ndarray] | None = None,
+                  cache_attrs: Mapping[str, Any] | None = None) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
     Parameters
@@ -85,6 +108,7 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
     stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
         ``scenario_sha256`` stamp included; one without gets the stored scenario's).
     source : the scenario file the roadmap was built from (:mod:`firmtool.io.scenario_source`), if known.
+    cache, cache_attrs : an ``/edge_cache`` table and its attributes (estimates its estimate stage finds by key).
     """
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
@@ -95,6 +119,8 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
                 arrays, attrs = stages[name]
                 _write_table(f, name, arrays, {k: v for k, v in attrs.items()
                                                if k not in ("encoding-type", "encoding-version")})
+        if cache:
+            _write_table(f, CACHE, cache, dict(cache_attrs or {}))
 
 
 def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
@@ -231,13 +257,28 @@ def restamp(path: str | Path | MemoryFile, stages: tuple[str, ...]) -> None:
                 f[stage].attrs["scenario_sha256"] = sha
 
 
-def write_queries(path: str | Path | MemoryFile, images: Mapping[str, tuple[bytes, Mapping[str, Any]]]) -> None:
+def write_queries(path: str | Path | MemoryFile, images: Mapping[str, tuple[bytes, Mapping[str, Any]]], *,
+                  keep_existing: bool = False, stamp_edges: bool = False) -> None:
     """Store query answers (:mod:`firmtool.io.roadmap_queries`) in ``/queries``, one uint8 dataset of
-    each query's roadmap image by name (a name there is replaced), atomically; the stages stay."""
+    each query's roadmap image by name (a name there is replaced), atomically; the stages stay.
+
+    Checked in the file as this write reads it (no second read): ``keep_existing`` refuses a name
+    stored already (:class:`~firmtool.errors.InputError`); ``stamp_edges`` gives each query the
+    attribute ``base_edges_sha256``, the ``inputs_sha256`` of the file's ``/edges`` it was answered on."""
     p = as_target(path)
     if not p.exists():
         raise RoadmapError(f"{p}: no such roadmap file")
     with _atomic_copy(p) as f:
+        old = f.get(QUERIES)
+        existing = set(old) if isinstance(old, h5py.Group) else set()
+        for name in images:
+            if keep_existing and name in existing:
+                raise InputError(f"{path}: a query named {quoted(name)} is stored already; give --force to replace it, "
+                                 "or another --name")
+        edges = f.get("edges")
+        stamp = {"base_edges_sha256": str(edges.attrs.get("inputs_sha256", "")) if isinstance(edges, h5py.Group)
+                 else ""} if stamp_edges else {}
+        images = {name: (data, {**stamp, **attrs}) for name, (data, attrs) in images.items()}
         g = f.require_group(QUERIES)
         g.attrs["encoding-type"] = f"firmtool.{QUERIES}"
         g.attrs["encoding-version"] = SCHEMA_VERSION

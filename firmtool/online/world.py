@@ -29,11 +29,12 @@ import numpy as np
 import scipy.sparse
 
 from firmtool.errors import MAX_EXPECTED, InputError, ScenarioError, WorldUpdateWarning, cut
+from firmtool.estimation.touched import Change, touched
 from firmtool.geometry.shapes import Obstacle
 from firmtool.graph.dp import solve_dp
 from firmtool.io.limits import MAX_ITEMS
 from firmtool.problem import Problem, build_problem
-from firmtool.roadmap.world_change import WorldChange, meets, world_change
+from firmtool.roadmap.world_change import WorldChange, world_change
 from firmtool.scenario.specs import WorldSpec
 from firmtool.util.hashing import digest
 
@@ -93,8 +94,10 @@ def blocked_edges(table: EdgeTable, change: WorldChange, reach: float, node_vali
     """(E,) bool: the edges a world change may alter (its boxes meet their grown swept regions) or
     whose source or target node is no longer valid (``node_valid`` (N,) bool)."""
     assert table.swept_lo is not None and table.swept_hi is not None
-    hit = meets(table.swept_lo, table.swept_hi, change, reach).any(axis=1)
-    return hit | ~node_valid[table.source] | ~node_valid[table.target]
+    # the one answer to what a change touches (queries and updates ask it too); landings are not
+    # judged here, as before: an invalid node is left out as an end, with its edges
+    rows = {"source": table.source, "target": table.target, "swept_lo": table.swept_lo, "swept_hi": table.swept_hi}
+    return touched(Change(ends=~node_valid, world=change, reach=reach), rows).edges
 
 
 def resolve(table: EdgeTable, blocked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

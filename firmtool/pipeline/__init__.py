@@ -13,6 +13,7 @@ Modules, in the order of the data's way:
 - :mod:`~firmtool.pipeline.target`: where the roadmap is (a checked, locked file, or memory);
 - :mod:`~firmtool.pipeline.inputs`: the scenario as it enters, and each stage's inputs hash;
 - :mod:`~firmtool.pipeline.reading`: the problem, design and edge probabilities of a roadmap;
+- :mod:`~firmtool.pipeline.working`: a roadmap as one command holds it (read once, its problem built once);
 - :mod:`~firmtool.pipeline.sample`, :mod:`~firmtool.pipeline.design`, :mod:`~firmtool.pipeline.estimate`
   (with :mod:`~firmtool.pipeline.edge_runs`, its Monte Carlo and checkpoints), :mod:`~firmtool.pipeline.solve`:
   the stages;
@@ -20,7 +21,15 @@ Modules, in the order of the data's way:
   densification.
 """
 
-from firmtool.pipeline.builder import BuildRequest, Densify, build, build_request, build_roadmap, roadmap_connectivity
+from firmtool.pipeline.builder import (
+    BuildRequest,
+    Densify,
+    build,
+    build_and_read,
+    build_request,
+    build_roadmap,
+    roadmap_connectivity,
+)
 from firmtool.pipeline.design import design_stage
 from firmtool.pipeline.estimate import EstimationInterrupted, estimate_stage
 from firmtool.pipeline.inputs import (
@@ -47,14 +56,15 @@ from firmtool.pipeline.solve import (
     write_policy,
 )
 from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, in_memory
+from firmtool.pipeline.working import WorkingRoadmap
 
 __all__ = [
     "BuildRequest", "CHECKPOINT_SECONDS", "Densify", "EstimationInterrupted", "PolicyGroup", "RoadmapTarget",
     "Query", "VALIDITY_ATTR", "WorkerSettings", "answer_query", "store_queries", "stored_query", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
-    "build_roadmap", "check_output", "check_start_apart_from_goals", "controllers_inputs", "default_output",
+    "build_and_read", "build_roadmap", "check_output", "check_start_apart_from_goals", "controllers_inputs", "default_output",
     "design_of", "design_stage", "edge_probabilities", "edges_inputs", "estimate_stage", "execution_design",
     "in_memory", "node_task_points", "nodes_inputs", "policy_inputs", "problem_of", "roadmap_connectivity",
     "roadmap_deadline_budget",
     "sample_stage", "solve_policy", "solve_report", "solve_stage", "unreachable_failure", "validity_of",
-    "worker_settings", "write_policy",
+    "worker_settings", "write_policy", "WorkingRoadmap",
 ]

@@ -162,6 +162,12 @@ def build(scenario: Scenario | str | Path, output: str | Path | None, *, workers
 
 def build_roadmap(request: BuildRequest) -> BuildReport:
     """Run a build on its checked inputs (:func:`build_request`); see :func:`build`."""
+    return build_and_read(request)[0]
+
+
+def build_and_read(request: BuildRequest) -> tuple[BuildReport, RoadmapFile]:
+    """:func:`build_roadmap`, and the roadmap as the build last read it (its final state: the caller
+    need not read it again)."""
     s = request.workers
     # one set of workers for every stage of the build (local processes start on first use, a dask
     # cluster is joined once)
@@ -169,9 +175,12 @@ def build_roadmap(request: BuildRequest) -> BuildReport:
     with locked(request.target), kept(request.target), Workers(s.workers, s.executor, s.scheduler) as session:
         # a fresh install: compile the engine while sampling and designing (a user's validity checker
         # runs the numpy engine: nothing to compile)
-        if request.validity is None and not warmup.engine_is_cached():
+        if request.validity is None and not warmup.engine_is_cached(request.problem):  # its robot's kernel
             warmup.start(engine_choice(request.problem)[0], request.problem)  # with the kernel of its robot
-        return _BuildRun(request, session).run()
+        run = _BuildRun(request, session)
+        report = run.run()
+        assert run.final is not None
+        return report, run.final
 
 
 class _BuildRun:
@@ -183,6 +192,7 @@ class _BuildRun:
         self.estimated_edges = self.simulated_particle_steps = 0
         self.failed: tuple[FailedEdge, ...] = ()
         self.notices: list[str] = []
+        self.final: RoadmapFile | None = None  # the roadmap as the build last read it
 
     def nodes(self) -> RoadmapFile | None:
         """Sample the nodes, or go on from the roadmap at the target (returned; None if sampled anew)."""
@@ -212,9 +222,11 @@ class _BuildRun:
         rm = RoadmapFile(r.target)
         if not (rm.has("controllers") and "controllers" not in rm.stale_stages()
                 and rm.attrs("controllers").get("inputs_sha256") == controllers_inputs(rm)):
-            self.seconds["design"] += design_into(r.target, r.validity, self.session, r.progress).seconds
-        roadmap = RoadmapFile(r.target)
-        e = estimate_into(r.target, roadmap, problem_of(roadmap, r.validity), r.workers, progress=r.progress,
+            self.seconds["design"] += design_into(r.target, r.validity, self.session, r.progress, problem=r.problem,
+                                                  roadmap=rm).seconds
+            rm = RoadmapFile(r.target)  # what the design wrote
+        # the request's problem (built once where the build entered), checked against the stages
+        e = estimate_into(r.target, rm, problem_of(rm, r.validity, problem=r.problem), r.workers, progress=r.progress,
                           checkpoint_seconds=r.checkpoint_seconds, session=self.session)
         self.notices.extend(n for n in e.notices if n not in self.notices)
         self.seconds["estimate"] += e.seconds
@@ -227,16 +239,19 @@ class _BuildRun:
         r = self.request
         existing = self.nodes()
         e = self.design_and_estimate()
-        _restamp_policy(r.target)
+        rm = RoadmapFile(r.target)
+        rm = _restamp_policy(r.target, rm, r.problem)
         densify = None
         if r.densify is not None:
-            densify, last = _densify(r.target, r.densify, self.seconds, self.design_and_estimate, r.validity)
+            densify, last = _densify(r.target, r.densify, self.seconds, self.design_and_estimate, r.validity,
+                                     r.problem)
             e = last or e
+            rm = RoadmapFile(r.target)
         else:
             del self.seconds["solve"]
-        rm = _record_source(r.target, RoadmapFile(r.target), r.scenario)
+        rm = self.final = _record_source(r.target, rm, r.scenario)
         nodes = rm.require("nodes", "centers")["centers"].shape[0]
-        connectivity = roadmap_connectivity(rm, r.validity)
+        connectivity = roadmap_connectivity(rm, r.validity, problem=r.problem)
         steps, estimate_seconds = self.simulated_particle_steps, self.seconds["estimate"]
         return BuildReport(roadmap=str(r.target), resumed=existing is not None, nodes=int(nodes), edges=e.edges,
                            estimated_edges=self.estimated_edges, reused_edges=e.reused_edges,
@@ -268,12 +283,14 @@ def _resumable(rm: RoadmapFile, scenario: Scenario, validity: str = "") -> Roadm
     return rm
 
 
-def roadmap_connectivity(roadmap: RoadmapFile, validity: Callable | None = None) -> ConnectivityReport:
+def roadmap_connectivity(roadmap: RoadmapFile, validity: Callable | None = None, *,
+                         problem: Problem | None = None) -> ConnectivityReport:
     """The connected structure of a roadmap's nodes (:func:`firmtool.roadmap.connectivity.connectivity_report`),
     what its connection stage added, and the goal nodes the start reaches under the estimated edges
     (when ``/edges`` is there). ``validity``: the roadmap's Python validity checker, if it was built
-    with one (the free segments between nodes depend on it)."""
-    problem = problem_of(roadmap, validity)
+    with one (the free segments between nodes depend on it); ``problem``: its problem, when the caller
+    holds it."""
+    problem = problem_of(roadmap, validity, problem=problem)
     nodes = roadmap.require("nodes", "centers", "kind")
     attrs = roadmap.attrs("nodes")
     report = connectivity_report(problem, nodes["centers"], nodes["kind"],
@@ -292,28 +309,30 @@ def roadmap_connectivity(roadmap: RoadmapFile, validity: Callable | None = None)
     return report
 
 
-def _restamp_policy(out: RoadmapTarget) -> None:
+def _restamp_policy(out: RoadmapTarget, rm: RoadmapFile, problem: Problem) -> RoadmapFile:
     """A policy kept by a build whose scenario text changed is still valid if its inputs (edge table,
     J_F, method, cost weights) are unchanged: stamp it with the new text; otherwise leave it stale
-    (readers then ask for 'firmtool solve')."""
-    rm = RoadmapFile(out)
+    (readers then ask for 'firmtool solve'). ``rm``: the roadmap as read; returns it as it now is."""
     if rm.stale_stages() != ["policy"]:  # nothing to do, or an earlier stage is stale too
-        return
+        return rm
     a = rm.attrs("policy")
     try:
-        cost = problem_of(rm, need_validity=False).scenario.cost
+        cost = problem.scenario.cost
         deadline = a.get("deadline_steps")
         same = a.get("inputs_sha256") == policy_inputs(str(rm.attrs("edges").get("inputs_sha256")),
                                                        float(a.get("failure_cost")), str(a.get("method")), cost,
                                                        None if deadline is None else int(deadline))
     except (TypeError, ValueError):
-        return
+        return rm
     if same:
         restamp(out, ("policy",))
+        return RoadmapFile(out)
+    return rm
 
 
 def _densify(out: RoadmapTarget, densify: Densify, seconds: dict, design_and_estimate: Callable[[], EstimateReport],
-             validity: Callable | None = None) -> tuple[DensifyReport, EstimateReport | None]:
+             validity: Callable | None = None, problem: Problem | None = None
+             ) -> tuple[DensifyReport, EstimateReport | None]:
     """The p_min loop of :func:`build`: its report, and the last round's estimate report (None if
     no round added nodes)."""
     p_min, max_nodes, add_nodes = densify.p_min, densify.max_nodes, densify.add_nodes
@@ -322,7 +341,7 @@ def _densify(out: RoadmapTarget, densify: Densify, seconds: dict, design_and_est
     while True:
         reachable = True
         try:
-            sol = solve_stage(out)
+            sol = solve_stage(out, problem=problem)
             p = sol.start_success_probability
             seconds["solve"] += sol.seconds
         except RunFailure:  # the goal is not reachable yet: that is what densification is for
@@ -338,7 +357,7 @@ def _densify(out: RoadmapTarget, densify: Densify, seconds: dict, design_and_est
                       f"probability is {p:.4f} < p_min {p_min:g}")
             break
         count = min(add_nodes or max(5, nodes // 4), max_nodes - nodes)
-        added = add_nodes_stage(out, count, connect=not reachable, validity=validity)
+        added = add_nodes_stage(out, count, connect=not reachable, validity=validity, problem=problem)
         seconds["sample"] += added.seconds
         if added.added == 0:
             reason = f"no valid configuration left to add after {nodes} nodes; start success probability {p:.4f}"

@@ -14,6 +14,7 @@ from firmtool.pipeline.inputs import controllers_inputs
 from firmtool.pipeline.reading import problem_of
 from firmtool.pipeline.settings import worker_settings
 from firmtool.pipeline.target import RoadmapTarget, locked
+from firmtool.problem import Problem
 from firmtool.progress import DESIGN_NODES, Counter, ProgressCallback
 from firmtool.reports import DesignReport
 from firmtool.roadmap.design import design
@@ -41,11 +42,14 @@ def design_stage(path: str | RoadmapTarget, *, validity: Callable | None = None,
 
 
 def design_into(path: str | RoadmapTarget, validity: Callable | None = None, session: Workers | None = None,
-                progress: ProgressCallback | None = None) -> DesignReport:
-    """:func:`design_stage` with the caller's workers (``session``), under the caller's lock."""
+                progress: ProgressCallback | None = None, *, problem: Problem | None = None,
+                roadmap: RoadmapFile | None = None) -> DesignReport:
+    """:func:`design_stage` with the caller's workers (``session``), under the caller's lock;
+    ``problem`` and ``roadmap``: the stored scenario's problem and the roadmap as read, when the caller
+    holds them (a build: neither is made again)."""
     t0 = time.perf_counter()
-    roadmap = RoadmapFile(path)
-    problem = problem_of(roadmap, validity)
+    roadmap = roadmap if roadmap is not None else RoadmapFile(path)
+    problem = problem_of(roadmap, validity, problem=problem)
     nodes = roadmap.require("nodes", "centers", "kind")
     centers = nodes["centers"]
     check_roadmap_nodes(problem, str(path), int(centers.shape[0]))  # the file's node count, not the scenario's

@@ -18,6 +18,7 @@ from firmtool.estimation.adaptive import AdaptiveReport, AdaptiveSettings, refin
 from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, to_arrays
 from firmtool.estimation.edges import EdgeEstimate, merge_estimates
 from firmtool.estimation.executors import BatchResult, EstimationJob, Workers, run_edges
+from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import concat_edge_tables, write_edge_cache
 from firmtool.io.roadmap_format import GOAL
 from firmtool.pipeline.settings import WorkerSettings
@@ -76,7 +77,11 @@ class EdgeRuns:
             self.saved = len(self.fresh)
 
     def _maybe_checkpoint(self) -> None:
-        # the first checkpoint comes after the first batch, the others every checkpoint_seconds
+        # the first checkpoint comes after the first batch, the others every checkpoint_seconds; a
+        # roadmap in memory (a query's, an update's, ft.build's without a file) outlives no crash, and
+        # each checkpoint rewrote its whole image: only Ctrl-C's checkpoint is kept for it
+        if isinstance(self.target, MemoryFile):
+            return
         if not self.saved or time.monotonic() - self._last >= self.checkpoint_seconds:
             self.checkpoint()
             self._last = time.monotonic()

@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+import numpy as np
+
 from firmtool.errors import FirmtoolError
 from firmtool.estimation import warmup
 from firmtool.estimation.adaptive import AdaptiveReport
@@ -13,7 +15,7 @@ from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import ENGINE_VERSION, edge_keys, from_arrays
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate
 from firmtool.estimation.executors import EstimationJob, Workers, default_workers, job_extras, remember_problem
-from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache, restamp, write_stage
+from firmtool.io.roadmap_file import RoadmapFile, restamp, write_stage
 from firmtool.pipeline.edge_runs import EdgeRuns
 from firmtool.pipeline.inputs import edges_inputs
 from firmtool.pipeline.reading import design_of, problem_of
@@ -76,16 +78,20 @@ def estimate_stage(path: str | RoadmapTarget, *, workers: int | None = None, exe
 
 def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Problem, settings: WorkerSettings, *,
                   progress: ProgressCallback | None = None, checkpoint_seconds: float = CHECKPOINT_SECONDS,
-                  session: Workers | None = None, fresh: bool = False) -> EstimateReport:
+                  session: Workers | None = None, fresh: bool = False, keys: np.ndarray | None = None
+                  ) -> EstimateReport:
     """:func:`estimate_stage` on the roadmap read at ``path`` and its problem (:func:`problem_of`),
-    with checked worker settings, under the caller's lock."""
+    with checked worker settings, under the caller's lock; ``keys``: (E, 32) the design's edge keys
+    for the engine :func:`~firmtool.estimation.compiled.engine_choice` picks, when the caller computed
+    them (a query: not computed again)."""
     t0 = time.perf_counter()
     d = design_of(roadmap)
     sc = problem.scenario
     E = d.edge_source.size
     engine, notice = engine_choice(problem)  # chosen once: the keys record it, the workers run it
     notices = (notice,) if notice else ()
-    keys = edge_keys(problem, d, engine=engine)
+    if keys is None or keys.shape[0] != E:
+        keys = edge_keys(problem, d, engine=engine)
     table_hash = edges_inputs(roadmap, sc, keys)
     if not fresh and roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
         warmup.stop()  # nothing to estimate: no compile to wait for
@@ -96,7 +102,7 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
                                 settings.workers if settings.requested else 0, settings.executor,
                                 time.perf_counter() - t0, up_to_date=True, notices=notices, engine=engine)
     known: dict[bytes, EdgeEstimate] = {} if fresh else from_arrays(roadmap.table("edges"))
-    cache = {} if fresh else read_edge_cache(path, nodes=d.centers.shape[0], world_dim=problem.workspace_dim)
+    cache = {} if fresh else roadmap.edge_cache(nodes=d.centers.shape[0], world_dim=problem.workspace_dim)  # read with it: not opened again
     known.update(from_arrays(cache))
     todo = [e for e in range(E) if bytes(keys[e]) not in known]
     reused = E - len(todo)

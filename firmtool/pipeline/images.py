@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 
 from firmtool.io.memory_file import MemoryFile
-from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_edge_cache, write_stage
+from firmtool.io.roadmap_file import write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.design import DESIGN_ARRAYS
-from firmtool.pipeline.inputs import VALIDITY_ATTR, controllers_inputs, nodes_inputs
+from firmtool.pipeline.inputs import VALIDITY_ATTR, design_inputs, nodes_inputs
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
 from firmtool.scenario import Scenario
@@ -31,16 +31,16 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
     cache : estimates (an ``/edge_cache`` table) the estimate stage finds by key, or None.
     """
     image = MemoryFile(name)
-    create_roadmap(image, sc.text, sc.sha256, sc.seed)
     attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, validity), "densify_rounds": 0, "start": START_INDEX,
                              "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: validity, **node_attrs}
     if d.retired is not None and np.any(d.retired):
         attrs["retired"] = np.flatnonzero(d.retired)
-    write_stage(image, "nodes", {"centers": d.centers, "kind": d.kinds}, attrs)
-    write_stage(image, "controllers", {k: getattr(d, k) for k in DESIGN_ARRAYS},
-                {"inputs_sha256": controllers_inputs(RoadmapFile(image)),
-                 "node_radius": problem.scenario.controller.node_radius,
-                 "covariance_tolerance": problem.scenario.controller.covariance_tolerance})
-    if cache:
-        write_edge_cache(image, cache, {"description": cache_description})
+    # one write of the whole image (each stage written apart copied the image again)
+    stages = {"nodes": ({"centers": d.centers, "kind": d.kinds}, attrs),
+              "controllers": ({k: getattr(d, k) for k in DESIGN_ARRAYS},
+                              {"inputs_sha256": design_inputs(attrs["inputs_sha256"], d.centers, d.kinds),
+                               "node_radius": problem.scenario.controller.node_radius,
+                               "covariance_tolerance": problem.scenario.controller.covariance_tolerance})}
+    write_roadmap(image, sc.text, sc.sha256, sc.seed, stages, cache=cache or None,
+                  cache_attrs={"description": cache_description})
     return image

@@ -68,7 +68,13 @@ def nodes_inputs(scenario: Scenario, validity: str = "") -> str:
 def controllers_inputs(roadmap: RoadmapFile) -> str:
     """Identity of the design stage's inputs: the nodes' inputs and the node centres and kinds."""
     nodes = roadmap.require("nodes", "centers", "kind")
-    return inputs_hash(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
+    return design_inputs(roadmap.attrs("nodes").get("inputs_sha256", ""), nodes["centers"], nodes["kind"])
+
+
+def design_inputs(nodes_hash: str, centers: np.ndarray, kinds: np.ndarray) -> str:
+    """:func:`controllers_inputs` of a node set held in memory: its ``/nodes`` ``inputs_sha256``,
+    centres (N, n) and kinds (N,)."""
+    return inputs_hash(nodes_hash, centers, kinds)
 
 
 def edges_inputs(roadmap: RoadmapFile, scenario: Scenario, keys: np.ndarray) -> str:

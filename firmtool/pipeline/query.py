@@ -40,21 +40,23 @@ import numpy as np
 from firmtool.errors import MAX_EXPECTED, InputError, RoadmapError, ScenarioError, cut, quoted
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.edge_table import KEY_BYTES, blocks_key, edge_keys, from_arrays, to_arrays
-from firmtool.estimation.edges import GOAL_MISS, EdgeEstimate
+from firmtool.estimation.edges import EdgeEstimate
 from firmtool.estimation.executors import Workers
+from firmtool.estimation.touched import Change, touched, touches
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, read_edge_cache
 from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
 from firmtool.io.roadmap_queries import QUERY_NAME, query_image, query_names
-from firmtool.io.roadmap_write import write_queries
+from firmtool.io.roadmap_write import compacted_bytes, write_queries
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
 from firmtool.pipeline.inputs import problem_checker_identity
-from firmtool.pipeline.reading import design_of, problem_of, retired_nodes
+from firmtool.pipeline.reading import retired_nodes
 from firmtool.pipeline.sample import check_start_apart_from_goals
 from firmtool.pipeline.settings import WorkerSettings
 from firmtool.pipeline.solve import solve_policy, write_policy
 from firmtool.pipeline.target import locked
+from firmtool.pipeline.working import WorkingRoadmap
 from firmtool.problem import build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import QueryReport
@@ -223,45 +225,44 @@ def reusable_edges(table: dict[str, np.ndarray], unusable: np.ndarray, goal_chan
     A row is kept when neither end and no landing of its particles is ``unusable`` (N0,) bool (a
     retired or changed node: a landing there would now stop elsewhere, or not at all) and, when the
     goal changed, none of its particles missed the old goal (``GOAL_MISS``). An edge whose particles
-    never reached a retired node's region ran as it would without that node."""
-    source, target = table["source"].astype(np.int64), table["target"].astype(np.int64)
-    code, edge = table["outcome_code"].astype(np.int64), table["outcome_edge"].astype(np.int64)
-    ok = ~(unusable[source] | unusable[target])
-    bad = np.zeros(code.size, dtype=bool)
-    landed = code >= 0
-    bad[landed] = unusable[code[landed]]
-    if goal_changed:
-        bad |= code == GOAL_MISS
-    ok[np.unique(edge[bad])] = False
-    return ok
+    never reached a retired node's region ran as it would without that node
+    (:func:`firmtool.estimation.touched.touched`, the one answer for queries, updates and online changes)."""
+    return ~touched(query_change(unusable, goal_changed), table).edges
+
+
+def query_change(unusable: np.ndarray, goal_changed: bool) -> Change:
+    """A query as a :class:`~firmtool.estimation.touched.Change`: its retired and changed nodes
+    (``unusable`` (N0,) bool) reach the edges that end or land there, a moved goal those whose
+    particles missed it."""
+    return Change(ends=unusable, landings=unusable, goal_moved=goal_changed)
 
 
 def _reused_table(base: RoadmapFile, source: Any, base_problem: Any, base_design: Design, problem: Any, d: Design,
-                  ns: _NodeSet, engine: str) -> tuple[dict[str, np.ndarray] | None, int, int]:
+                  ns: _NodeSet, engine: str, keys: np.ndarray | None = None, old_keys: np.ndarray | None = None
+                  ) -> tuple[dict[str, np.ndarray] | None, int, int]:
     """The roadmap's reusable estimates (every stored particle block) under the query's keys, as an
     ``/edge_cache`` table; and how many of the query's edges they cover, and how many of the
     roadmap's estimated edges the query must estimate again."""
     table = base.table("edges")
     N0 = base_design.centers.shape[0]
-    unusable, goal_changed = ns.changed[:N0] | ns.retired[:N0], bool(ns.retired[:N0].any())
-    keep = reusable_edges(table, unusable, goal_changed)
+    change = query_change(ns.changed[:N0] | ns.retired[:N0], bool(ns.retired[:N0].any()))
+    keep = ~touched(change, table).edges
     return rekeyed_estimates(base, source, (base_problem, base_design, engine), (problem, d, engine), keep,
-                             lambda x: estimate_usable(x, unusable, goal_changed))
+                             lambda x: not touches(change, x), new_keys=keys, old_keys=old_keys)
 
 
 def estimate_usable(x: EdgeEstimate, unusable: np.ndarray, goal_changed: bool) -> bool:
     """:func:`reusable_edges` of one stored estimate (a cached one may hold more particle blocks than
     the table's row: its own landings decide)."""
-    landed = x.outcomes[x.outcomes >= 0]
-    return not (unusable[x.source] or unusable[x.target] or unusable[landed].any()
-                or (goal_changed and bool(np.any(x.outcomes == GOAL_MISS))))
+    return not touches(query_change(unusable, goal_changed), x)
 
 
 def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, str], new: tuple[Any, Design, str],
-                      keep: np.ndarray, usable: Callable[[EdgeEstimate], bool] | None = None
+                      keep: np.ndarray, usable: Callable[[EdgeEstimate], bool] | None = None,
+                      new_keys: np.ndarray | None = None, old_keys: np.ndarray | None = None
                       ) -> tuple[dict[str, np.ndarray] | None, int, int]:
     """The kept rows of a roadmap's ``/edges`` (``keep`` (E0,) bool), with every particle block stored
-    of them (in ``/edges`` and in ``source``'s ``/edge_cache``), under their keys in a new roadmap,
+    of them (in ``/edges`` and in ``source``'s ``/edge_cache``: a file, or its table as read), under their keys in a new roadmap,
     as an ``/edge_cache`` table for its estimate stage to find; and how many of the new roadmap's
     edges they cover, and how many of the edges estimated before must be estimated again.
 
@@ -269,7 +270,9 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
     is taken only when its key is the old edge's (not a stale estimate), only for an edge the new
     design has between the same two nodes, and only where ``usable`` (if given) says so of it: a
     block stored in the cache may hold particles the table's row has not (more blocks).
-    If the two engines differ, nothing is taken (their draws differ)."""
+    If the two engines differ, nothing is taken (their draws differ). ``new_keys``: (E, 32) the keys
+    of every edge of the new design, when the caller has them (not computed again); ``old_keys``: the
+    same of the roadmap's design."""
     (base_problem, base_design, base_engine), (problem, d, engine) = old, new
     table = base.table("edges")
     N0 = base_design.centers.shape[0]
@@ -281,13 +284,17 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
     again = sum(1 for p in pairs if p in estimated and p not in kept)  # estimated before, and again now
     if not rows or base_engine != engine:
         return None, 0, again if base_engine == engine else len(estimated & set(pairs))
-    base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=base_engine)
-    new_keys = edge_keys(problem, d, [e for e, _ in rows], engine=engine)
+    # the roadmap's keys when the caller keeps them (a roadmap asked many queries: computed once)
+    base_keys = edge_keys(base_problem, base_design, [b for _, b in rows], engine=base_engine) if old_keys is None \
+        else old_keys[np.array([b for _, b in rows], dtype=np.int64)]
+    # the new design's keys when the caller computed them (every edge's, once per command)
+    new_keys = edge_keys(problem, d, [e for e, _ in rows], engine=engine) if new_keys is None else \
+        new_keys[np.array([e for e, _ in rows], dtype=np.int64)]
     of_edge = {(int(d.edge_source[e]), int(d.edge_target[e])): (bk, nk) for (e, _), bk, nk in
                zip(rows, base_keys, new_keys)}
     B = base_problem.scenario.estimation.particles
     known: dict[bytes, EdgeEstimate] = from_arrays(table)
-    known.update(from_arrays(read_edge_cache(source, nodes=N0, world_dim=base_problem.workspace_dim)))
+    known.update(from_arrays(source if isinstance(source, dict) else read_edge_cache(source, nodes=N0, world_dim=base_problem.workspace_dim)))
     estimates, keys, covered = [], [], set()
     for key, x in known.items():
         pair = (x.source, x.target)
@@ -305,12 +312,12 @@ def rekeyed_estimates(base: RoadmapFile, source: Any, old: tuple[Any, Design, st
     return arrays, len(covered), again
 
 
-def answer_query(base: RoadmapFile, query: Query, *, validity: Callable | None = None,
+def answer_query(base: RoadmapFile | WorkingRoadmap, query: Query, *, validity: Callable | None = None,
                  settings: WorkerSettings | None = None, session: Workers | None = None,
                  progress: ProgressCallback | None = None, source: Any = None) -> tuple[MemoryFile, QueryReport]:
     """Answer one query on a built roadmap (module notes); nothing is written to the roadmap.
-    ``source``: the file (or memory file) ``base`` was read from, whose ``/edge_cache`` holds the
-    earlier particle blocks of the edges the adaptive rounds refined (default ``base.path``).
+    ``source``: the file (or memory file) whose ``/edge_cache`` holds the earlier particle blocks of
+    the edges the adaptive rounds refined (default: the cache read with ``base``).
 
     Returns
     -------
@@ -325,42 +332,60 @@ def answer_query(base: RoadmapFile, query: Query, *, validity: Callable | None =
     RoadmapError
         A roadmap without estimated edges.
     """
+    work = base if isinstance(base, WorkingRoadmap) else WorkingRoadmap(base, validity=validity)
+    answered, report = answer(work, query, settings=settings, session=session, progress=progress, source=source)
+    return answered.target, report  # type: ignore[return-value]
+
+
+def answer(base: WorkingRoadmap, query: Query, *, settings: WorkerSettings | None = None,
+           session: Workers | None = None, progress: ProgressCallback | None = None,
+           source: Any = None) -> tuple[WorkingRoadmap, QueryReport]:
+    """:func:`answer_query` on a roadmap as its command holds it (read once, its problem built once):
+    the query's roadmap as a :class:`~firmtool.pipeline.working.WorkingRoadmap` (its image read once
+    it is solved, its problem the query's)."""
     t0 = time.perf_counter()
     seconds: dict[str, float] = {}
-    base_problem = problem_of(base, validity)
-    base.require("edges", "source", "target", "outcome_code")
-    sc = query_scenario(base_problem.scenario, query, str(base.path))
+    validity = base.validity
+    base_problem = base.problem()
+    rm0 = base.file
+    rm0.require("edges", "source", "target", "outcome_code")
+    sc = query_scenario(base_problem.scenario, query, str(rm0.path))
     name = query_name(query, sc)
-    problem = _query_problem(sc, base_problem, validity, str(base.path))
-    base_design = design_of(base)
-    ns = _node_set(base, problem, base_problem)
-    _check_start(problem, ns, str(base.path))
+    problem = _query_problem(sc, base_problem, validity, str(rm0.path))
+    base_design = base.design
+    ns = _node_set(rm0, problem, base_problem)
+    _check_start(problem, ns, str(rm0.path))
     seconds["nodes"] = time.perf_counter() - t0
     d = _query_design(problem, base_design, ns)
     if d.edge_source.size == 0:
-        raise InputError(f"{base.path}: the query's goal nodes have no collision-free edge to the roadmap's nodes")
+        raise InputError(f"{rm0.path}: the query's goal nodes have no collision-free edge to the roadmap's nodes")
     engine = engine_choice(problem)[0]
-    cache, reused, again = _reused_table(base, base.path if source is None else source, base_problem, base_design,
-                                         problem, d, ns, engine)
-    image = _write_image(base, sc, problem, d, ns, cache, name)
+    cache = rm0.edge_cache(base_design.centers.shape[0]) if source is None else source
+    keys = edge_keys(problem, d, engine=engine)  # every edge's key, once (the reuse and the estimate stage)
+    old_keys = base.edge_keys(engine_choice(base_problem)[0])  # kept by the roadmap: once per roadmap
+    cache, reused, again = _reused_table(rm0, cache, base_problem, base_design, problem, d, ns, engine, keys,
+                                         old_keys)
+    image = _write_image(rm0, sc, problem, d, ns, cache, name)
     seconds["design"] = time.perf_counter() - t0 - seconds["nodes"]
     rm = RoadmapFile(image)
     settings = settings or WorkerSettings(workers=1)
-    e = estimate_into(image, rm, problem_of(rm, validity), settings, progress=progress, session=session)
+    # the query's problem as built above: its image's nodes are the ones it was checked with
+    e = estimate_into(image, rm, problem, settings, progress=progress, session=session, keys=keys)
     seconds["estimate"] = e.seconds
     t1 = time.perf_counter()
-    group = solve_policy(RoadmapFile(image))
+    group = solve_policy(RoadmapFile(image, with_cache=False), problem=problem)  # the cache is the estimate's
     write_policy(image, group)
     seconds["solve"] = time.perf_counter() - t1
     seconds["total"] = time.perf_counter() - t0
     notice = ("reused edges keep the stopping region they were estimated with: their particles do not stop in "
               "the query's goal region on the way to their target (the query's own edges see every node)")
-    return image, QueryReport(
+    report = QueryReport(
         name=name, nodes=int(ns.centers.shape[0]), goal_nodes=ns.goal_nodes, retired_nodes=int(ns.retired.sum()),
         start_changed=ns.start_changed, edges=e.edges, reused_edges=e.reused_edges, estimated_edges=e.estimated_edges,
         reestimated_edges=again, simulated_particle_steps=e.simulated_particle_steps, seconds=seconds,
         start_success_probability=float(group.arrays["success_probability"][START_INDEX]),
         notices=(notice,) + tuple(e.notices) if reused else tuple(e.notices))
+    return WorkingRoadmap.open(image, validity=validity, problem=problem), report
 
 
 def _query_problem(sc: Scenario, base_problem: Any, validity: Callable | None, where: str) -> Any:
@@ -403,15 +428,9 @@ def store_queries(path: Any, answers: dict[str, tuple[MemoryFile, QueryReport]],
         A name that exists without ``force``.
     """
     with locked(path):  # one writer at a time, as every stage writes; the check and the write under it
-        base = RoadmapFile(path)
-        edges = base.attrs("edges").get("inputs_sha256", "") if base.has("edges") else ""
-        existing = set(query_names(path))
-        for name in answers:
-            if name in existing and not force:
-                raise InputError(f"{path}: a query named {quoted(name)} is stored already; give --force to replace it, "
-                                 "or another --name")
-        write_queries(path, {name: (image.read_bytes(), {"base_edges_sha256": str(edges), **query_summary(report)})
-                             for name, (image, report) in answers.items()})
+        # the names and the edges checked in the file as the write reads it (no read of its own)
+        write_queries(path, {name: (compacted_bytes(image), query_summary(report)) for name, (image, report)
+                             in answers.items()}, keep_existing=not force, stamp_edges=True)
 
 
 def query_summary(report: QueryReport) -> dict[str, Any]:

@@ -19,9 +19,13 @@ from firmtool.roadmap.design import Design
 from firmtool.scenario import parse_scenario
 
 
-def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_validity: bool = True) -> Problem:
+def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_validity: bool = True,
+               problem: Problem | None = None) -> Problem:
     """Rebuild the problem from the scenario text stored in the roadmap, and check the roadmap's
     stages against its model (dimensions, node centres in bounds and valid).
+
+    ``problem``: the problem of the stored scenario, built already by the caller (a build's request,
+    a query's): checked against the stages, not built again (:class:`firmtool.pipeline.working.WorkingRoadmap`).
 
     A roadmap built with a Python validity checker records the checker's identity (``/nodes``
     attribute ``validity_checker``): the stage must be given the same checker (``validity``), or,
@@ -29,11 +33,11 @@ def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_v
     in one line rather than run on the scenario's geometry alone. A checker for a roadmap built
     without one is refused too (its nodes were sampled without it)."""
     recorded = validity_of(roadmap)
-    if validity is None and recorded and need_validity:
-        raise InputError(f"{roadmap.path}: built with a Python validity checker ({recorded[:23]}), which cannot be "
-                         "rebuilt from the file: give the same checker (open_roadmap(path, validity=checker)); "
-                         "a firmtool command cannot run this stage")
-    problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"), validity=validity)
+    if need_validity:
+        refuse_without_checker(roadmap, validity)
+    if problem is None:
+        problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"),
+                                validity=validity)
     given = problem_checker_identity(problem)
     if validity is not None and given != recorded:
         raise InputError(f"{roadmap.path}: " + (f"built with another validity checker ({recorded[:23]}), not "
@@ -45,6 +49,16 @@ def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_v
                         steps_past_edge=problem.scenario.controller.max_steps, points=problem.geometry.points,
                         reach=problem.robot.world_reach() if problem.robot is not None else 0.0)
     return problem
+
+
+def refuse_without_checker(roadmap: RoadmapFile, validity: Callable | None) -> None:
+    """Refuse a stage that samples, designs, estimates or executes a roadmap built with a Python
+    validity checker when the checker is not given (:func:`problem_of`)."""
+    recorded = validity_of(roadmap)
+    if validity is None and recorded:
+        raise InputError(f"{roadmap.path}: built with a Python validity checker ({recorded[:23]}), which cannot be "
+                         "rebuilt from the file: give the same checker (open_roadmap(path, validity=checker)); "
+                         "a firmtool command cannot run this stage")
 
 
 def design_of(roadmap: RoadmapFile) -> Design:

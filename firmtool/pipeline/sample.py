@@ -126,7 +126,7 @@ def check_start_apart_from_goals(problem: Problem, centers: np.ndarray, kinds: n
 
 
 def add_nodes_stage(path: str | RoadmapTarget, count: int, connect: bool = False, *,
-                    validity: Callable | None = None) -> AddNodesReport:
+                    validity: Callable | None = None, problem: Problem | None = None) -> AddNodesReport:
     """Densification (paper III-E): add up to ``count`` regular nodes, sampled uniformly with the
     scenario's minimum separation from the others, from a random stream keyed by the seed and the
     round number (so a densified build is reproducible). Later stages are rebuilt by the caller.
@@ -135,14 +135,14 @@ def add_nodes_stage(path: str | RoadmapTarget, count: int, connect: bool = False
     (:func:`firmtool.roadmap.connectivity.connect_goals`, up to ``count`` of them), and uniform samples fill
     the rest."""
     with locked(path):
-        return _add_nodes(path, count, connect, validity)
+        return _add_nodes(path, count, connect, validity, problem)
 
 
 def _add_nodes(path: str | RoadmapTarget, count: int, connect: bool,
-               validity: Callable | None = None) -> AddNodesReport:
+               validity: Callable | None = None, problem: Problem | None = None) -> AddNodesReport:
     t0 = time.perf_counter()
     roadmap = RoadmapFile(path)
-    problem = problem_of(roadmap, validity)
+    problem = problem_of(roadmap, validity, problem=problem)
     nodes = roadmap.require("nodes", "centers", "kind")
     attrs = roadmap.attrs("nodes")
     rounds = int(attrs.get("densify_rounds", 0)) + 1

@@ -30,6 +30,7 @@ from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.inputs import policy_inputs
 from firmtool.pipeline.reading import edge_probabilities, node_task_points, problem_of, retired_nodes
 from firmtool.pipeline.target import RoadmapTarget, locked
+from firmtool.problem import Problem
 from firmtool.progress import SOLVE, Counter, ProgressCallback
 from firmtool.reports import SolveReport
 
@@ -56,7 +57,8 @@ class PolicyGroup:
 
 
 def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, method: str = "value",
-                 progress: ProgressCallback | None = None, deadline: int | None = None) -> PolicyGroup:
+                 progress: ProgressCallback | None = None, deadline: int | None = None,
+                 problem: Problem | None = None) -> PolicyGroup:
     """Solve the constrained graph DP (eq. 12), the success probabilities, and the shortest-path
     baseline, on a roadmap in memory (nothing is written). Timeouts count as failures.
 
@@ -71,6 +73,8 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
         ``task.deadline_steps``; None: none): then also the DP over (node, steps left)
         (:mod:`firmtool.graph.deadline`), its time-indexed policy ``deadline_edge`` and ``deadline_success``
         (T + 1, N), and the start's P(goal within T) (attribute ``deadline_success_probability``).
+    problem : the roadmap's problem, when the caller holds it (:class:`firmtool.pipeline.working.WorkingRoadmap`);
+        default: rebuilt from the stored scenario.
 
     Raises
     ------
@@ -80,7 +84,8 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
     """
     t0 = time.perf_counter()
     steps = Counter(progress, SOLVE, 3).start()
-    problem = problem_of(roadmap, need_validity=False)  # the DP reads edges and settings, no geometry
+    if problem is None:  # the DP reads edges and settings, no geometry
+        problem = problem_of(roadmap, need_validity=False)
     edges = roadmap.require("edges", "source", "target", "cost_mean")
     if edges["source"].size == 0:
         raise no_edge_failure(roadmap)
@@ -245,7 +250,7 @@ def unreachable_failure(roadmap_path: str | Path | MemoryFile | None, unreachabl
 
 
 def solve_stage(path: str | RoadmapTarget, *, failure_cost: float | None = None, method: str = "value",
-                progress: ProgressCallback | None = None) -> SolveReport:
+                progress: ProgressCallback | None = None, problem: Problem | None = None) -> SolveReport:
     """Solve the roadmap file at ``path`` (:func:`solve_policy`) and write ``/policy``.
 
     Raises
@@ -255,7 +260,7 @@ def solve_stage(path: str | RoadmapTarget, *, failure_cost: float | None = None,
     """
     with locked(path):
         roadmap = RoadmapFile(path)
-        group = solve_policy(roadmap, failure_cost=failure_cost, method=method, progress=progress)
+        group = solve_policy(roadmap, failure_cost=failure_cost, method=method, progress=progress, problem=problem)
         write_policy(path, group)
     J = group.arrays["cost_to_go"]
     if not np.isfinite(J[START_INDEX]):

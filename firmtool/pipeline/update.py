@@ -45,27 +45,28 @@ import numpy as np
 
 from firmtool.errors import InputError, RoadmapError, cut
 from firmtool.estimation.compiled import engine_choice
-from firmtool.estimation.edges import EdgeEstimate
+from firmtool.estimation.edge_table import edge_keys
 from firmtool.estimation.executors import Workers, default_workers
+from firmtool.estimation.touched import Change, touched, touches
 from firmtool.io import scenario_source
 from firmtool.io.memory_file import MemoryFile, replace_bytes
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.io.roadmap_queries import query_image, query_names
-from firmtool.io.roadmap_write import record_source, write_queries
+from firmtool.io.roadmap_write import compacted_bytes, record_source, write_queries
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
 from firmtool.pipeline.inputs import as_scenario, nodes_inputs, validity_of
 from firmtool.pipeline.query import OPTION_OF, TASK_KEYS, Query, answer_query, query_summary, rekeyed_estimates
-from firmtool.pipeline.reading import design_of, problem_of
 from firmtool.pipeline.settings import WorkerSettings, worker_settings
 from firmtool.pipeline.solve import solve_policy, unreachable_failure, write_policy
 from firmtool.pipeline.target import kept, locked
+from firmtool.pipeline.working import WorkingRoadmap
 from firmtool.problem import Problem, build_problem
 from firmtool.progress import ProgressCallback
 from firmtool.reports import UpdateReport
 from firmtool.roadmap.design import Design, connect
-from firmtool.roadmap.world_change import WorldChange, meets, world_change
+from firmtool.roadmap.world_change import WorldChange, world_change
 from firmtool.scenario import Scenario
 from firmtool.util.hashing import digest
 
@@ -152,34 +153,53 @@ def update_world(path: str | Path, scenario: Scenario | str | Path, *, workers: 
     Unreachable
         After the update is written, if the goal cannot be reached from the start in the new world.
     """
+    return update_and_read(path, scenario, workers=workers, executor=executor, scheduler=scheduler,
+                           progress=progress, session=session)[0]
+
+
+def update_and_read(path: str | Path, scenario: Scenario | str | Path, *, workers: int | None = None,
+                    executor: str = "process", scheduler: str | None = None, progress: ProgressCallback | None = None,
+                    session: Workers | None = None) -> tuple[UpdateReport, RoadmapFile]:
+    """:func:`update_world`, and the updated roadmap as written (the caller need not read it again).
+
+    The roadmap is read once, the problem built once in each world (the old one's to check the
+    file and key its estimates, the new one's to run), and the file written once."""
     t0 = time.perf_counter()
     sc = as_scenario(scenario)
     with locked(path), kept(path):
-        base = RoadmapFile(path)
+        base = WorkingRoadmap.open(path)
         up = _prepare(base, sc)
         d, retired_now = _updated_design(up)
         seconds = {"design": time.perf_counter() - t0}
-        keep, reasons = _kept_rows(up, d, retired_now)
+        change = Change(ends=np.zeros(d.centers.shape[0], dtype=bool) if d.retired is None else d.retired,
+                        landings=retired_now, world=up.change, reach=up.problem.robot.world_reach())
+        keep, reasons = _kept_rows(up, d, change)
+        engine = engine_choice(up.problem)[0]
+        keys = edge_keys(up.problem, d, engine=engine)  # every edge's key, once (the reuse and the estimate)
         cache, kept_edges, _ = rekeyed_estimates(
-            base, base.path, (up.base_problem, up.base_design, engine_choice(up.base_problem)[0]),
-            (up.problem, d, engine_choice(up.problem)[0]), keep,
-            lambda x: _estimate_unchanged(x, up.change, retired_now, up.problem))
-        image = _image(base, sc, up.problem, d, cache)
+            up.base, up.base.edge_cache(up.base_design.centers.shape[0]),
+            (up.base_problem, up.base_design, engine_choice(up.base_problem)[0]),
+            (up.problem, d, engine), keep, lambda x: not touches(change, x), new_keys=keys)
+        image = _image(up.base, sc, up.problem, d, cache)
         rm = RoadmapFile(image)
         settings = worker_settings(workers, executor, scheduler, default=default_workers(), problem=up.problem)
-        e = estimate_into(image, rm, problem_of(rm), settings, progress=progress, session=session)
+        # the new world's problem, built once above (the image's nodes are the ones it checked)
+        e = estimate_into(image, rm, up.problem, settings, progress=progress, session=session, keys=keys)
         seconds["estimate"] = e.seconds
         t1 = time.perf_counter()
-        group = solve_policy(RoadmapFile(image))
+        group = solve_policy(RoadmapFile(image, with_cache=False), problem=up.problem)  # the cache is the estimate's
         write_policy(image, group)
         source = scenario_source.source_of(sc.path, sc.sha256) if sc.path else None
         if source is not None:
             record_source(image, source)
         seconds["solve"] = time.perf_counter() - t1
         t2 = time.perf_counter()
-        carried = carry_queries(base, image, up, settings, session=session)
+        carried = carry_queries(up.base, image, up, settings, session=session)
         seconds["queries"] = time.perf_counter() - t2
-        replace_bytes(Path(path), image.read_bytes())  # one atomic rename: the old file until it is done
+        # one atomic rename: the old file until it is done; compacted (the image was edited in place)
+        replace_bytes(Path(path), compacted_bytes(image))
+        final = RoadmapFile(image)  # the bytes just written, read from memory
+        final.path = Path(path)
     seconds["total"] = time.perf_counter() - t0
     J = group.arrays["cost_to_go"]
     if not np.isfinite(J[START_INDEX]):  # written all the same (inspect shows it), as solve does
@@ -193,7 +213,7 @@ def update_world(path: str | Path, scenario: Scenario | str | Path, *, workers: 
         estimated_edges=e.estimated_edges, new_edges=len(new_pairs - old_pairs), dropped_edges=len(old_pairs - new_pairs),
         reasons=dict(reasons), simulated_particle_steps=e.simulated_particle_steps, seconds=seconds,
         start_success_probability=float(group.arrays["success_probability"][START_INDEX]), notices=tuple(e.notices),
-        queries_kept=carried.kept, queries_answered=carried.answered, queries_dropped=carried.dropped)
+        queries_kept=carried.kept, queries_answered=carried.answered, queries_dropped=carried.dropped), final
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,9 +272,9 @@ def carry_queries(base: RoadmapFile, image: MemoryFile, up: _Update, settings: W
     return CarriedQueries(answered=tuple(answers), dropped=dropped)
 
 
-def _prepare(base: RoadmapFile, sc: Scenario) -> _Update:
+def _prepare(work: WorkingRoadmap, sc: Scenario) -> _Update:
     """Both worlds' problems and the change, every refusal checked before any work."""
-    base_problem = problem_of(base)
+    base, base_problem = work.file, work.problem()
     if base_problem.validity is not None:
         raise InputError(f"{base.path}: built with a Python validity checker, whose verdicts a world change cannot "
                          "bound; build a new roadmap in the new world")
@@ -271,7 +291,7 @@ def _prepare(base: RoadmapFile, sc: Scenario) -> _Update:
         raise InputError(f"{base.path}: its edges hold no swept regions (estimated before firmtool recorded them); "
                          f"estimate them once in the old world (firmtool estimate {base.path} --fresh), then update")
     problem = build_problem(sc)  # the start and goal checked in the new world, named as fields of its file
-    return _Update(base=base, base_problem=base_problem, base_design=design_of(base), problem=problem,
+    return _Update(base=base, base_problem=base_problem, base_design=work.design, problem=problem,
                    change=world_change(base_problem.scenario.world, sc.world))
 
 
@@ -296,42 +316,27 @@ def _updated_design(up: _Update) -> tuple[Design, np.ndarray]:
     return d, retired_now
 
 
-def _estimate_unchanged(x: EdgeEstimate, change: WorldChange, retired_now: np.ndarray, problem: Problem) -> bool:
-    """Whether a stored estimate's particles would run as they ran in the new world: its swept region
-    (grown by the robot's reach) meets no changed box and none landed in a node retired now."""
-    if x.swept is None:
-        return False
-    landed = x.outcomes[x.outcomes >= 0]
-    if retired_now[landed].any():
-        return False
-    return not meets(x.swept[:1], x.swept[1:], change, problem.robot.world_reach()).any()
-
-
-def _kept_rows(up: _Update, d: Design, retired_now: np.ndarray) -> tuple[np.ndarray, collections.Counter]:
-    """(E0,) bool: the rows of the old ``/edges`` the change leaves as they were; and per reason the
-    old edges it does not keep (estimated again or dropped)."""
+def _kept_rows(up: _Update, d: Design, change: Change) -> tuple[np.ndarray, collections.Counter]:
+    """(E0,) bool: the rows of the old ``/edges`` the change leaves as they were
+    (:func:`firmtool.estimation.touched.touched`: an end retired, a landing in a node retired now, a
+    changed box meeting the swept region); and per reason the old edges it does not keep (estimated
+    again or dropped)."""
     table = up.base.table("edges")
     source, target = table["source"].astype(np.int64), table["target"].astype(np.int64)
-    hits = meets(table["swept_lo"], table["swept_hi"], up.change, up.problem.robot.world_reach())  # (E0, K)
-    code, edge = table["outcome_code"].astype(np.int64), table["outcome_edge"].astype(np.int64)
-    landed_retired = np.zeros(source.size, dtype=bool)
-    land = code >= 0
-    landed_retired[np.unique(edge[land][retired_now[code[land]]])] = True
-    retired = np.zeros(d.centers.shape[0], dtype=bool) if d.retired is None else d.retired
-    ends = retired[source] | retired[target]
+    t = touched(change, table)
     new_pairs = set(zip(d.edge_source.tolist(), d.edge_target.tolist()))
     designed = np.array([(int(s), int(t)) in new_pairs for s, t in zip(source, target)], dtype=bool)
     reasons: collections.Counter = collections.Counter()
     for e in range(source.size):
-        if ends[e]:
+        if t.ends[e]:
             reasons["end node retired"] += 1
         elif not designed[e]:
             reasons["nominal in collision"] += 1
-        elif landed_retired[e]:
+        elif t.landed[e]:
             reasons["landed in a retired node"] += 1
-        elif hits[e].any():
-            reasons[f"swept region meets {up.change.what[int(np.argmax(hits[e]))]}"] += 1
-    keep = ~(ends | ~designed | landed_retired | hits.any(axis=1))
+        elif t.swept[e].any():
+            reasons[f"swept region meets {up.change.what[int(np.argmax(t.swept[e]))]}"] += 1
+    keep = ~(t.edges | ~designed)
     return keep, reasons
 
 

@@ -560,12 +560,8 @@ class PolicyMachine:
     def _answer(self, goal: np.ndarray, world):
         """In the worker thread: the query's solution and its prepared policy (the expensive part), in
         ``world``, the world the main thread had when the goal came (passed, not read here)."""
-        import firmtool.api as ft  # the query machinery loads on the first goal only
-        sol = ft.solve(self.base, goal=goal.tolist())
-        policy = Policy(sol, replan=self.settings)
-        policy.prepare()
-        if world is not None:
-            policy.update_world(world[0], bounds=world[1])
+        from firmtool.api.queries import goal_policy  # the query machinery loads on the first goal only
+        sol, policy = goal_policy(self.base, goal, replan=self.settings, world=world)
         return sol, policy, world
 
     def _take_goal(self) -> None:
