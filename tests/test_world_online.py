@@ -113,21 +113,21 @@ def test_update_world_add_and_remove_match_the_full_list_form(solution):
     with warnings.catch_warnings():
         warnings.simplefilter("error", ft.WorldUpdateWarning)  # the walls stay: no warning
         added.update_world(add=[ACROSS])
-    np.testing.assert_array_equal(added.edge_per_node, full.edge_per_node)
+    np.testing.assert_array_equal(added.state.edge_per_node, full.state.edge_per_node)
     np.testing.assert_array_equal(added._cost_to_go, full._cost_to_go)
-    assert added.problem.scenario.world == full.problem.scenario.world
+    assert added.state.problem.scenario.world == full.state.problem.scenario.world
     # remove by the box (a table in other number types) and by index: back to the roadmap's world
     added.update_world(remove=[{"center": [3, 2.1], "half_size": [0.15, 0.3], "kind": "box"}])
-    np.testing.assert_array_equal(added.edge_per_node, solution.policy)
+    np.testing.assert_array_equal(added.state.edge_per_node, solution.policy)
     added.update_world(add=[ACROSS])
     added.update_world(remove=[-1])
-    np.testing.assert_array_equal(added.edge_per_node, solution.policy)
+    np.testing.assert_array_equal(added.state.edge_per_node, solution.policy)
     # a World value, and a scenario's world (its bounds included)
     as_world = ft.Policy(solution)
     as_world.update_world(ft.World(obstacles=OWN + [ACROSS]))
-    np.testing.assert_array_equal(as_world.edge_per_node, full.edge_per_node)
+    np.testing.assert_array_equal(as_world.state.edge_per_node, full.state.edge_per_node)
     as_world.update_world(solution.roadmap.scenario.world)
-    np.testing.assert_array_equal(as_world.edge_per_node, solution.policy)
+    np.testing.assert_array_equal(as_world.state.edge_per_node, solution.policy)
     with pytest.raises(InputError, match=r"remove\[0\]: expected an index of the current world's 1 obstacles"):
         as_world.update_world(remove=[3])
     with pytest.raises(InputError, match=r"remove\[0\]: no obstacle of the current world is"):
@@ -142,7 +142,7 @@ def test_dropping_every_wall_of_the_roadmap_warns_once(solution):
     policy = ft.Policy(solution)
     with pytest.warns(ft.WorldUpdateWarning, match="keeps none of the roadmap's 1 obstacles"):
         policy.update_world([ACROSS])
-    assert policy.problem.is_valid(np.array([[2.0, 1.2]]))[0]  # the wall is gone: as told, but warned
+    assert policy.state.problem.is_valid(np.array([[2.0, 1.2]]))[0]  # the wall is gone: as told, but warned
     import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("error", ft.WorldUpdateWarning)

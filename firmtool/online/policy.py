@@ -34,11 +34,9 @@ runs until the belief enters a node (paper Sec. III-E). Beyond the stored policy
   unicycle's heading) holds hypotheses of it after a jump and runs a probe motion until one mode
   leads, then decides from that mode (:mod:`firmtool.online.probe`). Events: ``relocalising``, then
   ``relocalised``.
-- **Re-localisation.** :meth:`Policy.relocalise` replaces the belief mid-run by one from outside (a
-  marker, a satellite fix) and decides from it.
-- **Decisions.** A valid estimate to plan from, the re-filtered keep, keep or replan
-  (:mod:`firmtool.online.decision`); a goal declaration waits while the jump test questions it
-  (:mod:`firmtool.online.arrival`).
+- **Re-localisation.** :meth:`Policy.relocalise` replaces the belief mid-run by one from outside.
+- **Decisions.** Keep or replan (:mod:`firmtool.online.decision`); a goal declaration waits while the
+  jump test questions it (:mod:`firmtool.online.arrival`).
 
 The policy ends when it declares the goal (its belief entered a goal node), when it is stuck (no
 controller from the start belief, a node without an edge), or on a timeout (its controller ran out
@@ -240,19 +238,17 @@ class Policy:
                      add: Iterable[Mapping[str, Any] | Obstacle] | None = None,
                      remove: Iterable[int | Mapping[str, Any] | Obstacle] | None = None,
                      bounds: Any = None) -> list[Event]:
-        """Tell the policy the world changed. ``obstacles`` is the WHOLE obstacle list (scenario tables
-        such as ``{"center": [x, y], "half_size": [hx, hy]}``, or :class:`~firmtool.geometry.shapes.Obstacle`
-        objects): it replaces the current world's, so a new box alone drops every wall (warned once:
-        :class:`~firmtool.errors.WorldUpdateWarning`). Or a :class:`~firmtool.online.world.World`
-        (``ft.World``, or a scenario's ``world``: obstacles and bounds). Or ``add=`` / ``remove=``
-        against the world the policy holds now (``remove``: indices into its obstacle list, or the
-        obstacles themselves). ``bounds``: ``[lo, hi]``, None for the roadmap's.
+        """Tell the policy the world changed: ``obstacles``, the WHOLE obstacle list (scenario tables
+        such as ``{"center": [x, y], "half_size": [hx, hy]}``, or ``Obstacle`` objects), replaces the
+        current world's, so a new box alone drops every wall (warned once: ``WorldUpdateWarning``); or
+        a :class:`~firmtool.online.world.World` (``ft.World``, a scenario's ``world``); or ``add=`` /
+        ``remove=`` (indices into the current list, or the obstacles) against the world held now.
+        ``bounds``: ``[lo, hi]``, None for the roadmap's.
 
-        The edges the change can touch are blocked at once, without a Monte Carlo, and the DP is
-        solved again on the others (:mod:`firmtool.online.world`); the replanner tests the new world
-        from now on; while a controller runs, a decision is taken at once from the current belief.
-        Predictions are approximate until ``firmtool update`` re-estimates the blocked edges. The
-        world stays until the next call (each world's answer is kept: a return to it costs nothing).
+        The edges the change can touch are blocked at once, without a Monte Carlo, and the DP solved
+        again on the others (:mod:`firmtool.online.world`); the replanner tests the new world from now
+        on; while a controller runs, a decision is taken at once. Predictions are approximate until
+        ``firmtool update`` re-estimates the blocked edges. Each world's answer is kept.
 
         Returns
         -------
