@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from firmtool.api.solution import Solution
+from firmtool.errors import InputError
 from firmtool.estimation.budgets import MAX_EXECUTION_STEPS, check_execution, check_push_size
 from firmtool.io import arguments
 from firmtool.online.policy import ROLLOUT, Policy
@@ -17,6 +19,7 @@ from firmtool.roadmap.nodes import START_INDEX
 from firmtool.sim.disturbances import PUSH, Disturbance, as_disturbances
 from firmtool.sim.environment import SimulatedSystem
 from firmtool.sim.episodes import run_episodes
+from firmtool.sim.mujoco_system import MujocoSystem  # imports mujoco only when it builds a model
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.progress import ProgressCallback
@@ -29,7 +32,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
              start: np.ndarray | None = None,
              disturbances: Iterable["str | Disturbance | DisturbanceFunction"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
-             progress: "ProgressCallback | None" = None, max_total_steps: float = MAX_EXECUTION_STEPS) -> Results:
+             progress: "ProgressCallback | None" = None, max_total_steps: float = MAX_EXECUTION_STEPS,
+             simulator: str = "firmtool") -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
     Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
@@ -72,6 +76,11 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     max_total_steps : float
         Refuse runs of more than this many control steps in the worst case (``episodes`` x the
         scenario's ``execution.max_steps``), as ``firmtool execute --max-total-steps`` does.
+    simulator : {"firmtool", "mujoco"}
+        The true system: firmtool's own simulator, or MuJoCo (a URDF arm only; the extra
+        ``firmtool[physics]``): the arm loaded from the URDF the roadmap carries, its collisions,
+        joint limits and goal judged by MuJoCo (:mod:`firmtool.sim.mujoco_system`); the results
+        then hold MuJoCo's counts (``simulator``: the steps where capsules and meshes disagreed).
 
     Returns
     -------
@@ -94,14 +103,25 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
             check_push_size(problem, str(d), d.size)
     agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
-    system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals
+    if simulator not in SIMULATORS:
+        raise InputError(f"simulator: expected one of {', '.join(SIMULATORS)}, found {str(simulator)[:200]!r}")
+    if simulator == "mujoco":
+        system = MujocoSystem(rm.problem, rm.execution_design)
+    else:
+        system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals
     at_start_node = start is None
-    return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
+    results = run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
                         predicted=predicted if at_start_node else None,
                         predicted_ci95=interval if at_start_node else None,
                         # rollout FIRM leaves its edges for run-time controllers where it gains: the edges it
                         # runs to their end are not a sample of the edges' Monte Carlo, so no calibration check
                         edge_counts=None if policy == ROLLOUT else rm.edge_counts, system=system, progress=progress)
+    if simulator == "mujoco":
+        results = dataclasses.replace(results, simulator=system.report())
+    return results
+
+
+SIMULATORS = ("firmtool", "mujoco")
 
 
 def _prediction(solution: Solution, base: str) -> tuple[float | None, tuple[float, float] | None]:

@@ -22,7 +22,7 @@ from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_queries import query_images
 from firmtool.reports import BuildReport, QueryReport, UpdateReport
 from firmtool.roadmap.nodes import GOAL, START_INDEX
-from firmtool.scenario import Scenario, parse_scenario
+from firmtool.scenario import Scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -97,7 +97,7 @@ class Roadmap:
     @functools.cached_property
     def scenario(self) -> Scenario:
         """The scenario the roadmap was built from (parsed from the text it stores)."""
-        return parse_scenario(self._data.scenario_text, f"{self._data.path}:scenario_toml")
+        return pipeline.stored_scenario(self._data)
 
     @functools.cached_property
     def problem(self) -> "Problem":
@@ -233,7 +233,8 @@ class Roadmap:
         stages = {name: data.stages[name] for name in STAGES if data.has(name)}
         stages.update(replace)
         # one atomic write, built in memory: a failure names ``path``, never a temporary file
-        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source)
+        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source,
+                      robot=(data.robot_files, data.robot_geometry) if data.robot_files else None)
 
     # queries (firmtool.api.queries answers them)
     @property

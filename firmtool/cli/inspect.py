@@ -10,7 +10,7 @@ from firmtool.io.roadmap_file import STAGES, RoadmapFile, read_edge_cache
 from firmtool.io.roadmap_queries import query_images
 from firmtool.reports import RoadmapSummary
 from firmtool.roadmap.nodes import START_INDEX
-from firmtool.scenario import parse_scenario
+from firmtool.pipeline.reading import stored_scenario
 
 
 def summarize(path: str | Path) -> RoadmapSummary:
@@ -25,7 +25,7 @@ def summarize(path: str | Path) -> RoadmapSummary:
         A file that is not a valid roadmap, or whose stored scenario is invalid.
     """
     rm = RoadmapFile(path)
-    scenario = parse_scenario(rm.scenario_text, f"{path}:scenario_toml")
+    scenario = stored_scenario(rm)
     out: dict = {"stale_stages": tuple(rm.stale_stages())}
     for stage in STAGES:
         rm.table(stage)  # validates it (and the stages before it) if present

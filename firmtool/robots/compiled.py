@@ -73,6 +73,8 @@ class CompiledKinematics:
     stride : capsule ``l`` starts at key point ``stride l`` (3-D; 1 in 2-D).
     radii : (n_seg,) the capsules' radii (3-D; in 2-D every capsule has ``world.robot_radius``).
     sense : the 3-D sensing hook (above), None in 2-D; n_sensing : the rows it fills.
+    self_pairs : 3-D: (S, 2) the capsule pairs tested for self-collision (None: none; in 2-D
+        ``self_collision`` tests every non-adjacent pair instead).
     """
 
     key_points: Callable
@@ -92,6 +94,7 @@ class CompiledKinematics:
     radii: np.ndarray | None = field(default=None)
     sense: Callable | None = None
     n_sensing: int = 0
+    self_pairs: np.ndarray | None = field(default=None)
 
     def __post_init__(self) -> None:
         dim, stride = int(self.dim), int(self.stride)
@@ -119,7 +122,13 @@ class CompiledKinematics:
             if radii is None or radii.shape != (n_seg,) or not np.all(np.isfinite(radii) & (radii > 0)):
                 raise InputError(f"compiled kinematics: radii must be {n_seg} positive radii, one per capsule")
             if self.self_collision:
-                raise InputError("compiled kinematics: the 3-D engine does not test self-collision")
+                raise InputError("compiled kinematics: the 3-D engine tests the self-collision pairs self_pairs "
+                                 "names, not self_collision")
+            pairs = np.zeros((0, 2), dtype=np.int64) if self.self_pairs is None else \
+                np.ascontiguousarray(self.self_pairs, dtype=np.int64).reshape(-1, 2)
+            if pairs.size and (pairs.min() < 0 or pairs.max() >= n_seg):
+                raise InputError(f"compiled kinematics: self_pairs must index the {n_seg} capsules")
+            object.__setattr__(self, "self_pairs", pairs)
             object.__setattr__(self, "radii", radii)
         half = np.full(n_seg, np.inf) if self.half_lengths is None else \
             np.ascontiguousarray(self.half_lengths, dtype=float).reshape(-1)
