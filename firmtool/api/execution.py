@@ -28,8 +28,7 @@ if TYPE_CHECKING:  # pragma: no cover
 DisturbanceFunction = Callable[[int, np.ndarray, np.random.Generator], "np.ndarray | None"]
 
 
-def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
-             start: np.ndarray | None = None,
+def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm", start: np.ndarray | None = None,
              disturbances: Iterable["str | Disturbance | DisturbanceFunction"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
              progress: "ProgressCallback | None" = None, max_total_steps: float = MAX_EXECUTION_STEPS,
@@ -77,10 +76,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
         Refuse runs of more than this many control steps in the worst case (``episodes`` x the
         scenario's ``execution.max_steps``), as ``firmtool execute --max-total-steps`` does.
     simulator : {"firmtool", "mujoco"}
-        The true system: firmtool's own simulator, or MuJoCo (a URDF arm only; the extra
-        ``firmtool[physics]``): the arm loaded from the URDF the roadmap carries, its collisions,
-        joint limits and goal judged by MuJoCo (:mod:`firmtool.sim.mujoco_system`); the results
-        then hold MuJoCo's counts (``simulator``: the steps where capsules and meshes disagreed).
+        The true system; MuJoCo for a URDF arm (:mod:`firmtool.sim.mujoco_system`; ``Results.simulator``).
 
     Returns
     -------
@@ -103,12 +99,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
             check_push_size(problem, str(d), d.size)
     agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
-    if simulator not in SIMULATORS:
-        raise InputError(f"simulator: expected one of {', '.join(SIMULATORS)}, found {str(simulator)[:200]!r}")
-    if simulator == "mujoco":
-        system = MujocoSystem(rm.problem, rm.execution_design)
-    else:
-        system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals
+    system = _true_system(rm, simulator)
     at_start_node = start is None
     results = run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
                         predicted=predicted if at_start_node else None,
@@ -116,12 +107,20 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
                         # rollout FIRM leaves its edges for run-time controllers where it gains: the edges it
                         # runs to their end are not a sample of the edges' Monte Carlo, so no calibration check
                         edge_counts=None if policy == ROLLOUT else rm.edge_counts, system=system, progress=progress)
-    if simulator == "mujoco":
-        results = dataclasses.replace(results, simulator=system.report())
-    return results
+    return dataclasses.replace(results, simulator=system.report()) if simulator == "mujoco" else results
 
 
 SIMULATORS = ("firmtool", "mujoco")
+
+
+def _true_system(rm, simulator: str) -> SimulatedSystem:
+    """The true system episodes run against: firmtool's simulator or MuJoCo's (``simulator``), of the
+    roadmap's world (it judges declared goals)."""
+    if simulator not in SIMULATORS:
+        raise InputError(f"simulator: expected one of {', '.join(SIMULATORS)}, found {str(simulator)[:200]!r}")
+    if simulator == "mujoco":
+        return MujocoSystem(rm.problem, rm.execution_design)
+    return SimulatedSystem(rm.problem, rm.execution_design)
 
 
 def _prediction(solution: Solution, base: str) -> tuple[float | None, tuple[float, float] | None]:

@@ -427,10 +427,12 @@ def _fcl_geometry(fcl, shape):
     return model
 
 
-def urdf(path: str | Path, base_link: str, tip_link: str, base_position=(0.0, 0.0, 0.0)) -> UrdfChain:
+def urdf(path: str | Path, base_link: str, tip_link: str, base_position=(0.0, 0.0, 0.0),
+         packages: dict[str, str | Path] | None = None) -> UrdfChain:
     """The chain of a URDF file, read and checked as a scenario with ``robot = "urdf"`` reads it:
     its joints, ranges, links and their capsules (:class:`~firmtool.robots.urdf_file.UrdfChain`), to
-    look at before writing the scenario.
+    look at before writing the scenario. ``packages``: ``package://NAME/...`` folders by name (as
+    ``[model] packages``; else ``FIRMTOOL_PACKAGE_PATH`` or the URDF's own folder).
 
     Raises
     ------
@@ -440,7 +442,8 @@ def urdf(path: str | Path, base_link: str, tip_link: str, base_position=(0.0, 0.
     base = np.eye(4)
     base[:3, 3] = base_position
     try:
-        return read_urdf(path, base_link, tip_link, base)
+        files = DiskFiles(path, tuple((k, Path(v)) for k, v in (packages or {}).items()))
+        return read_urdf(files, base_link, tip_link, base)
     except UrdfError as exc:
         raise InputError(f"{path}: {exc}") from None
 
