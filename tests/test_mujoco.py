@@ -118,3 +118,24 @@ def test_importing_firmtool_imports_no_mujoco():
     code = ("import sys, firmtool, firmtool.api, firmtool.cli.app, firmtool.cli.execute; "
             "import firmtool.sim.mujoco_system; assert 'mujoco' not in sys.modules, 'mujoco imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_mujoco_loads_the_chain_only(tmp_path):
+    """A link above base_link and a branch off the chain (a finger whose mesh is nowhere): MuJoCo
+    simulates firmtool's arm, the chain from base_link to tip_link, and reads no file."""
+    text = THREE.replace('<link name="base">', '<link name="root"/><joint name="r" type="fixed"><parent link="root"/>'
+                                               '<child link="base"/></joint><link name="base">')
+    text = text.replace("</robot>", '<joint name="fj" type="revolute"><parent link="l3"/><child link="finger"/>'
+                                    '<axis xyz="1 0 0"/><limit lower="-1" upper="1"/></joint><link name="finger">'
+                                    '<collision><geometry><mesh filename="nowhere.stl"/></geometry></collision></link>'
+                                    '</robot>')
+    (tmp_path / "three.urdf").write_text(text)
+    (tmp_path / "scenario.toml").write_text(SCENARIO)
+    problem = build_problem(ft.load_scenario(tmp_path / "scenario.toml"))
+    system = MujocoSystem(problem)
+    names = {system.model.body(b).name for b in range(system.model.nbody)}
+    assert names == {"world", "base", "l1", "l2", "l3", "tip"}
+    q = np.random.default_rng(1).uniform(problem.robot.arm.lo, problem.robot.arm.hi, size=(50, 3))
+    for x in q:
+        system._place(x)
+        assert np.allclose(system.tip, problem.robot.task_point(x[None])[0], atol=1e-12)

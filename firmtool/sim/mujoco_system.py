@@ -6,7 +6,8 @@ capsules, kinematics and noise, so it checks the predictions only against themse
 :class:`MujocoSystem` is the same environment with MuJoCo deciding what the world decides:
 
 - **What it simulates.** The arm is loaded by MuJoCo's own URDF importer from the URDF the roadmap
-  carries (:func:`mujoco_spec`: no side file is read), with its collision shapes as the URDF gives
+  carries (:func:`mujoco_spec`: no side file is read), the chain from ``base_link`` to ``tip_link``
+  as firmtool's arm is (links outside it, such as a gripper's fingers, left out), with its collision shapes as the URDF gives
   them (boxes, cylinders, spheres and meshes; MuJoCo collides a mesh as its convex hull). The mesh
   names firmtool resolved (``package://`` included) are rewritten to plain names of in-memory assets
   (every mesh written as a binary STL of the vertices firmtool read, so that MuJoCo and firmtool see
@@ -95,43 +96,39 @@ def mujoco_spec(robot) -> tuple[object, dict[str, bytes]]:
     Raises
     ------
     InputError
-        MuJoCo cannot load the URDF (the feature named in MuJoCo's message), or the arm is not one
-        MuJoCo can place as firmtool does (a base link that is not the URDF's root).
+        MuJoCo cannot load the URDF (the feature named in MuJoCo's message).
     """
     mujoco = _mujoco()
     from lxml import etree
 
+    from firmtool.io.mesh_file import parse_mesh_content
     from firmtool.robots.urdf_file import parse_xml
 
     files = dict(robot.arm.files)
     root = parse_xml(files["urdf"], "", "robot")
     meshes: dict[str, str] = {}
     assets: dict[str, bytes] = {}
-    by_name = {s.filename: s for shapes in robot.arm.shapes for s in shapes if s.kind == "mesh"}
+    chain = set(robot.arm.chain_links)
     for element in list(root.iter()):
-        if not isinstance(element.tag, str):
+        if not isinstance(element.tag, str) or element.getparent() is None:
             continue
-        if element.tag in ("visual", "transmission", "gazebo"):  # not the subject; may name other files
-            element.getparent().remove(element)
+        if element.tag in ("visual", "transmission", "gazebo"):
+            element.getparent().remove(element)  # not the subject; they may name other files
+        elif element.getparent() is root and element.tag == "link" and element.get("name") not in chain:
+            root.remove(element)  # firmtool's arm is the chain from base_link to tip_link: MuJoCo's too
+        elif element.getparent() is root and element.tag == "joint":
+            parent, child = element.find("parent"), element.find("child")
+            if parent is None or child is None or parent.get("link") not in chain or child.get("link") not in chain:
+                root.remove(element)
     for element in root.iter("mesh"):
         name = element.get("filename", "")
-        if name not in meshes:
-            shape = by_name.get(name)
-            if shape is None:  # a collision mesh of a link outside the chain: read as firmtool read the chain's
-                from firmtool.io.mesh_file import parse_mesh_content
-                data = files.get(f"mesh:{name}")
-                if data is None:
-                    raise InputError(f"--simulator mujoco: the roadmap carries no mesh {name[:200]!r} (a link outside "
-                                     "the chain from base_link to tip_link); MuJoCo would load the whole URDF")
-                V, T = parse_mesh_content(data)
-            else:
-                scale = 1.0  # LinkShape.vertices are scaled; the URDF's scale attribute is removed below
-                V, T = shape.vertices * scale, shape.triangles
-                element.attrib.pop("scale", None)
+        if name not in meshes:  # the vertices firmtool read (unscaled: the URDF's scale attribute stays)
+            data = files.get(f"mesh:{name}")
+            if data is None:
+                raise InputError(f"--simulator mujoco: the roadmap carries no mesh {name[:200]!r} (file altered?)")
+            V, T = parse_mesh_content(data)  # read when the roadmap was built: the same bounds, no error now
             meshes[name] = f"mesh{len(meshes)}.stl"
             assets[meshes[name]] = _stl(np.asarray(V, float), np.asarray(T, np.int64))
-        elif name in by_name:
-            element.attrib.pop("scale", None)
         element.set("filename", meshes[name])
     root.insert(0, etree.fromstring(COMPILER))
     text = etree.tostring(root, encoding="unicode")
@@ -143,8 +140,7 @@ def mujoco_spec(robot) -> tuple[object, dict[str, bytes]]:
     spec_base = robot.scenario.model.base_link
     bodies = {b.name: b for b in spec.bodies}
     if spec_base not in bodies or bodies[spec_base].parent.name != "world":
-        raise InputError(f"--simulator mujoco: base_link {spec_base[:200]!r} is not the URDF's root link; MuJoCo "
-                         "places the whole URDF (choose the root as base_link)")
+        raise InputError(f"--simulator mujoco: MuJoCo did not make base_link {spec_base[:200]!r} its root body")
     bodies[spec_base].pos = np.asarray(robot.scenario.model.base_position, dtype=float)
     return spec, assets
 
