@@ -164,6 +164,15 @@ def test_a_roadmap_moved_alone_runs_solve_execute_and_update(tutorial, tmp_path)
         (folder / "three.urdf").write_text(THREE)
 
 
+def test_a_saved_roadmap_keeps_the_robot_it_carries(tutorial, tmp_path):
+    _, out = tutorial
+    saved = ft.open_roadmap(out).save(tmp_path / "saved.h5")
+    rm = ft.open_roadmap(saved)
+    assert dict(rm.scenario.files)["urdf"] == THREE.encode()
+    assert np.allclose(rm.problem.robot.arm.radii, ft.open_roadmap(out).problem.robot.arm.radii)
+    assert 0.0 <= ft.solve(rm).success_probability <= 1.0
+
+
 def test_a_stage_whose_robot_differs_is_refused(tutorial, tmp_path):
     """The robot identity in /nodes against the robot the stage builds: a roadmap whose carried
     files were swapped (and re-hashed, so that the group itself is consistent) is refused."""

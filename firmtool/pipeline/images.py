@@ -35,7 +35,7 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
     files = robot_files_digest(problem)
     attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, validity, files), "densify_rounds": 0,
                              "start": START_INDEX, "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: validity,
-                             ROBOT_ATTR: files, **node_attrs}
+                             **({ROBOT_ATTR: files} if files else {}), **node_attrs}
     if d.retired is not None and np.any(d.retired):
         attrs["retired"] = np.flatnonzero(d.retired)
     write_stage(image, "nodes", {"centers": d.centers, "kind": d.kinds}, attrs)

@@ -76,7 +76,7 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
         write_stage(target, "nodes", {"centers": centers, "kind": kinds},
                     {"inputs_sha256": nodes_inputs(scenario, identity, files), "densify_rounds": 0,
                      "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: identity,
-                     ROBOT_ATTR: files,
+                     **({ROBOT_ATTR: files} if files else {}),  # only then: other robots' tables stay as they were
                      "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
     return SampleReport(roadmap=str(target), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
                         seconds=time.perf_counter() - t0, connect_added=added)
