@@ -157,7 +157,7 @@ class MujocoSystem(SimulatedSystem):
     def __init__(self, problem: Problem, design: Design | None = None) -> None:
         super().__init__(problem, design)
         robot = problem.robot
-        if not hasattr(robot, "arm") or not getattr(robot, "carried_files", ()):
+        if not getattr(robot, "carried_files", ()) or not hasattr(robot, "self_pairs"):  # a URDF arm's
             raise InputError("--simulator mujoco: runs a URDF arm (robot = \"urdf\") from the URDF its roadmap "
                              "carries; this roadmap's robot is " + repr(problem.scenario.model.robot))
         mujoco = _mujoco()
