@@ -233,6 +233,9 @@ class Results(Report):
     estimate_success_rate, estimate_success_rate_ci95 : the episodes whose policy declared arrival,
         whatever the true state (the criterion before issue 15: the estimate reached the goal).
     policy : the policy's name (``"firm"`` or ``"shortest-path"``), None when run on a bare edge array.
+    simulator : with another simulator than firmtool's own (``simulate(..., simulator="mujoco")``), its
+        counts (:meth:`firmtool.sim.mujoco_system.MujocoSystem.report`: the steps where firmtool's
+        capsules and its meshes disagreed about collision); None (left out of the JSON) otherwise.
     """
 
     episodes: list[Episode]
@@ -265,6 +268,7 @@ class Results(Report):
     replans_per_episode: float
     calibration: Calibration | None = None
     policy: str | None = None
+    simulator: dict | None = None
     act_time_us_mean: float = 0.0
     act_time_us_p99: float = 0.0
     observe_time_us_mean: float = 0.0
@@ -301,6 +305,8 @@ class Results(Report):
         """The summary as plain JSON types; ``episodes`` is their number (the arrays stay here)."""
         out = super().to_dict()
         out["episodes"] = len(self.episodes)
+        if out.get("simulator") is None:
+            out.pop("simulator", None)
         return out
 
 

@@ -132,6 +132,7 @@ urdf = "arm.urdf"
 base_link = "base"
 tip_link = "tip"
 base_position = [0.12, -0.07, 0.05]
+allowed_collisions = [["c", "e"]]  # their capsules meet around the goal; a-e and b-e stay tested (self-collision)
 dynamics = "single_integrator"
 dt = 0.05
 process_noise_std = 0.08
@@ -272,7 +273,7 @@ def test_compiled_collision_is_the_backends(four):
     X = rng.uniform(robot.config_lo - 0.2, robot.config_hi + 0.2, size=(N, robot.model.n))
     P = robot.points(X)
     want = ~robot.points_valid(P)
-    world = collide3d.world_group_3d(problem.scenario.world, hooks.radii)
+    world = collide3d.world_group_3d(problem.scenario.world, hooks.radii, hooks.self_pairs)
     PX, PY, PZ = (np.ascontiguousarray(P[:, :, c].T) for c in range(3))
     n_seg, offset = hooks.segments
     G = np.zeros(N, dtype=np.uint8)
@@ -364,7 +365,6 @@ def test_the_background_compile_covers_a_3d_robots_kernel(four):
     """The warm-up process's compile of a 3-D robot's kernel (firmtool.estimation.warmup): its hooks
     travel by name, and the kernel is compiled for the 3-D argument types of the URDF template's edge."""
     from firmtool.estimation import warmup
-
     from firmtool.estimation.compiled import run
 
     problem = four[0]

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from firmtool.api.solution import Solution
+from firmtool.errors import InputError
 from firmtool.estimation.budgets import MAX_EXECUTION_STEPS, check_execution, check_push_size
 from firmtool.io.roadmap_format import START_INDEX
 from firmtool.online.policy import ROLLOUT, Policy
@@ -16,6 +18,7 @@ from firmtool.results import Results
 from firmtool.sim.disturbances import PUSH, Disturbance, as_disturbances
 from firmtool.sim.environment import SimulatedSystem
 from firmtool.sim.episodes import run_episodes
+from firmtool.sim.mujoco_system import MujocoSystem  # imports mujoco only when it builds a model
 from firmtool.util import arguments
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -25,11 +28,11 @@ if TYPE_CHECKING:  # pragma: no cover
 DisturbanceFunction = Callable[[int, np.ndarray, np.random.Generator], "np.ndarray | None"]
 
 
-def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm",
-             start: np.ndarray | None = None,
+def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: str = "firm", start: np.ndarray | None = None,
              disturbances: Iterable["str | Disturbance | DisturbanceFunction"] = (),
              replan: "ReplanSettings | None" = None, record: bool = True,
-             progress: "ProgressCallback | None" = None, max_total_steps: float = MAX_EXECUTION_STEPS) -> Results:
+             progress: "ProgressCallback | None" = None, max_total_steps: float = MAX_EXECUTION_STEPS,
+             simulator: str = "firmtool") -> Results:
     """Run closed-loop episodes of a policy on the simulated true system (paper Sec. III-E, IV-F).
 
     Each episode is a loop of the online policy (:class:`firmtool.Policy`, the agent: it sees only
@@ -72,6 +75,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     max_total_steps : float
         Refuse runs of more than this many control steps in the worst case (``episodes`` x the
         scenario's ``execution.max_steps``), as ``firmtool execute --max-total-steps`` does.
+    simulator : {"firmtool", "mujoco"}
+        The true system; MuJoCo for a URDF arm (:mod:`firmtool.sim.mujoco_system`; ``Results.simulator``).
 
     Returns
     -------
@@ -94,14 +99,28 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
             check_push_size(problem, str(d), d.size)
     agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
-    system = SimulatedSystem(rm.problem, rm.execution_design)  # the roadmap's world: it judges declared goals
+    system = _true_system(rm, simulator)
     at_start_node = start is None
-    return run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
+    results = run_episodes(agent, int(episodes), int(seed), start=start, disturbances=dists, record=record,
                         predicted=predicted if at_start_node else None,
                         predicted_ci95=interval if at_start_node else None,
                         # rollout FIRM leaves its edges for run-time controllers where it gains: the edges it
                         # runs to their end are not a sample of the edges' Monte Carlo, so no calibration check
                         edge_counts=None if policy == ROLLOUT else rm.edge_counts, system=system, progress=progress)
+    return dataclasses.replace(results, simulator=system.report()) if simulator == "mujoco" else results
+
+
+SIMULATORS = ("firmtool", "mujoco")
+
+
+def _true_system(rm, simulator: str) -> SimulatedSystem:
+    """The true system episodes run against: firmtool's simulator or MuJoCo's (``simulator``), of the
+    roadmap's world (it judges declared goals)."""
+    if simulator not in SIMULATORS:
+        raise InputError(f"simulator: expected one of {', '.join(SIMULATORS)}, found {str(simulator)[:200]!r}")
+    if simulator == "mujoco":
+        return MujocoSystem(rm.problem, rm.execution_design)
+    return SimulatedSystem(rm.problem, rm.execution_design)
 
 
 def _prediction(solution: Solution, base: str) -> tuple[float | None, tuple[float, float] | None]:

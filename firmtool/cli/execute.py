@@ -88,6 +88,11 @@ StartOpt = typer.Option(
     None, "--start",
     help="Start at this configuration (comma-separated, e.g. 3.0,1.5) or full state instead of the "
          "start node; a start in no node gets an initial controller to the best nearby node.")
+SimulatorOpt = typer.Option(
+    "firmtool", "--simulator",
+    help="The true system: 'firmtool' (its own simulator: the Monte Carlo's capsules, kinematics and noise) or "
+         "'mujoco' (a URDF arm loaded by MuJoCo from the URDF the roadmap carries: collisions of its real meshes, "
+         "joint limits and the goal judged by MuJoCo; needs the physics extra: pip install 'firmtool[physics]').")
 SaveEpisodesOpt = typer.Option(
     None, "--save-episodes",
     help="Write every episode (true states, estimates, covariances, controls, nodes, events) to "
@@ -112,6 +117,12 @@ def execute_human(r: dict) -> str:
 
 def _execute_extra_human(r: dict) -> str:
     lines = []
+    sim = r.get("simulator")
+    if sim:
+        lines.append(f"judged by {sim['engine']} {sim['version']}: {sim['mujoco_contacts']} contact steps, "
+                     f"{sim['joint_limits']} past a joint limit; capsules and meshes disagreed at "
+                     f"{sim['capsules_only'] + sim['mujoco_only']} of {sim['steps']} steps (capsules only "
+                     f"{sim['capsules_only']}: their conservatism; meshes only {sim['mujoco_only']})")
     if r.get("disturbances"):
         lines.append(f"disturbances {', '.join(r['disturbances'])}: {r['disturbances_applied']} applied")
     if "step_time_us_mean" in r:
@@ -153,7 +164,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
             goal_lookback: Optional[int] = GoalLookbackOpt, start: Optional[str] = StartOpt,
             save_episodes: Optional[Path] = SaveEpisodesOpt, query: Optional[str] = QueryOpt,
             force: bool = ForceOpt, max_total_steps: float = MaxStepsOpt, as_json: bool = JsonOpt,
-            quiet: bool = QuietOpt) -> None:
+            quiet: bool = QuietOpt, simulator: str = SimulatorOpt) -> None:
     """Run closed-loop episodes of the policy on a simulated true system, with real-time replanning
     after large disturbances, and check the plan against what happened (predicted success probability
     with its interval from the edge counts, executed rate with its Wilson interval, per-edge landing
@@ -170,6 +181,8 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
       firmtool execute artifacts/point_lightdark.h5 -d kidnap:40 --save-episodes episodes.h5
 
       firmtool execute artifacts/point_lightdark.h5 --start 6.0,1.0
+
+      firmtool execute artifacts/arm7_shelf.h5 --simulator mujoco -n 400
     """
     # lazy: saves firmtool --help the library's import, 2.0 s, and h5py's, 0.03 s (firmtool.cli.app)
     import firmtool.api as ft
@@ -192,7 +205,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     sol = rm.solution()
     res = ft.simulate(sol, episodes, seed, policy=policy_name, start=start_state, disturbances=dists,
                       replan=settings, record=save_episodes is not None, progress=console.progress(),
-                      max_total_steps=max_total_steps)
+                      max_total_steps=max_total_steps, simulator=simulator)
     report = res.to_dict()
     if save_episodes is not None:
         write_episodes(save_episodes, res.episodes,

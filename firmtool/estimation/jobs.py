@@ -45,6 +45,9 @@ class EstimationJob:
     # checker, and a robot class a fresh process cannot find by its name (defined in a script).
     validity: bytes | None = None
     robot: tuple[str, bytes] | None = None
+    # the files the robot is read from (a URDF and its meshes: Scenario.files), sent with the job so
+    # that no worker reads a side file (which may have been edited since the build read it)
+    files: tuple[tuple[str, bytes], ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,13 +64,17 @@ class ProblemJob:
     states: np.ndarray | None = None
     validity: bytes | None = None
     robot: tuple[str, bytes] | None = None
+    files: tuple[tuple[str, bytes], ...] = ()
 
 
 def job_extras(problem: Problem) -> dict:
     """The job fields that carry ``problem``'s Python objects to the workers: the user's validity
-    checker, and its robot class when it is neither built in nor an installed entry point (a class
-    defined in ``__main__`` travels by value)."""
+    checker, its robot class when it is neither built in nor an installed entry point (a class
+    defined in ``__main__`` travels by value), and the files its robot was read from."""
     extras: dict = {}
+    files = tuple(getattr(problem.robot, "carried_files", ()) or ())
+    if files:
+        extras["files"] = files
     if problem.validity is not None:
         extras["validity"] = problem.validity.pickled
     cls = type(problem.robot)
@@ -99,7 +106,7 @@ _MAX_KEPT = 4
 
 
 def _problem_key(job: EstimationJob | ProblemJob) -> tuple:
-    return (job.scenario_text, job.scenario_path, job.validity, job.robot)
+    return (job.scenario_text, job.scenario_path, job.validity, job.robot, job.files)
 
 
 def remember_problem(job: EstimationJob | ProblemJob, problem: Problem) -> None:
@@ -120,7 +127,7 @@ def job_problem(job: EstimationJob | ProblemJob) -> Problem:
             name, cls = job.robot
             robots.register(name, pickle.loads(cls), replace=True)
         validity = pickle.loads(job.validity) if job.validity is not None else None
-        problem = build_problem(parse_scenario(job.scenario_text, job.scenario_path), validity=validity)
+        problem = build_problem(parse_scenario(job.scenario_text, job.scenario_path, job.files), validity=validity)
         remember_problem(job, problem)
     return problem
 

@@ -86,7 +86,7 @@ _CODE = Attribute("int")
 STAGE_ATTRIBUTES: dict[str, dict[str, Attribute]] = {
     "nodes": {**_ENCODING, "densify_rounds": _COUNT, "connect_added": _COUNT, "connect_budget": _COUNT,
               "connect_stop_reason": Attribute("text"), "validity_checker": Attribute("text"),
-              "start": _COUNT, "goals": Attribute("int_array")},
+              "robot_files_sha256": Attribute("text"), "start": _COUNT, "goals": Attribute("int_array")},
     "controllers": {**_ENCODING, "node_radius": Attribute("number", positive=True),
                     "covariance_tolerance": Attribute("number", low=0.0)},
     "edges": {**_ENCODING, "inputs_sha256": Attribute("text", required=True), "seed": _COUNT,

@@ -15,6 +15,8 @@ Layout (schema version 1)::
                       every key point each edge's particles were tested at (a world update's test)
                                                                            attrs: inputs_sha256, seed
     /policy           cost_to_go, edge, success_probability (N,)          attrs: status, iterations, ...
+    /robot            (optional, not a stage) the files the robot was read from (a URDF and its
+                      meshes) and its capsules: :mod:`firmtool.io.robot_files`
     /edge_cache       (optional, not a stage) the /edges datasets of estimates finished by an
                       interrupted estimate stage or superseded by a new design; reused by key
 
@@ -84,6 +86,7 @@ from firmtool.io.roadmap_write import (
     write_roadmap,
     write_stage,
 )
+from firmtool.io.robot_files import read_robot
 
 __all__ = ["CACHE", "ENCODING_TYPE", "MAX_ATTRIBUTE_BYTES", "MAX_READ_BYTES",
            "SCHEMA_VERSION", "STAGES", "STAGE_COMMANDS", "RoadmapFile", "concat_edge_tables",
@@ -98,6 +101,8 @@ class RoadmapFile:
     ----------
     path, schema_version, scenario_text, scenario_sha256, seed, created, firmtool_version
     scenario_source : the scenario file's path and stat when built (:mod:`firmtool.io.scenario_source`), or None.
+    robot_files, robot_geometry : the robot it carries (:mod:`firmtool.io.robot_files`): ``(name, bytes)``
+        pairs and its derived geometry (``capsules``, ``radii``); ``()`` and ``{}`` for none.
     stages : dict of stage name -> (arrays dict, attrs dict) for the stages present, as read (shapes
         and sizes checked, values not yet: use :meth:`require`).
     """
@@ -195,6 +200,8 @@ class RoadmapFile:
                                        "as float64, whatever the stored dtype; file damaged)")
                 datasets[k] = d
             groups[name] = (g, datasets)
+        # the robot it carries (firmtool.io.robot_files): its files' bytes, checked against their sha256
+        self.robot_files, self.robot_geometry = read_robot(f, p)
         self.stages: dict[str, tuple[dict[str, np.ndarray], dict[str, Any]]] = {}
         for name, (g, datasets) in groups.items():
             arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}

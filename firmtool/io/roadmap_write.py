@@ -32,7 +32,11 @@ from firmtool.io.roadmap_format import (
     read_table,
     short,
 )
+from firmtool.io.robot_files import write_robot
 from firmtool.io.scenario_source import SOURCE_ATTRIBUTES, ScenarioSource
+
+# the robot a roadmap carries: its files ((name, bytes), ...) and derived geometry (firmtool.io.robot_files)
+Robot = tuple[tuple[tuple[str, bytes], ...], Mapping[str, np.ndarray]]
 
 
 @contextmanager
@@ -91,16 +95,21 @@ def _image(path: Path | MemoryFile) -> bytes:
     return hdf5.read_image(path, MAX_READ_BYTES, "HDF5 roadmap file", RoadmapError)
 
 
-def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int) -> None:
-    """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over)."""
+def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
+                   robot: Robot | None = None) -> None:
+    """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over);
+    ``robot``: the files and geometry of the robot it carries (:mod:`firmtool.io.robot_files`)."""
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
+        if robot is not None:
+            write_robot(f, *robot)
 
 
 def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]],
                   source: ScenarioSource | None = None, cache: Mapping[str, np.ndarray] | None = None,
-                  cache_attrs: Mapping[str, Any] | None = None) -> None:
+                  cache_attrs: Mapping[str, Any] | None = None,
+                  robot: Robot | None = None) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
     Parameters
@@ -109,9 +118,12 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
         ``scenario_sha256`` stamp included; one without gets the stored scenario's).
     source : the scenario file the roadmap was built from (:mod:`firmtool.io.scenario_source`), if known.
     cache, cache_attrs : an ``/edge_cache`` table and its attributes (estimates its estimate stage finds by key).
+    robot : the files and geometry of the robot it carries (:mod:`firmtool.io.robot_files`), if any.
     """
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
+        if robot is not None:
+            write_robot(f, *robot)
         for key, value in ({} if source is None else source.attributes()).items():
             f.attrs[key] = value
         for name in STAGES:

@@ -43,7 +43,14 @@ from firmtool.pipeline.inputs import (
     validity_of,
 )
 from firmtool.pipeline.query import Query, answer_query, store_queries, stored_query
-from firmtool.pipeline.reading import design_of, edge_probabilities, execution_design, node_task_points, problem_of
+from firmtool.pipeline.reading import (
+    design_of,
+    edge_probabilities,
+    execution_design,
+    node_task_points,
+    problem_of,
+    stored_scenario,
+)
 from firmtool.pipeline.sample import add_nodes_stage, check_start_apart_from_goals, sample_stage
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
 from firmtool.pipeline.solve import (
@@ -63,7 +70,7 @@ __all__ = [
     "Query", "VALIDITY_ATTR", "WorkerSettings", "answer_query", "store_queries", "stored_query", "add_nodes_stage", "as_checker", "as_scenario", "build", "build_request",
     "build_and_read", "build_roadmap", "check_output", "check_start_apart_from_goals", "controllers_inputs", "default_output",
     "design_of", "design_stage", "edge_probabilities", "edges_inputs", "estimate_stage", "execution_design",
-    "in_memory", "node_task_points", "nodes_inputs", "policy_inputs", "problem_of", "roadmap_connectivity",
+    "in_memory", "node_task_points", "nodes_inputs", "policy_inputs", "problem_of", "roadmap_connectivity", "stored_scenario",
     "roadmap_deadline_budget",
     "sample_stage", "solve_policy", "solve_report", "solve_stage", "unreachable_failure", "validity_of",
     "worker_settings", "write_policy", "WorkingRoadmap",

@@ -41,7 +41,7 @@ from firmtool.pipeline.sample import add_nodes_stage, sample_into
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
 from firmtool.pipeline.solve import solve_stage
 from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, in_memory, kept, locked
-from firmtool.problem import Problem, ValidityChecker, build_problem
+from firmtool.problem import Problem, ValidityChecker, build_problem, robot_files_digest
 from firmtool.progress import ProgressCallback
 from firmtool.reports import BuildReport, ConnectivityReport, DensifyReport, DensifyRound, EstimateReport, FailedEdge
 from firmtool.roadmap.connectivity import connectivity_report
@@ -200,7 +200,8 @@ class _BuildRun:
         previous = previous_roadmap(r.target)
         if previous is not None:
             check_same_scenario(previous, sc, force=r.force)
-        existing = None if r.fresh or previous is None else _resumable(previous, sc, checker_identity(r.validity))
+        existing = None if r.fresh or previous is None else _resumable(previous, sc, checker_identity(r.validity),
+                                                                        robot_files_digest(r.problem))
         if existing is None and previous is not None and not r.fresh:  # replaced: never without a word
             self.notices.append(starting_over(previous, sc))
         if existing is None:
@@ -274,11 +275,11 @@ def _record_source(target: RoadmapTarget, rm: RoadmapFile, scenario: Scenario) -
     return RoadmapFile(target)
 
 
-def _resumable(rm: RoadmapFile, scenario: Scenario, validity: str = "") -> RoadmapFile | None:
+def _resumable(rm: RoadmapFile, scenario: Scenario, validity: str = "", robot_files: str = "") -> RoadmapFile | None:
     """``rm`` if its nodes were sampled from the same inputs (so the build can go on from it), else
-    None (a new roadmap replaces it)."""
+    None (a new roadmap replaces it). ``robot_files``: the digest of the robot's files (a URDF's)."""
     if rm.seed != scenario.seed or not rm.has("nodes") or \
-            rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario, validity):
+            rm.attrs("nodes").get("inputs_sha256") != nodes_inputs(scenario, validity, robot_files):
         return None
     return rm
 

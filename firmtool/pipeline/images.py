@@ -12,8 +12,8 @@ from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.design import DESIGN_ARRAYS
-from firmtool.pipeline.inputs import VALIDITY_ATTR, design_inputs, nodes_inputs
-from firmtool.problem import Problem
+from firmtool.pipeline.inputs import ROBOT_ATTR, VALIDITY_ATTR, design_inputs, nodes_inputs
+from firmtool.problem import Problem, carried_robot, robot_files_digest
 from firmtool.roadmap.design import Design
 from firmtool.scenario import Scenario
 
@@ -31,8 +31,10 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
     cache : estimates (an ``/edge_cache`` table) the estimate stage finds by key, or None.
     """
     image = MemoryFile(name)
-    attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, validity), "densify_rounds": 0, "start": START_INDEX,
-                             "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: validity, **node_attrs}
+    files = robot_files_digest(problem)
+    attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, validity, files), "densify_rounds": 0,
+                             "start": START_INDEX, "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: validity,
+                             **({ROBOT_ATTR: files} if files else {}), **node_attrs}
     if d.retired is not None and np.any(d.retired):
         attrs["retired"] = np.flatnonzero(d.retired)
     # one write of the whole image (each stage written apart copied the image again)
@@ -42,5 +44,5 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
                                "node_radius": problem.scenario.controller.node_radius,
                                "covariance_tolerance": problem.scenario.controller.covariance_tolerance})}
     write_roadmap(image, sc.text, sc.sha256, sc.seed, stages, cache=cache or None,
-                  cache_attrs={"description": cache_description})
+                  cache_attrs={"description": cache_description}, robot=carried_robot(problem))
     return image

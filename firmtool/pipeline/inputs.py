@@ -21,6 +21,9 @@ from firmtool.util.hashing import digest, inputs_hash
 
 # /nodes attribute: the identity of the Python validity checker the roadmap was built with ("" none)
 VALIDITY_ATTR = "validity_checker"
+# /nodes attribute: the robot identity: the sha256 of the files the robot was read from ("" none:
+# a robot of no file); every stage refuses a robot whose files differ (pipeline.reading.check_robot)
+ROBOT_ATTR = "robot_files_sha256"
 
 
 def as_scenario(scenario: Scenario | str | Path) -> Scenario:
@@ -56,12 +59,15 @@ def validity_of(roadmap: RoadmapFile) -> str:
     return str(roadmap.attrs("nodes").get(VALIDITY_ATTR, "")) if roadmap.has("nodes") else ""
 
 
-def nodes_inputs(scenario: Scenario, validity: str = "") -> str:
+def nodes_inputs(scenario: Scenario, validity: str = "", robot_files: str = "") -> str:
     """Identity of what the sampled nodes depend on: every section but the cost weights, the
     estimation and execution settings and the name (changing those keeps the nodes), the robot's
-    code and the identity of a user's validity checker (``validity``, "" without one)."""
+    code, the identity of a user's validity checker (``validity``, "" without one) and the digest
+    of the files the robot was read from (``robot_files``, "" for none: a URDF and its meshes)."""
     parts = (scenario.seed, scenario.model, scenario.measurement, scenario.world, scenario.task.without_deadline(),
              scenario.roadmap, scenario.controller, robots.get(scenario.model.robot).code_identity(), validity)
+    if robot_files:  # only then: the roadmaps of robots of no file keep their hashes
+        parts += (robot_files,)
     return digest(*parts).hex()
 
 

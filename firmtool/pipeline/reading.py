@@ -13,10 +13,36 @@ from firmtool import robots
 from firmtool.errors import FirmtoolError, InputError, RoadmapError
 from firmtool.estimation.edge_table import outcome_probabilities
 from firmtool.io.roadmap_file import RoadmapFile
-from firmtool.pipeline.inputs import problem_checker_identity, validity_of
-from firmtool.problem import Problem, build_problem
+from firmtool.pipeline.inputs import ROBOT_ATTR, problem_checker_identity, validity_of
+from firmtool.problem import Problem, build_problem, robot_files_digest
 from firmtool.roadmap.design import Design
-from firmtool.scenario import parse_scenario
+from firmtool.scenario import Scenario, parse_scenario
+
+
+def stored_scenario(roadmap: RoadmapFile) -> Scenario:
+    """The scenario a roadmap stores, with the robot's files it carries (:attr:`Scenario.files`): its
+    robot is built from them, never from a side file."""
+    return parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml", roadmap.robot_files)
+
+
+def check_robot(roadmap: RoadmapFile, problem: Problem) -> None:
+    """Refuse a roadmap whose robot is not the one ``problem`` holds: the robot identity its ``/nodes``
+    records (the digest of the URDF and its meshes) and the capsules it stores, against the ones
+    derived now. The remedy: build again."""
+    if not roadmap.has("nodes"):
+        return
+    recorded = str(roadmap.attrs("nodes").get(ROBOT_ATTR, ""))
+    now = robot_files_digest(problem)
+    if recorded != now:
+        raise InputError(f"{roadmap.path}: built for another robot than the one it runs with (the robot files' "
+                         f"sha256 {recorded[:12] or 'none'}, now {now[:12] or 'none'}: the URDF or a mesh differs); "
+                         f"build it again (firmtool build SCENARIO -o {roadmap.path})")
+    stored = roadmap.robot_geometry
+    derived = getattr(problem.robot, "carried_geometry", {}) or {}
+    for key, value in stored.items():
+        if key in derived and (np.shape(derived[key]) != np.shape(value)
+                               or not np.allclose(derived[key], value, rtol=0, atol=1e-12)):
+            raise RoadmapError(f"{roadmap.path}: '/robot/{key}' is not what the robot's files give (file altered?)")
 
 
 def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_validity: bool = True,
@@ -36,8 +62,8 @@ def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_v
     if need_validity:
         refuse_without_checker(roadmap, validity)
     if problem is None:
-        problem = build_problem(parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml"),
-                                validity=validity)
+        problem = build_problem(stored_scenario(roadmap), validity=validity)
+    check_robot(roadmap, problem)
     given = problem_checker_identity(problem)
     if validity is not None and given != recorded:
         raise InputError(f"{roadmap.path}: " + (f"built with another validity checker ({recorded[:23]}), not "
@@ -126,7 +152,7 @@ def node_task_points(roadmap: RoadmapFile) -> np.ndarray | None:
     built, not the problem), or None when the robot cannot be built here (a robot class the
     roadmap's process had and this one has not)."""
     try:
-        scenario = parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml")
+        scenario = stored_scenario(roadmap)
         robot = robots.get(scenario.model.robot)(scenario)
     except FirmtoolError:
         return None

@@ -14,11 +14,18 @@ from firmtool.estimation.budgets import check_budget
 from firmtool.estimation.executors import Workers, parallel_validity
 from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_stage
 from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
-from firmtool.pipeline.inputs import VALIDITY_ATTR, as_checker, as_scenario, nodes_inputs, problem_checker_identity
+from firmtool.pipeline.inputs import (
+    ROBOT_ATTR,
+    VALIDITY_ATTR,
+    as_checker,
+    as_scenario,
+    nodes_inputs,
+    problem_checker_identity,
+)
 from firmtool.pipeline.reading import problem_of
 from firmtool.pipeline.restart import check_same_scenario, previous_roadmap
 from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, locked
-from firmtool.problem import Problem, ValidityChecker, build_problem
+from firmtool.problem import Problem, ValidityChecker, build_problem, carried_robot, robot_files_digest
 from firmtool.progress import ProgressCallback
 from firmtool.reports import AddNodesReport, SampleReport
 from firmtool.roadmap.connectivity import connect_goals
@@ -75,10 +82,13 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
         notices += more
     identity = problem_checker_identity(problem)
     with locked(target):
-        create_roadmap(target, scenario.text, scenario.sha256, scenario.seed)
+        # the roadmap carries its robot (its URDF and meshes) and records its identity
+        create_roadmap(target, scenario.text, scenario.sha256, scenario.seed, robot=carried_robot(problem))
+        files = robot_files_digest(problem)
         write_stage(target, "nodes", {"centers": centers, "kind": kinds},
-                    {"inputs_sha256": nodes_inputs(scenario, identity), "densify_rounds": 0,
+                    {"inputs_sha256": nodes_inputs(scenario, identity, files), "densify_rounds": 0,
                      "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: identity,
+                     **({ROBOT_ATTR: files} if files else {}),  # only then: other robots' tables stay as they were
                      "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
     return SampleReport(roadmap=str(target), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
                         seconds=time.perf_counter() - t0, connect_added=added, notices=notices)

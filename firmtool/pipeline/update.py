@@ -62,7 +62,7 @@ from firmtool.pipeline.settings import WorkerSettings, worker_settings
 from firmtool.pipeline.solve import solve_policy, unreachable_failure, write_policy
 from firmtool.pipeline.target import kept, locked
 from firmtool.pipeline.working import WorkingRoadmap
-from firmtool.problem import Problem, build_problem
+from firmtool.problem import Problem, build_problem, robot_files_digest
 from firmtool.progress import ProgressCallback
 from firmtool.reports import UpdateReport
 from firmtool.roadmap.design import Design, connect
@@ -291,6 +291,10 @@ def _prepare(work: WorkingRoadmap, sc: Scenario) -> _Update:
         raise InputError(f"{base.path}: its edges hold no swept regions (estimated before firmtool recorded them); "
                          f"estimate them once in the old world (firmtool estimate {base.path} --fresh), then update")
     problem = build_problem(sc)  # the start and goal checked in the new world, named as fields of its file
+    if robot_files_digest(problem) != robot_files_digest(base_problem):
+        raise InputError(f"{sc.path}: model.urdf: the robot's files (the URDF or a mesh) differ from the ones the "
+                         f"roadmap carries; an update changes only the world: build a new roadmap (firmtool build "
+                         f"{sc.path})")
     return _Update(base=base, base_problem=base_problem, base_design=work.design, problem=problem,
                    change=world_change(base_problem.scenario.world, sc.world))
 

@@ -21,11 +21,11 @@ import numpy as np
 from firmtool.estimation.edge_table import edge_keys
 from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile
-from firmtool.pipeline.reading import design_of, execution_design, problem_of, refuse_without_checker
+from firmtool.pipeline.reading import design_of, execution_design, problem_of, refuse_without_checker, stored_scenario
 from firmtool.pipeline.target import RoadmapTarget
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
-from firmtool.scenario import Scenario, parse_scenario
+from firmtool.scenario import Scenario
 
 
 class WorkingRoadmap:
@@ -69,7 +69,7 @@ class WorkingRoadmap:
         """The stored scenario (the problem's, when it is built)."""
         if self._problem is not None:
             return self._problem.scenario
-        return parse_scenario(self.file.scenario_text, f"{self.file.path}:scenario_toml")
+        return stored_scenario(self.file)  # with the robot files the roadmap carries
 
     def problem(self, *, need_validity: bool = True) -> Problem:
         """The problem, built at most once per roadmap and checked against its stages once

@@ -327,3 +327,20 @@ def _check_free_space(problem: Problem, samples: int = 4096) -> None:
         raise ScenarioError(sc.path, "world.obstacles", f"expected some free space: none of {samples} random "
                                                         "configurations is collision-free (the obstacles and "
                                                         "world.robot_radius cover world.bounds)")
+
+
+def carried_robot(problem: Problem) -> tuple[tuple[tuple[str, bytes], ...], dict[str, np.ndarray]] | None:
+    """What a roadmap of ``problem`` carries of its robot (:mod:`firmtool.io.robot_files`): the files
+    it was read from (``(name, bytes)`` pairs, e.g. a URDF and its meshes) and the collision geometry
+    derived from them; None for a robot read from no file (a robot offers them as its
+    ``carried_files`` and ``carried_geometry`` attributes)."""
+    files = tuple(getattr(problem.robot, "carried_files", ()) or ())
+    if not files:
+        return None
+    return files, dict(getattr(problem.robot, "carried_geometry", {}) or {})
+
+
+def robot_files_digest(problem: Problem) -> str:
+    """The digest of the files ``problem``'s robot was read from ("" for none): the robot identity
+    a roadmap's ``/nodes`` records and every later stage compares."""
+    return str(getattr(problem.robot, "files_digest", "") or "")

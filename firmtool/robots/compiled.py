@@ -75,6 +75,8 @@ class CompiledKinematics:
     sense : the 3-D sensing hook (above), None in 2-D; n_sensing : the rows it fills.
     step : ``step(X, U, params, XN, na)``, the noise-free step ``XN = f(X, U)`` of a nonlinear model (the
         twin of its ``Model.f``, e.g. the unicycle's), or None: the model is linear (``A X + B U``).
+    self_pairs : 3-D: (S, 2) the capsule pairs tested for self-collision (None: none; in 2-D
+        ``self_collision`` tests every non-adjacent pair instead).
     """
 
     key_points: Callable
@@ -95,6 +97,7 @@ class CompiledKinematics:
     sense: Callable | None = None
     n_sensing: int = 0
     step: Callable | None = None
+    self_pairs: np.ndarray | None = field(default=None)
 
     def __post_init__(self) -> None:
         dim, stride = int(self.dim), int(self.stride)
@@ -122,7 +125,13 @@ class CompiledKinematics:
             if radii is None or radii.shape != (n_seg,) or not np.all(np.isfinite(radii) & (radii > 0)):
                 raise InputError(f"compiled kinematics: radii must be {n_seg} positive radii, one per capsule")
             if self.self_collision:
-                raise InputError("compiled kinematics: the 3-D engine does not test self-collision")
+                raise InputError("compiled kinematics: the 3-D engine tests the self-collision pairs self_pairs "
+                                 "names, not self_collision")
+            pairs = np.zeros((0, 2), dtype=np.int64) if self.self_pairs is None else \
+                np.ascontiguousarray(self.self_pairs, dtype=np.int64).reshape(-1, 2)
+            if pairs.size and (pairs.min() < 0 or pairs.max() >= n_seg):
+                raise InputError(f"compiled kinematics: self_pairs must index the {n_seg} capsules")
+            object.__setattr__(self, "self_pairs", pairs)
             object.__setattr__(self, "radii", radii)
         half = np.full(n_seg, np.inf) if self.half_lengths is None else \
             np.ascontiguousarray(self.half_lengths, dtype=float).reshape(-1)

@@ -18,61 +18,98 @@ base link stands in the world) and ``light`` (a point of the world, for light-da
 - Geometry: each link with collision geometry is enclosed in a capsule
   (:mod:`firmtool.robots.urdf_file`, conservative: never free where the exact shapes collide), and
   the capsules must not meet the world's obstacles or leave its bounds (python-fcl,
-  ``world.collision_backend = "fcl"``). Self-collision is not tested. The key points are the
+  ``world.collision_backend = "fcl"``). Self-collision: every pair of links with geometry is tested
+  except adjacent ones (no link with geometry between them), rigidly attached ones and the pairs of
+  ``[model] allowed_collisions`` and of the SRDF's ``disable_collisions`` (``[model] srdf``); in
+  both engines (:func:`self_collision_pairs`). The key points are the
   capsules' ends, link by link, and the tip (the task point).
 - The compiled Monte Carlo engine runs it in worlds of boxes and spheres (its hooks:
   :mod:`firmtool.robots.urdf_compiled`); with cylinders or meshes in the world the numpy engine runs
   it and the build's notice says why.
 
-A stored scenario (in a roadmap) finds its URDF inside the roadmap's folder, in the shipped ones,
-or in a folder of ``FIRMTOOL_URDF_PATH`` (``os.pathsep``-separated, set by the user: their own
-robots' folders), never elsewhere; the robot's identity holds the digest of the URDF and its meshes,
-so that estimates made with another file are never reused.
+A roadmap carries its robot: the build reads the URDF, its meshes (and the SRDF) once, and the
+roadmap stores their bytes (:attr:`carried_files`, :attr:`firmtool.scenario.Scenario.files`); a
+scenario read back from a roadmap builds the arm from that copy and never from a side file, so a
+roadmap runs as it is wherever it is copied, and a URDF edited after the build is never used. The
+robot's identity holds the digest of the URDF and its meshes (:attr:`files_digest`), so that
+estimates made with another file are never reused, and a stage whose robot differs is refused.
+
+``package://NAME/...`` mesh names are resolved with ``[model] packages = { NAME = "FOLDER" }``
+(relative to the scenario), ``FIRMTOOL_PACKAGE_PATH``, or (a bare ``package://meshes/...``) the
+URDF's own folder (:func:`firmtool.robots.urdf_file.resolve`).
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any, Callable, ClassVar
 
 import numpy as np
 
 from firmtool.errors import InputError, ScenarioError
+from firmtool.geometry.distance3d import segment_segment_distance_sq_3d
 from firmtool.models import serial_chain
 from firmtool.robots import urdf_compiled
 from firmtool.robots.linear import MAX_STATE_DIM, LinearRobot
 from firmtool.robots.registry import register
-from firmtool.robots.urdf_file import SHIPPED_PREFIX, UrdfChain, UrdfError, read_urdf, resolve
-from firmtool.util.schema import Errors, Field, valid
+from firmtool.robots.urdf_file import (
+    MAX_QUOTE,
+    CarriedFiles,
+    DiskFiles,
+    UrdfChain,
+    UrdfError,
+    UrdfFiles,
+    parse_xml,
+    quote,
+    read_urdf,
+    resolve,
+)
+from firmtool.util.schema import INVALID, Errors, Field, valid
 
-URDF_PATH_ENV = "FIRMTOOL_URDF_PATH"
-STORED = ":scenario_toml"  # the suffix of a roadmap's stored scenario's path
+STORED = ":scenario_toml"  # in a roadmap's stored scenario's path
+MAX_PACKAGES = 100
+MAX_ALLOWED_PAIRS = 10_000
 
 
-def urdf_location(scenario_path: str, name: str) -> Path:
-    """Where the ``urdf`` a scenario at ``scenario_path`` names is (the module docs' rules)."""
-    stored = scenario_path.endswith(STORED)
-    folder = Path(scenario_path[:-len(STORED)] if stored else scenario_path).parent
-    if name.startswith(SHIPPED_PREFIX) or not stored:
-        return resolve(folder, name, "") if name.startswith(SHIPPED_PREFIX) else folder / name
-    places = [folder] + [Path(p) for p in os.environ.get(URDF_PATH_ENV, "").split(os.pathsep) if p]
-    for place in places:
-        try:
-            found = resolve(place, name, "")
-        except UrdfError:
-            continue
-        if found.is_file():
-            return found
-    raise UrdfError("", f"{name!r} is not in the roadmap's folder {folder} (a roadmap's scenario reads its URDF "
-                        f"only there, in firmtool's shipped URDFs, or in a folder of {URDF_PATH_ENV})")
+def _folder(scenario_path: str) -> Path:
+    """The scenario's folder (what its relative names are relative to)."""
+    return Path(scenario_path.split(STORED, 1)[0]).parent
+
+
+def urdf_files(scenario) -> UrdfFiles:
+    """Where the arm of ``scenario`` is read from: the files its roadmap carries
+    (:attr:`~firmtool.scenario.Scenario.files`), or, for a scenario read from its own file, the
+    ``urdf`` it names (relative to its folder, or ``package://...``), the folders ``packages`` maps
+    and its ``srdf``. A scenario read from a roadmap that carries no files is refused (it would read
+    side files)."""
+    spec = scenario.model
+    if scenario.files:
+        return CarriedFiles(scenario.files)
+    if STORED in scenario.path:
+        raise UrdfError("", "the roadmap carries no URDF (built by a firmtool before roadmaps carried their robot); "
+                            "build it again from its scenario (firmtool build SCENARIO -o ROADMAP)")
+    folder = _folder(scenario.path)
+    packages = tuple((name, folder / str(where)) for name, where in (spec.packages or {}).items())
+    name = spec.urdf
+    path = resolve(folder, name, "", packages) if name.startswith("package://") else folder / name
+    srdf = None if spec.srdf is None else folder / spec.srdf
+    return DiskFiles(path, packages, srdf)
 
 
 class UrdfArm(LinearRobot):
     """A serial arm from a URDF file (see the module docs)."""
 
     model_fields: ClassVar[tuple[Field, ...]] = LinearRobot.model_fields + (
-        Field("urdf", "string", doc="the URDF file: relative to the scenario's folder, or package://firmtool/NAME"),
+        Field("urdf", "string", doc="the URDF file: relative to the scenario's folder, or package://PACKAGE/NAME "
+                                    "(package://firmtool/NAME: the URDFs shipped with firmtool)"),
+        Field("packages", "table", None, doc="package://NAME/... folders: { NAME = \"FOLDER\" }, relative to the "
+                                              "scenario (else FIRMTOOL_PACKAGE_PATH's folders, or the URDF's own)",
+              example={"my_arm_description": "description"}),
+        Field("srdf", "string", None, doc="an SRDF file (relative to the scenario): its disable_collisions pairs "
+                                          "join allowed_collisions", example="arm.srdf"),
+        Field("allowed_collisions", "tables", None,
+              doc="pairs of links that may touch (self-collision is not tested between them): [[\"a\", \"b\"], ...]",
+              example=[["link1", "link3"]]),
         Field("base_link", "string", doc="the link the chain starts at (fixed in the world)"),
         Field("tip_link", "string", doc="the link whose origin is the tip (the task point)"),
         Field("base_position", "array", np.zeros(3), shape=(3,), unit="workspace",
@@ -82,6 +119,7 @@ class UrdfArm(LinearRobot):
               example=[0.6, -0.4, 0.9]),
     )
     replan_candidate_seconds: ClassVar[float] = 5e-3
+    version: ClassVar[str] = "2"  # 2: self-collision tested (estimates of version 1 are not reused)
     # firmtool init: the shipped 7-joint arm reaching above a table, encoders precise near a light
     template = {
         "model": {"robot": "urdf", "urdf": "package://firmtool/arm7.urdf", "base_link": "base_link", "tip_link": "tip",
@@ -103,6 +141,28 @@ class UrdfArm(LinearRobot):
         values = super().read_model(values, errors)
         if valid(values["dynamics"]) and values["dynamics"] == "matrices":
             errors.add("model.dynamics", "expected 'single_integrator' or 'double_integrator' for robot = 'urdf'")
+        for key in ("base_link", "tip_link", "urdf", "srdf"):
+            value = values.get(key)
+            if isinstance(value, str) and len(value) > 4096:
+                errors.add(f"model.{key}", f"expected at most 4096 characters, found {len(value)} ({quote(value)})")
+                values[key] = INVALID
+        packages = values.get("packages")
+        if packages is not None and valid(packages):
+            bad = [k for k, v in packages.items() if not isinstance(v, str) or not k or len(k) > MAX_QUOTE
+                   or len(v) > 4096]
+            if len(packages) > MAX_PACKAGES or bad:
+                errors.add("model.packages", f"expected at most {MAX_PACKAGES} entries NAME = \"FOLDER\" (strings), "
+                                             f"found {quote(bad[0]) if bad else len(packages)}")
+                values["packages"] = INVALID
+        pairs = values.get("allowed_collisions")
+        if pairs is not None and valid(pairs):
+            ok = len(pairs) <= MAX_ALLOWED_PAIRS and all(
+                isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) and len(x) <= 4096 for x in p)
+                for p in pairs)
+            if not ok:
+                errors.add("model.allowed_collisions", f"expected at most {MAX_ALLOWED_PAIRS} pairs of link names "
+                                                       "[[\"a\", \"b\"], ...]")
+                values["allowed_collisions"] = INVALID
         return values
 
     def __init__(self, scenario) -> None:
@@ -112,9 +172,10 @@ class UrdfArm(LinearRobot):
         base = np.eye(4)
         base[:3, 3] = spec.base_position
         try:
-            self.arm: UrdfChain = read_urdf(urdf_location(scenario.path, spec.urdf), spec.base_link, spec.tip_link, base)
+            self.arm: UrdfChain = read_urdf(urdf_files(scenario), spec.base_link, spec.tip_link, base)
         except UrdfError as exc:
-            raise ScenarioError(scenario.path, "model.urdf", f"{spec.urdf}: {exc}") from None
+            field = "model.srdf" if exc.element == "srdf" else "model.urdf"
+            raise ScenarioError(scenario.path, field, f"{quote(spec.urdf)}: {exc}") from None
         if self.arm.chain.dof > MAX_STATE_DIM // (2 if spec.dynamics == "double_integrator" else 1):
             raise ScenarioError(scenario.path, "model.tip_link", f"{self.arm.chain.dof} moving joints, more than the "
                                                                  f"{MAX_STATE_DIM}-dimensional state allows")
@@ -130,6 +191,22 @@ class UrdfArm(LinearRobot):
         hi[:d] = np.where(self.arm.limited, self.arm.hi, np.inf)
         self._limits = (lo, hi) if self.arm.limited.any() else None
         self._hooks = None
+        self.self_pairs = self_collision_pairs(self.arm, allowed_pairs(scenario, self.arm))
+
+    @property
+    def carried_files(self) -> tuple[tuple[str, bytes], ...]:
+        """The files the arm was read from (the URDF, its meshes, the SRDF): what a roadmap carries."""
+        return self.arm.files
+
+    @property
+    def carried_geometry(self) -> dict[str, np.ndarray]:
+        """The capsules derived from the files (a roadmap stores them; :mod:`firmtool.io.robot_files`)."""
+        return {"capsules": self.arm.capsules, "radii": self.arm.radii}
+
+    @property
+    def files_digest(self) -> str:
+        """sha256 hex of the URDF and its meshes (the robot identity a roadmap's ``/nodes`` records)."""
+        return self.arm.digest
 
     @property
     def identity(self) -> str:
@@ -162,7 +239,19 @@ class UrdfArm(LinearRobot):
         if not hasattr(backend, "capsules_collide_radii"):
             raise ScenarioError(self.scenario.path, "world.collision_backend",
                                 "expected 'fcl' for robot = 'urdf' (its links are capsules of their own radii)")
-        return ~backend.capsules_collide_radii(P[:, 0:2 * C:2], P[:, 1:2 * C:2], self.arm.radii)
+        ok = ~backend.capsules_collide_radii(P[:, 0:2 * C:2], P[:, 1:2 * C:2], self.arm.radii)
+        if self.self_pairs.size:
+            ok &= ~self.self_collides(P)
+        return ok
+
+    def self_collides(self, P: np.ndarray) -> np.ndarray:
+        """Whether two capsules of :attr:`self_pairs` meet (self-collision): key points (M, 2 C + 1, 3)
+        -> bool (M,)."""
+        C = self.arm.radii.size
+        starts, ends = P[:, 0:2 * C:2], P[:, 1:2 * C:2]
+        i, j = self.self_pairs[:, 0], self.self_pairs[:, 1]
+        d2 = segment_segment_distance_sq_3d(starts[:, i], ends[:, i], starts[:, j], ends[:, j])  # (M, S)
+        return np.any(d2 < (self.arm.radii[i] + self.arm.radii[j]) ** 2, axis=1)
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray] | None:
         return self._limits
@@ -174,7 +263,7 @@ class UrdfArm(LinearRobot):
             return None
         if self._hooks is None:
             self._hooks = urdf_compiled.urdf_kinematics(self.arm, self._frames, self._local, self.scenario.model.light,
-                                                        self.model.nz)
+                                                        self.model.nz, self.self_pairs)
         return self._hooks
 
     def is_valid(self, X: np.ndarray) -> np.ndarray:
@@ -257,6 +346,72 @@ class UrdfArm(LinearRobot):
         return pad(q[None])[0]
 
 
+def allowed_pairs(scenario, arm: UrdfChain) -> set[frozenset[str]]:
+    """The pairs of links that may touch: ``[model] allowed_collisions`` and the SRDF's
+    ``disable_collisions`` (read with the URDF's hardened XML reader). A scenario's pair naming a
+    link the URDF does not have is refused (a typo would leave a pair tested); an SRDF's is ignored
+    (an SRDF describes the whole robot, grippers included)."""
+    spec = scenario.model
+    names = set(arm.chain_links)
+    out: set[frozenset[str]] = set()
+    for k, pair in enumerate(spec.allowed_collisions or ()):
+        for name in pair:
+            if name not in names:
+                raise ScenarioError(scenario.path, f"model.allowed_collisions[{k}]",
+                                    f"no link {quote(name)} between {quote(spec.base_link)} and "
+                                    f"{quote(spec.tip_link)}")
+        out.add(frozenset(pair))
+    srdf = dict(arm.files).get("srdf")
+    if srdf is not None:
+        try:
+            root = parse_xml(srdf, "srdf", "robot")
+        except UrdfError as exc:
+            raise ScenarioError(scenario.path, "model.srdf", f"{quote(spec.srdf)}: {exc}") from None
+        for element in root.iterchildren("disable_collisions"):
+            a, b = element.get("link1"), element.get("link2")
+            if a in names and b in names:
+                out.add(frozenset((a, b)))
+    return out
+
+
+SELF_SAMPLES = 1000  # configurations that find the pairs always in collision (MoveIt setup's "always")
+ALWAYS = 0.95  # a pair in collision in this share of them is taken as touching by construction
+
+
+def self_collision_pairs(arm: UrdfChain, allowed: set[frozenset[str]]) -> np.ndarray:
+    """(S, 2) the capsule pairs tested for self-collision: every pair of links with collision
+    geometry except (as MoveIt's setup assistant leaves them out) adjacent ones (no link with
+    geometry between them in the chain: links without geometry are skipped), rigidly attached ones
+    (no moving joint between them: their distance never changes), the pairs whose capsules touch at
+    the default configuration (every joint at 0, clipped to its range) or in at least
+    :data:`ALWAYS` of :data:`SELF_SAMPLES` configurations (drawn from a fixed stream: the same
+    pairs every time): conservative capsules of links that meet at a joint touch by construction;
+    and the ``allowed`` pairs (``[model] allowed_collisions``, the SRDF)."""
+    frames = arm.frames
+    moving = arm.chain.kinds != serial_chain.FIXED  # joint k moves frame k + 1 against frame k
+    pairs = []
+    for i in range(frames.size):
+        for j in range(i + 2, frames.size):
+            if not moving[frames[i]:frames[j]].any():
+                continue
+            if frozenset((arm.links[i], arm.links[j])) in allowed:
+                continue
+            pairs.append((i, j))
+    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    if not pairs.size:
+        return pairs
+    rng = np.random.default_rng(np.random.SeedSequence([0x5E1F]))
+    q = np.vstack([np.clip(np.zeros(arm.chain.dof), arm.lo, arm.hi),
+                   rng.uniform(arm.lo, arm.hi, size=(SELF_SAMPLES, arm.chain.dof))])
+    R, p = serial_chain.link_frames(arm.chain, q)
+    ends = np.einsum("mcij,cej->mcei", R[:, arm.frames], arm.capsules) + p[:, arm.frames][:, :, None, :]  # (M, C, 2, 3)
+    i, j = pairs[:, 0], pairs[:, 1]
+    d2 = segment_segment_distance_sq_3d(ends[:, i, 0], ends[:, i, 1], ends[:, j, 0], ends[:, j, 1])
+    touch = d2 < (arm.radii[i] + arm.radii[j]) ** 2  # (M, S)
+    keep = ~touch[0] & (touch[1:].mean(axis=0) < ALWAYS)
+    return pairs[keep]
+
+
 def _fcl_geometry(fcl, shape):
     """The python-fcl geometry of a link's collision shape (a cylinder along its z axis, as URDF's)."""
     if shape.kind == "box":
@@ -272,10 +427,12 @@ def _fcl_geometry(fcl, shape):
     return model
 
 
-def urdf(path: str | Path, base_link: str, tip_link: str, base_position=(0.0, 0.0, 0.0)) -> UrdfChain:
+def urdf(path: str | Path, base_link: str, tip_link: str, base_position=(0.0, 0.0, 0.0),
+         packages: dict[str, str | Path] | None = None) -> UrdfChain:
     """The chain of a URDF file, read and checked as a scenario with ``robot = "urdf"`` reads it:
     its joints, ranges, links and their capsules (:class:`~firmtool.robots.urdf_file.UrdfChain`), to
-    look at before writing the scenario.
+    look at before writing the scenario. ``packages``: ``package://NAME/...`` folders by name (as
+    ``[model] packages``; else ``FIRMTOOL_PACKAGE_PATH`` or the URDF's own folder).
 
     Raises
     ------
@@ -285,7 +442,8 @@ def urdf(path: str | Path, base_link: str, tip_link: str, base_position=(0.0, 0.
     base = np.eye(4)
     base[:3, 3] = base_position
     try:
-        return read_urdf(path, base_link, tip_link, base)
+        files = DiskFiles(path, tuple((k, Path(v)) for k, v in (packages or {}).items()))
+        return read_urdf(files, base_link, tip_link, base)
     except UrdfError as exc:
         raise InputError(f"{path}: {exc}") from None
 

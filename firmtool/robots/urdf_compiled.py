@@ -210,11 +210,12 @@ if numba is not None:
             GG[a] = ex * ex + ey * ey + ez * ez < grown * grown
 
 
-def urdf_kinematics(arm, frames: np.ndarray, local: np.ndarray, light, nz: int) -> CompiledKinematics:
+def urdf_kinematics(arm, frames: np.ndarray, local: np.ndarray, light, nz: int,
+                    self_pairs: np.ndarray | None = None) -> CompiledKinematics:
     """The hooks of a URDF arm: ``arm`` its :class:`~firmtool.robots.urdf_file.UrdfChain`, ``frames``
     (P,) and ``local`` (P, 3) its key points (the capsules' ends and the tip, as
     :meth:`~firmtool.robots.urdf_arm.UrdfArm.points` places them), ``light`` (3,) or None, ``nz``
-    encoders."""
+    encoders, ``self_pairs`` (S, 2) the capsule pairs tested for self-collision."""
     chain = arm.chain
     dof = chain.dof
     if np.any(np.diff(frames) < 0):  # urdf_key_points places the key points frame by frame
@@ -227,4 +228,4 @@ def urdf_kinematics(arm, frames: np.ndarray, local: np.ndarray, light, nz: int) 
                               params=params,
                               n_points=frames.size, sensing=np.zeros(nz, dtype=np.int64), segments=(C, 1),
                               self_collision=False, task_block=dof, work_size=9 * dof + 12, dim=3, stride=2,
-                              radii=arm.radii, sense=urdf_sense, n_sensing=1)
+                              radii=arm.radii, sense=urdf_sense, n_sensing=1, self_pairs=self_pairs)

@@ -75,6 +75,10 @@ class Scenario:
     estimation: EstimationSpec
     cost: CostSpec
     execution: ExecutionSpec = field(default_factory=lambda: ExecutionSpec(max_steps=5000))
+    # The files a roadmap carries for its robot (a URDF and its meshes: ``(name, bytes)`` pairs, named as
+    # the robot names them): a scenario read back from a roadmap has them, and its robot reads these,
+    # never a side file. Not a setting (equality ignores it); () for a scenario read from its file.
+    files: tuple[tuple[str, bytes], ...] = ()
 
     @property
     def perfect(self) -> bool:
@@ -203,14 +207,15 @@ def load_scenario(path: str | Path) -> Scenario:
     return parse_scenario(text, str(p))
 
 
-def parse_scenario(text: str, path: str = "<string>") -> Scenario:
+def parse_scenario(text: str, path: str = "<string>", files: tuple[tuple[str, bytes], ...] = ()) -> Scenario:
     """Validate scenario ``text`` (the contents of a TOML file named ``path``; relative file names
-    in it, e.g. a mesh's, are taken from that file's folder): :func:`firmtool.scenario.read.read_tables`."""
-    return Scenario(**read_tables(text, path))
+    in it, e.g. a mesh's, are taken from that file's folder): :func:`firmtool.scenario.read.read_tables`.
+    ``files``: the robot's files a roadmap carries (:attr:`Scenario.files`)."""
+    return Scenario(**read_tables(text, path), files=tuple(files))
 
 SECTIONS = ("model", "measurement", "world", "task", "roadmap", "controller", "estimation", "cost", "execution")
 _TOP = ("name", "seed")  # Scenario fields kept in the [scenario] table
-_NOT_SETTINGS = ("path", "text", "sha256")  # where a scenario came from, not what it says
+_NOT_SETTINGS = ("path", "text", "sha256", "files")  # where a scenario came from, not what it says
 # (section, field) -> TOML key, where they differ; both rows of world.bounds come from lo and hi.
 _KEYS = {("world", "lo"): "bounds", ("world", "hi"): "bounds"}
 # Fields that are no TOML key: a map read (world.grid) is what world.map names.
@@ -383,7 +388,7 @@ def synced(scenario: Scenario) -> Scenario:
     """
     if is_synced(scenario):
         return scenario
-    return parse_scenario(scenario_to_toml(scenario), _modified(scenario.path))
+    return parse_scenario(scenario_to_toml(scenario), _modified(scenario.path), scenario.files)
 
 
 def _modified(path: str) -> str:
@@ -443,4 +448,4 @@ def replace_scenario(scenario: Scenario, **changes: Any) -> Scenario:
         else:
             raise TypeError(f"replace: unknown setting {key!r}; expected name, seed or one of {', '.join(SECTIONS)}")
     path = _modified(scenario.path)
-    return parse_scenario(_dumps(tables, path), path)
+    return parse_scenario(_dumps(tables, path), path, scenario.files)

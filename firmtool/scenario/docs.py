@@ -223,7 +223,8 @@ def _type_text(f: Field) -> str:
     shape = f" of shape {shape_words(f.shape)}" if f.shape else ""
     return {"number": "number", "integer": "integer", "string": "string",
             "array": f"array of numbers{shape}", "integer_array": f"array of integers{shape}",
-            "tables": "array of tables", "boolean": "true or false"}[f.type]
+            "tables": "array of tables", "boolean": "true or false",
+            "table": "table"}[f.type]
 
 
 def _allowed_text(f: Field) -> str:

@@ -44,7 +44,7 @@ class _Invalid:
 REQUIRED: Any = _Required()  # the default of a key that must be given
 INVALID: Any = _Invalid()  # the value of a key whose error was recorded (later checks skip it)
 
-TYPES = ("number", "integer", "string", "array", "integer_array", "tables", "boolean")
+TYPES = ("number", "integer", "string", "array", "integer_array", "tables", "boolean", "table")
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,8 @@ class Field:
     ----------
     name : the key.
     type : ``"number"``, ``"integer"``, ``"string"``, ``"array"`` (numbers), ``"integer_array"`` or
-        ``"tables"`` (an array of tables, read by the caller) or ``"boolean"``.
+        ``"tables"`` (an array of tables, or of arrays, read by the caller), ``"boolean"`` or ``"table"``
+        (a table, read by the caller).
     default : the value when the key is absent (not checked), or :data:`REQUIRED`.
     shape : arrays: the size of each axis: an int, None (any size) or a name resolved from the
         ``dims`` given to :func:`read_table` (e.g. ``"D"``, the world's dimension); unknown names
@@ -235,6 +236,12 @@ def _tables(f: Field, value: Any, dims: Mapping[str, int]) -> list:
     return value
 
 
+def _table(f: Field, value: Any, dims: Mapping[str, int]) -> dict:
+    if not isinstance(value, dict):
+        raise _Bad("expected a table")
+    return value
+
+
 _CONVERT: dict[str, Callable[..., Any]] = {
     "number": _number,
     "integer": lambda f, v, d: _number(f, v, d, integer=True),
@@ -243,6 +250,7 @@ _CONVERT: dict[str, Callable[..., Any]] = {
     "integer_array": lambda f, v, d: _array(f, v, d, integer=True),
     "tables": _tables,
     "boolean": _boolean,
+    "table": _table,
 }
 
 

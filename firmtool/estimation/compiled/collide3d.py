@@ -11,16 +11,18 @@ to the centre is below the sum of the radii. :func:`segment_box_d2` is the same 
 piecewise-quadratic minimisation as :func:`firmtool.geometry.distance3d.segment_box_distance_sq`,
 written per segment. The gate tests the capsules' bounding boxes against the obstacles' (the fcl
 backend's screen) on all particles at once, so that it vectorises; only where it passes does the
-exact test run, one particle at a time. Self-collision is not tested (:func:`supports` refuses it in
-3-D). The swept region is :func:`firmtool.estimation.compiled.collide.sweep`'s, in both dimensions.
+exact test run, one particle at a time. Self-collision (a URDF arm's non-adjacent links): the
+capsule pairs the robot names (``self_pairs``) meet where their segments' distance
+(:func:`segment_segment_d2`, twin of :func:`firmtool.geometry.distance3d.segment_segment_distance_sq_3d`)
+is below the sum of their radii; the gate screens the pairs' bounding boxes the same way. The swept region is :func:`firmtool.estimation.compiled.collide.sweep`'s, in both dimensions.
 
 Capsule ``l`` lies between key points ``stride l`` and ``stride l + offset`` (a URDF arm: the two
 ends of each link's capsule, ``stride`` 2, ``offset`` 1).
 
-The kernel's 3-D world group ``(lo, hi, C, ext, Rot, sphere, sradius, blo, bhi, radii)``: the
-bounds, each obstacle's centre, half size (boxes), rotation (K, 3, 3) (boxes; the identity for
-axis-aligned ones), whether it is a sphere and its radius, its bounding box, and the robot's
-capsule radii (L,).
+The kernel's 3-D world group ``(lo, hi, C, ext, Rot, sphere, sradius, blo, bhi, radii, pairs)``:
+the bounds, each obstacle's centre, half size (boxes), rotation (K, 3, 3) (boxes; the identity for
+axis-aligned ones), whether it is a sphere and its radius, its bounding box, the robot's capsule
+radii (L,) and the capsule pairs (S, 2) tested for self-collision (S = 0: none).
 """
 
 from __future__ import annotations
@@ -30,9 +32,9 @@ import numpy as np
 from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
 
 
-def world_group_3d(world, radii: np.ndarray) -> tuple:
+def world_group_3d(world, radii: np.ndarray, pairs: np.ndarray | None = None) -> tuple:
     """The kernel's world group of a scenario's 3-D ``world`` of boxes and spheres (module notes),
-    with the robot's capsule radii ``radii`` (L,)."""
+    with the robot's capsule radii ``radii`` (L,) and its self-collision pairs (S, 2) (None: none)."""
     obstacles = world.obstacles
     sphere = np.array([o.kind == "sphere" for o in obstacles], dtype=np.bool_)
     C = np.array([o.center for o in obstacles], dtype=float).reshape(-1, 3)
@@ -43,7 +45,8 @@ def world_group_3d(world, radii: np.ndarray) -> tuple:
     blo = np.array([b[0] for b in boxes], dtype=float).reshape(-1, 3)
     bhi = np.array([b[1] for b in boxes], dtype=float).reshape(-1, 3)
     return (np.array(world.lo, float), np.array(world.hi, float), C, ext, np.ascontiguousarray(rot), sphere, srad,
-            blo, bhi, np.ascontiguousarray(radii, dtype=float))
+            blo, bhi, np.ascontiguousarray(radii, dtype=float),
+            np.ascontiguousarray(np.zeros((0, 2)) if pairs is None else pairs, dtype=np.int64).reshape(-1, 2))
 
 
 if numba is not None:
@@ -108,13 +111,39 @@ if numba is not None:
         ex, ey, ez = ax + t * dx, ay + t * dy, az + t * dz
         return ex * ex + ey * ey + ez * ez
 
+    @njit
+    def segment_segment_d2(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
+        """Squared distance between the segments ``[a, b]`` and ``[c, d]``. Twin of
+        :func:`firmtool.geometry.distance3d.segment_segment_distance_sq_3d` (the same clamps)."""
+        d1x, d1y, d1z = bx - ax, by - ay, bz - az
+        d2x, d2y, d2z = dx - cx, dy - cy, dz - cz
+        rx, ry, rz = ax - cx, ay - cy, az - cz
+        a = d1x * d1x + d1y * d1y + d1z * d1z
+        e = d2x * d2x + d2y * d2y + d2z * d2z
+        f = d2x * rx + d2y * ry + d2z * rz
+        c = d1x * rx + d1y * ry + d1z * rz
+        b = d1x * d2x + d1y * d2y + d1z * d2z
+        denom = a * e - b * b
+        tiny = 1e-300
+        s = 0.0
+        if denom > 1e-12 * max(a * e, tiny):
+            s = min(max((b * f - c * e) / denom, 0.0), 1.0)
+        if not a > tiny:
+            s = 0.0
+        t = (b * s + f) / e if e > tiny else 0.0
+        tc = min(max(t, 0.0), 1.0)
+        if t != tc and a > tiny:
+            s = min(max((b * tc - c) / a, 0.0), 1.0)
+        ex, ey, ez = rx + s * d1x - tc * d2x, ry + s * d1y - tc * d2y, rz + s * d1z - tc * d2z
+        return ex * ex + ey * ey + ez * ez
+
     @step
     def particle_collides_3d(PX, PY, PZ, a, knots, n_seg, stride, offset, world):
         """Whether particle ``a``'s capsules leave the world or meet an obstacle (module notes). Twin of
         the fcl backend's numpy test for 3-D worlds of boxes and spheres
         (``FclCollisionBackend._collide_vectorised``); pinned by
         tests/test_kernels_3d.py::test_compiled_collision_is_the_backends."""
-        lo, hi, C, ext, Rot, sphere, srad, blo, bhi, radii = world
+        lo, hi, C, ext, Rot, sphere, srad, blo, bhi, radii, pairs = world
         for l in range(n_seg):
             i, j = stride * l, stride * l + offset
             r = radii[l]
@@ -150,6 +179,14 @@ if numba is not None:
                     reach = r
                 if d2 < reach * reach:
                     return True
+        for q in range(pairs.shape[0]):  # self-collision: the robot's capsule pairs
+            l, m = pairs[q, 0], pairs[q, 1]
+            i, j, u, v = stride * l, stride * l + offset, stride * m, stride * m + offset
+            reach = radii[l] + radii[m]
+            d2 = segment_segment_d2(PX[i, a], PY[i, a], PZ[i, a], PX[j, a], PY[j, a], PZ[j, a],
+                                    PX[u, a], PY[u, a], PZ[u, a], PX[v, a], PY[v, a], PZ[v, a])
+            if d2 < reach * reach:
+                return True
         return False
 
     @step
@@ -157,7 +194,7 @@ if numba is not None:
         """``G[a] = 1`` where :func:`particle_collides_3d` could return True for particle a: an end
         outside the shrunk bounds, or a capsule's bounding box meeting an obstacle's (the same
         comparisons, on all particles at once so that they vectorise)."""
-        lo, hi, C, ext, Rot, sphere, srad, blo, bhi, radii = world
+        lo, hi, C, ext, Rot, sphere, srad, blo, bhi, radii, pairs = world
         for a in range(na):
             G[a] = 0
         for l in range(n_seg):
@@ -180,3 +217,16 @@ if numba is not None:
                     G[a] |= not (min(sx[a], ex[a]) - r > b1x or max(sx[a], ex[a]) + r < b0x
                                  or min(sy[a], ey[a]) - r > b1y or max(sy[a], ey[a]) + r < b0y
                                  or min(sz[a], ez[a]) - r > b1z or max(sz[a], ez[a]) + r < b0z)
+        for q in range(pairs.shape[0]):  # self-collision: the two capsules' boxes meet
+            l, m = pairs[q, 0], pairs[q, 1]
+            r, s_ = radii[l], radii[m]
+            ax, ay, az, bx, by, bz = PX[stride * l], PY[stride * l], PZ[stride * l], PX[stride * l + offset], \
+                PY[stride * l + offset], PZ[stride * l + offset]
+            cx, cy, cz, dx, dy, dz = PX[stride * m], PY[stride * m], PZ[stride * m], PX[stride * m + offset], \
+                PY[stride * m + offset], PZ[stride * m + offset]
+            for a in range(na):
+                G[a] |= not (min(ax[a], bx[a]) - r > max(cx[a], dx[a]) + s_ or max(ax[a], bx[a]) + r < min(cx[a], dx[a]) - s_
+                             or min(ay[a], by[a]) - r > max(cy[a], dy[a]) + s_
+                             or max(ay[a], by[a]) + r < min(cy[a], dy[a]) - s_
+                             or min(az[a], bz[a]) - r > max(cz[a], dz[a]) + s_
+                             or max(az[a], bz[a]) + r < min(cz[a], dz[a]) - s_)

@@ -51,7 +51,7 @@ class _ProblemData:
                       hooks.half_lengths, hooks.work_size, hooks.stride, hooks.n_sensing, limits is not None, lo, hi)
         self.dim = hooks.dim
         self.world = world_group(problem.scenario.world) if hooks.dim == 2 else \
-            world_group_3d(problem.scenario.world, hooks.radii)
+            world_group_3d(problem.scenario.world, hooks.radii, hooks.self_pairs)
         self.goal_group = goal_group if hooks.dim == 2 else goal_group_3d
 
 
