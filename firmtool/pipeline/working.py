@@ -13,6 +13,7 @@ reads it back only where a later stage of the same command needs what it wrote
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 
@@ -67,8 +68,9 @@ class WorkingRoadmap:
     @functools.cached_property
     def scenario(self) -> Scenario:
         """The stored scenario (the problem's, when it is built)."""
-        if self._problem is not None:
-            return self._problem.scenario
+        if self._problem is not None:  # the caller's (a build's request): with the files the roadmap now carries
+            sc = self._problem.scenario
+            return dataclasses.replace(sc, files=self.file.robot_files) if self.file.robot_files and not sc.files else sc
         return stored_scenario(self.file)  # with the robot files the roadmap carries
 
     def problem(self, *, need_validity: bool = True) -> Problem:

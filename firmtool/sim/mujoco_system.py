@@ -247,7 +247,7 @@ class MujocoSystem(SimulatedSystem):
         x = model.f(self._x, u) + noise[:, :self._r] @ model.F.T  # the robot model's step (as SimulatedSystem's)
         self._place(x[0])
         free, inside = self._mujoco_valid(x[0])
-        capsules = bool(problem.states_valid(x, problem.points(x))[0])
+        capsules = bool(problem.states_valid(x, problem.geometry.points(x))[0])
         c = self.counts
         c["steps"] += 1
         c["mujoco_contacts"] += not free
@@ -260,7 +260,7 @@ class MujocoSystem(SimulatedSystem):
             z = encoders[0].copy()
         else:  # R at the TRUE state: the sensing coordinate from MuJoCo's tip
             tip = self.tip[None, None, :]
-            variance = model.noise.variance(problem.sensing_from_points(tip))
+            variance = model.noise.variance(problem.geometry.sensing_from_points(tip))
             z = (model.h(encoders) + np.sqrt(variance) * noise[:, self._r:])[0]
         self._x = x
         self._steps += 1
