@@ -64,3 +64,18 @@ def test_summary_of_a_roadmap_in_memory(smoke_roadmap):
     mem = ft.Roadmap(rm._data)  # what a build kept in memory holds: the data, no path
     s = mem.summary()
     assert s.roadmap == "in memory" and s.nodes == rm.summary().nodes and s.queries == ()
+
+
+def test_what_a_file_is_from_its_first_bytes(tmp_path, smoke_roadmap):
+    """One test tells a roadmap from a scenario (io.file_kind): the HDF5 signature, or TOML with a
+    [scenario] table; anything else, a folder, or TOML nested past the parser's depth is neither."""
+    from firmtool.io.file_kind import file_kind
+
+    assert file_kind(smoke_roadmap[0]) == "roadmap"
+    assert file_kind(ROOT / "scenarios" / "smoke.toml") == "scenario"
+    other = tmp_path / "other.toml"
+    other.write_text("[world]\nbounds = [[0, 0], [1, 1]]\n")
+    deep = tmp_path / "deep.toml"
+    deep.write_text("[scenario]\nx = " + "[" * 5000 + "]" * 5000 + "\n")
+    assert file_kind(other) is None and file_kind(deep) is None and file_kind(tmp_path) is None
+    assert file_kind(tmp_path / "missing.h5") is None

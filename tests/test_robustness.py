@@ -881,12 +881,12 @@ def test_riccati_failure_exit_1(roadmap_copy, monkeypatch):
 
 
 def test_an_unexpected_exception_is_one_line_not_a_traceback(roadmap_copy, monkeypatch):
-    import firmtool.cli.inspect as inspect_mod
+    import firmtool.api.roadmap as roadmap_mod  # Roadmap.summary(), what firmtool inspect prints
 
-    def boom(path):
+    def boom(*args):
         raise ZeroDivisionError("division by zero")
 
-    monkeypatch.setattr(inspect_mod, "summarize", boom)
+    monkeypatch.setattr(roadmap_mod, "summarize", boom)
     monkeypatch.delenv("FIRMTOOL_DEBUG", raising=False)
     assert_clean_error(invoke("inspect", roadmap_copy), 1, "unexpected error", "FIRMTOOL_DEBUG=1",
                        "ZeroDivisionError")

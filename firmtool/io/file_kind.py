@@ -40,7 +40,7 @@ def kind_of_bytes(data: bytes) -> FileKind | None:
         return "roadmap"
     try:
         return "scenario" if "scenario" in tomllib.loads(data.decode("utf-8")) else None
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):  # nested too deep: the reader says so
         return None
 
 

@@ -50,11 +50,8 @@ that estimated the edges (:func:`firmtool.estimation.edges.simulate`):
 frequencies are comparable with the estimated probabilities (``tests/test_execute.py`` checks
 identical states for the same noise draws).
 
-:class:`Policy` stores what it is given; :meth:`Policy.prepare` builds what every run shares (node
-regions, replanner, the policy edges' controllers, the compiled engine); each :meth:`Policy.reset`
-starts a :class:`~firmtool.online.run.PolicyRun`, which coordinates the collaborators of one run
-(belief filter, innovation alarms, arrival and goal check, decisions, probes, record, timing: see
-:mod:`firmtool.online.run`). The policy checks what a robot hands it and reports what the run did.
+Each :meth:`Policy.reset` starts a :class:`~firmtool.online.run.PolicyRun`, which coordinates the
+collaborators of one run (:mod:`firmtool.online.run`); the policy checks what a robot hands it.
 """
 
 from __future__ import annotations
@@ -138,12 +135,6 @@ class Policy:
         problem, design, policy edges and settings; status, steps, belief, node, controller, cost).
     record : what the run since the last reset did (:class:`~firmtool.online.state.PolicyRecord`).
     done : the run is over (goal declared, stuck, timed out) or not started.
-
-    Examples
-    --------
-    >>> policy = ft.Policy(sol)                                       # doctest: +SKIP
-    >>> policy.reset()                                                # doctest: +SKIP
-    >>> u = policy.act(); events = policy.observe(z)                  # doctest: +SKIP
     """
 
     def __init__(self, solution: "Solution", *, policy: str = "firm", mode: str = "base",
