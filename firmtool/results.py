@@ -232,6 +232,8 @@ class Results(Report):
     estimate_success_rate, estimate_success_rate_ci95 : the episodes whose policy declared arrival,
         whatever the true state (the criterion before issue 15: the estimate reached the goal).
     policy : the policy's name (``"firm"`` or ``"shortest-path"``), None when run on a bare edge array.
+    deadline_steps : with a deadline of T steps, T: the episodes ran the time-indexed deadline policy
+        (:mod:`firmtool.deadline`) and ended by step T; the prediction is P(goal within T). None: none.
     """
 
     episodes: list[Episode]
@@ -281,6 +283,7 @@ class Results(Report):
     goal_misses: int = 0
     estimate_success_rate: float | None = None
     estimate_success_rate_ci95: tuple[float, float] | None = None
+    deadline_steps: int | None = None
 
     _json_names: ClassVar[dict[str, str]] = {"event_counts": "events"}
 
