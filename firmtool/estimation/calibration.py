@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import fisher_exact
 
 from firmtool.deadline import StepRows, policy_success
 from firmtool.estimation.edges import FAILURE
@@ -194,6 +193,8 @@ def edge_calibration(episodes: list[Episode], counts: EdgeCounts, min_traversals
             row[f"{name}_executed_ci95"] = _wilson(exe[name], n_exec)
             row[f"{name}_estimated_ci95"] = _wilson(est[name], n_est)
             table = [[exe[name], n_exec - exe[name]], [est[name], n_est - est[name]]]
+            from scipy.stats import fisher_exact  # lazy: scipy.stats costs every command 1.4 s of import (cli.app)
+
             row[f"{name}_p_value"] = float(fisher_exact(table, alternative="two-sided")[1])
             p_values.append(row[f"{name}_p_value"])
         rows_out.append((e, target, n_exec, n_est, row))
