@@ -36,6 +36,9 @@ from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.world_change import WorldChange, meets, world_change
 from firmtool.scenario.specs import WorldSpec
 
+Obstacles = Iterable[Mapping[str, Any] | Obstacle]  # scenario tables or Obstacle objects
+Removals = Iterable[int | Mapping[str, Any] | Obstacle]  # indices into the current world's list, or obstacles
+
 
 @dataclass(frozen=True)
 class World:
