@@ -70,3 +70,22 @@ class Counter:
     def callback(self) -> Callable[[int], None]:
         """``advance`` as a plain function of the units finished (for code that takes one)."""
         return self.advance
+
+
+# What to call when a background compile of the Monte Carlo engine starts (firmtool.estimation.warmup
+# reads it; the command line sets it). Held here, not in warmup, so that setting it imports no numba:
+# every command sets it, and check, inspect or solve never compile (1.3 s of start-up; issue 54).
+_compile_notifier: Optional[Callable[[str], None]] = None
+
+
+def set_compile_notifier(callback: Optional[Callable[[str], None]]) -> None:
+    """Call ``callback(kind)`` (once, from a helper thread) when a background compile starts compiling;
+    ``kind``: ``"planar"`` or ``"3-D"`` (which kernel: their compile times differ several-fold)."""
+    global _compile_notifier
+    _compile_notifier = callback
+
+
+def compile_notifier() -> Optional[Callable[[str], None]]:
+    """The callback :func:`set_compile_notifier` set (None: none)."""
+    return _compile_notifier
+

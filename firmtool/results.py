@@ -236,6 +236,8 @@ class Results(Report):
     simulator : with another simulator than firmtool's own (``simulate(..., simulator="mujoco")``), its
         counts (:meth:`firmtool.sim.mujoco_system.MujocoSystem.report`: the steps where firmtool's
         capsules and its meshes disagreed about collision); None (left out of the JSON) otherwise.
+    deadline_steps : with a deadline of T steps, T: the episodes ran the time-indexed deadline policy
+        (:mod:`firmtool.graph.deadline`) and ended by step T; the prediction is P(goal within T). None: none.
     """
 
     episodes: list[Episode]
@@ -286,6 +288,7 @@ class Results(Report):
     goal_misses: int = 0
     estimate_success_rate: float | None = None
     estimate_success_rate_ci95: tuple[float, float] | None = None
+    deadline_steps: int | None = None
 
     _json_names: ClassVar[dict[str, str]] = {"event_counts": "events"}
 

@@ -15,6 +15,65 @@ def pytest_xdist_auto_num_workers(config):
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(cores, MAX_TEST_WORKERS))
 
+class _Progress:
+    """A progress line with an estimate of the time left, every tenth of the tests (issue 54: the suite
+    printed dots and no estimate; on a busy 2-core machine it looked stuck). In the controller only:
+    with xdist the workers' reports arrive there; the total is the collection's."""
+
+    def __init__(self, config) -> None:
+        self.config, self.total, self.done, self.next, self.t0 = config, 0, 0, 0.1, None
+
+    def start(self, total: int) -> None:
+        import time
+        if not self.total:
+            self.total, self.t0 = total, time.monotonic()
+
+    def report(self, report) -> None:
+        import time
+        if report.when != "teardown" or not self.total or self.t0 is None:
+            return
+        self.done += 1
+        if self.done / self.total + 1e-9 < self.next:
+            return
+        self.next = (int(self.done * 10 / self.total) + 1) / 10
+        elapsed = time.monotonic() - self.t0
+        left = elapsed * (self.total - self.done) / self.done
+        writer = self.config.pluginmanager.get_plugin("terminalreporter")
+        if writer is not None:
+            writer.ensure_newline()
+            writer.write_line(f"progress: {self.done} of {self.total} tests in {elapsed:.0f} s, about {left:.0f} s "
+                              "left")
+
+
+def pytest_configure(config):
+    global _config
+    _config = config
+    if not hasattr(config, "workerinput"):  # the controller (or a run without xdist), not an xdist worker
+        config._firmtool_progress = _Progress(config)
+
+
+def pytest_collection_finish(session):
+    progress = getattr(session.config, "_firmtool_progress", None)
+    if progress is not None and not session.config.pluginmanager.has_plugin("dsession"):
+        progress.start(len(session.items))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node, ids):
+    progress = getattr(node.config, "_firmtool_progress", None)
+    if progress is not None:
+        progress.start(len(ids))
+
+
+_config = None
+
+
+def pytest_runtest_logreport(report):
+    progress = getattr(_config, "_firmtool_progress", None)
+    if progress is not None:
+        progress.report(report)
+
+
 OPEN_WORLD = """
 [scenario]
 name = "open"

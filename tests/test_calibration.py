@@ -79,6 +79,7 @@ def test_edge_check_is_fishers_exact_test_adjusted_by_holm():
     assert not cal.ok
 
 
+@pytest.mark.slow  # issue 54: among the longest cases of the suite (durations in the report); CI runs -m slow
 def test_calibrated_edges_are_flagged_at_most_alpha_of_the_time():
     """Many checks of calibrated roadmaps (executed and estimated outcomes from the same probabilities):
     the chance of any flag in a check of 15 edges stays below alpha = 0.05 (Holm controls it; the old

@@ -157,9 +157,15 @@ def test_a_long_deadline_is_the_untimed_solve_and_a_short_one_is_refused(smoke):
     least = smallest_feasible_deadline(rm.nodes.shape[0], rm.goals, t["source"],
                                        StepRows.from_counts(t["steps_edge"], t["steps_code"], t["steps_value"],
                                                             t["steps_count"], t["particles"]), 0, 10**6)
-    assert ft.solve(rm, deadline=least).deadline_success_probability > 0
-    with pytest.raises(RunFailure, match=f"the least deadline that can is {least} steps"):
-        ft.solve(rm, deadline=least - 1)
+    # issue 54: the possibility bound is no useful deadline; one below half the untimed success is too short
+    S = ft.solve(rm, deadline=2000).deadline_success[:, 0]
+    half = int(np.argmax(S >= 0.5 * untimed.success_probability))  # brute force over every deadline
+    assert least < half and S[least] > 0 and S[least - 1] == 0
+    assert ft.solve(rm, deadline=half).deadline_success_probability == pytest.approx(S[half])
+    for short in (least - 1, least, half - 1):
+        with pytest.raises(RunFailure, match=f"deadline {short}: too short: .* is {half} steps .* from {least} steps on "
+                                             r"\(a possibility bound"):
+            ft.solve(rm, deadline=short)
     with pytest.raises(InputError, match="deadline"):
         ft.solve(rm, deadline=0)
 
@@ -190,7 +196,7 @@ def test_the_scenarios_deadline_is_the_solves_and_the_cli_says_the_least(smoke, 
     shutil.copyfile(smoke, copy)
     runner = CliRunner()
     r = runner.invoke(app, ["solve", str(copy), "--deadline", "5"])
-    assert r.exit_code == 1 and "the least deadline that can is" in r.output, r.output
+    assert r.exit_code == 1 and "too short" in r.output and "a possibility bound" in r.output, r.output
     r = runner.invoke(app, ["solve", str(copy), "--deadline", "60", "--json"])
     assert r.exit_code == 0, r.output
     assert '"deadline_steps": 60' in r.stdout
@@ -208,3 +214,58 @@ def test_a_roadmap_without_histograms_is_refused_with_the_remedy(smoke, tmp_path
             del f["edges"][name]
     with pytest.raises(RunFailure, match="--fresh"):
         ft.solve(ft.open_roadmap(copy), deadline=60)
+
+
+def test_a_query_takes_a_deadline_from_the_api_the_command_line_and_a_task_file(smoke, tmp_path):
+    """Issue 54, 3: ``solve --goal ... --deadline T`` and a --task file with deadline_steps were refused."""
+    rm = ft.open_roadmap(smoke)
+    untimed = ft.solve(rm, goal=[3.5, 2.5])
+    timed = ft.solve(rm, goal=[3.5, 2.5], deadline=2000)
+    assert timed.deadline == 2000 and timed.deadline_success_probability == pytest.approx(untimed.success_probability,
+                                                                                          abs=1e-6)
+    np.testing.assert_array_equal(timed.policy, untimed.policy)  # the same query, solved over the steps left too
+    # its time-indexed policy is the deadline DP of its own roadmap (brute force over every deadline)
+    S = timed.deadline_success[:, 0]
+    half = int(np.argmax(S >= 0.5 * untimed.success_probability))
+    with pytest.raises(RunFailure, match=f"too short: .* is {half} steps"):
+        ft.solve(rm, goal=[3.5, 2.5], deadline=half - 1)
+    q = ft.solve(rm, queries=[ft.Query(goal=[3.5, 2.5], deadline=half + 20)])[0]
+    assert q.deadline == half + 20 and q.deadline_success_probability == pytest.approx(S[half + 20])
+    copy = tmp_path / "r.h5"
+    shutil.copyfile(smoke, copy)
+    runner = CliRunner()
+    r = runner.invoke(app, ["solve", str(copy), "--goal", "3.5,2.5", "--deadline", str(half + 20), "--name", "corner"])
+    assert r.exit_code == 0, r.output
+    assert f"within the deadline of {half + 20} steps" in r.output
+    task = tmp_path / "task.toml"
+    task.write_text(f"[task]\ngoal = [3.5, 2.5]\ndeadline_steps = {half + 20}\n")
+    r = runner.invoke(app, ["solve", str(copy), "--task", str(task), "--name", "from-file"])
+    assert r.exit_code == 0 and f"within the deadline of {half + 20} steps" in r.output, r.output
+    r = runner.invoke(app, ["execute", str(copy), "--query", "corner", "-n", "20", "--json", "-q"])
+    assert r.exit_code == 0, r.output
+    import json
+    out = json.loads(r.stdout)
+    assert out["deadline_steps"] == half + 20 and out["mean_steps"] <= half + 20
+    r = runner.invoke(app, ["solve", str(copy), "--goal", "3.5,2.5", "--deadline", "3"])
+    assert r.exit_code == 1 and "too short" in r.output
+
+
+def test_execute_names_the_deadline_policy_and_its_interval_is_the_untimed_one_at_a_long_deadline(smoke):
+    """Issue 54, 3: execute said nothing of the deadline policy and gave P(goal within T) no interval.
+    The interval (Dirichlet draws of the step histograms through the time-indexed recursion) holds
+    the point, is narrower than 0 to 1, and at a deadline no episode reaches is the untimed one's
+    (drawn by the other machinery: firmtool.graph's absorbing chain)."""
+    rm = ft.open_roadmap(smoke)
+    untimed = ft.solve(rm)
+    long = ft.simulate(ft.solve(rm, deadline=3000), episodes=5, seed=1)
+    lo, hi = long.predicted_success_probability_ci95
+    ulo, uhi = untimed.success_probability_ci95
+    assert long.deadline_steps == 3000
+    assert abs(lo - ulo) < 0.01 and abs(hi - uhi) < 0.01
+    mid = ft.simulate(ft.solve(rm, deadline=60), episodes=5, seed=1)
+    lo, hi = mid.predicted_success_probability_ci95
+    assert lo <= mid.predicted_success_probability <= hi and 0 < hi - lo < 0.3
+    from firmtool.cli.execute import execute_human
+    text = execute_human(mid.to_dict())
+    assert "policy: the deadline policy" in text and "predicted P(goal within 60 steps)" in text
+    assert "deadline" not in execute_human(ft.simulate(untimed, episodes=3, seed=1).to_dict()).split("replan")[0]

@@ -305,6 +305,7 @@ def test_compiled_3d_decision_is_the_numpy_one(seed):
     assert 200 < want.sum() < M - 200
 
 
+@pytest.mark.slow  # issue 54: among the longest cases of the suite (durations in the report); CI runs -m slow
 def test_urdf_arm_same_noise_same_outcomes(four):
     """Every particle of 12 edges ends the same way with both engines; the edges exercise the state
     limits (the prismatic joint's short range) and landings."""
@@ -314,6 +315,7 @@ def test_urdf_arm_same_noise_same_outcomes(four):
     assert failures > 0 and landed > 0
 
 
+@pytest.mark.slow  # issue 54: among the longest cases of the suite (durations in the report); CI runs -m slow
 def test_a_turned_chain_same_noise_same_outcomes(tmp_path):
     """Every edge of a roadmap of the turned chain, particle by particle: collisions (with a turned box
     and a sphere), state limits, goal landings and goal misses all occur and end the same way."""
@@ -361,6 +363,7 @@ def test_a_world_the_3d_kernel_does_not_know_runs_the_numpy_engine(tmp_path):
     assert engine == "numpy" and "boxes and spheres" in notice and "cylinder" in notice
 
 
+@pytest.mark.slow  # issue 54: among the longest cases of the suite (durations in the report); CI runs -m slow
 def test_the_background_compile_covers_a_3d_robots_kernel(four):
     """The warm-up process's compile of a 3-D robot's kernel (firmtool.estimation.warmup): its hooks
     travel by name, and the kernel is compiled for the 3-D argument types of the URDF template's edge."""

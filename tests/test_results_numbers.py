@@ -6,13 +6,20 @@ version and commit that measured them."""
 
 from __future__ import annotations
 
-import sys
+import importlib.util
 
 import pytest
 from conftest import ROOT
 
-sys.path.insert(0, str(ROOT / "docs"))
-import results_numbers  # noqa: E402
+
+def _module():
+    spec = importlib.util.spec_from_file_location("docs_results_numbers", ROOT / "docs" / "results_numbers.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+results_numbers = _module()
 
 
 @pytest.mark.parametrize("name", sorted(results_numbers.recorded()))

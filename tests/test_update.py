@@ -126,6 +126,7 @@ def test_numpy_engine_update_is_bit_for_bit(point_roadmap, tmp_path, monkeypatch
     assert report.kept_edges >= 1 and report.estimated_edges >= 1
 
 
+@pytest.mark.slow  # issue 54: among the longest cases of the suite (durations in the report); CI runs -m slow
 def test_arm_update_is_bit_for_bit(arm_roadmap, tmp_path):
     """A box in the arm's right passage (x in [0.3, 0.65] at y 0.7)."""
     sc, path = arm_roadmap

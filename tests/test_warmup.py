@@ -11,6 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 MESSAGE = "compiling the Monte Carlo engine, once per install"
 
@@ -66,6 +68,7 @@ def _run(args, cache: Path, cwd: Path) -> subprocess.CompletedProcess:
                           timeout=1800)
 
 
+@pytest.mark.slow  # issue 54: among the longest cases of the suite (durations in the report); CI runs -m slow
 def test_a_cold_cache_is_compiled_once_announced_and_reused(tmp_path):
     cache = tmp_path / "numba-cache"
     cached = [sys.executable, "-c", "from firmtool.estimation import warmup; print(warmup.engine_is_cached())"][1:]

@@ -11,6 +11,8 @@ import numpy as np
 from firmtool.api.solution import Solution
 from firmtool.errors import InputError
 from firmtool.estimation.budgets import MAX_EXECUTION_STEPS, check_execution, check_push_size
+from firmtool.estimation.calibration import deadline_interval
+from firmtool.graph.deadline import StepRows
 from firmtool.io.roadmap_format import START_INDEX
 from firmtool.online.policy import ROLLOUT, Policy
 from firmtool.online.replanning import ReplanSettings
@@ -107,6 +109,8 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
                         # rollout FIRM leaves its edges for run-time controllers where it gains: the edges it
                         # runs to their end are not a sample of the edges' Monte Carlo, so no calibration check
                         edge_counts=None if policy == ROLLOUT else rm.edge_counts, system=system, progress=progress)
+    if solution.deadline is not None and policy == "firm":  # the episodes ran the deadline policy: say so
+        results = dataclasses.replace(results, deadline_steps=solution.deadline)
     return dataclasses.replace(results, simulator=system.report()) if simulator == "mujoco" else results
 
 
@@ -125,8 +129,18 @@ def _true_system(rm, simulator: str) -> SimulatedSystem:
 
 def _prediction(solution: Solution, base: str) -> tuple[float | None, tuple[float, float] | None]:
     """The policy ``base``'s predicted success from the start and its interval; with a deadline the
-    time-indexed policy's P(goal within T) (no interval: the Dirichlet draws are of the untimed DP)."""
+    time-indexed policy's P(goal within T) and its interval (Dirichlet draws of the policy edges' step
+    histograms through the time-indexed recursion: :func:`firmtool.estimation.calibration.deadline_interval`)."""
     if solution.deadline is not None:
-        return (solution.deadline_success_probability if base == "firm" else None), None
+        if base != "firm":
+            return None, None
+        point = solution.deadline_success_probability
+        t = solution.roadmap._data.table("edges")
+        rows = StepRows.from_counts(t["steps_edge"], t["steps_code"], t["steps_value"], t["steps_count"],
+                                    t["particles"])
+        interval = deadline_interval(rows, t["particles"], solution.cost_to_go.size, solution.roadmap.goals,
+                                     t["source"].astype(np.int64), solution.deadline_policy, solution.roadmap.seed,
+                                     point=point)
+        return point, interval
     _, probabilities = solution._policy(base)
     return float(probabilities[START_INDEX]), solution.success_probability_interval(base)

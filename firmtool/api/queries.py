@@ -13,6 +13,7 @@ them on the roadmap's nodes, stabilisers and estimated edges (:mod:`firmtool.pip
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -56,12 +57,14 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
         (see :func:`firmtool.api.solution.solve`).
     deadline : steps within which the goal is to be reached (default: the scenario's
         ``task.deadline_steps``): the time-indexed policy of :mod:`firmtool.graph.deadline` too (see
-        :func:`firmtool.api.solution.solve`).
+        :func:`firmtool.api.solution.solve`); with a query, each query's (``Query.deadline`` first).
 
     Raises
     ------
     Unreachable
         A goal the start cannot reach (the first such query's), unless ``allow_unreachable``.
+    RunFailure
+        A deadline too short for a query (the message gives the least useful one).
     InputError
         A goal or start outside the world or in collision, a start in the goal region, ``failure_cost``
         or ``method`` with a query (a query is solved with the scenario's), both keywords and ``queries``.
@@ -71,8 +74,13 @@ def solve(roadmap: Roadmap, *, failure_cost: float | None = None, method: str = 
     if queries is None and not single.task():
         return _solution.solve(roadmap, failure_cost=failure_cost, method=method, progress=progress,
                                allow_unreachable=allow_unreachable, deadline=deadline)
-    if deadline is not None:
-        raise InputError("deadline: a query is solved with its scenario's task.deadline_steps")
+    if deadline is not None:  # a query's own deadline (Query.deadline) wins; this one is for the others
+        if isinstance(deadline, bool) or not isinstance(deadline, (int, np.integer)) or deadline < 1:
+            raise InputError(f"deadline: expected a number of steps >= 1, found {deadline!r}")
+        single = dataclasses.replace(single, deadline=int(deadline))
+        if queries is not None:
+            queries = [dataclasses.replace(q, deadline=int(deadline)) if isinstance(q, Query) and q.deadline is None
+                       else q for q in queries]
     if failure_cost is not None or method != "value":
         raise InputError("failure_cost, method: a query is solved with the scenario's J_F by value iteration")
     if queries is not None and single.task():

@@ -102,9 +102,14 @@ SaveEpisodesOpt = typer.Option(
 def execute_human(r: dict) -> str:
     pred = r["predicted_success_probability"]
     stuck = f", {r['stuck']} stuck (no policy edge or no controller to a node)" if r.get("stuck") else ""
-    predicted = "" if pred is None else f"; predicted {prob(pred)}" + (
+    T = r.get("deadline_steps")
+    what = "predicted" if T is None else f"predicted P(goal within {T} steps)"
+    predicted = "" if pred is None else f"; {what} {prob(pred)}" + (
         f" (95% {interval(r['predicted_success_probability_ci95'])}, from the edge counts)"
         if r.get("predicted_success_probability_ci95") else "")
+    if T is not None:  # a deadline policy runs: say which, before the numbers
+        predicted += (f"\npolicy: the deadline policy (the edge at each node chosen by the steps left of {T}; "
+                      f"every episode ends by step {T})")
     missed = (f", {r['goal_misses']} goal misses (arrival declared, the true state not in the goal)"
               if r.get("goal_misses") else "")
     return (f"{r['episodes']} episodes: {r['successes']} successes, {r['collisions']} collisions, "

@@ -17,6 +17,7 @@ import typer
 from threadpoolctl import threadpool_limits
 from typer.core import TyperGroup
 
+from firmtool import progress
 from firmtool.cli import console
 from firmtool.errors import MAX_EXPECTED, FirmtoolError, InputError, NumericalError, RunFailure, ScenarioError, cut
 from firmtool.io.atomic import write_failure
@@ -79,9 +80,16 @@ def fail_scenario(exc: ScenarioError) -> NoReturn:
     raise typer.Exit(2)
 
 
-def _say_compiling() -> None:
-    typer.echo("firmtool: compiling the Monte Carlo engine, once per install (10-30 s; later runs load it)",
-               err=True)
+# What a cold compile of the engine took, measured on the 2-core machines firmtool is tested on
+# (benchmarks/README.md: the kernel's cold compile ~25 s CPU, bench_kernel_compile.py; arm7_shelf's cold
+# build 56 s of which ~45 s compiling on a quiet machine, ~3 min under a busy one's load; issue 54)
+COMPILE_SECONDS = {"planar": "20-60 s", "3-D": "45 s-3 min"}
+
+
+def _say_compiling(kind: str = "planar") -> None:
+    typer.echo(f"firmtool: compiling the Monte Carlo engine, once per install, for a {kind} robot "
+               f"({COMPILE_SECONDS.get(kind, COMPILE_SECONDS['3-D'])} on 2 cores, measured; longer on a busy "
+               f"machine; later runs load it)", err=True)
 
 
 def _first_line(exc: BaseException) -> str:
@@ -135,11 +143,11 @@ def handles_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 def _run(fn: Callable[..., Any], args: tuple, kwargs: dict) -> Any:
     """Run a command with one BLAS thread, and a notice on stderr when the engine compiles."""
     # lazy: saves firmtool --help and a usage error, which need neither, scipy.linalg's import (0.22 s)
-    # and the engine's warm-up module's (numba, 1.3 s) (firmtool.cli.app)
     import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, so that the limit below covers it)
 
-    from firmtool.estimation import warmup
-    warmup.set_notifier(_say_compiling)  # a background compile on a cold cache says so on stderr
+    # a background compile on a cold cache says so on stderr; set where the warm-up module reads it,
+    # without importing that module (numba, 1.3 s), which check, inspect and solve never need
+    progress.set_compile_notifier(_say_compiling)
     # firmtool's linear algebra is many small matrices: threaded BLAS only adds contention
     with threadpool_limits(limits=1):
         return fn(*args, **kwargs)

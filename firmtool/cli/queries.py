@@ -12,7 +12,7 @@ from firmtool.cli.console import num, prob
 from firmtool.errors import InputError, cut, quoted
 from firmtool.io.limits import LimitError, read_toml_file
 
-TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance")
+TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance", "deadline_steps")
 
 
 def numbers(text: str, option: str) -> list[float]:
@@ -68,7 +68,8 @@ def queries_of(goals: list[str], names: list[str], goal_radius: float | None, go
     out = []
     for i, goal in enumerate(per_goal):
         fields = {**base, "goal": goal}
-        out.append(Query(**{k: fields.get(k) for k in TASK_KEYS}, name=names[i] if names else None))
+        out.append(Query(**{"deadline" if k == "deadline_steps" else k: fields.get(k) for k in TASK_KEYS},
+                         name=names[i] if names else None))
     return out
 
 

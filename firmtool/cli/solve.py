@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Optional
 
@@ -84,11 +85,11 @@ def solve(roadmap: Path = typer.Argument(..., help="Roadmap file with estimated 
         raise InputError(f"--method: expected 'value' or 'policy', found {quoted(method)}")
     if failure_cost is not None and not (np.isfinite(failure_cost) and failure_cost > 0):
         raise InputError(f"--failure-cost: expected a finite number > 0, found {failure_cost}")
-    if deadline is not None and (goal or task is not None or start is not None):
-        raise InputError("--deadline: a query is solved with its scenario's task.deadline_steps")
     if goal or task is not None or start is not None:
-        return _queries(roadmap, queries_of(goal or [], name or [], goal_radius, goal_confidence, start,
-                                            start_covariance, task), failure_cost, method, force, workers, as_json)
+        queries = queries_of(goal or [], name or [], goal_radius, goal_confidence, start, start_covariance, task)
+        if deadline is not None:  # --deadline over a --task file's deadline_steps
+            queries = [dataclasses.replace(q, deadline=deadline) for q in queries]
+        return _queries(roadmap, queries, failure_cost, method, force, workers, as_json)
     if name or force or goal_radius is not None or goal_confidence is not None or start_covariance is not None:
         raise InputError("--name, --force, --goal-radius, --goal-confidence, --start-covariance: only with a query "
                          "(--goal, --start or --task)")

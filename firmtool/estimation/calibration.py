@@ -16,9 +16,9 @@ import hashlib
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import fisher_exact
 
 from firmtool.estimation.edges import FAILURE
+from firmtool.graph.deadline import StepRows, policy_success
 from firmtool.graph.dp import success_probability_samples
 from firmtool.io.roadmap_format import START_INDEX
 from firmtool.results import Calibration, EdgeCheck, Episode, wilson_interval
@@ -231,6 +231,8 @@ def edge_calibration(episodes: list[Episode], counts: EdgeCounts, min_traversals
             row[f"{name}_executed_ci95"] = _wilson(exe[name], n_exec)
             row[f"{name}_estimated_ci95"] = _wilson(est[name], n_est)
             table = [[exe[name], n_exec - exe[name]], [est[name], n_est - est[name]]]
+            from scipy.stats import fisher_exact  # lazy: scipy.stats costs every command 1.4 s of import (cli.app)
+
             row[f"{name}_p_value"] = float(fisher_exact(table, alternative="two-sided")[1])
             p_values.append(row[f"{name}_p_value"])
         rows_out.append((e, target, n_exec, n_est, row))
@@ -259,3 +261,47 @@ def counts_of_table(e) -> EdgeCounts:
                       code=np.asarray(e["outcome_code"]).astype(np.int64),
                       count=np.asarray(e["outcome_count"]).astype(np.int64),
                       particles=np.asarray(e["particles"]).astype(np.int64), target=np.asarray(e["target"]).astype(np.int64))
+
+
+DEADLINE_INTERVAL_SAMPLES = 400  # posterior draws of a deadline's interval: each a pass of the time-indexed recursion
+DEADLINE_CI_KEY = 0xDEAD  # stable key of the deadline interval's stream
+
+
+def deadline_interval(rows: StepRows, particles: np.ndarray, n_nodes: int, goals: np.ndarray,
+                      edge_source: np.ndarray, policy: np.ndarray, seed: int,
+                      samples: int = DEADLINE_INTERVAL_SAMPLES, node: int = START_INDEX,
+                      point: float | None = None, chunk: int = 50) -> tuple[float, float]:
+    """95% interval of P(goal within T) of the time-indexed ``policy`` (T + 1, N) from ``node``, from
+    the edge-count uncertainty, as :func:`predicted_interval` for the untimed policy: each policy
+    edge's outcomes BY STEP COUNT (its step-histogram rows, counts ``probability * particles``) drawn
+    from their Dirichlet posterior (:data:`PRIOR` on each row, and on a failure row for an edge that
+    never failed), and the fixed time-indexed policy evaluated per draw
+    (:func:`firmtool.graph.deadline.policy_success`); the shortest interval holding 95% of the draws and
+    ``point``. Draws from ``SeedSequence([seed, DEADLINE_CI_KEY])``.
+
+    Parameters
+    ----------
+    rows : the edges' step histograms; particles : (E,) particles per edge.
+    n_nodes, goals, edge_source : the roadmap; policy : (T + 1, N) edge per node and steps left.
+    seed : the roadmap's seed; samples : posterior draws (in chunks of ``chunk``: memory S x T x N).
+    """
+    used = np.unique(policy[policy >= 0])
+    keep = np.isin(rows.edge, used)
+    edge, code, steps = rows.edge[keep], rows.code[keep], rows.steps[keep]
+    alpha = rows.probability[keep] * np.asarray(particles, dtype=float)[edge] + PRIOR
+    failed = np.zeros(int(np.max(used, initial=-1)) + 1, dtype=bool)
+    failed[edge[code == FAILURE]] = True
+    never = used[~failed[used]]
+    edge = np.r_[edge, never]
+    code = np.r_[code, np.full(never.size, FAILURE)]
+    steps = np.r_[steps, np.ones(never.size, dtype=np.int64)]
+    alpha = np.r_[alpha, np.full(never.size, PRIOR)]
+    sub = StepRows(edge=edge, code=code, steps=steps, probability=np.zeros(edge.size))
+    rng = np.random.default_rng(np.random.SeedSequence([seed, DEADLINE_CI_KEY]))
+    values = []
+    for done in range(0, samples, chunk):
+        draws = dirichlet_draws(edge, alpha, min(chunk, samples - done), rng)
+        values.append(policy_success(n_nodes, goals, edge_source, policy, sub, draws)[:, -1, node])
+    v = np.concatenate(values)
+    return interval_containing(v, float(np.median(v)) if point is None else float(point))
+

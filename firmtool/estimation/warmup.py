@@ -38,6 +38,7 @@ from typing import Callable
 
 import numpy as np
 
+from firmtool import progress
 from firmtool.control import recursions, trajectories
 from firmtool.estimation import compiled as kernels
 from firmtool.estimation.compiled.run import HOOK_NAMES, disk_cached
@@ -56,14 +57,15 @@ COMPILING, DESIGN, DONE = "compiling", "design", "done"
 WAIT_SECONDS = 900.0
 WARMUP_SCENARIO = "smoke"  # a shipped scenario the compiled engine supports; tiny
 
-_notifier: Callable[[], None] | None = None
 _running: "_Warmup | None" = None
 
 
-def set_notifier(callback: Callable[[], None] | None) -> None:
-    """Call ``callback()`` (once, from a helper thread) when a background compile starts compiling."""
-    global _notifier
-    _notifier = callback
+def set_notifier(callback: Callable[[str], None] | None) -> None:
+    """Call ``callback(kind)`` (once, from a helper thread; ``kind`` "planar" or "3-D": which kernel)
+    when a background compile starts compiling
+    (held by :func:`firmtool.progress.set_compile_notifier`, which a caller may set without importing
+    this module)."""
+    progress.set_compile_notifier(callback)
 
 
 class _Warmup:
@@ -71,6 +73,9 @@ class _Warmup:
 
     def __init__(self, hooks: list[str]) -> None:
         debug = bool(os.environ.get("FIRMTOOL_DEBUG"))
+        # which engine compiles, for the notice's measured range: a 3-D robot's hooks (the URDF arm's
+        # firmtool.robots.urdf_compiled, or a user's 3-D robot) take longer than the planar kernel
+        self.kind = compile_kind(hooks)
         # -m puts the working folder first on sys.path: the folder holding this firmtool, so that the
         # process compiles (and caches) this one, not a source tree in the caller's folder
         home = Path(__file__).resolve().parents[2]
@@ -85,8 +90,9 @@ class _Warmup:
         assert self.process.stdout is not None
         try:
             for line in self.process.stdout:
-                if line.strip() == COMPILING and _notifier is not None:
-                    _notifier()
+                notifier = progress.compile_notifier()
+                if line.strip() == COMPILING and notifier is not None:
+                    notifier(self.kind)
                 elif line.strip() == DESIGN:
                     self.design_ready.set()
         finally:
@@ -130,6 +136,13 @@ def engine_functions(problem: Problem | None = None) -> list:
     and the estimation workers' recursions, and the kernel of ``problem``'s robot (:func:`_kernel_hooks`)."""
     return [kernels.kernel(_kernel_hooks(problem)), recursions.filter_recursion, recursions.filter_recursions,
             recursions.spread_recursion, trajectories._rollout, trajectories._rollouts]
+
+
+def compile_kind(hooks: list[str]) -> str:
+    """``"3-D"`` when the hooks (:func:`hook_names`) are a 3-D robot's (the URDF arm's
+    ``firmtool.robots.urdf_compiled``, or a module named 3d), else ``"planar"``: what the compile notice
+    quotes a measured range for."""
+    return "3-D" if any("urdf" in h or "3d" in h.lower() for h in hooks) else "planar"
 
 
 def hook_names(problem: Problem | None) -> list[str]:

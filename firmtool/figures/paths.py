@@ -8,7 +8,8 @@ the figure kinds that do (:mod:`firmtool.api.figures`) pass the results in.
 The robot draws itself (:meth:`firmtool.robots.Robot.draw`; by default a polyline of its key points,
 the last one, the arm's tip or the point robot itself, being the one followed), so a new robot
 needs no change here. A 3-D world is drawn from above (its x-y plane) and, beside the top views, in
-a 3-D panel (matplotlib's mplot3d, :func:`panel_3d`: a climb hidden from above shows there). The belief of the followed
+a 3-D panel (matplotlib's mplot3d, :func:`firmtool.figures.three_d.panel_3d`: a climb hidden from above shows
+there). The belief of the followed
 point is drawn as its mean path with 3-sigma ellipses of the covariance pushed through the
 Jacobian of that point (central finite differences of ``problem.geometry.points``).
 """
@@ -25,6 +26,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Ellipse, Rectangle
 
 from firmtool.errors import InputError
+from firmtool.figures.three_d import panel_3d
 from firmtool.graph.dp import policy_path
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.problem import Problem
@@ -308,45 +310,6 @@ def _common_success(results: Sequence[Results | None]) -> int | None:
     return None
 
 
-def _box_edges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The 12 edges (12, 2, 3) of the axis-aligned box ``[lo, hi]``."""
-    corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-    pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
-    return np.stack([corners[[a, b]] for a, b in pairs])
-
-
-def panel_3d(ax, problem: Problem, design: Design, data: PanelData, *, unit: str = DEFAULT_UNIT) -> None:
-    """Draw a 3-D world into ``ax`` (an mplot3d Axes, ``projection="3d"``): the obstacles' bounding
-    boxes as wire frames (spheres as theirs), the followed point (the arm's tip) at the roadmap's
-    nodes, the goal, the policy's path and the episode's estimated mean, in the world's bounds."""
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # mplot3d: only a 3-D world needs it
-
-    sc = problem.scenario
-    lo, hi = np.asarray(sc.world.lo, float), np.asarray(sc.world.hi, float)
-    for o in sc.world.obstacles:
-        a, b = (np.asarray(v, float)[:3] for v in o.aabb())
-        ax.add_collection3d(Line3DCollection(_box_edges(a, b), colors=OBSTACLE_COLOR, linewidths=0.8))
-    tips = problem.geometry.points(design.centers)[:, -1, :3]
-    ax.scatter(tips[:, 0], tips[:, 1], tips[:, 2], s=3, color="tab:blue", alpha=0.5, label="roadmap nodes")
-    goals = np.flatnonzero(design.kinds == GOAL)
-    goal = np.asarray(problem.goal_disc[0], float)[None, :3] if problem.goal_disc is not None else tips[goals]
-    ax.scatter(goal[:, 0], goal[:, 1], goal[:, 2], marker="*", s=120, color=GOAL_COLOR, label="goal")
-    path = policy_path(data.policy, design.edge_target, START_INDEX, goals)
-    ax.plot(tips[path, 0], tips[path, 1], tips[path, 2], "-", color="tab:orange", lw=2, label="policy path")
-    ax.scatter(*tips[START_INDEX], color="black", s=20, label="start")
-    if data.episode is not None and data.episode.estimates is not None:
-        mean = problem.geometry.points(data.episode.estimates)[:, -1, :3]
-        ax.plot(mean[:, 0], mean[:, 1], mean[:, 2], "-", color="red", lw=1.0, label="estimated mean")
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], hi[2])
-    ax.set_box_aspect(tuple(hi - lo))
-    ax.set_xlabel(f"x [{unit}]", fontsize=8)
-    ax.set_ylabel(f"y [{unit}]", fontsize=8)
-    ax.set_zlabel(f"z [{unit}]", fontsize=8)
-    ax.set_title(f"{data.name} in 3-D", fontsize=9)
-
-
 def plot_policies(solution: Solution, results: Sequence[Results | None], policies: Sequence[str], *,
                   dpi: int = 120, unit: str = "m", title: str | None = None) -> "Figure":
     """Panels side by side, one :func:`plot` per policy (``firmtool plot``), on a bare matplotlib
@@ -380,8 +343,8 @@ def plot_policies(solution: Solution, results: Sequence[Results | None], policie
         index = common if common is not None else next(
             (i for i, ep in enumerate(res.episodes) if ep.recorded), None) if res is not None else None
         edges = solution._policy("firm" if policies[0] == "rollout" else policies[0])[0]
-        panel_3d(fig.add_subplot(1, n, n, projection="3d"), rm.problem, rm.execution_design,
-                 PanelData(name=drawn, policy=edges, predicted=None,
-                           episode=None if index is None else res.episodes[index]), unit=unit)
+        panel_3d(fig.add_subplot(1, n, n, projection="3d"), rm.problem, rm.execution_design, drawn, edges,
+                 None if index is None else res.episodes[index], unit=unit, obstacle_color=OBSTACLE_COLOR,
+                 goal_color=GOAL_COLOR)
     fig.suptitle(title or f"{sc.name} ({sc.measurement.kind} measurements)")
     return fig

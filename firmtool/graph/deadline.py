@@ -34,6 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse
 
 from firmtool.errors import InputError
 
@@ -241,3 +242,54 @@ def smallest_feasible_deadline(n_nodes: int, goals: np.ndarray, edge_source: np.
         dist = new
     best = int(dist[start])
     return best if best <= limit else None
+
+
+def least_useful_deadline(n_nodes: int, goals: np.ndarray, edge_source: np.ndarray, edge_cost: np.ndarray,
+                          rows: StepRows, failure_cost: float, start: int, target: float, first: int,
+                          limit: int) -> tuple[int, float] | None:
+    """The least deadline T with P(goal within T) >= ``target`` from ``start`` under the time-indexed
+    policy, and that probability; None if none is at most ``limit``.
+
+    The possibility bound (:func:`smallest_feasible_deadline`) is the least T with a positive
+    probability, often a vanishing one (a chain of the fastest particles: 1e-7); a user asking how
+    long the task needs wants this one (issue 54: at least half the untimed success). The DP's
+    values at t do not depend on the horizon it is solved to, so one solve to a horizon H answers
+    every T <= H; H doubles from ``2 * first`` until the target is met or ``limit`` passed.
+    """
+    horizon = max(2 * int(first), 1)
+    while True:
+        horizon = min(horizon, int(limit))
+        res = solve_deadline(n_nodes, goals, edge_source, edge_cost, rows, failure_cost, horizon)
+        hit = np.flatnonzero(res.success[:, start] >= target)
+        if hit.size:
+            return int(hit[0]), float(res.success[hit[0], start])
+        if horizon >= limit:
+            return None
+        horizon *= 2
+
+
+def policy_success(n_nodes: int, goals: np.ndarray, edge_source: np.ndarray, policy: np.ndarray, rows: StepRows,
+                   probability: np.ndarray) -> np.ndarray:
+    """P(goal within t) of a FIXED time-indexed ``policy`` (T + 1, N) for each of several draws of
+    the rows' probabilities ``probability`` (S, R) (rows as in ``rows``, whose own probabilities are
+    ignored): (S, T + 1, N). The recursion of :func:`solve_deadline`'s success without the choice."""
+    edge_source = np.asarray(edge_source, dtype=np.int64)
+    draws = np.atleast_2d(np.asarray(probability, dtype=float))
+    T = policy.shape[0] - 1
+    out = np.zeros((draws.shape[0], T + 1, n_nodes))
+    goals = np.asarray(goals, dtype=np.int64)
+    out[:, :, goals] = 1.0
+    land = np.flatnonzero(rows.code >= 0)
+    r_edge, r_node, r_steps = rows.edge[land], rows.code[land], rows.steps[land]
+    r_source = edge_source[r_edge]
+    for t in range(1, T + 1):
+        act = np.flatnonzero((policy[t, r_source] == r_edge) & (r_steps <= t))
+        if not act.size:
+            continue
+        vals = draws[:, land[act]] * out[:, t - r_steps[act], r_node[act]]  # (S, A)
+        pick = scipy.sparse.csr_matrix((np.ones(act.size), (np.arange(act.size), r_source[act])),
+                                       shape=(act.size, n_nodes))
+        out[:, t, :] = np.asarray((pick.T @ vals.T).T)
+        out[:, t, goals] = 1.0
+    return out
+

@@ -57,13 +57,11 @@ collaborators of one run (:mod:`firmtool.online.run`); the policy checks what a 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from firmtool.errors import InputError, quoted
-from firmtool.geometry.shapes import Obstacle
 from firmtool.io.roadmap_format import START_INDEX
 from firmtool.online.arrival import Arrival
 from firmtool.online.decision import KeepOrReplan
@@ -71,7 +69,7 @@ from firmtool.online.replanning import DEADLINE_FALSE_ALARMS, Replanner, ReplanS
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
 from firmtool.online.running import EdgeControllers
 from firmtool.online.state import PolicyRecord, PolicyState
-from firmtool.online.world import World, Worlds
+from firmtool.online.world import Obstacles, Removals, World, Worlds
 from firmtool.problem import Problem
 from firmtool.results import Event
 from firmtool.roadmap.design import Design
@@ -225,21 +223,17 @@ class Policy:
         self.prepare()
         return self._parts
 
-    def update_world(self, obstacles: Iterable[Mapping[str, Any] | Obstacle] | World | None = None, *,
-                     add: Iterable[Mapping[str, Any] | Obstacle] | None = None,
-                     remove: Iterable[int | Mapping[str, Any] | Obstacle] | None = None,
-                     bounds: Any = None) -> list[Event]:
-        """Tell the policy the world changed: ``obstacles``, the WHOLE obstacle list (scenario tables
-        such as ``{"center": [x, y], "half_size": [hx, hy]}``, or ``Obstacle`` objects), replaces the
-        current world's, so a new box alone drops every wall (warned once: ``WorldUpdateWarning``); or
-        a :class:`~firmtool.online.world.World` (``ft.World``, a scenario's ``world``); or ``add=`` /
-        ``remove=`` (indices into the current list, or the obstacles) against the world held now.
-        ``bounds``: ``[lo, hi]``, None for the roadmap's.
-
+    def update_world(self, obstacles: Obstacles | World | None = None, *, add: Obstacles | None = None,
+                     remove: Removals | None = None, bounds: Any = None) -> list[Event]:
+        """Tell the policy the world changed: ``obstacles`` the WHOLE obstacle list (scenario tables or
+        :class:`~firmtool.geometry.shapes.Obstacle` objects; a new box alone drops every wall, warned
+        once: :class:`~firmtool.errors.WorldUpdateWarning`), or an ``ft.World`` (or a scenario's
+        ``world``), or ``add=`` / ``remove=`` (indices or obstacles) against the world it holds now
+        (:meth:`firmtool.online.world.Worlds.request`); ``bounds``: ``[lo, hi]``, None: the roadmap's.
         The edges the change can touch are blocked at once, without a Monte Carlo, and the DP solved
         again on the others (:mod:`firmtool.online.world`); the replanner tests the new world from now
-        on; while a controller runs, a decision is taken at once. Predictions are approximate until
-        ``firmtool update`` re-estimates the blocked edges. Each world's answer is kept.
+        on; while a controller runs, a decision is taken at once from the current belief. Predictions
+        are approximate until ``firmtool update`` re-estimates the blocked edges.
 
         Returns
         -------

@@ -38,6 +38,9 @@ from firmtool.roadmap.world_change import WorldChange, world_change
 from firmtool.scenario.specs import WorldSpec
 from firmtool.util.hashing import digest
 
+Obstacles = Iterable[Mapping[str, Any] | Obstacle]  # scenario tables or Obstacle objects
+Removals = Iterable[int | Mapping[str, Any] | Obstacle]  # indices into the current world's list, or obstacles
+
 
 @dataclass(frozen=True)
 class World:

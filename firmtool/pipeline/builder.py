@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from firmtool.errors import InputError, RunFailure
-from firmtool.estimation import warmup
 from firmtool.estimation.compiled import engine_choice
 from firmtool.estimation.executors import Workers, default_workers
 from firmtool.graph.dp import reachable_from
@@ -175,6 +174,8 @@ def build_and_read(request: BuildRequest) -> tuple[BuildReport, RoadmapFile]:
     with locked(request.target), kept(request.target), Workers(s.workers, s.executor, s.scheduler) as session:
         # a fresh install: compile the engine while sampling and designing (a user's validity checker
         # runs the numpy engine: nothing to compile)
+        from firmtool.estimation import warmup  # lazy: numba's compile machinery (1.3 s), which solve never needs
+
         if request.validity is None and not warmup.engine_is_cached(request.problem):  # its robot's kernel
             warmup.start(engine_choice(request.problem)[0], request.problem)  # with the kernel of its robot
         run = _BuildRun(request, session)

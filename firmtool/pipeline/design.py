@@ -6,7 +6,6 @@ import time
 from collections.abc import Callable
 
 from firmtool.errors import RunFailure
-from firmtool.estimation import warmup
 from firmtool.estimation.budgets import check_roadmap_nodes
 from firmtool.estimation.executors import Workers, parallel_design
 from firmtool.io.roadmap_file import RoadmapFile, write_stage
@@ -56,6 +55,8 @@ def design_into(path: str | RoadmapTarget, validity: Callable | None = None, ses
     if session is not None and session.parallel:
         # a fresh install: the background compile does the design's functions first; the workers then
         # load them from the cache instead of each compiling them at once (no-op with a warm cache)
+        from firmtool.estimation import warmup  # lazy: numba's compile machinery (1.3 s), which solve never needs
+
         warmup.wait_design()
         counter = Counter(progress, DESIGN_NODES, int(centers.shape[0])).start()
         d = parallel_design(problem, centers, nodes["kind"], session, counter.callback())

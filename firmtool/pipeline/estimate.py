@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 
 import numpy as np
 
 from firmtool.errors import FirmtoolError
-from firmtool.estimation import warmup
 from firmtool.estimation.adaptive import AdaptiveReport
 from firmtool.estimation.budgets import check_budget
 from firmtool.estimation.compiled import engine_choice
@@ -94,7 +94,7 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
         keys = edge_keys(problem, d, engine=engine)
     table_hash = edges_inputs(roadmap, sc, keys)
     if not fresh and roadmap.has("edges") and roadmap.attrs("edges").get("inputs_sha256") == table_hash:
-        warmup.stop()  # nothing to estimate: no compile to wait for
+        _stop_warmup()  # nothing to estimate: no compile to wait for
         e = roadmap.require("edges", "particle_steps", fresh=False)
         if "edges" in roadmap.stale_stages():  # the same inputs under a new scenario text (e.g. a comment)
             restamp(path, ("edges",))
@@ -108,10 +108,12 @@ def estimate_into(path: str | RoadmapTarget, roadmap: RoadmapFile, problem: Prob
     reused = E - len(todo)
     check_budget(problem, len(todo), float(d.edge_steps[todo].mean()) if todo else 0.0)
     if todo and engine == "numba":  # on a cold cache: compiled once (or by build's start), before the workers
+        from firmtool.estimation import warmup  # lazy: numba's compile machinery (1.3 s), which solve never needs
+
         warmup.start(engine, problem)
         warmup.wait()
     else:
-        warmup.stop()
+        _stop_warmup()
     runs = EdgeRuns(path, _job(roadmap, problem, d, engine), keys, known, cache, table_hash, settings, session,
                     checkpoint_seconds, sc)
     counter = Counter(progress, ESTIMATE, len(todo)).start() if todo else None
@@ -171,3 +173,12 @@ def _estimate_report(path: str | RoadmapTarget, sc: Scenario, E: int, estimated:
                           particle_steps_per_second=simulated / seconds if seconds and simulated else 0.0,
                           workers=workers, executor=executor, seconds=seconds, adaptive=adaptive,
                           notices=tuple(notices), engine=engine)
+
+
+def _stop_warmup() -> None:
+    """Stop a background compile, if one was started (only through the warm-up module: not imported,
+    none runs; importing it would load numba's compile machinery for nothing)."""
+    warmup = sys.modules.get("firmtool.estimation.warmup")
+    if warmup is not None:
+        warmup.stop()
+

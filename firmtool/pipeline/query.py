@@ -65,10 +65,11 @@ from firmtool.roadmap.queries import query_edges, query_goal_nodes
 from firmtool.scenario import Scenario
 from firmtool.util.hashing import digest
 
-TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance")
+TASK_KEYS = ("start", "goal", "goal_radius", "goal_confidence", "start_covariance", "deadline_steps")
 # the option each task key comes from on the command line (messages name what the user typed)
 OPTION_OF = {"task.goal": "--goal", "task.goal_radius": "--goal-radius", "task.goal_confidence": "--goal-confidence",
-             "task.start": "--start", "task.start_covariance": "--start-covariance"}
+             "task.start": "--start", "task.start_covariance": "--start-covariance",
+             "task.deadline_steps": "--deadline"}
 
 
 def option_of(field: str) -> str:
@@ -87,6 +88,8 @@ class Query:
     goal_radius, goal_confidence : the goal ball (see ``[task]``, :class:`firmtool.scenario.TaskSpec`).
     start : (D,) the start belief's mean; start_covariance : (n, n) or its diagonal (n,).
     name : the name it is stored under (default: ``q-`` and 8 hex digits of its task's hash).
+    deadline : steps within which its goal is to be reached (``task.deadline_steps``): the query is
+        solved over node and steps left too (:mod:`firmtool.graph.deadline`); None: the roadmap's own.
     """
 
     goal: Any = None
@@ -95,13 +98,17 @@ class Query:
     start: Any = None
     start_covariance: Any = None
     name: str | None = None
+    deadline: int | None = None
 
     def task(self) -> dict[str, Any]:
-        """The ``[task]`` keys it sets (TOML values: lists, floats)."""
+        """The ``[task]`` keys it sets (TOML values: lists, floats; the deadline an int)."""
         out = {}
         for key in TASK_KEYS:
-            value = getattr(self, key)
+            value = getattr(self, "deadline" if key == "deadline_steps" else key)
             if value is None:
+                continue
+            if key == "deadline_steps":
+                out[key] = value  # checked by the scenario's rules (an int >= 1), named --deadline
                 continue
             if key == "start_covariance" and np.ndim(value) == 1:  # its diagonal
                 value = np.diag(np.asarray(value, dtype=float))
@@ -119,7 +126,7 @@ def query_scenario(base: Scenario, query: Query, where: str) -> Scenario:
         A query that sets nothing, or a task field the scenario's rules refuse (named as the option).
     """
     task = query.task()
-    if not task:
+    if not set(task) - {"deadline_steps"}:
         raise InputError(f"{where}: a query needs a goal or a start (--goal, --start, --task)")
     try:
         return base.replace(task=task)

@@ -18,6 +18,7 @@ from firmtool.graph.deadline import (
     DeadlineBudget,
     StepRows,
     deadline_budget,
+    least_useful_deadline,
     shown_steps,
     smallest_feasible_deadline,
     solve_deadline,
@@ -33,6 +34,10 @@ from firmtool.pipeline.target import RoadmapTarget, locked
 from firmtool.problem import Problem
 from firmtool.progress import SOLVE, Counter, ProgressCallback
 from firmtool.reports import SolveReport
+
+# the longest deadline (steps) searched for one that reaches half the untimed success (a too short
+# deadline's message); far beyond any shipped scenario's episodes (execution.max_steps 5000)
+MAX_DEADLINE_SEARCH = 20000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,7 +122,8 @@ def solve_policy(roadmap: RoadmapFile, *, failure_cost: float | None = None, met
               "shortest_path_edge": sp, "shortest_path_success_probability": p_sp}
     field = "task.deadline_steps" if deadline is None else "deadline"
     deadline = problem.scenario.task.deadline_steps if deadline is None else int(deadline)
-    timed = _deadline_arrays(roadmap, N, goals, cost, JF, deadline, field) if deadline is not None else ({}, {})
+    timed = _deadline_arrays(roadmap, N, goals, cost, JF, deadline, field, float(p[START_INDEX])) \
+        if deadline is not None else ({}, {})
     arrays.update(timed[0])
     attrs = {"inputs_sha256": policy_inputs(str(roadmap.attrs("edges")["inputs_sha256"]), JF, method,
                                             problem.scenario.cost, deadline), **timed[1],
@@ -169,9 +175,15 @@ def roadmap_deadline_budget(roadmap: RoadmapFile) -> DeadlineBudget:
 
 
 def _deadline_arrays(roadmap: RoadmapFile, N: int, goals: np.ndarray, cost: np.ndarray, JF: float,
-                     deadline: int, field: str = "deadline") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+                     deadline: int, field: str = "deadline", untimed: float = 0.0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The time-indexed policy's datasets and attributes (:func:`solve_policy`'s ``deadline``, from
-    ``field``), its budget checked first (:func:`firmtool.graph.deadline.deadline_budget`)."""
+    ``field``), its budget checked first (:func:`firmtool.graph.deadline.deadline_budget`); ``untimed``:
+    the untimed policy's success probability from the start.
+
+    A deadline is *too short* when P(goal within it) is below half the untimed success (issue 54: a
+    deadline at the possibility bound gave 1e-7 and printed 0.000): refused, the message giving the
+    least deadline that reaches half the untimed success (searched within the budget) and the
+    possibility bound beside it."""
     table = roadmap.table("edges")
     if any(f"steps_{n}" not in table for n in ("edge", "code", "value", "count")):
         raise RunFailure(f"{roadmap.path}: its edges hold no step histograms (estimated before firmtool recorded "
@@ -185,15 +197,24 @@ def _deadline_arrays(roadmap: RoadmapFile, N: int, goals: np.ndarray, cost: np.n
     budget.check(deadline, field, str(roadmap.path))  # before the DP allocates its (T + 1, N) arrays
     source = table["source"].astype(np.int64)
     res = solve_deadline(N, goals, source, cost, rows, JF, deadline)
-    if res.success[deadline, START_INDEX] <= 0:
+    within = float(res.success[deadline, START_INDEX])
+    if within <= 0 or within < 0.5 * untimed:
         least = smallest_feasible_deadline(N, goals, source, rows, START_INDEX, budget.steps)
-        advice = (f"the least deadline that can is {least} steps" if least is not None else
-                  "the goal cannot be reached from the start at all under the estimated edges")
-        raise RunFailure(f"{roadmap.path}: deadline {deadline}: no chain of edges reaches the goal from the start "
-                         f"within {deadline} steps; {advice}")
+        if least is None:
+            raise RunFailure(f"{roadmap.path}: deadline {deadline}: the goal cannot be reached from the start at all "
+                             f"under the estimated edges (searched up to the deadline budget, {budget.steps} steps)")
+        limit = min(budget.steps, max(MAX_DEADLINE_SEARCH, 4 * least))
+        half = least_useful_deadline(N, goals, source, cost, rows, JF, START_INDEX, 0.5 * untimed, max(least, deadline),
+                                     limit) if untimed > 0 else None
+        useful = (f"the least deadline with P(goal within it) >= {0.5 * untimed:.3f} (half the untimed "
+                  f"{untimed:.3f}) is {half[0]} steps (P {half[1]:.3f})" if half is not None else
+                  f"no deadline up to {limit} steps reaches half the untimed success")
+        bound = (f"a chain of edges can reach the goal at all from {least} steps on (a possibility bound: "
+                 f"P(goal within {least}) = {float(solve_deadline(N, goals, source, cost, rows, JF, least).success[least, START_INDEX]):.2g})")
+        raise RunFailure(f"{roadmap.path}: deadline {deadline}: too short: P(goal within {deadline} steps) from the start "
+                         f"is {within:.3g}; {useful}; {bound}")
     return ({"deadline_edge": res.policy, "deadline_success": res.success},
-            {"deadline_steps": int(deadline),
-             "deadline_success_probability": float(res.success[deadline, START_INDEX])})
+            {"deadline_steps": int(deadline), "deadline_success_probability": within})
 
 
 def write_policy(path: str | RoadmapTarget, group: PolicyGroup, source: RoadmapFile | None = None) -> None:

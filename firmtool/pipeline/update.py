@@ -231,7 +231,7 @@ def _query_of(name: str, data: bytes) -> Query:
     image = MemoryFile(name)
     image.data = data
     task = tomllib.loads(RoadmapFile(image).scenario_text).get("task", {})
-    return Query(name=name, **{k: task[k] for k in TASK_KEYS if k in task})
+    return Query(name=name, **{"deadline" if k == "deadline_steps" else k: task[k] for k in TASK_KEYS if k in task})
 
 
 def carry_queries(base: RoadmapFile, image: MemoryFile, up: _Update, settings: WorkerSettings,

@@ -22,11 +22,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
 
 from firmtool.estimation.compiled.goal import goal_group
 from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
-from firmtool.problem.goal import MAX_LEVEL_3D, MIN_STD_FRACTION, directions
+from firmtool.problem.goal import MAX_LEVEL_3D, MIN_STD_FRACTION, chi2_ppf, directions
 
 # The robot's hooks goal_test_3d is compiled against (firmtool.jit.specialise binds them per robot).
 task_point = task_covariance = None
@@ -49,7 +48,7 @@ def goal_group_3d(regions, P_steps: np.ndarray, k_end: int, d_cfg: int, perfect:
     """The kernel's 3-D goal group (module notes)."""
     group = goal_group(regions, P_steps, k_end, d_cfg, perfect, goal_node)
     if group[0]:
-        group = group[:4] + (float(chi2.ppf(group[3], 3)),) + group[5:]
+        group = group[:4] + (float(chi2_ppf(group[3], 3)),) + group[5:]
     return group + direction_tables()
 
 
