@@ -23,7 +23,7 @@ from firmtool.io.roadmap_file import STAGES, RoadmapFile, write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.io.roadmap_queries import query_names
 from firmtool.reports import BuildReport, QueryReport, RoadmapSummary, UpdateReport
-from firmtool.scenario import Scenario, parse_scenario
+from firmtool.scenario import Scenario
 from firmtool.scenario import load_scenario as _load_scenario_file
 from firmtool.util import arguments
 
@@ -100,7 +100,7 @@ class Roadmap:
     @functools.cached_property
     def scenario(self) -> Scenario:
         """The scenario the roadmap was built from (parsed from the text it stores)."""
-        return parse_scenario(self._data.scenario_text, f"{self._data.path}:scenario_toml")
+        return pipeline.stored_scenario(self._data)  # with the map it carries: no side file read
 
     @functools.cached_property
     def problem(self) -> "Problem":
@@ -247,7 +247,8 @@ class Roadmap:
         stages = {name: data.stages[name] for name in STAGES if data.has(name)}
         stages.update(replace)
         # one atomic write, built in memory: a failure names ``path``, never a temporary file
-        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source)
+        write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source,
+                      grid=data.stored_map)
 
     def summary(self) -> RoadmapSummary:
         """What the roadmap holds (``firmtool inspect`` prints it): stages present (each validated: a

@@ -15,6 +15,8 @@ Layout (schema version 1)::
                       every key point each edge's particles were tested at (a world update's test)
                                                                            attrs: inputs_sha256, seed
     /policy           cost_to_go, edge, success_probability (N,)          attrs: status, iterations, ...
+    /map              (optional, not a stage) the occupancy map the world was read with, which every
+                      stage uses (no map file is read again): :mod:`firmtool.io.roadmap_map`
     /edge_cache       (optional, not a stage) the /edges datasets of estimates finished by an
                       interrupted estimate stage or superseded by a new design; reused by key
 
@@ -62,6 +64,7 @@ from firmtool.errors import FileBusyError, RoadmapError
 from firmtool.io import hdf5, scenario_source
 from firmtool.io.attributes import ROOT_ATTRIBUTES, check_attributes, check_stage_attributes
 from firmtool.io.memory_file import MemoryFile, as_target, readable, size_of
+from firmtool.io.roadmap_map import read_map
 from firmtool.io.roadmap_checks import check_edges, check_edges_model, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
     CACHE,
@@ -97,6 +100,7 @@ class RoadmapFile:
     ----------
     path, schema_version, scenario_text, scenario_sha256, seed, created, firmtool_version
     scenario_source : the scenario file's path and stat when built (:mod:`firmtool.io.scenario_source`), or None.
+    stored_map : the occupancy map it carries (:class:`firmtool.io.roadmap_map.StoredMap`), or None.
     stages : dict of stage name -> (arrays dict, attrs dict) for the stages present, as read (shapes
         and sizes checked, values not yet: use :meth:`require`).
     """
@@ -192,6 +196,7 @@ class RoadmapFile:
                                        "as float64, whatever the stored dtype; file damaged)")
                 datasets[k] = d
             groups[name] = (g, datasets)
+        self.stored_map = read_map(f, p)  # the map it carries: its shape bounded and sizes checked before reading
         self.stages: dict[str, tuple[dict[str, np.ndarray], dict[str, Any]]] = {}
         for name, (g, datasets) in groups.items():
             arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}

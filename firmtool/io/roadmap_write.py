@@ -22,6 +22,7 @@ from firmtool import __version__
 from firmtool.errors import RoadmapError
 from firmtool.io import hdf5
 from firmtool.io.memory_file import MemoryFile, as_target, replace_bytes
+from firmtool.io.roadmap_map import StoredMap, write_map
 from firmtool.io.scenario_source import SOURCE_ATTRIBUTES, ScenarioSource
 from firmtool.io.roadmap_format import (
     CACHE,
@@ -69,15 +70,18 @@ def _image(path: Path | MemoryFile) -> bytes:
     return hdf5.read_image(path, MAX_READ_BYTES, "HDF5 roadmap file", RoadmapError)
 
 
-def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int) -> None:
-    """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over)."""
+def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
+                   grid: StoredMap | None = None) -> None:
+    """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over);
+    ``grid``: the occupancy map its world was read with, which it carries (:mod:`firmtool.io.roadmap_map`)."""
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
+        write_map(f, grid)
 
 
 def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]],
-                  source: ScenarioSource | None = None) -> None:
+                  source: ScenarioSource | None = None, grid: StoredMap | None = None) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
     Parameters
@@ -85,9 +89,11 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
     stages : stage name -> (datasets, attributes); attributes keep their values (a stage's
         ``scenario_sha256`` stamp included; one without gets the stored scenario's).
     source : the scenario file the roadmap was built from (:mod:`firmtool.io.scenario_source`), if known.
+    grid : the occupancy map it carries (:mod:`firmtool.io.roadmap_map`), if its world has one.
     """
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
+        write_map(f, grid)
         for key, value in ({} if source is None else source.attributes()).items():
             f.attrs[key] = value
         for name in STAGES:
@@ -196,8 +202,9 @@ def write_edge_cache(path: str | Path | MemoryFile, arrays: Mapping[str, np.ndar
 
 
 def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str,
-                    keep: tuple[str, ...] = ()) -> None:
-    """Store a new scenario text (same seed) in an existing roadmap.
+                    keep: tuple[str, ...] = (), grid: StoredMap | None = None) -> None:
+    """Store a new scenario text (same seed) in an existing roadmap, and the map its world was read
+    with (``grid``, :mod:`firmtool.io.roadmap_map`; None removes ``/map``).
 
     The caller checked which stages stay valid under the new text (``keep``: they are stamped with
     its sha256); the others keep the stamp of the old text, so readers refuse them until they are
@@ -206,6 +213,7 @@ def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_
     with _atomic_copy(as_target(path)) as f:
         f.attrs["scenario_toml"] = scenario_text
         f.attrs["scenario_sha256"] = scenario_sha256
+        write_map(f, grid)
         for stage in keep:
             if stage in f and isinstance(f[stage], h5py.Group):
                 f[stage].attrs["scenario_sha256"] = scenario_sha256

@@ -34,7 +34,8 @@ from firmtool.pipeline.inputs import (
     validity_of,
 )
 from firmtool.pipeline.query import Query, answer_query, store_queries, stored_query
-from firmtool.pipeline.reading import design_of, edge_probabilities, execution_design, node_task_points, problem_of
+from firmtool.pipeline.reading import (design_of, edge_probabilities, execution_design, node_task_points, problem_of,
+                                       stored_scenario)
 from firmtool.pipeline.sample import add_nodes_stage, check_start_apart_from_goals, sample_stage
 from firmtool.pipeline.settings import CHECKPOINT_SECONDS, WorkerSettings, worker_settings
 from firmtool.pipeline.solve import (
@@ -55,6 +56,6 @@ __all__ = [
     "design_of", "design_stage", "edge_probabilities", "edges_inputs", "estimate_stage", "execution_design",
     "in_memory", "node_task_points", "nodes_inputs", "policy_inputs", "problem_of", "roadmap_connectivity",
     "roadmap_deadline_budget",
-    "sample_stage", "solve_policy", "solve_report", "solve_stage", "unreachable_failure", "validity_of",
+    "sample_stage", "solve_policy", "stored_scenario", "solve_report", "solve_stage", "unreachable_failure", "validity_of",
     "worker_settings", "write_policy",
 ]

@@ -12,7 +12,7 @@ from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_edge_cache, write_stage
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.design import DESIGN_ARRAYS
-from firmtool.pipeline.inputs import VALIDITY_ATTR, controllers_inputs, nodes_inputs
+from firmtool.pipeline.inputs import VALIDITY_ATTR, controllers_inputs, map_attrs, map_to_store, nodes_inputs
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
 from firmtool.scenario import Scenario
@@ -31,9 +31,10 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
     cache : estimates (an ``/edge_cache`` table) the estimate stage finds by key, or None.
     """
     image = MemoryFile(name)
-    create_roadmap(image, sc.text, sc.sha256, sc.seed)
+    create_roadmap(image, sc.text, sc.sha256, sc.seed, grid=map_to_store(sc))
     attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, validity), "densify_rounds": 0, "start": START_INDEX,
-                             "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: validity, **node_attrs}
+                             "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: validity, **node_attrs,
+                             **map_attrs(sc)}
     if d.retired is not None and np.any(d.retired):
         attrs["retired"] = np.flatnonzero(d.retired)
     write_stage(image, "nodes", {"centers": d.centers, "kind": d.kinds}, attrs)

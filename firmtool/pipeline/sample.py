@@ -14,7 +14,8 @@ from firmtool.estimation.budgets import check_budget
 from firmtool.estimation.executors import Workers, parallel_validity
 from firmtool.io.roadmap_file import RoadmapFile, create_roadmap, write_stage
 from firmtool.io.roadmap_format import GOAL, REGULAR, START_INDEX
-from firmtool.pipeline.inputs import VALIDITY_ATTR, as_checker, as_scenario, nodes_inputs, problem_checker_identity
+from firmtool.pipeline.inputs import (VALIDITY_ATTR, as_checker, as_scenario, map_attrs, map_to_store, nodes_inputs,
+                                      problem_checker_identity)
 from firmtool.pipeline.reading import problem_of
 from firmtool.pipeline.restart import check_same_scenario, previous_roadmap
 from firmtool.pipeline.target import RoadmapTarget, check_output, default_output, locked
@@ -75,11 +76,12 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
         notices += more
     identity = problem_checker_identity(problem)
     with locked(target):
-        create_roadmap(target, scenario.text, scenario.sha256, scenario.seed)
+        create_roadmap(target, scenario.text, scenario.sha256, scenario.seed, grid=map_to_store(scenario))
         write_stage(target, "nodes", {"centers": centers, "kind": kinds},
                     {"inputs_sha256": nodes_inputs(scenario, identity), "densify_rounds": 0,
                      "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: identity,
-                     "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
+                     "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason,
+                     **map_attrs(scenario)})
     return SampleReport(roadmap=str(target), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
                         seconds=time.perf_counter() - t0, connect_added=added, notices=notices)
 
