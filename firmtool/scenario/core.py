@@ -345,7 +345,7 @@ def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
     """
     try:
         tables = tomllib.loads(scenario.text)
-        said = parse_scenario(scenario.text, scenario.path)
+        said = parse_scenario(scenario.text, scenario.path, _grid(scenario))
     except (tomllib.TOMLDecodeError, ScenarioError):
         tables, said = {}, None  # a text that no longer parses: every setting is written from the fields
     for name in _TOP:
