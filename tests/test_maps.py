@@ -369,14 +369,27 @@ def test_a_shut_door_cuts_every_path_to_the_goal(office_roadmap):
         ft.update(updated, new, workers=1)
 
 
-def test_an_edited_map_beside_the_roadmap_is_refused_on_update(office_roadmap, tmp_path):
+def test_an_edited_map_beside_the_roadmap_is_not_used(office_roadmap, tmp_path):
+    """The roadmap carries its map: the old map edited in place beside it changes nothing, and an
+    update to the cart gives the same tables as the update in the untouched folder."""
     import shutil
+
+    import h5py
     for name in ("office.h5", "office.yaml", "office.pgm", "office.toml"):
         shutil.copyfile(office_roadmap / name, tmp_path / name)
     _cart(tmp_path)
     shutil.copyfile(tmp_path / "cart.pgm", tmp_path / "office.pgm")  # the old map edited in place
-    with pytest.raises(InputError, match=r"office\.h5: world\.map: .*not the one it was built with"):
-        ft.update(tmp_path / "office.h5", tmp_path / "cart.toml", workers=1)
+    assert ft.open_roadmap(tmp_path / "office.h5").scenario.world.grid == \
+        ft.open_roadmap(office_roadmap / "office.h5").scenario.world.grid
+    report = ft.update(tmp_path / "office.h5", tmp_path / "cart.toml", workers=1).report
+    assert report.changes == ("map cells",)
+    reference = tmp_path / "reference.h5"
+    shutil.copyfile(office_roadmap / "office.h5", reference)
+    ft.update(reference, _cart(office_roadmap), workers=1)
+    with h5py.File(tmp_path / "office.h5", "r") as a, h5py.File(reference, "r") as b:
+        for group in ("edges", "policy", "map"):
+            for k in b[group]:
+                assert a[group][k][()].tobytes() == b[group][k][()].tobytes(), f"/{group}/{k} differs"
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -502,20 +515,36 @@ def test_compiled_capsule_test_is_the_numpy_one(yaw):
     assert 300 < want.sum() < 2700 and want[5]
 
 
-def test_a_roadmap_in_another_folder_finds_its_map_in_the_working_folder(tmp_path, monkeypatch):
-    """The default flow: ``firmtool build office.toml`` in the map's folder writes artifacts/office.h5;
-    the stored scenario then reads the map from the working folder (not beside the roadmap)."""
-    path = office(tmp_path)
-    path.write_text(path.read_text().replace('map = "office.yaml"', 'map = "office.yaml"\nunknown = "free"'))
-    monkeypatch.chdir(tmp_path)
-    out = tmp_path / "artifacts" / "office.h5"
-    ft.build("office.toml", output=out, workers=1)
-    rm = ft.open_roadmap(out)
-    grid = rm.scenario.world.grid
-    assert grid.unknown.sum() == 15 and not grid.occupied[grid.unknown].any()  # unknown = "free" kept
-    monkeypatch.chdir(tmp_path / "artifacts")  # neither beside the roadmap nor in the working folder
-    with pytest.raises(ScenarioError, match=r"world\.map: 'office\.yaml' is not in the roadmap's folder"):
-        ft.open_roadmap(out).scenario
+def test_a_roadmap_moved_alone_runs_every_stage(office_roadmap, tmp_path, monkeypatch):
+    """Built beside its map, then moved with nothing else (and run from a folder holding no map):
+    solve, execute, plot and update read the map the roadmap carries; the update's NEW scenario
+    reads its own map beside it."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from firmtool.cli import app
+    moved, elsewhere, new = tmp_path / "moved", tmp_path / "elsewhere", tmp_path / "new"
+    for folder in (moved, elsewhere, new):
+        folder.mkdir()
+    shutil.copyfile(office_roadmap / "office.h5", moved / "office.h5")
+    shutil.copyfile(office_roadmap / "office.toml", new / "office.toml")
+    cart = _cart(new)
+    (new / "office.toml").unlink()
+    monkeypatch.chdir(elsewhere)
+    rm = moved / "office.h5"
+    built = ft.open_roadmap(office_roadmap / "office.h5").scenario.world.grid
+    assert ft.open_roadmap(rm).scenario.world.grid == built
+    runner = CliRunner()
+    for args in (["solve", str(rm)], ["execute", str(rm), "-n", "3"], ["plot", str(rm), "-o", "fig.png"]):
+        r = runner.invoke(app, args)
+        assert r.exit_code == 0, (args, r.output)
+    assert (elsewhere / "fig.png").stat().st_size > 0
+    r = runner.invoke(app, ["update", str(rm), str(cart), "--workers", "1"])
+    assert r.exit_code == 0, r.output
+    after = ft.open_roadmap(rm).scenario.world.grid
+    assert after == ft.Map.from_yaml(new / "cart.yaml") and after != built  # it carries the new map now
+    assert [p.name for p in moved.iterdir() if p.suffix in (".yaml", ".pgm", ".toml")] == []  # nothing beside it
 
 
 def test_a_map_worlds_backend_travels_pickled(tmp_path):
@@ -524,7 +553,7 @@ def test_a_map_worlds_backend_travels_pickled(tmp_path):
 
     from firmtool.problem import build_problem
     p = build_problem(ft.load_scenario(office(tmp_path)))
-    P = p.points(np.array([[1.0, 1.0, 0.0, 0.0], [2.0, 0.5, 0.0, 0.0]]))
+    P = p.geometry.points(np.array([[1.0, 1.0, 0.0, 0.0], [2.0, 0.5, 0.0, 0.0]]))
     backend = pickle.loads(pickle.dumps(p.robot.collision()))
     assert backend.capsules_collide(P, P, 0.08).tolist() == [False, True]
     assert tuple(backend.lo) == (0.0, 0.0)  # the inner backend's attributes

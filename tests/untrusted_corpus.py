@@ -225,6 +225,24 @@ def foreign_group(kind: str, command: str, phrase: str) -> Case:
     return Case(f"foreign_group_{kind}_{command}", "hdf5", make, ("'/notes", phrase))
 
 
+def crafted_map(kind: str, command: str, phrase: str) -> Case:
+    """A ``/map`` (the occupancy map a roadmap carries, firmtool.io.roadmap_map) crafted: an external
+    link, or a shape declared beyond the cap (refused before anything is read)."""
+    def make(folder: Path, roadmap: Path) -> list[str]:
+        target = fifo(folder, "map.h5")
+
+        def fn(f: h5py.File) -> None:
+            if kind == "link":
+                f["map"] = h5py.ExternalLink(str(target), "/map")
+                return
+            g = f.create_group("map")
+            g.attrs["shape"] = np.array([2**20, 2**20], dtype=np.int64)
+            g.create_dataset("occupied", shape=(2**37,), dtype="u1", chunks=(2**20,), compression="gzip")
+        edit(roadmap, fn)
+        return _args(command, roadmap)
+    return Case(f"crafted_map_{kind}_{command}", "hdf5", make, ("'/map", phrase))
+
+
 def hdf5_cases() -> list[Case]:
     cases = [external_link(stage, command) for stage, command in
              (("edges", "inspect"), ("edges", "solve"), ("nodes", "design"), ("policy", "execute"),
@@ -244,6 +262,7 @@ def hdf5_cases() -> list[Case]:
     cases += [cache_link("inspect", 0, ()), cache_link("solve", 2, ("'/edge_cache' is an external link",)),
               foreign_group_link("solve"), foreign_group("members", "solve", "more than 256 members"),
               foreign_group("large", "solve", "too large to copy")]
+    cases += [crafted_map("link", "inspect", "external link"), crafted_map("shape", "solve", "cells a side")]
     return cases
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from firmtool import robots
 from firmtool.errors import InputError, quoted
+from firmtool.geometry.occupancy import Map
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import Design
 from firmtool.robots.registry import is_importable
@@ -48,6 +49,8 @@ class EstimationJob:
     # the files the robot is read from (a URDF and its meshes: Scenario.files), sent with the job so
     # that no worker reads a side file (which may have been edited since the build read it)
     files: tuple[tuple[str, bytes], ...] = ()
+    # The occupancy map the scenario's world.map stands for (a roadmap carries it): workers read no map file.
+    grid: Map | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,16 +68,20 @@ class ProblemJob:
     validity: bytes | None = None
     robot: tuple[str, bytes] | None = None
     files: tuple[tuple[str, bytes], ...] = ()
+    grid: Map | None = None  # the map of the world (EstimationJob.grid)
 
 
 def job_extras(problem: Problem) -> dict:
-    """The job fields that carry ``problem``'s Python objects to the workers: the user's validity
-    checker, its robot class when it is neither built in nor an installed entry point (a class
-    defined in ``__main__`` travels by value), and the files its robot was read from."""
+    """The job fields that carry ``problem``'s Python objects to the workers: its world's map, the
+    user's validity checker, its robot class when it is neither built in nor an installed entry point (a
+    class defined in ``__main__`` travels by value), and the files its robot was read from."""
     extras: dict = {}
     files = tuple(getattr(problem.robot, "carried_files", ()) or ())
     if files:
         extras["files"] = files
+    grid = problem.scenario.world.grid if problem.scenario.world is not None else None
+    if grid is not None:  # the map itself: a worker reads no map file (a roadmap's scenario names one it carries)
+        extras["grid"] = grid
     if problem.validity is not None:
         extras["validity"] = problem.validity.pickled
     cls = type(problem.robot)
@@ -106,7 +113,8 @@ _MAX_KEPT = 4
 
 
 def _problem_key(job: EstimationJob | ProblemJob) -> tuple:
-    return (job.scenario_text, job.scenario_path, job.validity, job.robot, job.files)
+    return (job.scenario_text, job.scenario_path, job.validity, job.robot, job.files,
+            None if job.grid is None else job.grid.content_sha256)
 
 
 def remember_problem(job: EstimationJob | ProblemJob, problem: Problem) -> None:
@@ -127,7 +135,8 @@ def job_problem(job: EstimationJob | ProblemJob) -> Problem:
             name, cls = job.robot
             robots.register(name, pickle.loads(cls), replace=True)
         validity = pickle.loads(job.validity) if job.validity is not None else None
-        problem = build_problem(parse_scenario(job.scenario_text, job.scenario_path, job.files), validity=validity)
+        problem = build_problem(parse_scenario(job.scenario_text, job.scenario_path, job.files, job.grid),
+                                validity=validity)
         remember_problem(job, problem)
     return problem
 

@@ -36,6 +36,7 @@ discs evenly spaced along the segment (spacing ``s <= resolution``), each of rad
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +45,7 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.io.map_file import MAX_CELLS_SIDE, OCCUPIED, UNKNOWN, classify_percent, read_map_yaml
+from firmtool.io.roadmap_map import StoredMap
 
 UNKNOWN_CHOICES = ("occupied", "free")
 # the most discs - 1 along one capsule (a segment of a million cells is no robot on a map)
@@ -116,6 +118,7 @@ class Map:
         if self.unknown is not None and self.unknown.shape != grid.shape:
             raise InputError(f"map unknown: expected shape {grid.shape}, found {self.unknown.shape}")
         self.source: str | None = None  # the file it was read from, if any (for messages)
+        self.yaml_sha256 = self.image_sha256 = ""  # of the files it was read from, if any (a roadmap records them)
         self._distance: np.ndarray | None = None
         self._clearance: dict[float, np.ndarray] = {}
 
@@ -145,6 +148,45 @@ class Map:
         f = read_map_yaml(path)
         m = cls.from_cells(f.cells, f.resolution, f.origin, unknown=unknown)
         m.source = str(path)
+        m.yaml_sha256, m.image_sha256 = f.yaml_sha256, f.image_sha256
+        return m
+
+    @classmethod
+    def from_stored(cls, stored: StoredMap, source: str | None = None) -> "Map":
+        """The map a roadmap carries (:mod:`firmtool.io.roadmap_map`), as it was built with."""
+        m = cls(stored.occupied, stored.resolution, stored.origin, unknown=stored.unknown)
+        m.source = source
+        m.yaml_sha256, m.image_sha256 = stored.yaml_sha256, stored.image_sha256
+        return m
+
+    def stored(self) -> StoredMap:
+        """This map as a roadmap stores it (:mod:`firmtool.io.roadmap_map`): the masks, resolution,
+        origin and the sha256 of the files it was read from."""
+        unknown = np.zeros(self.shape, dtype=bool) if self.unknown is None else self.unknown
+        return StoredMap(occupied=np.asarray(self.occupied), unknown=np.asarray(unknown), resolution=self.resolution,
+                         origin=self.origin, yaml_sha256=self.yaml_sha256, image_sha256=self.image_sha256)
+
+    @property
+    def content_sha256(self) -> str:
+        """sha256 hex of what the collision test reads (the grid, resolution and origin), computed once."""
+        if getattr(self, "_sha", None) is None:
+            h = hashlib.sha256(np.asarray(self.shape, dtype="<i8").tobytes() + np.packbits(self.occupied).tobytes())
+            h.update(np.asarray([self.resolution, *self.origin], dtype="<f8").tobytes())
+            self._sha = h.hexdigest()
+        return self._sha
+
+    def with_unknown(self, unknown: str) -> "Map":
+        """This map with its unknown cells counted as ``unknown`` (``"occupied"`` or ``"free"``): itself
+        when that changes no cell (a map without unknown cells, or decided so already)."""
+        if unknown not in UNKNOWN_CHOICES:
+            raise InputError(f"map unknown: expected one of {', '.join(UNKNOWN_CHOICES)}, found {unknown!r:.40}")
+        if self.unknown is None or not self.unknown.any():
+            return self
+        occupied = (self.occupied & ~self.unknown) | (self.unknown if unknown == "occupied" else False)
+        if np.array_equal(occupied, self.occupied):
+            return self
+        m = Map(occupied, self.resolution, self.origin, unknown=self.unknown)
+        m.source, m.yaml_sha256, m.image_sha256 = self.source, self.yaml_sha256, self.image_sha256
         return m
 
     @classmethod

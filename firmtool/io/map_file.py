@@ -31,6 +31,7 @@ well-kept reader of both formats), never by code written here.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import math
 import os
@@ -64,12 +65,15 @@ class MapFileError(InputError):
 @dataclass(frozen=True)
 class MapFile:
     """A map as read: ``cells`` (rows, cols) int8 of :data:`FREE`, :data:`OCCUPIED`, :data:`UNKNOWN`,
-    row 0 the map's bottom row; ``resolution`` (m per cell); ``origin`` ``(x, y, yaw)``; the image's path."""
+    row 0 the map's bottom row; ``resolution`` (m per cell); ``origin`` ``(x, y, yaw)``; the image's path;
+    the sha256 (hex) of the YAML's and the image's bytes as read (what a roadmap records of its map)."""
 
     cells: np.ndarray
     resolution: float
     origin: tuple[float, float, float]
     image: Path
+    yaml_sha256: str = ""
+    image_sha256: str = ""
 
 
 def classify_percent(values: np.ndarray, occupied_thresh: float, free_thresh: float) -> np.ndarray:
@@ -173,7 +177,8 @@ def _shade(img, mode: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _decode(path: Path):
-    """The image at ``path`` read (bounded) and decoded: ``(image, width, height)`` (a Pillow image)."""
+    """The image at ``path`` read (bounded) and decoded: ``(image, width, height, sha256 hex of its bytes)``
+    (a Pillow image)."""
     from PIL import Image  # Pillow: matplotlib's dependency; imported here, where an image is read
 
     try:
@@ -197,7 +202,7 @@ def _decode(path: Path):
         img.load()
     except Exception as exc:  # noqa: BLE001 - a truncated or corrupt image
         raise MapFileError(path, "image", f"a corrupt or truncated image ({type(exc).__name__})") from None
-    return img, w, h
+    return img, w, h, hashlib.sha256(raw).hexdigest()
 
 
 def read_map_yaml(path: str | Path) -> MapFile:
@@ -225,11 +230,12 @@ def read_map_yaml(path: str | Path) -> MapFile:
         raise MapFileError(p, "", f"not valid YAML ({type(exc).__name__})") from None
     settings = read_settings(p, data)
     img_path = image_path(p, settings["image"])
-    img, w, h = _decode(img_path)
+    img, w, h, image_sha256 = _decode(img_path)
     shade, opaque = _shade(img, settings["mode"], img_path)
     cells = classify(shade, opaque, settings)
     return MapFile(cells=np.ascontiguousarray(cells[::-1]), resolution=settings["resolution"],
-                   origin=settings["origin"], image=img_path)
+                   origin=settings["origin"], image=img_path, yaml_sha256=hashlib.sha256(raw).hexdigest(),
+                   image_sha256=image_sha256)
 
 
 def classify(shade: np.ndarray, opaque: np.ndarray, settings: dict) -> np.ndarray:

@@ -17,6 +17,8 @@ Layout (schema version 1)::
     /policy           cost_to_go, edge, success_probability (N,)          attrs: status, iterations, ...
     /robot            (optional, not a stage) the files the robot was read from (a URDF and its
                       meshes) and its capsules: :mod:`firmtool.io.robot_files`
+    /map              (optional, not a stage) the occupancy map the world was read with, which every
+                      stage uses (no map file is read again): :mod:`firmtool.io.roadmap_map`
     /edge_cache       (optional, not a stage) the /edges datasets of estimates finished by an
                       interrupted estimate stage or superseded by a new design; reused by key
 
@@ -76,6 +78,7 @@ from firmtool.io.roadmap_format import (
     nbytes,
     short,
 )
+from firmtool.io.roadmap_map import read_map
 from firmtool.io.roadmap_queries import stored_query_names
 from firmtool.io.roadmap_write import (
     concat_edge_tables,
@@ -103,6 +106,7 @@ class RoadmapFile:
     scenario_source : the scenario file's path and stat when built (:mod:`firmtool.io.scenario_source`), or None.
     robot_files, robot_geometry : the robot it carries (:mod:`firmtool.io.robot_files`): ``(name, bytes)``
         pairs and its derived geometry (``capsules``, ``radii``); ``()`` and ``{}`` for none.
+    stored_map : the occupancy map it carries (:class:`firmtool.io.roadmap_map.StoredMap`), or None.
     stages : dict of stage name -> (arrays dict, attrs dict) for the stages present, as read (shapes
         and sizes checked, values not yet: use :meth:`require`).
     """
@@ -202,6 +206,7 @@ class RoadmapFile:
             groups[name] = (g, datasets)
         # the robot it carries (firmtool.io.robot_files): its files' bytes, checked against their sha256
         self.robot_files, self.robot_geometry = read_robot(f, p)
+        self.stored_map = read_map(f, p)  # the map it carries: its shape bounded and sizes checked before reading
         self.stages: dict[str, tuple[dict[str, np.ndarray], dict[str, Any]]] = {}
         for name, (g, datasets) in groups.items():
             arrays = {k: hdf5.read_value(d, f"/{name}/{k}", p, RoadmapError) for k, d in datasets.items()}

@@ -32,6 +32,7 @@ from firmtool.io.roadmap_format import (
     read_table,
     short,
 )
+from firmtool.io.roadmap_map import StoredMap, write_map
 from firmtool.io.robot_files import write_robot
 from firmtool.io.scenario_source import SOURCE_ATTRIBUTES, ScenarioSource
 
@@ -96,20 +97,22 @@ def _image(path: Path | MemoryFile) -> bytes:
 
 
 def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
-                   robot: Robot | None = None) -> None:
+                   robot: Robot | None = None, grid: StoredMap | None = None) -> None:
     """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over);
-    ``robot``: the files and geometry of the robot it carries (:mod:`firmtool.io.robot_files`)."""
+    ``robot``: the files and geometry of the robot it carries (:mod:`firmtool.io.robot_files`);
+    ``grid``: the occupancy map its world was read with, which it carries (:mod:`firmtool.io.roadmap_map`)."""
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
         if robot is not None:
             write_robot(f, *robot)
+        write_map(f, grid)
 
 
 def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]],
                   source: ScenarioSource | None = None, cache: Mapping[str, np.ndarray] | None = None,
                   cache_attrs: Mapping[str, Any] | None = None,
-                  robot: Robot | None = None) -> None:
+                  robot: Robot | None = None, grid: StoredMap | None = None) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
     Parameters
@@ -119,11 +122,13 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
     source : the scenario file the roadmap was built from (:mod:`firmtool.io.scenario_source`), if known.
     cache, cache_attrs : an ``/edge_cache`` table and its attributes (estimates its estimate stage finds by key).
     robot : the files and geometry of the robot it carries (:mod:`firmtool.io.robot_files`), if any.
+    grid : the occupancy map it carries (:mod:`firmtool.io.roadmap_map`), if its world has one.
     """
     with _atomic_copy(as_target(path), fresh=True) as f:
         _write_root(f, scenario_text, scenario_sha256, seed)
         if robot is not None:
             write_robot(f, *robot)
+        write_map(f, grid)
         for key, value in ({} if source is None else source.attributes()).items():
             f.attrs[key] = value
         for name in STAGES:
@@ -234,8 +239,9 @@ def write_edge_cache(path: str | Path | MemoryFile, arrays: Mapping[str, np.ndar
 
 
 def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str,
-                    keep: tuple[str, ...] = ()) -> None:
-    """Store a new scenario text (same seed) in an existing roadmap.
+                    keep: tuple[str, ...] = (), grid: StoredMap | None = None) -> None:
+    """Store a new scenario text (same seed) in an existing roadmap, and the map its world was read
+    with (``grid``, :mod:`firmtool.io.roadmap_map`; None removes ``/map``).
 
     The caller checked which stages stay valid under the new text (``keep``: they are stamped with
     its sha256); the others keep the stamp of the old text, so readers refuse them until they are
@@ -244,6 +250,7 @@ def update_scenario(path: str | Path | MemoryFile, scenario_text: str, scenario_
     with _atomic_copy(as_target(path)) as f:
         f.attrs["scenario_toml"] = scenario_text
         f.attrs["scenario_sha256"] = scenario_sha256
+        write_map(f, grid)
         for stage in keep:
             if stage in f and isinstance(f[stage], h5py.Group):
                 f[stage].attrs["scenario_sha256"] = scenario_sha256

@@ -30,11 +30,13 @@ import scipy.sparse
 
 from firmtool.errors import MAX_EXPECTED, InputError, ScenarioError, WorldUpdateWarning, cut
 from firmtool.estimation.touched import Change, touched
+from firmtool.geometry.occupancy import Map
 from firmtool.geometry.shapes import Obstacle
 from firmtool.graph.dp import solve_dp
 from firmtool.io.limits import MAX_ITEMS
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.world_change import WorldChange, world_change
+from firmtool.scenario import parse_scenario
 from firmtool.scenario.specs import WorldSpec
 from firmtool.util.hashing import digest
 
@@ -44,30 +46,40 @@ Removals = Iterable[int | Mapping[str, Any] | Obstacle]  # indices into the curr
 
 @dataclass(frozen=True)
 class World:
-    """A world to tell a policy (``ft.World``): its obstacles and, optionally, its bounds.
+    """A world to tell a policy (``ft.World``): its obstacles and, optionally, its bounds and map.
 
     Attributes
     ----------
     obstacles : scenario tables (``{"center": [x, y], "half_size": [hx, hy]}``, ``{"kind": "sphere",
         ...}``) or :class:`~firmtool.geometry.shapes.Obstacle` objects; the whole list.
     bounds : ``[lo, hi]`` ((2, D)), or None for the roadmap's.
+    map : an occupancy-grid :class:`~firmtool.geometry.occupancy.Map` (``ft.Map``, e.g. from a ROS
+        ``nav_msgs/OccupancyGrid``: :func:`firmtool.ros.grid.map_from_grid`), or None to keep the map the
+        policy holds. Its changed cells are the changed region, as for ``firmtool update``
+        (:func:`firmtool.roadmap.world_change.world_change`); its unknown cells count as the roadmap's
+        ``world.unknown`` says.
 
     Examples
     --------
     >>> ft.World(obstacles=[{"center": [2.0, 1.2], "half_size": [0.3, 0.7]}])  # doctest: +SKIP
     >>> policy.update_world(ft.load_scenario("other.toml").world)  # a scenario's world  # doctest: +SKIP
+    >>> policy.update_world(ft.World(obstacles=[], map=ft.Map.from_yaml("door_shut.yaml")))  # doctest: +SKIP
     """
 
     obstacles: tuple[Mapping[str, Any] | Obstacle, ...] = ()
     bounds: Any = None
+    map: Map | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
+        if self.map is not None and not isinstance(self.map, Map):
+            raise InputError(f"update_world: map: expected an ft.Map (occupancy grid), found {type(self.map).__name__}")
 
     @classmethod
     def of(cls, spec: WorldSpec) -> "World":
-        """The world of a scenario's ``[world]`` (:class:`~firmtool.scenario.specs.WorldSpec`), bounds included."""
-        return cls(obstacles=spec.obstacles, bounds=[list(spec.lo), list(spec.hi)])
+        """The world of a scenario's ``[world]`` (:class:`~firmtool.scenario.specs.WorldSpec`), bounds and
+        map included."""
+        return cls(obstacles=spec.obstacles, bounds=[list(spec.lo), list(spec.hi)], map=spec.grid)
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -197,10 +209,12 @@ def edit(current: Sequence[Mapping[str, Any]], add: Iterable[Mapping[str, Any] |
 
 
 def world_update(base: Problem, table: EdgeTable, centers: np.ndarray, obstacles: Iterable[Mapping[str, Any] | Obstacle],
-                 bounds: Any = None) -> WorldUpdate:
+                 bounds: Any = None, grid: Map | None = None) -> WorldUpdate:
     """The policy's response to the world ``obstacles`` (and ``bounds``, a ``[lo, hi]`` pair; None:
-    the roadmap's) on a roadmap estimated in ``base``'s world: the problem there, the edges to block
-    (against the roadmap's own world, whose estimates the table holds) and the DP on the rest.
+    the roadmap's; ``grid``, an occupancy map, None: the roadmap's) on a roadmap estimated in
+    ``base``'s world: the problem there, the edges to block (against the roadmap's own world, whose
+    estimates the table holds: :func:`~firmtool.roadmap.world_change.world_change`, as ``firmtool
+    update``'s) and the DP on the rest.
 
     Raises
     ------
@@ -214,8 +228,15 @@ def world_update(base: Problem, table: EdgeTable, centers: np.ndarray, obstacles
     world: dict[str, Any] = {"obstacles": obstacle_tables(obstacles)}
     if bounds is not None:
         world["bounds"] = np.asarray(bounds, dtype=float).tolist()
+    own = base.scenario.world
+    new_map = grid is not None and (own.grid is None or grid is not own.grid)
+    if new_map:  # the map given, no file (a scenario without a map gets a name for it: its text must name one)
+        world["map"] = own.map or "update_world"
     try:
         scenario = base.scenario.replace(world=world)
+        if new_map:
+            scenario = parse_scenario(scenario.text, scenario.path, scenario.files,
+                                      grid=grid.with_unknown(own.unknown or "occupied"))
         problem = build_problem(scenario, validity=base.validity)
     except ScenarioError as exc:
         raise InputError(f"update_world: {cut(exc.field or 'world')}: {cut(exc.expected, MAX_EXPECTED)}") from None
@@ -238,6 +259,7 @@ class Worlds:
 
     def __init__(self, base: Problem, centers: np.ndarray, edges: Callable[[], EdgeTable] | None) -> None:
         self.base, self.centers, self._edges = base, centers, edges
+        self.grid: Map | None = base.scenario.world.grid  # the map the policy holds now (a World may bring one)
         self._table: EdgeTable | None = None
         self._answers: dict[str, tuple[Any, WorldUpdate]] = {}
         self._own = [o.to_table() for o in base.scenario.world.obstacles]
@@ -262,12 +284,14 @@ class Worlds:
         """
         if obstacles is None and add is None and remove is None:
             raise InputError("update_world: expected obstacles (the whole list), a World, or add= / remove=")
+        grid = self.grid
         if isinstance(obstacles, WorldSpec):
             obstacles = World.of(obstacles)
         if isinstance(obstacles, World):
             if bounds is not None and obstacles.bounds is not None:
                 raise InputError("update_world: bounds: given twice (the World's and bounds=)")
             bounds = obstacles.bounds if bounds is None else bounds
+            grid = obstacles.map if obstacles.map is not None else grid
             obstacles = obstacles.obstacles
         elif isinstance(obstacles, (str, bytes, Mapping)):
             raise InputError(f"update_world: obstacles: expected the whole list of obstacle tables or a World, "
@@ -281,21 +305,23 @@ class Worlds:
             warnings.warn(f"update_world: the new world keeps none of the roadmap's {len(self._own)} obstacles "
                           f"(the obstacle list replaces the whole world; to add a box keep the others, or "
                           f"use add=)", WorldUpdateWarning, stacklevel=3)
-        self.obstacles, self.bounds = tables, bounds
+        self.obstacles, self.bounds, self.grid = tables, bounds, grid
         return tables, bounds
 
     def answer(self, obstacles: Iterable[Mapping[str, Any] | Obstacle], bounds: Any,
                build: Callable[[WorldUpdate], Any]) -> tuple[Any, WorldUpdate]:
-        """``(build(update), update)`` of the world ``obstacles`` / ``bounds`` (:func:`world_update`)."""
+        """``(build(update), update)`` of the world ``obstacles`` / ``bounds`` and the map the last
+        :meth:`request` holds (:func:`world_update`)."""
         tables = obstacle_tables(obstacles)
-        key = digest(tables, None if bounds is None else np.asarray(bounds, dtype=float)).hex()
+        key = digest(tables, None if bounds is None else np.asarray(bounds, dtype=float),
+                     None if self.grid is None else self.grid.content_sha256).hex()
         hit = self._answers.get(key)
         if hit is None:
             if self._table is None:
                 if self._edges is None:
                     raise InputError("Policy.update_world: a policy made from its parts has no edge table to re-solve")
                 self._table = self._edges()
-            update = world_update(self.base, self._table, self.centers, tables, bounds)
+            update = world_update(self.base, self._table, self.centers, tables, bounds, self.grid)
             hit = self._answers[key] = (build(update), update)
         return hit
 

@@ -31,6 +31,7 @@ from firmtool.pipeline.inputs import (
     as_scenario,
     checker_identity,
     controllers_inputs,
+    map_to_store,
     nodes_inputs,
     policy_inputs,
 )
@@ -215,7 +216,7 @@ class _BuildRun:
             keep = ("nodes",) + (("controllers",) if existing.has("controllers") and
                                  existing.attrs("controllers").get("inputs_sha256") == controllers_inputs(existing)
                                  else ())
-            update_scenario(r.target, sc.text, sc.sha256, keep=keep)
+            update_scenario(r.target, sc.text, sc.sha256, keep=keep, grid=map_to_store(sc))
         return existing
 
     def design_and_estimate(self) -> EstimateReport:

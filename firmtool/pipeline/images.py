@@ -12,7 +12,14 @@ from firmtool.io.memory_file import MemoryFile
 from firmtool.io.roadmap_file import write_roadmap
 from firmtool.io.roadmap_format import GOAL, START_INDEX
 from firmtool.pipeline.design import DESIGN_ARRAYS
-from firmtool.pipeline.inputs import ROBOT_ATTR, VALIDITY_ATTR, design_inputs, nodes_inputs
+from firmtool.pipeline.inputs import (
+    ROBOT_ATTR,
+    VALIDITY_ATTR,
+    design_inputs,
+    map_attrs,
+    map_to_store,
+    nodes_inputs,
+)
 from firmtool.problem import Problem, carried_robot, robot_files_digest
 from firmtool.roadmap.design import Design
 from firmtool.scenario import Scenario
@@ -34,7 +41,7 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
     files = robot_files_digest(problem)
     attrs: dict[str, Any] = {"inputs_sha256": nodes_inputs(sc, validity, files), "densify_rounds": 0,
                              "start": START_INDEX, "goals": np.flatnonzero(d.kinds == GOAL), VALIDITY_ATTR: validity,
-                             **({ROBOT_ATTR: files} if files else {}), **node_attrs}
+                             **({ROBOT_ATTR: files} if files else {}), **node_attrs, **map_attrs(sc)}
     if d.retired is not None and np.any(d.retired):
         attrs["retired"] = np.flatnonzero(d.retired)
     # one write of the whole image (each stage written apart copied the image again)
@@ -44,5 +51,6 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
                                "node_radius": problem.scenario.controller.node_radius,
                                "covariance_tolerance": problem.scenario.controller.covariance_tolerance})}
     write_roadmap(image, sc.text, sc.sha256, sc.seed, stages, cache=cache or None,
-                  cache_attrs={"description": cache_description}, robot=carried_robot(problem))
+                  cache_attrs={"description": cache_description}, robot=carried_robot(problem),
+                  grid=map_to_store(sc))
     return image

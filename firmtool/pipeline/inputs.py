@@ -14,6 +14,7 @@ from firmtool import robots
 from firmtool.estimation.adaptive import ADAPTIVE_VERSION
 from firmtool.estimation.edge_table import ENGINE_VERSION
 from firmtool.io.roadmap_file import RoadmapFile
+from firmtool.io.roadmap_map import StoredMap
 from firmtool.problem import Problem, ValidityChecker
 from firmtool.scenario import Scenario, load_scenario
 from firmtool.scenario.core import synced
@@ -103,3 +104,20 @@ def policy_inputs(edges_sha256: str, failure_cost: float, method: str, cost: obj
     if deadline is None:
         return inputs_hash(edges_sha256, failure_cost, method, digest(cost).hex())
     return inputs_hash(edges_sha256, failure_cost, method, digest(cost).hex(), "deadline", int(deadline))
+
+
+# /nodes attribute (only with a map): the content sha256 of the occupancy map the nodes were sampled in
+# (Map.content_sha256); a stage given another map is refused (pipeline.reading.check_map)
+MAP_ATTR = "map_sha256"
+
+
+def map_attrs(scenario: Scenario) -> dict[str, str]:
+    """The ``/nodes`` attributes recording ``scenario``'s map (:data:`MAP_ATTR`), none without a map."""
+    grid = scenario.world.grid if scenario.world is not None else None
+    return {} if grid is None else {MAP_ATTR: grid.content_sha256}
+
+
+def map_to_store(scenario: Scenario) -> StoredMap | None:
+    """The occupancy map a roadmap of ``scenario`` carries (:mod:`firmtool.io.roadmap_map`), or None."""
+    grid = scenario.world.grid if scenario.world is not None else None
+    return None if grid is None else grid.stored()

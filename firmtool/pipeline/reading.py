@@ -12,17 +12,41 @@ import scipy.sparse
 from firmtool import robots
 from firmtool.errors import FirmtoolError, InputError, RoadmapError
 from firmtool.estimation.edge_table import outcome_probabilities
+from firmtool.geometry.occupancy import Map
 from firmtool.io.roadmap_file import RoadmapFile
-from firmtool.pipeline.inputs import ROBOT_ATTR, problem_checker_identity, validity_of
+from firmtool.pipeline.inputs import MAP_ATTR, ROBOT_ATTR, map_attrs, problem_checker_identity, validity_of
 from firmtool.problem import Problem, build_problem, robot_files_digest
 from firmtool.roadmap.design import Design
 from firmtool.scenario import Scenario, parse_scenario
 
 
+def carried_map(roadmap: RoadmapFile) -> Map | None:
+    """The occupancy map ``roadmap`` carries (``/map``, :mod:`firmtool.io.roadmap_map`), or None."""
+    if roadmap.stored_map is None:
+        return None
+    return Map.from_stored(roadmap.stored_map, source=f"{roadmap.path}:/map")
+
+
 def stored_scenario(roadmap: RoadmapFile) -> Scenario:
-    """The scenario a roadmap stores, with the robot's files it carries (:attr:`Scenario.files`): its
-    robot is built from them, never from a side file."""
-    return parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml", roadmap.robot_files)
+    """The scenario a roadmap stores, with the robot's files (:attr:`Scenario.files`) and the map it
+    carries: its robot and world are built from those copies, never from a side file (a roadmap moved
+    alone runs; a URDF or map edited beside it is not used)."""
+    return parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml", roadmap.robot_files,
+                          carried_map(roadmap))
+
+
+def check_map(roadmap: RoadmapFile, scenario: Scenario) -> None:
+    """Refuse a roadmap whose nodes were sampled in another occupancy map than ``scenario``'s (the
+    content sha256 its ``/nodes`` records, :data:`~firmtool.pipeline.inputs.MAP_ATTR`). The remedy:
+    build again."""
+    if not roadmap.has("nodes"):
+        return
+    recorded = str(roadmap.attrs("nodes").get(MAP_ATTR, ""))
+    now = map_attrs(scenario).get(MAP_ATTR, "")
+    if recorded != now:
+        raise InputError(f"{roadmap.path}: world.map: its nodes were built in another map than the one it carries "
+                         f"(map sha256 {recorded[:12] or 'none'}, now {now[:12] or 'none'}; file altered?); build it "
+                         f"again (firmtool build SCENARIO -o {roadmap.path})")
 
 
 def check_robot(roadmap: RoadmapFile, problem: Problem) -> None:
@@ -64,6 +88,7 @@ def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_v
     if problem is None:
         problem = build_problem(stored_scenario(roadmap), validity=validity)
     check_robot(roadmap, problem)
+    check_map(roadmap, problem.scenario)
     given = problem_checker_identity(problem)
     if validity is not None and given != recorded:
         raise InputError(f"{roadmap.path}: " + (f"built with another validity checker ({recorded[:23]}), not "

@@ -19,6 +19,8 @@ from firmtool.pipeline.inputs import (
     VALIDITY_ATTR,
     as_checker,
     as_scenario,
+    map_attrs,
+    map_to_store,
     nodes_inputs,
     problem_checker_identity,
 )
@@ -83,13 +85,15 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
     identity = problem_checker_identity(problem)
     with locked(target):
         # the roadmap carries its robot (its URDF and meshes) and records its identity
-        create_roadmap(target, scenario.text, scenario.sha256, scenario.seed, robot=carried_robot(problem))
+        create_roadmap(target, scenario.text, scenario.sha256, scenario.seed, robot=carried_robot(problem),
+                       grid=map_to_store(scenario))
         files = robot_files_digest(problem)
         write_stage(target, "nodes", {"centers": centers, "kind": kinds},
                     {"inputs_sha256": nodes_inputs(scenario, identity, files), "densify_rounds": 0,
                      "start": START_INDEX, "goals": np.flatnonzero(kinds == GOAL), VALIDITY_ATTR: identity,
                      **({ROBOT_ATTR: files} if files else {}),  # only then: other robots' tables stay as they were
-                     "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason})
+                     "connect_added": added, "connect_budget": budget, "connect_stop_reason": reason,
+                     **map_attrs(scenario)})
     return SampleReport(roadmap=str(target), nodes=int(centers.shape[0]), requested_nodes=scenario.roadmap.nodes,
                         seconds=time.perf_counter() - t0, connect_added=added, notices=notices)
 

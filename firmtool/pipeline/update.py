@@ -56,7 +56,7 @@ from firmtool.io.roadmap_queries import query_image, query_names
 from firmtool.io.roadmap_write import compacted_bytes, record_source, write_queries
 from firmtool.pipeline.estimate import estimate_into
 from firmtool.pipeline.images import node_set_image
-from firmtool.pipeline.inputs import as_scenario, nodes_inputs, validity_of
+from firmtool.pipeline.inputs import as_scenario
 from firmtool.pipeline.query import OPTION_OF, TASK_KEYS, Query, answer_query, query_summary, rekeyed_estimates
 from firmtool.pipeline.settings import WorkerSettings, worker_settings
 from firmtool.pipeline.solve import solve_policy, unreachable_failure, write_policy
@@ -279,13 +279,6 @@ def _prepare(work: WorkingRoadmap, sc: Scenario) -> _Update:
         raise InputError(f"{base.path}: built with a Python validity checker, whose verdicts a world change cannot "
                          "bound; build a new roadmap in the new world")
     check_update(base_problem.scenario, sc)
-    if base_problem.scenario.world.grid is not None and \
-            nodes_inputs(base_problem.scenario, validity_of(base)) != base.attrs("nodes").get("inputs_sha256"):
-        # the roadmap's scenario reads its map from a file beside it: one edited since the build would be
-        # taken for the old world, and the change to the new one missed
-        raise InputError(f"{base.path}: world.map: the map file {base_problem.scenario.world.map!r} beside the roadmap "
-                         "is not the one it was built with (edited since?); put the old map back and give the new "
-                         "one under another name in the new scenario, or build a new roadmap")
     table = base.require("edges", "source", "target", "outcome_code")
     if "swept_lo" not in table or "swept_hi" not in table:
         raise InputError(f"{base.path}: its edges hold no swept regions (estimated before firmtool recorded them); "

@@ -42,6 +42,7 @@ import numpy as np
 import tomli_w
 
 from firmtool.errors import ScenarioError
+from firmtool.geometry.occupancy import Map
 from firmtool.io.limits import LimitError, read_regular_file, read_toml_file
 from firmtool.scenario.read import read_tables
 from firmtool.scenario.specs import (
@@ -207,11 +208,20 @@ def load_scenario(path: str | Path) -> Scenario:
     return parse_scenario(text, str(p))
 
 
-def parse_scenario(text: str, path: str = "<string>", files: tuple[tuple[str, bytes], ...] = ()) -> Scenario:
+def parse_scenario(text: str, path: str = "<string>", files: tuple[tuple[str, bytes], ...] = (),
+                   grid: Map | None = None) -> Scenario:
     """Validate scenario ``text`` (the contents of a TOML file named ``path``; relative file names
     in it, e.g. a mesh's, are taken from that file's folder): :func:`firmtool.scenario.read.read_tables`.
-    ``files``: the robot's files a roadmap carries (:attr:`Scenario.files`)."""
-    return Scenario(**read_tables(text, path), files=tuple(files))
+    ``files``: the robot's files a roadmap carries (:attr:`Scenario.files`). ``grid``: the map its
+    ``world.map`` stands for where that is known (a roadmap carries it, or the scenario is read back
+    from its fields): no map file is read then."""
+    return Scenario(**read_tables(text, path, grid), files=tuple(files))
+
+
+def _grid(scenario: Scenario) -> Map | None:
+    """The map ``scenario``'s world holds (read back with it instead of its file), or None."""
+    return scenario.world.grid if scenario.world is not None else None
+
 
 SECTIONS = ("model", "measurement", "world", "task", "roadmap", "controller", "estimation", "cost", "execution")
 _TOP = ("name", "seed")  # Scenario fields kept in the [scenario] table
@@ -342,7 +352,7 @@ def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
     """
     try:
         tables = tomllib.loads(scenario.text)
-        said = parse_scenario(scenario.text, scenario.path)
+        said = parse_scenario(scenario.text, scenario.path, scenario.files, _grid(scenario))
     except (tomllib.TOMLDecodeError, ScenarioError):
         tables, said = {}, None  # a text that no longer parses: every setting is written from the fields
     for name in _TOP:
@@ -372,7 +382,7 @@ def is_synced(scenario: Scenario) -> bool:
     if hashlib.sha256(scenario.text.encode()).hexdigest() != scenario.sha256:
         return False
     try:
-        return same_settings(parse_scenario(scenario.text, scenario.path), scenario)
+        return same_settings(parse_scenario(scenario.text, scenario.path, scenario.files, _grid(scenario)), scenario)
     except ScenarioError:
         return False
 
@@ -388,7 +398,7 @@ def synced(scenario: Scenario) -> Scenario:
     """
     if is_synced(scenario):
         return scenario
-    return parse_scenario(scenario_to_toml(scenario), _modified(scenario.path), scenario.files)
+    return parse_scenario(scenario_to_toml(scenario), _modified(scenario.path), scenario.files, _grid(scenario))
 
 
 def _modified(path: str) -> str:
@@ -448,4 +458,5 @@ def replace_scenario(scenario: Scenario, **changes: Any) -> Scenario:
         else:
             raise TypeError(f"replace: unknown setting {key!r}; expected name, seed or one of {', '.join(SECTIONS)}")
     path = _modified(scenario.path)
-    return parse_scenario(_dumps(tables, path), path, scenario.files)
+    same_map = tables.get("world", {}).get("map") == (scenario.world.map if scenario.world is not None else None)
+    return parse_scenario(_dumps(tables, path), path, scenario.files, _grid(scenario) if same_map else None)

@@ -5,8 +5,6 @@ Unknown keys are rejected: in a hand-written file they are almost always typos."
 from __future__ import annotations
 
 import hashlib
-import importlib.resources
-import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -50,10 +48,11 @@ from firmtool.scenario.specs import (
 from firmtool.util.schema import INVALID, Errors, Field, read_table, read_value, valid
 
 
-def read_tables(text: str, path: str = "<string>") -> dict[str, Any]:
+def read_tables(text: str, path: str = "<string>", grid: Map | None = None) -> dict[str, Any]:
     """Validate scenario ``text`` (the contents of a TOML file named ``path``; relative file names
     in it, e.g. a mesh's, are taken from that file's folder): the keyword arguments of
-    :class:`firmtool.scenario.Scenario`, every problem found reported at once (ScenarioError)."""
+    :class:`firmtool.scenario.Scenario`, every problem found reported at once (ScenarioError).
+    ``grid``: the map ``world.map`` stands for, when a roadmap carries it (no map file is read)."""
     if len(text) > MAX_SCENARIO_BYTES:
         raise ScenarioError(path, "", f"expected at most {MAX_SCENARIO_BYTES} characters, found {len(text)}")
     limit = toml_nesting_error(text)  # before tomllib, which recurses once per level
@@ -79,7 +78,7 @@ def read_tables(text: str, path: str = "<string>") -> dict[str, Any]:
     sc = section("scenario", SCENARIO_FIELDS)
     model, robot_cls = _read_model(errors, data)
     measurement = _read_measurement(errors, data, path)
-    world = _read_world(errors, data, path)
+    world = _read_world(errors, data, path, grid)
     task = _read_task(errors, data, robot_cls, world)
     tables = {key: section(key, fields, required=key not in OPTIONAL_SECTIONS)
               for key, fields in (("roadmap", ROADMAP_FIELDS), ("controller", CONTROLLER_FIELDS),
@@ -202,7 +201,7 @@ def _read_measurement(errors: Errors, data: dict, path: str = "") -> Measurement
     return MeasurementSpec(kind=kind, noise=form, H=values["H"], params=params)
 
 
-def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
+def _read_world(errors: Errors, data: dict, path: str, carried: Map | None = None) -> WorldSpec | None:
     """``[world]``: bounds (their number of columns is the world's dimension), radius, backend and
     obstacles, each read by its kind's keys; the backend must handle the dimension and the kinds."""
     if "world" not in data:
@@ -212,7 +211,7 @@ def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
     if values is None:
         return None
     bounds, D = values["bounds"], None
-    grid = _read_map(errors, values, bounds, path)
+    grid = _read_map(errors, values, bounds, path, carried)
     if valid(bounds) and bounds is None and grid is not None:
         bounds = np.array(grid.bounds)  # the map's extent
     if valid(bounds) and bounds is None and values["map"] is None:
@@ -257,19 +256,14 @@ def _read_world(errors: Errors, data: dict, path: str) -> WorldSpec | None:
                      unknown=values["unknown"], grid=grid)
 
 
-# where a roadmap's stored scenario may find its map besides the roadmap's folder (os.pathsep-separated)
-MAP_PATH_ENV = "FIRMTOOL_MAP_PATH"
-
-
-def _read_map(errors: Errors, values: dict, bounds: Any, path: str) -> "Map | None":
+def _read_map(errors: Errors, values: dict, bounds: Any, path: str, carried: Map | None = None) -> "Map | None":
     """``world.map`` read (and ``world.unknown`` checked), or None without one or on an error (recorded).
 
-    The map's YAML is relative to the scenario's folder. A scenario a roadmap stores (its path ends in
-    ``:scenario_toml``) reads it only inside, in this order, the roadmap's folder, the working folder
-    (where ``firmtool build office.toml`` reads ``office.yaml`` and writes ``artifacts/office.h5``), a
-    folder of ``FIRMTOOL_MAP_PATH`` or firmtool's shipped scenarios (a relative path without '..', not
-    leading out through a link): a roadmap may come from someone else. The roadmap does not carry the
-    map: a map file edited in place since the build is another world (``firmtool update`` refuses it)."""
+    ``carried``: the map a roadmap carries (:mod:`firmtool.io.roadmap_map`), or the one a scenario
+    read back from its fields holds: used as it is, no file read. Otherwise the map's YAML is relative
+    to the scenario's folder. A scenario a roadmap stores (its path ends in ``:scenario_toml``) reads
+    no map file: its roadmap carries the map it was built with, and one without is refused (built
+    before roadmaps carried their maps: build it again)."""
     name, unknown = values["map"], values["unknown"]
     if not valid(name, unknown):
         return None
@@ -281,44 +275,15 @@ def _read_map(errors: Errors, values: dict, bounds: Any, path: str) -> "Map | No
         errors.add("world.map", f"a map is planar, this world is {bounds.shape[1]}-D (world.bounds)")
         return None
     try:
-        where = _map_location(path, name)
-        return Map.from_yaml(where, unknown=unknown or "occupied")
+        if carried is not None:
+            return carried.with_unknown(unknown or "occupied")
+        if path.endswith(STORED_SUFFIX):
+            raise InputError(f"{name[:200]!r}: the roadmap carries no copy of its map (built before roadmaps "
+                             "carried their maps) and reads no map file; build it again (firmtool build SCENARIO)")
+        return Map.from_yaml(Path(path).parent / name, unknown=unknown or "occupied")
     except InputError as exc:
         errors.add("world.map", str(exc))
         return None
-
-
-def _map_location(path: str, name: str) -> Path:
-    """Where the map ``name`` of the scenario at ``path`` is (:func:`_read_map`'s rules)."""
-    stored = path.endswith(STORED_SUFFIX)
-    folder = Path(path[:-len(STORED_SUFFIX)] if stored else path).parent
-    if not stored:
-        return folder / name
-    relative = Path(name)
-    if relative.is_absolute() or ".." in relative.parts:
-        raise InputError(f"{name[:200]!r}: a scenario stored in a roadmap names its map only inside the roadmap's "
-                         "folder (a relative path without '..')")
-    places = [folder, Path.cwd()] + [Path(p) for p in os.environ.get(MAP_PATH_ENV, "").split(os.pathsep) if p]
-    shipped = _shipped_folder()
-    if shipped is not None:
-        places.append(shipped)
-    for place in places:
-        base = Path(os.path.realpath(place))
-        target = Path(os.path.realpath(base / relative))
-        if (base in target.parents) and target.is_file():
-            return base / relative
-    raise InputError(f"{name[:200]!r} is not in the roadmap's folder {folder} (a roadmap's scenario reads its map "
-                     f"only there, in the working folder, in a folder of {MAP_PATH_ENV} or among firmtool's shipped "
-                     "scenarios)")
-
-
-def _shipped_folder() -> Path | None:
-    """The folder of firmtool's shipped scenarios (their maps), or None."""
-    try:
-        return Path(str(importlib.resources.files("firmtool.scenarios")))
-    except (ModuleNotFoundError, TypeError):
-        folder = Path(__file__).resolve().parents[2] / "scenarios"
-        return folder if folder.is_dir() else None
 
 
 STORED_SUFFIX = ":scenario_toml"  # the path of the scenario text a roadmap stores ends so
