@@ -302,3 +302,18 @@ def test_the_managed_node_acts_only_while_active(lightdark, tmp_path):
     assert [e["kind"] for e in got["events"]].count("stopped") == 1 and got["controls"][-1] == [0.0, 0.0]
     assert got["node_rc"] == 130
     assert_documented(got["events"])
+
+
+@pytest.mark.slow
+@needs_ros
+@needs_namespace
+def test_timed_episodes_with_stamped_measurements(lightdark, tmp_path):
+    """The simulator timed at 10 Hz, its measurements stamped: episodes end (none stalls), each
+    control answers a measurement younger than one period."""
+    path, _ = lightdark
+    got = confined(tmp_path, "episodes", roadmap=str(path), episodes=3, seed=SEED,
+                   sim_options=["--timed", "--rate", "10", "--stamped"])
+    summary = got["summary"]
+    assert got["sim_rc"] == 0 and summary["episodes"] == 3
+    assert all(r["outcome"] != "stalled" for r in summary["outcomes"]), summary["outcomes"]
+    assert summary["latency_ms"]["count"] > 0

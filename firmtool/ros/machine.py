@@ -73,7 +73,7 @@ NODE_EVENTS: dict[str, tuple[str, ...]] = {
     "world_update_refused": ("field", "detail"),
     "world_update_warning": ("field", "detail"),
     "stopped": ("step", "detail"),
-    "done": ("status", "step", "policy_step", "node", "cost", "goal", "latency_ms"),
+    "done": ("status", "step", "policy_step", "node", "cost", "goal", "latency_ms", "stamp"),
 }
 POLICY_EVENTS: tuple[str, ...] = tuple(k.value for k in EventKind)
 POLICY_EVENT_FIELDS = ("step", "node", "value", "detail")
@@ -397,7 +397,8 @@ class PolicyMachine:
         goal = None if self.goal is None else [float(x) for x in self.goal]
         # step: control periods since the reset (a new goal's policy counts its own from where it took over)
         self._say({"kind": "done", "status": v.status, "step": self._offset + v.steps, "policy_step": v.steps,
-                   "node": v.node, "cost": v.cost, "goal": goal, "latency_ms": percentiles_ms(self._latencies)})
+                   "node": v.node, "cost": v.cost, "goal": goal, "latency_ms": percentiles_ms(self._latencies),
+                   "stamp": self._last_stamp})  # the measurement the end was decided on (a simulator's key)
         self.out.belief(v.problem, v.mean, v.covariance)
         self._save()
 
