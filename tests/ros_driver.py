@@ -2,7 +2,8 @@
 firmtool.ros.confine): it starts the node processes, plays a probe (a third ROS node in this process)
 and prints one JSON line of what it saw. It refuses to run outside such a namespace.
 
-    python tests/ros_driver.py PROBE ARGS_JSON      # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle
+    python tests/ros_driver.py PROBE ARGS_JSON
+    # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle
 """
 
 from __future__ import annotations
@@ -302,7 +303,8 @@ def flood(args: dict) -> dict:
             rclpy.spin_once(probe.node, timeout_sec=0)
             time.sleep(max(0.0, t0 + (i + 1) / 1000 - time.monotonic()))
     sent_in = time.monotonic() - t0
-    probe.spin_until(lambda: probe.kinds().count("goal_refused") + probe.kinds().count("goal_received") >= 1000, 30)
+    probe.spin_until(lambda: probe.kinds().count("goal_refused") + probe.kinds().count("goal_received") >= 1000, 60)
+    read_in = time.monotonic() - t0  # the node read the flood within this (its rate limit's time span)
     probe.spin_until(lambda: False, 2.0)
     rss1 = rss_kib(node.pid)
     obstacles = args["obstacles"]
@@ -318,6 +320,7 @@ def flood(args: dict) -> dict:
     probe.spin_until(lambda: False, 0.5)
     rss2 = rss_kib(node.pid)
     return {"events": probe.events, "rss_kib": [rss0, rss1, rss2], "goals_sent_in_s": sent_in,
+            "goals_read_in_s": read_in,
             "alive_after_hostile": alive_after_hostile, "answer_after_300_updates_s": answer_s,
             "answered": len(probe.controls) > before, "node_rc": stop(node)}
 

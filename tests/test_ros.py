@@ -277,14 +277,16 @@ def test_floods_and_hostile_messages_never_stop_the_node(lightdark, tmp_path):
     goals = [e for e in got["events"] if e["kind"] in ("goal_received", "goal_refused")]
     received = [e for e in goals if e["kind"] == "goal_received"]
     assert len(goals) == 1000 + sum(e["kind"] == "goal_refused" and "superseded" in e["detail"] for e in goals)
-    assert len(received) <= 10  # goal_rate 2 per second, over the seconds the node took to read the flood
+    assert len(received) <= 2 * got["goals_read_in_s"] + 1  # goal_rate 2 per second, over the time it took to read
     rss0, rss1, rss2 = got["rss_kib"]
     assert rss1 - rss0 < 20_000 and rss2 - rss0 < 40_000, got["rss_kib"]  # KiB: flat, not per message
     applied = [e for e in got["events"] if e["kind"] == "world_update_applied"]
     # one world solved before the control: the latest (DDS keeps the last 10 of a flood, the node's one slot
     # the last of those)
     assert got["answered"] and len(applied) == 1 and applied[0]["superseded"] >= 1, applied
-    print(f"control {got['answer_after_300_updates_s']:.3f} s after 300 updates; memory {got['rss_kib']} KiB")
+    print(f"control {got['answer_after_300_updates_s']:.3f} s after 300 updates; memory {got['rss_kib']} KiB; "
+          f"1000 goals sent in {got['goals_sent_in_s']:.2f} s, read in {got['goals_read_in_s']:.2f} s, "
+          f"{len(received)} taken")
 
 
 @needs_ros
