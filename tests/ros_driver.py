@@ -3,7 +3,7 @@ firmtool.ros.confine): it starts the node processes, plays a probe (a third ROS 
 and prints one JSON line of what it saw. It refuses to run outside such a namespace.
 
     python tests/ros_driver.py PROBE ARGS_JSON
-    # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle
+    # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle | up
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path as FilePath
 
 from firmtool.ros.confine import inside_private_namespace
 
@@ -371,6 +372,41 @@ def lifecycle(args: dict) -> dict:
             "controls_active": controls_active, "node_rc": stop(node)}
 
 
+def children(pid: int) -> list[int]:
+    """A process's child processes (Linux /proc)."""
+    out = []
+    for task in FilePath(f"/proc/{pid}/task").iterdir():
+        out += [int(c) for c in (task / "children").read_text().split()]
+    return out
+
+
+def up(args: dict) -> dict:
+    """``firmtool ros-up R --sim``: both nodes, one episode, then both gone; ``firmtool ros-up R``: the
+    node, then SIGTERM to ros-up stops it too."""
+    with_sim = subprocess.Popen([sys.executable, "-m", "firmtool", "ros-up", args["roadmap"], "--sim"],
+                                stdout=subprocess.PIPE, stderr=open(args["log"] + ".sim", "w"), text=True)
+    t0 = time.monotonic()
+    kids: set[int] = set()
+    while with_sim.poll() is None and time.monotonic() - t0 < 240:
+        kids |= set(children(with_sim.pid))
+        time.sleep(0.2)
+    sim_rc = with_sim.wait(timeout=30)
+    left_sim = [k for k in kids if FilePath(f"/proc/{k}").exists()]
+    probe = Probe()
+    alone = subprocess.Popen([sys.executable, "-m", "firmtool", "ros-up", args["roadmap"]],
+                             stderr=open(args["log"] + ".alone", "w"), text=True)
+    probe.spin_until(lambda: any(s.get("ready") for s in probe.states), 120)
+    ready = any(s.get("ready") for s in probe.states)
+    node_kids = children(alone.pid)
+    alone.send_signal(signal.SIGTERM)
+    alone_rc = alone.wait(timeout=60)
+    time.sleep(0.5)
+    left_alone = [k for k in node_kids if FilePath(f"/proc/{k}").exists()]
+    return {"sim_rc": sim_rc, "children_with_sim": len(kids), "left_sim": left_sim, "ready": ready,
+            "alone_rc": alone_rc, "children_alone": len(node_kids), "left_alone": left_alone,
+            "out": with_sim.stdout.read()}
+
+
 def main() -> int:
     if not inside_private_namespace():
         print("ros_driver: refusing to start ROS nodes outside a private network namespace "
@@ -378,7 +414,7 @@ def main() -> int:
         return 3
     probe, args = sys.argv[1], json.loads(sys.argv[2])
     result = {"episodes": episodes, "goal": goal, "malformed": malformed, "orders": orders, "restart": restart,
-              "flood": flood, "lifecycle": lifecycle}[probe](args)
+              "flood": flood, "lifecycle": lifecycle, "up": up}[probe](args)
     print(json.dumps(result))
     return 0
 

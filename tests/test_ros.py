@@ -319,3 +319,13 @@ def test_timed_episodes_with_stamped_measurements(lightdark, tmp_path):
     assert got["sim_rc"] == 0 and summary["episodes"] == 3
     assert all(r["outcome"] != "stalled" for r in summary["outcomes"]), summary["outcomes"]
     assert summary["latency_ms"]["count"] > 0
+
+
+@needs_ros
+@needs_namespace
+def test_ros_up_starts_the_nodes_together_and_stops_them_together(lightdark, tmp_path):
+    path, _ = lightdark
+    got = confined(tmp_path, "up", roadmap=str(path))
+    assert got["sim_rc"] == 0 and got["children_with_sim"] == 2 and not got["left_sim"], got
+    assert "episode 0:" in got["out"]
+    assert got["ready"] and got["alone_rc"] == 143 and got["children_alone"] == 1 and not got["left_alone"], got
