@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from firmtool.ros.machine import NODE_EVENTS, POLICY_EVENT_FIELDS, POLICY_EVENTS, SIM_TOPICS, STATE_FIELDS, STATES, \
+from firmtool.ros.contract import NODE_EVENTS, POLICY_EVENT_FIELDS, POLICY_EVENTS, SIM_TOPICS, STATE_FIELDS, STATES, \
     TOPICS, parameter_defaults
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "tutorials" / "ros.md"
