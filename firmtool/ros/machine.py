@@ -542,7 +542,7 @@ class PolicyMachine:
         if old.mean is not None:
             self._offset += old.steps
         self.policy, self.solution, self.goal = policy, sol, goal
-        self._resume_events = None
+        self._resume_events, self.restored = None, False
         self._say({"kind": "goal_accepted", "goal": goal.tolist(), "detail": repr(sol)})
         self._events(events)
         self._plan_from = None
