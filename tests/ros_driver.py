@@ -75,8 +75,8 @@ class Probe:
         self.beliefs = 0
         n = self.node
         n.create_subscription(String, "/firmtool/events", lambda m: self.events.append(json.loads(m.data)), RELIABLE)
-        n.create_subscription(Float64MultiArray, "/firmtool/control", lambda m: self.controls.append(list(m.data)),
-                              RELIABLE)
+        self.control_sub = n.create_subscription(Float64MultiArray, "/firmtool/control",
+                                                 lambda m: self.controls.append(list(m.data)), RELIABLE)
         n.create_subscription(Path, "/firmtool/plan", self._plan, QoSProfile(
             depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL))
         n.create_subscription(PoseWithCovarianceStamped, "/firmtool/belief", self._belief, qos_profile_sensor_data)
@@ -257,14 +257,18 @@ def restart(args: dict) -> dict:
         node_args = ["ros", args["roadmap"], "--ros-args", "-p", "autostart:=false", "-p", f"state_file:={state}"]
         log = f"{args['log']}.{k}"
         node = start(*node_args, log=log + ".node")
+        # the probe hears the node's controls before the simulator starts (a lock-step episode can be over
+        # in a second: a probe that matched later saw none, and killed a node whose episode had ended)
+        probe.spin_until(lambda: probe.control_sub.get_publisher_count() > 0, 120)
+        probe.spin_until(lambda: False, 0.5)
         sim = start("ros-sim", args["roadmap"], "--seed", str(args["seed"] + k), "--control-timeout", "120",
                     "--json", log=log + ".sim")  # lock-step: the simulator waits for the control
         at = rng.randint(3, 30)
-        probe.spin_until(lambda: probe.beliefs >= at, 120)
+        probe.spin_until(lambda: len(probe.controls) >= at or sim.poll() is not None, 120)
         how = signal.SIGKILL if k % 2 == 0 else signal.SIGTERM
         node.send_signal(how)
         node.wait(timeout=20)
-        killed_after = probe.beliefs
+        killed_after = len(probe.controls)
         node = start(*node_args, log=log + ".node")
         sim_out, _ = sim.communicate(timeout=args.get("timeout", 180))
         probe.spin_until(lambda: False, 0.3)
