@@ -237,15 +237,19 @@ def test_any_start_order_plays_twenty_episodes(lightdark, tmp_path):
 def run_restarts(lightdark, tmp_path, runs):
     path, _ = lightdark
     got = confined(tmp_path, "restart", timeout=1200, roadmap=str(path), runs=runs, seed=SEED)
-    finished = 0
+    finished, mid = 0, 0
     for run in got["runs"]:
         outcome = run["summary"]["outcomes"][0]
         assert run["sim_rc"] == 0 and outcome["outcome"] != "stalled", run
         assert run["summary"]["episodes"] == 1
         finished += outcome["outcome"] in ("success", "goal_miss", "collision", "timeout", "stuck")
         if run["killed_after"] < outcome["steps"]:  # killed mid-episode: the new node took it on
-            assert run["resumed"] == 1, run
-    assert finished == runs
+            mid += 1
+            assert run["resumed"] == 1 and run["summary"]["outcomes"][0]["steps"] > run["killed_after"], run
+    seen = [(r["killed_after"], r["summary"]["outcomes"][0]["outcome"], r["summary"]["outcomes"][0]["steps"])
+            for r in got["runs"]]
+    print(f"{finished} of {runs} finished, {mid} killed mid-episode (killed after, outcome, steps): {seen}")
+    assert finished == runs and mid >= max(1, runs - 2)  # an episode may end (a collision) before the kill
 
 
 @needs_ros
