@@ -245,7 +245,9 @@ def run_restarts(lightdark, tmp_path, runs):
         finished += outcome["outcome"] in ("success", "goal_miss", "collision", "timeout", "stuck")
         if run["killed_after"] < outcome["steps"]:  # killed mid-episode: the new node took it on
             mid += 1
-            assert run["resumed"] == 1 and run["summary"]["outcomes"][0]["steps"] > run["killed_after"], run
+            # the simulator saw one restarted node (its ~/state's boot) and the episode went on past the kill
+            # (the probe's own `resumed` event may be missed: its match with the new node can come later)
+            assert outcome["restarts"] == 1 and outcome["steps"] > run["killed_after"], run
     seen = [(r["killed_after"], r["summary"]["outcomes"][0]["outcome"], r["summary"]["outcomes"][0]["steps"])
             for r in got["runs"]]
     print(f"{finished} of {runs} finished, {mid} killed mid-episode (killed after, outcome, steps): {seen}")

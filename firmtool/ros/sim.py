@@ -193,7 +193,8 @@ class SimNode(ros.Node):
                 "latency_ms": percentiles_ms(getattr(self, "_latencies", [])),
                 "control_interval_ms": percentiles_ms(intervals), "jitter_ms": percentiles_ms(jitter),
                 "held": int(sum(r["held"] for r in self.outcomes)),
-                "outcomes": [{k: r[k] for k in ("episode", "outcome", "steps", "cost")} for r in self.outcomes]}
+                "outcomes": [{k: r[k] for k in ("episode", "outcome", "steps", "cost", "restarts")}
+                             for r in self.outcomes]}
 
     def _summary(self) -> None:
         self.outcome_pub.publish(ros.string_message(checks.to_json(self.summary())))
