@@ -21,6 +21,8 @@ from firmtool.ros.confine import inside_private_namespace
 
 try:
     import rclpy
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
     from nav_msgs.msg import Path
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -333,8 +335,6 @@ def flood(args: dict) -> dict:
 def lifecycle(args: dict) -> dict:
     """The managed node (``firmtool ros --lifecycle``), the probe as its supervisor and robot: a reset
     before configure and activate, then configure, activate, a run, deactivate."""
-    from lifecycle_msgs.msg import Transition
-    from lifecycle_msgs.srv import ChangeState, GetState
     probe = Probe()
     node = start("ros", args["roadmap"], "--lifecycle", "--ros-args", "-p", "autostart:=false",
                  log=args["log"] + ".node")
