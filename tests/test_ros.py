@@ -215,7 +215,8 @@ def run_orders(lightdark, tmp_path, orders, episodes):
         assert run["sim_rc"] == 0 and run["node_rc"] == 130, run
         assert run["ready"], f"{run['order']}: the client never saw the node's state (~/state is transient local)"
         check_episodes(run["summary"], sol, episodes)
-        assert run["dones"] >= 1, run  # the client, whenever it came, saw the episodes end (those after it came)
+        if run["order"][-1] != "client":  # a client there before the episodes began saw each end
+            assert run["dones"] == episodes, run
 
 
 @needs_ros
@@ -332,6 +333,6 @@ def test_timed_episodes_with_stamped_measurements(lightdark, tmp_path):
 def test_ros_up_starts_the_nodes_together_and_stops_them_together(lightdark, tmp_path):
     path, _ = lightdark
     got = confined(tmp_path, "up", roadmap=str(path))
-    assert got["sim_rc"] == 0 and got["children_with_sim"] == 2 and not got["left_sim"], got
+    assert got["sim_rc"] == 0 and got["children_with_sim"] >= 2 and not got["left_sim"], got
     assert "episode 0:" in got["out"]
     assert got["ready"] and got["alone_rc"] == 143 and got["children_alone"] == 1 and not got["left_alone"], got
