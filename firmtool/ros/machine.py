@@ -41,7 +41,7 @@ import threading
 import time
 import uuid
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -55,6 +55,7 @@ from firmtool.ros import checks
 from firmtool.ros.checks import MessageError, quote
 from firmtool.ros.contract import (DONE, IDLE, NODE_EVENTS, POLICY_EVENT_FIELDS, POLICY_EVENTS, RUNNING, SIM_TOPICS,
                                    STATE_FIELDS, STATES, STOPPED, TOPICS, parameter_defaults)
+from firmtool.ros.queries import QueryWorker
 from firmtool.sim.episodes import episode_seeds
 
 LATENCIES_KEPT = 10_000  # the stamp-to-control latencies a run keeps (a bounded window)
@@ -189,7 +190,7 @@ class PolicyMachine:
         self._pending_world: tuple[list, Any] | None = None  # the latest update not yet applied (one slot)
         self._superseded = 0
         self._query: tuple[np.ndarray, Future] | None = None
-        self._queries = ThreadPoolExecutor(max_workers=1, thread_name_prefix="firmtool-query")
+        self._queries = QueryWorker()
         self._last_goal_at = -math.inf
         self.goals_refused = 0
         self.dropped: dict[str, int] = {}
@@ -551,7 +552,7 @@ class PolicyMachine:
             self._act()
 
     def close(self) -> None:
-        self._queries.shutdown(wait=False, cancel_futures=True)
+        self._queries.close()
 
 
 __all__ = ["DONE", "IDLE", "NODE_EVENTS", "Outputs", "POLICY_EVENTS", "POLICY_EVENT_FIELDS", "PolicyMachine",
