@@ -2,7 +2,8 @@
 firmtool.ros.confine): it starts the node processes, plays a probe (a third ROS node in this process)
 and prints one JSON line of what it saw. It refuses to run outside such a namespace.
 
-    python tests/ros_driver.py PROBE ARGS_JSON      # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle
+    python tests/ros_driver.py PROBE ARGS_JSON
+    # PROBE: episodes | goal | malformed | orders | restart | flood | lifecycle | up
 """
 
 from __future__ import annotations
@@ -14,12 +15,15 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path as FilePath
 
 from firmtool.ros.confine import inside_private_namespace
 
 try:
     import rclpy
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
     from nav_msgs.msg import Path
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import JointState
@@ -73,8 +77,8 @@ class Probe:
         self.beliefs = 0
         n = self.node
         n.create_subscription(String, "/firmtool/events", lambda m: self.events.append(json.loads(m.data)), RELIABLE)
-        n.create_subscription(Float64MultiArray, "/firmtool/control", lambda m: self.controls.append(list(m.data)),
-                              RELIABLE)
+        self.control_sub = n.create_subscription(Float64MultiArray, "/firmtool/control",
+                                                 lambda m: self.controls.append(list(m.data)), RELIABLE)
         n.create_subscription(Path, "/firmtool/plan", self._plan, QoSProfile(
             depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL))
         n.create_subscription(PoseWithCovarianceStamped, "/firmtool/belief", self._belief, qos_profile_sensor_data)
@@ -138,20 +142,45 @@ def episodes(args: dict) -> dict:
 
 
 def goal(args: dict) -> dict:
-    """Both nodes in timed mode; a goal on goal_pose once the run is under way."""
+    """The node alone, the probe as a noise-free robot that measures where the node believes it is
+    (each measurement the position of the belief published with the last control): so the run never
+    ends on a collision before the goal's answer is taken (the race that once failed this test: on a
+    roadmap of success probability 0.38 the simulated robot collided before a query answered on a
+    loaded machine, and the answer, taken from a belief at the wall, was refused as stuck). The goal
+    goes out after ``after_steps`` controls; the run goes on until the node says done."""
     probe = Probe()
-    node = start("ros", args["roadmap"], "--rate", "20", "--ros-args", "-p", "autostart:=false",
-                 log=args["log"] + ".node")
-    sim = start("ros-sim", args["roadmap"], "--timed", "--rate", "20", "--seed", str(args["seed"]), "--json",
-                log=args["log"] + ".sim")
-    probe.spin_until(lambda: probe.beliefs >= args["after_steps"], 60)
-    sent_at = probe.beliefs
-    probe.send_goal(*args["goal"])
-    out, _ = sim.communicate(timeout=120)
-    probe.spin_until(lambda: False, 0.3)  # the last events
-    rc = stop(node)
-    return {"summary": json.loads(out.strip().splitlines()[-1]), "events": probe.events, "plans": probe.plans,
-            "sent_at": sent_at, "node_rc": rc}
+    # replanning off: its innovation tests would question a robot whose measurements carry no noise
+    node = start("ros", args["roadmap"], "--timeout", "30", "--ros-args", "-p", "autostart:=false", "-p",
+                 "replan.enabled:=false", log=args["log"] + ".node")
+    probe.spin_until(probe.matched, 60)
+    probe.spin_until(lambda: False, 0.3)
+    positions: list[list[float]] = []
+    probe.node.create_subscription(PoseWithCovarianceStamped, "/firmtool/belief",
+                                   lambda m: positions.append([m.pose.pose.position.x, m.pose.pose.position.y]),
+                                   qos_profile_sensor_data)
+    probe.spin_until(lambda: False, 0.3)
+    probe.reset.publish(String(data="{}"))
+    sent_at = None
+
+    def answered() -> bool:  # the goal taken or refused (a run done before it comes goes on toward it)
+        return sent_at is not None and ("goal_accepted" in probe.kinds() or "goal_refused" in probe.kinds())
+
+    handled = 0  # done events seen
+    for k in range(args.get("max_steps", 600)):
+        if not probe.spin_until(lambda: len(probe.controls) > k or probe.kinds().count("done") > handled, 30):
+            break
+        if len(probe.controls) <= k:  # the run is done: over, unless the goal's answer is still to come
+            handled = probe.kinds().count("done")
+            if sent_at is None or answered() or not probe.spin_until(lambda: len(probe.controls) > k, 120):
+                break
+        probe.spin_until(lambda: len(positions) > k, 2)
+        if k == args["after_steps"]:
+            probe.send_goal(*args["goal"])
+            sent_at = k
+        probe.send_measurement(positions[-1] if positions else args["start"])
+    probe.spin_until(lambda: False, 0.3)
+    return {"events": probe.events, "plans": probe.plans, "sent_at": sent_at, "steps": len(probe.controls),
+            "node_rc": stop(node)}
 
 
 def malformed(args: dict) -> dict:
@@ -230,14 +259,18 @@ def restart(args: dict) -> dict:
         node_args = ["ros", args["roadmap"], "--ros-args", "-p", "autostart:=false", "-p", f"state_file:={state}"]
         log = f"{args['log']}.{k}"
         node = start(*node_args, log=log + ".node")
+        # the probe hears the node's controls before the simulator starts (a lock-step episode can be over
+        # in a second: a probe that matched later saw none, and killed a node whose episode had ended)
+        probe.spin_until(lambda: probe.control_sub.get_publisher_count() > 0, 120)
+        probe.spin_until(lambda: False, 0.5)
         sim = start("ros-sim", args["roadmap"], "--seed", str(args["seed"] + k), "--control-timeout", "120",
                     "--json", log=log + ".sim")  # lock-step: the simulator waits for the control
-        at = rng.randint(3, 30)
-        probe.spin_until(lambda: probe.beliefs >= at, 120)
+        at = rng.randint(3, 15)  # most episodes of this roadmap last 25-120 steps
+        probe.spin_until(lambda: len(probe.controls) >= at or sim.poll() is not None, 120)
         how = signal.SIGKILL if k % 2 == 0 else signal.SIGTERM
         node.send_signal(how)
         node.wait(timeout=20)
-        killed_after = probe.beliefs
+        killed_after = len(probe.controls)
         node = start(*node_args, log=log + ".node")
         sim_out, _ = sim.communicate(timeout=args.get("timeout", 180))
         probe.spin_until(lambda: False, 0.3)
@@ -277,7 +310,8 @@ def flood(args: dict) -> dict:
             rclpy.spin_once(probe.node, timeout_sec=0)
             time.sleep(max(0.0, t0 + (i + 1) / 1000 - time.monotonic()))
     sent_in = time.monotonic() - t0
-    probe.spin_until(lambda: probe.kinds().count("goal_refused") + probe.kinds().count("goal_received") >= 1000, 30)
+    probe.spin_until(lambda: probe.kinds().count("goal_refused") + probe.kinds().count("goal_received") >= 1000, 60)
+    read_in = time.monotonic() - t0  # the node read the flood within this (its rate limit's time span)
     probe.spin_until(lambda: False, 2.0)
     rss1 = rss_kib(node.pid)
     obstacles = args["obstacles"]
@@ -293,6 +327,7 @@ def flood(args: dict) -> dict:
     probe.spin_until(lambda: False, 0.5)
     rss2 = rss_kib(node.pid)
     return {"events": probe.events, "rss_kib": [rss0, rss1, rss2], "goals_sent_in_s": sent_in,
+            "goals_read_in_s": read_in,
             "alive_after_hostile": alive_after_hostile, "answer_after_300_updates_s": answer_s,
             "answered": len(probe.controls) > before, "node_rc": stop(node)}
 
@@ -300,8 +335,6 @@ def flood(args: dict) -> dict:
 def lifecycle(args: dict) -> dict:
     """The managed node (``firmtool ros --lifecycle``), the probe as its supervisor and robot: a reset
     before configure and activate, then configure, activate, a run, deactivate."""
-    from lifecycle_msgs.msg import Transition
-    from lifecycle_msgs.srv import ChangeState, GetState
     probe = Probe()
     node = start("ros", args["roadmap"], "--lifecycle", "--ros-args", "-p", "autostart:=false",
                  log=args["log"] + ".node")
@@ -343,6 +376,41 @@ def lifecycle(args: dict) -> dict:
             "controls_active": controls_active, "node_rc": stop(node)}
 
 
+def children(pid: int) -> list[int]:
+    """A process's child processes (Linux /proc)."""
+    out = []
+    for task in FilePath(f"/proc/{pid}/task").iterdir():
+        out += [int(c) for c in (task / "children").read_text().split()]
+    return out
+
+
+def up(args: dict) -> dict:
+    """``firmtool ros-up R --sim``: both nodes, one episode, then both gone; ``firmtool ros-up R``: the
+    node, then SIGTERM to ros-up stops it too."""
+    with_sim = subprocess.Popen([sys.executable, "-m", "firmtool", "ros-up", args["roadmap"], "--sim"],
+                                stdout=subprocess.PIPE, stderr=open(args["log"] + ".sim", "w"), text=True)
+    t0 = time.monotonic()
+    kids: set[int] = set()
+    while with_sim.poll() is None and time.monotonic() - t0 < 240:
+        kids |= set(children(with_sim.pid))
+        time.sleep(0.2)
+    sim_rc = with_sim.wait(timeout=30)
+    left_sim = [k for k in kids if FilePath(f"/proc/{k}").exists()]
+    probe = Probe()
+    alone = subprocess.Popen([sys.executable, "-m", "firmtool", "ros-up", args["roadmap"]],
+                             stderr=open(args["log"] + ".alone", "w"), text=True)
+    probe.spin_until(lambda: any(s.get("ready") for s in probe.states), 120)
+    ready = any(s.get("ready") for s in probe.states)
+    node_kids = children(alone.pid)
+    alone.send_signal(signal.SIGTERM)
+    alone_rc = alone.wait(timeout=60)
+    time.sleep(0.5)
+    left_alone = [k for k in node_kids if FilePath(f"/proc/{k}").exists()]
+    return {"sim_rc": sim_rc, "children_with_sim": len(kids), "left_sim": left_sim, "ready": ready,
+            "alone_rc": alone_rc, "children_alone": len(node_kids), "left_alone": left_alone,
+            "out": with_sim.stdout.read()}
+
+
 def main() -> int:
     if not inside_private_namespace():
         print("ros_driver: refusing to start ROS nodes outside a private network namespace "
@@ -350,7 +418,7 @@ def main() -> int:
         return 3
     probe, args = sys.argv[1], json.loads(sys.argv[2])
     result = {"episodes": episodes, "goal": goal, "malformed": malformed, "orders": orders, "restart": restart,
-              "flood": flood, "lifecycle": lifecycle}[probe](args)
+              "flood": flood, "lifecycle": lifecycle, "up": up}[probe](args)
     print(json.dumps(result))
     return 0
 

@@ -10,8 +10,16 @@ from pathlib import Path
 
 import pytest
 
-from firmtool.ros.machine import NODE_EVENTS, POLICY_EVENT_FIELDS, POLICY_EVENTS, SIM_TOPICS, STATE_FIELDS, STATES, \
-    TOPICS, parameter_defaults
+from firmtool.ros.contract import (
+    NODE_EVENTS,
+    POLICY_EVENT_FIELDS,
+    POLICY_EVENTS,
+    SIM_TOPICS,
+    STATE_FIELDS,
+    STATES,
+    TOPICS,
+    parameter_defaults,
+)
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "tutorials" / "ros.md"
 

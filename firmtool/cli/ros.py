@@ -26,7 +26,7 @@ def ros(ctx: typer.Context,
                                                 help="Seconds without a measurement after a control before the "
                                                      "robot is stopped (zero control, 'stopped' event; default "
                                                      "10 control periods)."),
-        lifecycle: bool = typer.Option(False, "--lifecycle",
+        lifecycle: bool = typer.Option(False, "--lifecycle", metavar="",
                                        help="A ROS managed node (rclpy.lifecycle): configure, activate (acts), "
                                             "deactivate (stops the robot), through ~/change_state.")) -> None:
     """Run the policy as the ROS 2 node 'firmtool' (needs the 'ros' extra): one observe per
@@ -58,7 +58,7 @@ def ros_sim(ctx: typer.Context,
             control_timeout: float = typer.Option(10.0, "--control-timeout", min=0.1,
                                                   help="Seconds without a control before an episode ends as "
                                                        "'stalled' (a restarted node must be back within it)."),
-            stamped: bool = typer.Option(False, "--stamped", help="Measurements on ~/measurement_stamped "
+            stamped: bool = typer.Option(False, "--stamped", metavar="", help="Measurements on ~/measurement_stamped "
                                                                   "(sensor_msgs/JointState, stamped when sent)."),
             as_json: bool = JsonOpt) -> None:
     """Run firmtool's simulated robot as the ROS 2 node 'firmtool_sim' (needs the 'ros' extra):
@@ -84,7 +84,7 @@ def ros_sim(ctx: typer.Context,
 @handles_errors
 def ros_up(ctx: typer.Context,
            roadmap: Path = typer.Argument(..., help="A solved roadmap file (firmtool build + solve)."),
-           sim: bool = typer.Option(False, "--sim", help="Also start the simulated robot (firmtool ros-sim)."),
+           sim: bool = typer.Option(False, "--sim", metavar="", help="Also start the simulated robot (firmtool ros-sim)."),
            episodes: int = typer.Option(1, "--episodes", "-n", min=1, help="Episodes the simulated robot plays."),
            seed: int = typer.Option(0, "--seed", min=0, help="Seed of the episodes (as in 'firmtool execute')."),
            state_file: Optional[Path] = typer.Option(None, "--state-file",

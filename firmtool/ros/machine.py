@@ -41,7 +41,7 @@ import threading
 import time
 import uuid
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -51,64 +51,27 @@ import numpy as np
 from firmtool.errors import FirmtoolError
 from firmtool.online.policy import Policy, PolicyStatus
 from firmtool.online.replanning import ReplanSettings
-from firmtool.results import EventKind
 from firmtool.ros import checks
 from firmtool.ros.checks import MessageError, quote
+from firmtool.ros.contract import (
+    DONE,
+    IDLE,
+    NODE_EVENTS,
+    POLICY_EVENT_FIELDS,
+    POLICY_EVENTS,
+    RUNNING,
+    SIM_TOPICS,
+    STATE_FIELDS,
+    STATES,
+    STOPPED,
+    TOPICS,
+    parameter_defaults,
+)
+from firmtool.ros.queries import QueryWorker
 from firmtool.sim.episodes import episode_seeds
 
-IDLE, RUNNING, STOPPED, DONE = "idle", "running", "stopped", "done"
-STATES = (IDLE, RUNNING, STOPPED, DONE)
-
-#: the node's own event kinds and their fields (besides ``kind`` and ``episode``, which every event
-#: has); the policy's events (:data:`POLICY_EVENTS`) carry ``step``, ``node``, ``value``, ``detail``
-NODE_EVENTS: dict[str, tuple[str, ...]] = {
-    "ready": ("detail",),
-    "reset": ("detail",),
-    "resumed": ("step", "detail"),
-    "dropped": ("field", "detail"),
-    "goal_received": ("goal", "detail"),
-    "goal_accepted": ("goal", "detail"),
-    "goal_refused": ("field", "detail", "goal"),
-    "world_update_applied": ("obstacles", "superseded", "state", "detail"),
-    "world_update_refused": ("field", "detail"),
-    "world_update_warning": ("field", "detail"),
-    "stopped": ("step", "detail"),
-    "done": ("status", "step", "policy_step", "node", "cost", "goal", "latency_ms"),
-}
-POLICY_EVENTS: tuple[str, ...] = tuple(k.value for k in EventKind)
-POLICY_EVENT_FIELDS = ("step", "node", "value", "detail")
-#: the fields of the node's state (``~/state``, transient local: a late joiner gets the latest)
-STATE_FIELDS = ("state", "episode", "step", "goal", "ready", "restored", "goals_refused", "dropped", "boot")
-STATE_FILE_VERSION = 1
 LATENCIES_KEPT = 10_000  # the stamp-to-control latencies a run keeps (a bounded window)
-
-
-#: every topic the node publishes or subscribes (relative to its name), with its type; and the
-#: simulator's: the contract the tutorial's table states (tests/test_ros_contract.py checks it)
-TOPICS: dict[str, str] = {
-    "~/measurement": "std_msgs/Float64MultiArray",
-    "~/measurement_pose": "geometry_msgs/PoseWithCovarianceStamped",
-    "~/measurement_stamped": "sensor_msgs/JointState",
-    "~/control": "std_msgs/Float64MultiArray",
-    "cmd_vel": "geometry_msgs/Twist",
-    "~/belief": "geometry_msgs/PoseWithCovarianceStamped",
-    "~/plan": "nav_msgs/Path",
-    "~/events": "std_msgs/String",
-    "~/state": "std_msgs/String",
-    "goal_pose": "geometry_msgs/PoseStamped",
-    "~/world_update": "std_msgs/String",
-    "~/reset": "std_msgs/String",
-}
-SIM_TOPICS: dict[str, str] = {"~/outcome": "std_msgs/String"}
-
-
-def parameter_defaults(dt: float, rate: float | None = None, timeout: float | None = None) -> dict[str, Any]:
-    """The node's ROS parameters and their defaults (``rate``, ``timeout``: the command's options)."""
-    rate = float(rate) if rate else 1.0 / dt
-    return {"rate": rate, "timeout": float(timeout) if timeout else 10.0 * dt, "autostart": True,
-            "frame_id": "map", "goal_rate": 2.0, "measurement.max_age": 1.0 / rate, "state_file": "",
-            "replan.enabled": True, "replan.threshold": float(ReplanSettings().threshold),
-            "replan.deadline": 0.0, "replan.clock": "work"}
+STATE_FILE_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -240,7 +203,7 @@ class PolicyMachine:
         self._pending_world: tuple[list, Any] | None = None  # the latest update not yet applied (one slot)
         self._superseded = 0
         self._query: tuple[np.ndarray, Future] | None = None
-        self._queries = ThreadPoolExecutor(max_workers=1, thread_name_prefix="firmtool-query")
+        self._queries = QueryWorker()
         self._last_goal_at = -math.inf
         self.goals_refused = 0
         self.dropped: dict[str, int] = {}
@@ -398,7 +361,8 @@ class PolicyMachine:
         goal = None if self.goal is None else [float(x) for x in self.goal]
         # step: control periods since the reset (a new goal's policy counts its own from where it took over)
         self._say({"kind": "done", "status": v.status, "step": self._offset + v.steps, "policy_step": v.steps,
-                   "node": v.node, "cost": v.cost, "goal": goal, "latency_ms": percentiles_ms(self._latencies)})
+                   "node": v.node, "cost": v.cost, "goal": goal, "latency_ms": percentiles_ms(self._latencies),
+                   "stamp": self._last_stamp})  # the measurement the end was decided on (a simulator's key)
         self.out.belief(v.problem, v.mean, v.covariance)
         self._save()
 
@@ -542,7 +506,7 @@ class PolicyMachine:
         if self.base is None:
             raise MessageError("goal_pose", "this node runs a stored query of a roadmap opened without its "
                                             "edges: only its own goal")
-        now = time.monotonic()
+        now = self.out.now()  # the node's clock (a test's, or /clock with use_sim_time)
         if self.goal_rate > 0 and now - self._last_goal_at < 1.0 / self.goal_rate:
             raise MessageError("goal_pose", f"rate-limited: at most {self.goal_rate:g} goals per second "
                                             "(parameter goal_rate); this one is dropped, send it again later")
@@ -588,7 +552,7 @@ class PolicyMachine:
         if old.mean is not None:
             self._offset += old.steps
         self.policy, self.solution, self.goal = policy, sol, goal
-        self._resume_events = None
+        self._resume_events, self.restored = None, False
         self._say({"kind": "goal_accepted", "goal": goal.tolist(), "detail": repr(sol)})
         self._events(events)
         self._plan_from = None
@@ -597,7 +561,7 @@ class PolicyMachine:
             self._act()
 
     def close(self) -> None:
-        self._queries.shutdown(wait=False, cancel_futures=True)
+        self._queries.close()
 
 
 __all__ = ["DONE", "IDLE", "NODE_EVENTS", "Outputs", "POLICY_EVENTS", "POLICY_EVENT_FIELDS", "PolicyMachine",

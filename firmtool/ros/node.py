@@ -32,7 +32,7 @@ from firmtool.online.replanning import ReplanSettings
 from firmtool.ros import checks
 from firmtool.ros import interfaces as ros
 from firmtool.ros.checks import MessageError, quote
-from firmtool.ros.machine import PolicyMachine, PolicyView, parameter_defaults
+from firmtool.ros.machine import PolicyMachine, parameter_defaults
 
 NODE_NAME = "firmtool"
 
@@ -206,11 +206,8 @@ class PolicyNode(_PolicyNodeParts, ros.Node):
 
     @property
     def policy(self):
+        """The running :class:`firmtool.Policy` (the machine's)."""
         return self.machine.policy
-
-    def view(self) -> PolicyView:
-        from firmtool.ros.machine import view
-        return view(self.machine.policy)
 
     def destroy_node(self) -> None:
         self._close()

@@ -137,6 +137,7 @@ class SimNode(ros.Node):
         self._answered = True
         self._waiting_since = time.monotonic()
         self._z = None  # the last measurement sent (sent again to a restarted node)
+        self._stamps: dict[float, int] = {}  # a stamped measurement's stamp: the index of the state it measured
         self.phase = AWAIT_CONTROL
         self._send_reset()
 
@@ -145,7 +146,9 @@ class SimNode(ros.Node):
 
     def _send_measurement(self, z: np.ndarray) -> None:
         if self.stamped:
-            self.measurement_pub.publish(ros.stamped_message(z, self.get_clock().now().to_msg()))
+            stamp = self.get_clock().now().to_msg()
+            self._stamps[ros.stamp_seconds(stamp)] = len(self.states) - 1  # which true state it measured
+            self.measurement_pub.publish(ros.stamped_message(z, stamp))
         else:
             self.measurement_pub.publish(ros.array_message(z, "z"))
 
@@ -190,7 +193,8 @@ class SimNode(ros.Node):
                 "latency_ms": percentiles_ms(getattr(self, "_latencies", [])),
                 "control_interval_ms": percentiles_ms(intervals), "jitter_ms": percentiles_ms(jitter),
                 "held": int(sum(r["held"] for r in self.outcomes)),
-                "outcomes": [{k: r[k] for k in ("episode", "outcome", "steps", "cost")} for r in self.outcomes]}
+                "outcomes": [{k: r[k] for k in ("episode", "outcome", "steps", "cost", "restarts")}
+                             for r in self.outcomes]}
 
     def _summary(self) -> None:
         self.outcome_pub.publish(ros.string_message(checks.to_json(self.summary())))
@@ -232,8 +236,12 @@ class SimNode(ros.Node):
         if event.get("episode") != self.episode:
             return
         step = int(event["step"])
-        if not self.lockstep and step < len(self.states) - 1:  # the held control moved it on after the policy ended
-            self.system.set_state(self.states[step])
+        # timed: the held control moved the robot on after the policy ended; the state judged is the one
+        # the node's last measurement measured (by its stamp: exact; unstamped, by the node's step count,
+        # which a lost measurement shifts, and that once judged a declared goal as a miss)
+        at = self._stamps.get(event.get("stamp"), step) if event.get("stamp") is not None else step
+        if not self.lockstep and at < len(self.states) - 1:
+            self.system.set_state(self.states[at])
         outcome = event["status"]
         extra: dict[str, Any] = {"node": event.get("node"), "goal": event.get("goal")}
         if outcome == "goal":
