@@ -111,3 +111,32 @@ def test_a_ros_grid_message_is_the_same_update(solution):
 def test_a_world_map_must_be_a_map():
     with pytest.raises(InputError, match="update_world: map: expected an ft.Map"):
         ft.World(map=np.zeros((3, 3)))
+
+
+def test_the_ros_node_takes_a_map_message_as_a_world_update(solution):
+    """Issue 50, 4: the node's ``~/map`` (a nav_msgs/OccupancyGrid, read by ros.grid) is a world update
+    through Policy.update_world: applied at once on an idle node, with one event, the policy the same
+    as told the map directly; a newer map before the next control supersedes an older one."""
+    from test_ros_machine import Recorder
+
+    from firmtool.online.replanning import ReplanSettings
+    from firmtool.ros.machine import PolicyMachine, view
+
+    built = solution.roadmap.scenario.world.grid
+    cells = np.where(_image((LOW,))[::-1] == 0, 100, 0).astype(np.int8)
+    grid = map_from_grid(COLS, ROWS, built.resolution, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0),
+                         cells.reshape(-1).tolist())
+    out = Recorder()
+    m = PolicyMachine(solution, solution.roadmap, out, settings=ReplanSettings(), period=0.1, timeout=1.0,
+                      goal_rate=0)
+    m.announce()
+    m.map_update(grid)
+    applied = out.of("world_update_applied")
+    assert len(applied) == 1 and not out.of("world_update_refused") and not out.of("dropped"), out.events
+    direct = ft.Policy(solution)
+    direct.update_world(ft.World(obstacles=[o.to_table() for o in solution.roadmap.scenario.world.obstacles],
+                                 map=grid))
+    assert np.array_equal(view(m.policy).edge_per_node, direct.state.edge_per_node)
+    assert _door_used(solution, view(m.policy).edge_per_node) == HIGH  # the closed low door is not used
+    m.map_update(built)  # the roadmap's own map again: its own policy
+    assert np.array_equal(view(m.policy).edge_per_node, solution.policy)

@@ -50,6 +50,7 @@ TOPICS: dict[str, str] = {
     "~/state": "std_msgs/String",
     "goal_pose": "geometry_msgs/PoseStamped",
     "~/world_update": "std_msgs/String",
+    "~/map": "nav_msgs/OccupancyGrid",
     "~/reset": "std_msgs/String",
 }
 SIM_TOPICS: dict[str, str] = {"~/outcome": "std_msgs/String"}

@@ -36,7 +36,7 @@ from firmtool.ros.checks import pose_covariance
 try:
     import rclpy
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, Twist
-    from nav_msgs.msg import Path
+    from nav_msgs.msg import OccupancyGrid, Path
     from rclpy.duration import Duration
     from rclpy.executors import ExternalShutdownException
     from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
@@ -136,7 +136,7 @@ def pose_position(msg, dim: int) -> list[float]:
 
 
 __all__ = ["CONTROL_QOS", "DISPLAY_QOS", "Duration", "EVENTS_QOS", "ExternalShutdownException", "Float64MultiArray",
-           "GOAL_QOS", "JointState", "LATCHED_QOS", "LATEST_QOS", "LifecycleNode", "Node", "Path", "PoseStamped",
+           "GOAL_QOS", "JointState", "LATCHED_QOS", "LATEST_QOS", "LifecycleNode", "Node", "OccupancyGrid", "Path", "PoseStamped",
            "PoseWithCovarianceStamped", "REQUEST_QOS", "SENSOR_QOS", "String", "TransitionCallbackReturn", "Twist",
            "array_message", "belief_message", "path_message", "pose_position", "rclpy", "stamp_seconds",
            "stamped_message", "string_message", "twist_message"]

@@ -51,6 +51,7 @@ import numpy as np
 from firmtool.errors import FirmtoolError
 from firmtool.online.policy import Policy, PolicyStatus
 from firmtool.online.replanning import ReplanSettings
+from firmtool.online.world import World
 from firmtool.ros import checks
 from firmtool.ros.checks import MessageError, quote
 from firmtool.ros.contract import (
@@ -99,6 +100,15 @@ def view(policy: Policy) -> PolicyView:
                       mean=st.mean if live else None, covariance=st.covariance if live else None,
                       node=st.node, target=st.target, cost=st.cost if live else None,
                       edge_per_node=st.edge_per_node, problem=st.problem)
+
+
+def apply_world(policy: Policy, world: tuple[list, Any, Any]) -> list:
+    """Tell ``policy`` the node's world ``(obstacle tables, bounds, map or None)``: the whole list, and
+    the occupancy map where one came on ``~/map`` (an :class:`~firmtool.online.world.World`)."""
+    obstacles, bounds, grid = world
+    if grid is None:
+        return policy.update_world(obstacles, bounds=bounds)
+    return policy.update_world(World(obstacles=obstacles, bounds=bounds, map=grid))
 
 
 class Outputs(Protocol):
@@ -199,8 +209,8 @@ class PolicyMachine:
         self.state, self.episode, self.goal = IDLE, None, None
         self._offset = 0  # control periods of the run before the running policy took over (a goal, a resume)
         self.base_obstacles = [o.to_table() for o in self.problem.scenario.world.obstacles]
-        self.world: tuple[list, Any] | None = None  # the last world applied (tables, bounds)
-        self._pending_world: tuple[list, Any] | None = None  # the latest update not yet applied (one slot)
+        self.world: tuple[list, Any, Any] | None = None  # the last world applied (tables, bounds, map or None)
+        self._pending_world: tuple[list, Any, Any] | None = None  # the latest update not yet applied (one slot)
         self._superseded = 0
         self._query: tuple[np.ndarray, Future] | None = None
         self._queries = QueryWorker()
@@ -231,7 +241,7 @@ class PolicyMachine:
         policy = Policy(solution, replan=self.settings)
         policy.prepare()
         if self.world is not None:
-            policy.update_world(self.world[0], bounds=self.world[1])
+            apply_world(policy, self.world)
         return policy
 
     def announce(self) -> None:
@@ -463,7 +473,7 @@ class PolicyMachine:
         """A world update: composed at once (the whole list, or add/remove on the latest world), solved
         before the next control (only the latest of those that came meanwhile: one slot)."""
         request = checks.world_update(text, len(self.problem.scenario.world.lo))
-        current = self._pending_world or self.world or (self.base_obstacles, None)
+        current = self._pending_world or self.world or (self.base_obstacles, None, None)
         obstacles = checks.compose_world(current[0], request)
         bounds = request.bounds if request.bounds is not None else current[1]
         if checks.drops_every_obstacle(self.base_obstacles, obstacles):
@@ -473,22 +483,35 @@ class PolicyMachine:
                                  "to add an obstacle"})
         if self._pending_world is not None:
             self._superseded += 1
-        self._pending_world = (obstacles, bounds)
+        self._pending_world = (obstacles, bounds, current[2])
+        if self.state != RUNNING:  # no control in flight: apply it now
+            self._take_world()
+
+    @guarded("map")
+    def map_update(self, grid: Any) -> None:
+        """A new occupancy map (``~/map``, a :class:`~firmtool.geometry.occupancy.Map` read from a
+        ``nav_msgs/OccupancyGrid`` by :func:`firmtool.ros.grid.map_from_grid`): a world update that keeps
+        the obstacles and bounds of the latest world, taken as ``~/world_update`` is (one slot)."""
+        current = self._pending_world or self.world or (self.base_obstacles, None, None)
+        if self._pending_world is not None:
+            self._superseded += 1
+        self._pending_world = (current[0], current[1], grid)
         if self.state != RUNNING:  # no control in flight: apply it now
             self._take_world()
 
     def _take_world(self) -> None:
-        obstacles, bounds = self._pending_world
+        pending = self._pending_world
+        obstacles = pending[0]
         superseded, self._pending_world, self._superseded = self._superseded, None, 0
         try:
-            events = self.policy.update_world(obstacles, bounds=bounds)
+            events = apply_world(self.policy, pending)
         except Exception as exc:  # noqa: BLE001 - the scenario's rules refuse it, or worse: said, not raised
             text = quote(str(exc).split("\n")[0])
             self._drop(MessageError("world_update.data", text if isinstance(exc, FirmtoolError) else
                                     f"{type(exc).__name__}: {text}"), "world_update_refused")
             return
         with self._lock:
-            self.world = (obstacles, bounds)
+            self.world = pending
         self._say({"kind": "world_update_applied", "obstacles": len(obstacles), "superseded": superseded,
                    "state": self.state, "detail": "applied now" if self.state != RUNNING else
                    "applied before the next control"})
@@ -525,7 +548,9 @@ class PolicyMachine:
         """In the worker thread: the query's solution and its prepared policy (the expensive part), in
         ``world``, the world the main thread had when the goal came (passed, not read here)."""
         from firmtool.api.queries import goal_policy  # the query machinery loads on the first goal only
-        sol, policy = goal_policy(self.base, goal, replan=self.settings, world=world)
+        sol, policy = goal_policy(self.base, goal, replan=self.settings)
+        if world is not None:
+            apply_world(policy, world)
         return sol, policy, world
 
     def _take_goal(self) -> None:
@@ -537,7 +562,7 @@ class PolicyMachine:
         try:
             sol, policy, world = future.result()
             if self.world is not None and self.world is not world:  # updates applied while the query ran
-                policy.update_world(self.world[0], bounds=self.world[1])
+                apply_world(policy, self.world)
         except Exception as exc:  # noqa: BLE001 - a refused or failed query must not stop the node
             text = str(exc).split("\n")[0]
             refused(MessageError("goal_pose", f"the query failed: {quote(text)}"))

@@ -32,6 +32,7 @@ from firmtool.online.replanning import ReplanSettings
 from firmtool.ros import checks
 from firmtool.ros import interfaces as ros
 from firmtool.ros.checks import MessageError, quote
+from firmtool.ros.grid import map_from_grid
 from firmtool.ros.machine import PolicyMachine, parameter_defaults
 
 NODE_NAME = "firmtool"
@@ -153,6 +154,8 @@ class _PolicyNodeParts:
             ros.String, "~/world_update", self._safe("world_update.data", lambda msg: m.world_update(msg.data),
                                                      "world_update_refused"), ros.REQUEST_QOS))
         self._firm_subs.append(self.create_subscription(
+            ros.OccupancyGrid, "~/map", self._safe("map", self._on_map), ros.LATEST_QOS))
+        self._firm_subs.append(self.create_subscription(
             ros.String, "~/reset", self._safe("reset.data", lambda msg: m.reset(msg.data)), ros.REQUEST_QOS))
 
     def _safe(self, field: str, callback, kind: str = "dropped"):
@@ -167,6 +170,20 @@ class _PolicyNodeParts:
             except Exception as exc:  # noqa: BLE001 - a message must never stop the node
                 self.machine._drop(MessageError(field, f"{type(exc).__name__}: {quote(str(exc))}"), kind)
         return inner
+
+    def _on_map(self, msg) -> None:
+        """A ``nav_msgs/OccupancyGrid`` (map_server's latched map, a SLAM stack's): checked and read
+        (:func:`firmtool.ros.grid.map_from_grid`; a bad one is one ``dropped`` event naming its field),
+        then a world update with the map (:meth:`PolicyMachine.map_update`)."""
+        i = msg.info
+        o = i.origin
+        try:
+            grid = map_from_grid(i.width, i.height, i.resolution, (o.position.x, o.position.y, o.position.z),
+                                 (o.orientation.x, o.orientation.y, o.orientation.z, o.orientation.w), msg.data)
+        except MessageError as exc:
+            self.machine._drop(exc)
+            return
+        self.machine.map_update(grid)
 
     def _on_stamped(self, msg) -> None:
         self.machine.measurement(msg.position, "measurement_stamped.position", ros.stamp_seconds(msg.header.stamp))
