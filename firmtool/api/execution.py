@@ -91,14 +91,7 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     arguments.check_simulate(episodes=episodes, seed=seed, record=record, progress=progress, disturbances=disturbances)
     base = "firm" if policy == ROLLOUT else policy  # rollout FIRM: its base policy's prediction
     predicted, interval = _prediction(solution, base)
-    dists = as_disturbances(disturbances)
-    problem = solution.roadmap.problem
-    # the CLI's bounds, as a guard of the API: worst-case steps, and pushes within the configuration bounds
-    check_execution(problem, episodes, max_total_steps=max_total_steps,
-                    names=("episodes", "max_total_steps", "record"))
-    for d in dists:
-        if isinstance(d, Disturbance) and d.kind == PUSH:
-            check_push_size(problem, str(d), d.size)
+    dists = _checked_disturbances(solution.roadmap.problem, disturbances, episodes, max_total_steps)
     agent = Policy(solution, policy=policy, replan=replan)
     rm = solution.roadmap
     system = _true_system(rm, simulator)
@@ -112,6 +105,18 @@ def simulate(solution: Solution, episodes: int = 100, seed: int = 0, *, policy: 
     if solution.deadline is not None and policy == "firm":  # the episodes ran the deadline policy: say so
         results = dataclasses.replace(results, deadline_steps=solution.deadline)
     return dataclasses.replace(results, simulator=system.report()) if simulator == "mujoco" else results
+
+
+def _checked_disturbances(problem, disturbances, episodes: int, max_total_steps: float) -> list:
+    """The disturbances, after the CLI's bounds as a guard of the API: worst-case steps, and pushes
+    within the configuration bounds."""
+    dists = as_disturbances(disturbances)
+    check_execution(problem, episodes, max_total_steps=max_total_steps,
+                    names=("episodes", "max_total_steps", "record"))
+    for d in dists:
+        if isinstance(d, Disturbance) and d.kind == PUSH:
+            check_push_size(problem, str(d), d.size)
+    return dists
 
 
 SIMULATORS = ("firmtool", "mujoco")
