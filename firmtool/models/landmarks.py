@@ -195,11 +195,12 @@ def read_landmarks_csv(path: str | Path, field_name: str = "landmarks_file") -> 
 @dataclass(frozen=True, eq=False)
 class OcclusionGrid:
     """An occupancy grid for the ray march: ``occupied[iy, ix]`` (uint8, 1 occupied) is the cell
-    ``[x0 + ix res, x0 + (ix + 1) res) x [y0 + iy res, y0 + (iy + 1) res)`` (row 0 at the bottom)."""
+    ``[ix res, (ix + 1) res) x [iy res, (iy + 1) res)`` of the grid's frame (row 0 at the bottom), whose
+    origin is the world pose ``(x0, y0, yaw)`` (a ROS map's origin, :class:`firmtool.geometry.occupancy.Map`)."""
 
     occupied: np.ndarray
     resolution: float
-    origin: tuple[float, float]
+    origin: tuple[float, ...]
 
     def __post_init__(self) -> None:
         occ = np.ascontiguousarray(self.occupied, dtype=np.uint8)
@@ -207,23 +208,32 @@ class OcclusionGrid:
             raise InputError("occlusion grid: expected a 2-D array of cells and a resolution > 0")
         object.__setattr__(self, "occupied", occ)
 
+    @classmethod
+    def of_map(cls, grid) -> "OcclusionGrid":
+        """The occupied cells of a :class:`~firmtool.geometry.occupancy.Map` (unknown ones as it decided)."""
+        return cls(grid.occupied, grid.resolution, tuple(grid.origin))
+
     def group(self) -> tuple:
-        """``(occupied, res, x0, y0)``, the compiled march's arguments."""
-        return self.occupied, float(self.resolution), float(self.origin[0]), float(self.origin[1])
+        """``(occupied, res, x0, y0, cos yaw, sin yaw)``, the compiled march's arguments (yaw 0: exactly 1, 0)."""
+        yaw = float(self.origin[2]) if len(self.origin) > 2 else 0.0
+        return (self.occupied, float(self.resolution), float(self.origin[0]), float(self.origin[1]),
+                math.cos(yaw) if yaw else 1.0, math.sin(yaw) if yaw else 0.0)
 
 
-NO_GRID = (np.zeros((0, 0), dtype=np.uint8), 1.0, 0.0, 0.0)  # nothing occludes
+NO_GRID = (np.zeros((0, 0), dtype=np.uint8), 1.0, 0.0, 0.0, 1.0, 0.0)  # nothing occludes
 
 
-def occluded_py(px, py, lx, ly, occ, res, x0, y0):
+def occluded_py(px, py, lx, ly, occ, res, x0, y0, c, s):
     """Whether an occupied cell of ``occ`` lies on the segment from ``(px, py)`` to ``(lx, ly)``,
     the landmark's own cell excepted (Amanatides-Woo traversal of every cell the segment crosses;
-    cells outside the grid are free)."""
+    cells outside the grid are free). The grid's frame: origin ``(x0, y0)``, turned by the angle of
+    cosine ``c`` and sine ``s``."""
     rows, cols = occ.shape[0], occ.shape[1]
     if rows == 0:
         return False
-    fx, fy = (px - x0) / res, (py - y0) / res
-    tx, ty = (lx - x0) / res, (ly - y0) / res
+    ax, ay, bx, by = px - x0, py - y0, lx - x0, ly - y0
+    fx, fy = (ax * c + ay * s) / res, (ay * c - ax * s) / res
+    tx, ty = (bx * c + by * s) / res, (by * c - bx * s) / res
     ix, iy = int(math.floor(fx)), int(math.floor(fy))
     ex, ey = int(math.floor(tx)), int(math.floor(ty))
     dx, dy = tx - fx, ty - fy
@@ -262,7 +272,7 @@ def visibility_py(P, TH, landmarks, consts, grid, occlusion, out):
     """``out[a, i] = 1`` where particle a at ``P[a]`` (heading ``TH[a]``) sees landmark i (range,
     field of view, occlusion; the module docs)."""
     max_range, half_fov = consts[0], consts[1]
-    occ, res, x0, y0 = grid
+    occ, res, x0, y0, c, s = grid
     for a in range(P.shape[0]):
         px, py, th = P[a, 0], P[a, 1], TH[a]
         for i in range(landmarks.shape[0]):
@@ -274,7 +284,7 @@ def visibility_py(P, TH, landmarks, consts, grid, occlusion, out):
                 b = math.pi - (math.pi - b) % (2.0 * math.pi)
                 seen = abs(b) <= half_fov
             if seen and occlusion:
-                seen = not occluded_py(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0)
+                seen = not occluded_py(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0, c, s)
             out[a, i] = seen
 
 
@@ -294,7 +304,7 @@ if numba is not None:
     def _compiled_visibility(P, TH, landmarks, consts, grid, occlusion, out):
         """Compiled :func:`visibility_py` (calls the compiled :func:`occluded`)."""
         max_range, half_fov = consts[0], consts[1]
-        occ, res, x0, y0 = grid
+        occ, res, x0, y0, c, s = grid
         for a in range(P.shape[0]):
             px, py, th = P[a, 0], P[a, 1], TH[a]
             for i in range(landmarks.shape[0]):
@@ -306,7 +316,7 @@ if numba is not None:
                     b = np.pi - (np.pi - b) % (2.0 * np.pi)
                     seen = abs(b) <= half_fov
                 if seen and occlusion:
-                    seen = not occluded(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0)
+                    seen = not occluded(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0, c, s)
                 out[a, i] = seen
 
 

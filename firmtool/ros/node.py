@@ -226,7 +226,9 @@ class PolicyNode(ros.Node):
 
     def _on_measurement(self, msg) -> None:
         try:
-            z = checks.finite_vector(msg.data, self.nz, "measurement.data")
+            # landmark sensing: NaN for a landmark not seen (range and bearing pairs in landmark order)
+            z = checks.finite_vector(msg.data, self.nz, "measurement.data",
+                                     missing=hasattr(self.problem.model, "measure") and not self.problem.perfect)
         except MessageError as exc:
             self._drop(exc)
             return
