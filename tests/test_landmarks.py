@@ -116,6 +116,27 @@ def test_occlusion_is_the_brute_force_ray_test():
     assert min(seen.values()) > 200  # both answers well represented
 
 
+def test_a_turned_grid_occludes_in_its_own_frame():
+    """A map whose origin has a yaw: the march in the grid's frame is the brute-force test on the
+    points turned into it."""
+    rng = np.random.default_rng(5)
+    occ = (rng.random((12, 15)) < 0.15).astype(np.uint8)
+    res, x0, y0, yaw = 0.3, 1.0, -0.5, 0.7
+    c, s = np.cos(yaw), np.sin(yaw)
+
+    def local(p):
+        d = p - [x0, y0]
+        return np.array([d[0] * c + d[1] * s, d[1] * c - d[0] * s])
+
+    hits = 0
+    for _ in range(800):
+        p, q = rng.uniform([-2.0, -2.0], [6.0, 6.0]), rng.uniform([-2.0, -2.0], [6.0, 6.0])
+        want = _brute_occluded(local(p), local(q), occ, res, (0.0, 0.0))
+        assert occluded(p[0], p[1], q[0], q[1], occ, res, x0, y0, c, s) == want
+        hits += want
+    assert 100 < hits < 700
+
+
 def test_without_a_grid_nothing_occludes_and_the_range_and_fov_decide():
     problem = _problem(unicycle_text(fov=90.0))
     model = problem.model
