@@ -18,16 +18,17 @@ zero gain, exactly as if its rows were absent (``K = P H' S^-1`` has a zero colu
 zero row, whatever finite variance the row has).
 
 The filter is the extended one: the measurement is predicted at the estimate (``h`` of the
-prediction) and linearised (:meth:`LandmarkModel.observation_jacobian`, analytic, checked against
-finite differences in ``tests/test_landmarks.py``); as everywhere in firmtool (METHOD.md 3), an
-edge's gains are designed once along its nominal, so the Monte Carlo simulates the filter the policy
-runs.
+prediction, the innovation taken there) and linearised (:meth:`LandmarkModel.observation_jacobian`,
+analytic, checked against finite differences in ``tests/test_landmarks.py``); as everywhere in
+firmtool (METHOD.md 3), the gains are designed once per edge, linearised along its nominal (and per
+node at its centre or along its orbit), so that every particle of the Monte Carlo runs the filter the
+policy runs and the covariances are deterministic.
 
 :class:`LandmarkSensing` is the noise registry's form ``landmarks`` (it declares the keys);
 :class:`LandmarkModel` is the robot's dynamics with this sensor in place of its own (built once per
 problem, :func:`firmtool.problem.build_problem`). The ray march is compiled (numba) and used by both
-Monte Carlo engines; the compiled engine's twins of the rest are in
-:mod:`firmtool.estimation.compiled.sensors`.
+Monte Carlo engines; the compiled engine's twin of the measurement and the update is in
+:mod:`firmtool.estimation.compiled.model`.
 """
 
 from __future__ import annotations
@@ -148,7 +149,7 @@ class LandmarkSensing(NoiseModel):
         return int(self.landmarks.shape[0])
 
     def constants(self) -> np.ndarray:
-        """(5,) ``max_range, cos-free half fov (rad), range_std, range_std_growth, bearing_std``."""
+        """(5,) ``max_range``, half the field of view (rad), ``range_std``, ``range_std_growth``, ``bearing_std``."""
         return np.array([self.max_range, 0.5 * np.deg2rad(self.fov), self.range_std, self.range_std_growth,
                          self.bearing_std])
 
