@@ -115,9 +115,11 @@ if numba is not None:
                 dx, dy = lx - px, ly - py
                 rr = np.sqrt(dx * dx + dy * dy)
                 seen = rr > MIN_RANGE and rr <= max_range
-                b = wrap_pi(np.arctan2(dy, dx) - th)
-                if seen and half_fov < np.pi:
-                    seen = abs(b) <= half_fov
+                b = 0.0
+                if seen:  # the bearing only where the range lets the landmark be seen
+                    b = wrap_pi(np.arctan2(dy, dx) - th)
+                    if half_fov < np.pi:
+                        seen = abs(b) <= half_fov
                 if seen and occlusion:
                     seen = not occluded(px, py, lx, ly, occ, res, x0, y0, gc, gs)
                 if not seen:
