@@ -500,3 +500,31 @@ def test_compiled_capsule_test_is_the_numpy_one(yaw):
     got = np.array([capsule_hits(S[i, 0, 0], S[i, 0, 1], E[i, 0, 0], E[i, 0, 1], mp) for i in range(S.shape[0])])
     assert np.array_equal(got, want)
     assert 300 < want.sum() < 2700 and want[5]
+
+
+def test_a_roadmap_in_another_folder_finds_its_map_in_the_working_folder(tmp_path, monkeypatch):
+    """The default flow: ``firmtool build office.toml`` in the map's folder writes artifacts/office.h5;
+    the stored scenario then reads the map from the working folder (not beside the roadmap)."""
+    path = office(tmp_path)
+    path.write_text(path.read_text().replace('map = "office.yaml"', 'map = "office.yaml"\nunknown = "free"'))
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "artifacts" / "office.h5"
+    ft.build("office.toml", output=out, workers=1)
+    rm = ft.open_roadmap(out)
+    grid = rm.scenario.world.grid
+    assert grid.unknown.sum() == 15 and not grid.occupied[grid.unknown].any()  # unknown = "free" kept
+    monkeypatch.chdir(tmp_path / "artifacts")  # neither beside the roadmap nor in the working folder
+    with pytest.raises(ScenarioError, match=r"world\.map: 'office\.yaml' is not in the roadmap's folder"):
+        ft.open_roadmap(out).scenario
+
+
+def test_a_map_worlds_backend_travels_pickled(tmp_path):
+    """Worker processes get the problem pickled: the map's backend comes back whole and gives the same verdicts."""
+    import pickle
+
+    from firmtool.problem import build_problem
+    p = build_problem(ft.load_scenario(office(tmp_path)))
+    P = p.points(np.array([[1.0, 1.0, 0.0, 0.0], [2.0, 0.5, 0.0, 0.0]]))
+    backend = pickle.loads(pickle.dumps(p.robot.collision()))
+    assert backend.capsules_collide(P, P, 0.08).tolist() == [False, True]
+    assert tuple(backend.lo) == (0.0, 0.0)  # the inner backend's attributes

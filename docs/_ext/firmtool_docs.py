@@ -27,7 +27,7 @@ logger = logging.getLogger(__name__)
 # The public API by group (firmtool.__all__): each name in exactly one group.
 API_GROUPS = {
     "workflow": ["load_scenario", "build", "open_roadmap", "solve", "update", "simulate", "plot"],
-    "objects": ["Scenario", "Roadmap", "Solution", "Query"],
+    "objects": ["Scenario", "Roadmap", "Solution", "Query", "Map"],
     "results": ["Results", "Episode", "Event", "EventKind", "Outcome", "Calibration", "EdgeCheck"],
     "online": ["Policy", "PolicyStatus", "SimulatedSystem", "episode_seeds", "UserDisturbance"],
     "settings": ["ReplanSettings", "Disturbance", "SolveStatus"],
@@ -37,7 +37,7 @@ API_GROUPS = {
                "Unreachable", "StaleScenarioWarning"],
 }
 # Classes whose members are documented with them.
-API_MEMBERS = {"Roadmap", "Solution", "Results", "Scenario", "Episode", "Policy", "SimulatedSystem"}
+API_MEMBERS = {"Roadmap", "Solution", "Results", "Scenario", "Episode", "Policy", "SimulatedSystem", "Map"}
 # Names of __all__ documented elsewhere than by the groups (a subpackage: docs/api/plugins.md; the version).
 API_ELSEWHERE = {"robots", "__version__"}
 

@@ -301,6 +301,8 @@ class Map:
         M = S.shape[0]
         if M == 0 or S.shape[1] == 0:
             return np.zeros(M, dtype=bool)
+        if starts is ends or np.array_equal(S, E):  # discs (a robot of balls): the general path's t = 0, extra 0
+            return self.discs_hit(S, radius).any(axis=1)
         vx, vy = E[..., 0] - S[..., 0], E[..., 1] - S[..., 1]
         length = np.sqrt(vx * vx + vy * vy)
         steps = np.ceil(length * self.inverse)  # discs - 1 along each segment (NaN: the disc at S refuses it)
@@ -409,4 +411,6 @@ class MapCollisionBackend:
         return hit | self.grid.capsules_hit(starts, ends, radius)
 
     def __getattr__(self, name: str):
+        if name.startswith("__") or name in ("inner", "grid"):  # unpickling: no inner yet
+            raise AttributeError(name)
         return getattr(self.inner, name)

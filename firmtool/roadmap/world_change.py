@@ -7,7 +7,8 @@ capsules of ``world.robot_radius`` over its key points, or the margin a robot ke
 The Monte Carlo records, per edge, the box around every key point it tested
 (:attr:`firmtool.estimation.edges.EdgeEstimate.swept`). A world change is a set of boxes (the
 bounding box of every obstacle added or removed, a moved one being both, the slab between an
-old and a new bound, and around the cells of an occupancy map that changed). If no changed box meets an edge's swept box grown by the reach, every
+old and a new bound, and a box around each group of an occupancy map's changed cells, grown by the
+cells the map's test reads). If no changed box meets an edge's swept box grown by the reach, every
 collision test of every particle gives the verdict it gave before (a capsule lies in the convex
 hull of its end points grown by its radius, and an obstacle outside it cannot meet it), so with the
 same random streams each particle runs as it ran: the edge's outcomes, costs and adaptive blocks

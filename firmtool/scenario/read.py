@@ -265,9 +265,11 @@ def _read_map(errors: Errors, values: dict, bounds: Any, path: str) -> "Map | No
     """``world.map`` read (and ``world.unknown`` checked), or None without one or on an error (recorded).
 
     The map's YAML is relative to the scenario's folder. A scenario a roadmap stores (its path ends in
-    ``:scenario_toml``) reads it only inside the roadmap's folder, a folder of ``FIRMTOOL_MAP_PATH`` or
-    firmtool's shipped scenarios (a relative path without '..', not leading out through a link): a
-    roadmap may come from someone else."""
+    ``:scenario_toml``) reads it only inside, in this order, the roadmap's folder, the working folder
+    (where ``firmtool build office.toml`` reads ``office.yaml`` and writes ``artifacts/office.h5``), a
+    folder of ``FIRMTOOL_MAP_PATH`` or firmtool's shipped scenarios (a relative path without '..', not
+    leading out through a link): a roadmap may come from someone else. The roadmap does not carry the
+    map: a map file edited in place since the build is another world (``firmtool update`` refuses it)."""
     name, unknown = values["map"], values["unknown"]
     if not valid(name, unknown):
         return None
@@ -296,7 +298,7 @@ def _map_location(path: str, name: str) -> Path:
     if relative.is_absolute() or ".." in relative.parts:
         raise InputError(f"{name[:200]!r}: a scenario stored in a roadmap names its map only inside the roadmap's "
                          "folder (a relative path without '..')")
-    places = [folder] + [Path(p) for p in os.environ.get(MAP_PATH_ENV, "").split(os.pathsep) if p]
+    places = [folder, Path.cwd()] + [Path(p) for p in os.environ.get(MAP_PATH_ENV, "").split(os.pathsep) if p]
     shipped = _shipped_folder()
     if shipped is not None:
         places.append(shipped)
@@ -306,7 +308,8 @@ def _map_location(path: str, name: str) -> Path:
         if (base in target.parents) and target.is_file():
             return base / relative
     raise InputError(f"{name[:200]!r} is not in the roadmap's folder {folder} (a roadmap's scenario reads its map "
-                     f"only there, in a folder of {MAP_PATH_ENV} or among firmtool's shipped scenarios)")
+                     f"only there, in the working folder, in a folder of {MAP_PATH_ENV} or among firmtool's shipped "
+                     "scenarios)")
 
 
 def _shipped_folder() -> Path | None:

@@ -34,7 +34,7 @@ def world_group(world) -> tuple:
 
 
 if numba is not None:
-    from firmtool.estimation.compiled.maps import capsule_hits
+    from firmtool.estimation.compiled.maps import capsule_hits, discs_gate
     from firmtool.geometry._numba import capsule_meets_boxes, seg_seg_d2
 
     njit = cached_njit(**KERNEL_OPTIONS)
@@ -116,11 +116,14 @@ if numba is not None:
         for a in range(na):
             G[a] = 0
         if world[9][0].shape[0] > 0:  # the occupancy map: its exact test is the gate (a cell read per disc)
-            for l in range(n_seg):
-                ax_, ay_, bx_, by_ = PX[l], PY[l], PX[l + seg_offset], PY[l + seg_offset]
-                for a in range(na):
-                    if not G[a]:
-                        G[a] = capsule_hits(ax_[a], ay_[a], bx_[a], by_[a], world[9])
+            if seg_offset == 0:  # discs at the key points: one loop that vectorises
+                discs_gate(PX, PY, n_seg, na, world[9], G)
+            else:
+                for l in range(n_seg):
+                    ax_, ay_, bx_, by_ = PX[l], PY[l], PX[l + seg_offset], PY[l + seg_offset]
+                    for a in range(na):
+                        if not G[a]:
+                            G[a] = capsule_hits(ax_[a], ay_[a], bx_[a], by_[a], world[9])
         for c in range(2):
             lr, hr = lo[c] + r, hi[c] - r
             P = PX if c == 0 else PY

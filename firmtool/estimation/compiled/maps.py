@@ -32,17 +32,27 @@ if numba is not None:
 
     @inline
     def disc_hits(x, y, F, geom, extra):
-        """The disc of the field's radius + ``extra`` at ``(x, y)`` is not free (module notes)."""
+        """The disc of the field's radius + ``extra`` at ``(x, y)`` is not free (module notes). Written
+        without branches (selects), so that a loop of it over particles can vectorise."""
         ox, oy, c, s, res, rows, cols, inv = geom[0], geom[1], geom[2], geom[3], geom[4], geom[5], geom[6], geom[7]
         dx, dy = x - ox, y - oy
         lx, ly = dx * c + dy * s, dy * c - dx * s
         fi, fj = np.floor(ly * inv), np.floor(lx * inv)
-        if not (fi >= 0 and fi < rows and fj >= 0 and fj < cols):  # outside, or NaN
-            return True
-        i, j = int(fi), int(fj)
+        inside = (fi >= 0) & (fi < rows) & (fj >= 0) & (fj < cols)  # False for NaN
+        i, j = int(fi if inside else 0.0), int(fj if inside else 0.0)
         f = F[i, j] - extra
         ex, ey = lx - (j + 0.5) * res, ly - (i + 0.5) * res
-        return not (f > 0 and ex * ex + ey * ey < f * f)
+        return not (inside & (f > 0) & (ex * ex + ey * ey < f * f))
+
+    @njit
+    def discs_gate(PX, PY, n_pts, na, mp, G):
+        """``G[a] |= 1`` where a disc of the field's radius at one of particle a's key points ``:n_pts``
+        is not free (the gate of a robot of discs: its exact map test, a cell read per disc)."""
+        F, geom = mp
+        for p in range(n_pts):
+            X, Y = PX[p], PY[p]
+            for a in range(na):
+                G[a] |= disc_hits(X[a], Y[a], F, geom, 0.0)
 
     @njit
     def capsule_hits(ax, ay, bx, by, mp):
