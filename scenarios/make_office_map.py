@@ -1,4 +1,4 @@
-"""Draws the shipped office map, ``scenarios/office.pgm`` and ``scenarios/office.yaml`` (ROS map_server's
+"""Draws the shipped office map, ``scenarios/unicycle_office.pgm`` and ``scenarios/unicycle_office.yaml`` (ROS map_server's
 format, as a SLAM package's map saver writes it), for the ``unicycle_office`` scenario.
 
     python scenarios/make_office_map.py      # writes both files beside this script
@@ -41,8 +41,8 @@ def occupancy() -> np.ndarray:
 
 def main(folder: Path = Path(__file__).resolve().parent) -> None:
     image = np.where(occupancy()[::-1], 0, 254).astype(np.uint8)  # the image's first row: the map's top
-    Image.fromarray(image, mode="L").save(folder / "office.pgm")
-    (folder / "office.yaml").write_text("image: office.pgm\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\n"
+    Image.fromarray(image, mode="L").save(folder / "unicycle_office.pgm")
+    (folder / "unicycle_office.yaml").write_text("image: unicycle_office.pgm\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\n"
                                         "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
 
 

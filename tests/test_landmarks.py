@@ -388,7 +388,7 @@ def test_landmarks_need_a_planar_robot_with_its_position_first():
 # -- the shipped office ------------------------------------------------------------------------------
 
 def test_the_office_map_hides_the_landmarks_behind_its_walls():
-    """The shipped scenario's map occludes (its walls, read from office.yaml): the march against the
+    """The shipped scenario's map occludes (its walls, read from unicycle_office.yaml): the march against the
     brute-force test on the map's own cells, from states all over the office."""
     import firmtool as ft
 
