@@ -85,6 +85,11 @@ FIGURES: tuple[DocFigure, ...] = (
               _roadmap("unicycle_lightdark") + (
                   f"firmtool plot {ARTIFACTS}/unicycle_lightdark.h5 --policy firm --episodes 100 --seed 7 "
                   f"--dpi 80 --force -o {FIGURES_DIR}/unicycle_lightdark.png",)),
+    DocFigure("unicycle_office.png",
+              "a unicycle in an office map: FIRM the long way past the landmarks, the shortest path through the dark door",
+              _roadmap("unicycle_office") + (
+                  f"firmtool plot {ARTIFACTS}/unicycle_office.h5 --episodes 100 --seed 7 --dpi 80 --force "
+                  f"-o {FIGURES_DIR}/unicycle_office.png",)),
     DocFigure("platt_lightdark.png",
               "Platt et al.'s light-dark problem: FIRM localises in the light, then goes to the goal",
               _roadmap("platt_lightdark") + (

@@ -116,7 +116,7 @@ def test_the_kernels_cache_notices_edits_of_the_controllers_and_the_geometry(tmp
 
 def test_the_kernels_cache_key_covers_every_module_it_calls_into():
     run = kernels.kernel(planar.point_kinematics(1))  # the point robot's kernel: its hooks are callees too
-    engine = {f"firmtool.estimation.compiled.{m}" for m in ("run", "bindings", "step", "rng", "collide", "goal", "maps")}
+    engine = {f"firmtool.estimation.compiled.{m}" for m in ("run", "bindings", "step", "model", "rng", "collide", "goal", "maps")}
     others = {"firmtool.roadmap.membership", "firmtool.control.linalg", "firmtool.geometry._numba",
               "firmtool.robots.planar"}
     assert set(_jit.dependency_files(run.py_func)) == engine | others

@@ -111,9 +111,30 @@ def test_occlusion_is_the_brute_force_ray_test():
         p = rng.uniform([-1.5, 0.0], [4.0, 4.5])
         q = rng.uniform([-1.5, 0.0], [4.0, 4.5])
         want = _brute_occluded(p, q, occ, res, origin)
-        assert occluded(p[0], p[1], q[0], q[1], occ, res, origin[0], origin[1]) == want, (p, q)
+        assert occluded(p[0], p[1], q[0], q[1], occ, res, origin[0], origin[1], 1.0, 0.0) == want, (p, q)
         seen[want] += 1
     assert min(seen.values()) > 200  # both answers well represented
+
+
+def test_a_turned_grid_occludes_in_its_own_frame():
+    """A map whose origin has a yaw: the march in the grid's frame is the brute-force test on the
+    points turned into it."""
+    rng = np.random.default_rng(5)
+    occ = (rng.random((12, 15)) < 0.15).astype(np.uint8)
+    res, x0, y0, yaw = 0.3, 1.0, -0.5, 0.7
+    c, s = np.cos(yaw), np.sin(yaw)
+
+    def local(p):
+        d = p - [x0, y0]
+        return np.array([d[0] * c + d[1] * s, d[1] * c - d[0] * s])
+
+    hits = 0
+    for _ in range(800):
+        p, q = rng.uniform([-2.0, -2.0], [6.0, 6.0]), rng.uniform([-2.0, -2.0], [6.0, 6.0])
+        want = _brute_occluded(local(p), local(q), occ, res, (0.0, 0.0))
+        assert occluded(p[0], p[1], q[0], q[1], occ, res, x0, y0, c, s) == want
+        hits += want
+    assert 100 < hits < 700
 
 
 def test_without_a_grid_nothing_occludes_and_the_range_and_fov_decide():
@@ -362,3 +383,39 @@ def test_landmarks_need_a_planar_robot_with_its_position_first():
     arm = (ROOT / "scenarios" / "arm8_lightdark.toml").read_text()
     with pytest.raises(ScenarioError, match="measurement.model"):
         _problem(_with_measurement(arm, MEASUREMENT.replace("FOV", "360")))
+
+
+# -- the shipped office ------------------------------------------------------------------------------
+
+def test_the_office_map_hides_the_landmarks_behind_its_walls():
+    """The shipped scenario's map occludes (its walls, read from unicycle_office.yaml): the march against the
+    brute-force test on the map's own cells, from states all over the office."""
+    import firmtool as ft
+
+    problem = build_problem(ft.load_scenario("unicycle_office"))
+    model, grid = problem.model, problem.scenario.world.grid
+    assert model.grid is not None and model.grid.occupied.shape == grid.occupied.shape
+    rng = np.random.default_rng(4)
+    X = np.column_stack([rng.uniform(0.2, 9.8, 300), rng.uniform(0.2, 5.8, 300), rng.uniform(-3, 3, 300)])
+    seen = model.visible(X)
+    hidden = 0
+    for a in range(X.shape[0]):
+        for i, lm in enumerate(model.noise.landmarks):
+            want = not _brute_occluded(X[a, :2], lm, grid.occupied, grid.resolution, grid.origin[:2])
+            assert seen[a, i] == want
+            hidden += not want
+    assert 0 < hidden < seen.size
+    assert not model.visible(np.array([[1.2, 4.8, 0.0]]))[0, 0]  # the goal does not see (9.75, 0.3)
+
+
+@pytest.mark.slow
+def test_unicycle_office_firm_beats_the_shortest_path_and_its_prediction_holds():
+    """The shipped scenario (issue 50): FIRM's predicted success at least 0.2 above the shortest path's,
+    and inside the Wilson interval of 400 executed episodes."""
+    import firmtool as ft
+
+    sol = ft.solve(ft.build(ft.load_scenario("unicycle_office"), workers=2))
+    start = 0
+    assert sol.success_probability >= sol.shortest_path_success_probabilities[start] + 0.2
+    res = ft.simulate(sol, episodes=400, seed=0)
+    assert res.prediction_within_ci95, (sol.success_probability, res.success_rate_ci95)

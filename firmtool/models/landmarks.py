@@ -18,16 +18,17 @@ zero gain, exactly as if its rows were absent (``K = P H' S^-1`` has a zero colu
 zero row, whatever finite variance the row has).
 
 The filter is the extended one: the measurement is predicted at the estimate (``h`` of the
-prediction) and linearised (:meth:`LandmarkModel.observation_jacobian`, analytic, checked against
-finite differences in ``tests/test_landmarks.py``); as everywhere in firmtool (METHOD.md 3), an
-edge's gains are designed once along its nominal, so the Monte Carlo simulates the filter the policy
-runs.
+prediction, the innovation taken there) and linearised (:meth:`LandmarkModel.observation_jacobian`,
+analytic, checked against finite differences in ``tests/test_landmarks.py``); as everywhere in
+firmtool (METHOD.md 3), the gains are designed once per edge, linearised along its nominal (and per
+node at its centre or along its orbit), so that every particle of the Monte Carlo runs the filter the
+policy runs and the covariances are deterministic.
 
 :class:`LandmarkSensing` is the noise registry's form ``landmarks`` (it declares the keys);
 :class:`LandmarkModel` is the robot's dynamics with this sensor in place of its own (built once per
 problem, :func:`firmtool.problem.build_problem`). The ray march is compiled (numba) and used by both
-Monte Carlo engines; the compiled engine's twins of the rest are in
-:mod:`firmtool.estimation.compiled.sensors`.
+Monte Carlo engines; the compiled engine's twin of the measurement and the update is in
+:mod:`firmtool.estimation.compiled.model`.
 """
 
 from __future__ import annotations
@@ -43,9 +44,9 @@ import numpy as np
 
 from firmtool.errors import InputError
 from firmtool.io.limits import LimitError, read_regular_file
-from firmtool.util.schema import Field
 from firmtool.jit import KERNEL_OPTIONS, cached_njit, numba
 from firmtool.models.noise import NoiseModel, register
+from firmtool.util.schema import Field
 
 MIN_RANGE = 1e-6  # m: a landmark closer than this has no bearing; it is not seen
 MAX_LANDMARKS = 1000  # landmarks in a scenario or CSV file (two measurement rows each)
@@ -148,7 +149,7 @@ class LandmarkSensing(NoiseModel):
         return int(self.landmarks.shape[0])
 
     def constants(self) -> np.ndarray:
-        """(5,) ``max_range, cos-free half fov (rad), range_std, range_std_growth, bearing_std``."""
+        """(5,) ``max_range``, half the field of view (rad), ``range_std``, ``range_std_growth``, ``bearing_std``."""
         return np.array([self.max_range, 0.5 * np.deg2rad(self.fov), self.range_std, self.range_std_growth,
                          self.bearing_std])
 
@@ -195,11 +196,12 @@ def read_landmarks_csv(path: str | Path, field_name: str = "landmarks_file") -> 
 @dataclass(frozen=True, eq=False)
 class OcclusionGrid:
     """An occupancy grid for the ray march: ``occupied[iy, ix]`` (uint8, 1 occupied) is the cell
-    ``[x0 + ix res, x0 + (ix + 1) res) x [y0 + iy res, y0 + (iy + 1) res)`` (row 0 at the bottom)."""
+    ``[ix res, (ix + 1) res) x [iy res, (iy + 1) res)`` of the grid's frame (row 0 at the bottom), whose
+    origin is the world pose ``(x0, y0, yaw)`` (a ROS map's origin, :class:`firmtool.geometry.occupancy.Map`)."""
 
     occupied: np.ndarray
     resolution: float
-    origin: tuple[float, float]
+    origin: tuple[float, ...]
 
     def __post_init__(self) -> None:
         occ = np.ascontiguousarray(self.occupied, dtype=np.uint8)
@@ -207,23 +209,32 @@ class OcclusionGrid:
             raise InputError("occlusion grid: expected a 2-D array of cells and a resolution > 0")
         object.__setattr__(self, "occupied", occ)
 
+    @classmethod
+    def of_map(cls, grid) -> "OcclusionGrid":
+        """The occupied cells of a :class:`~firmtool.geometry.occupancy.Map` (unknown ones as it decided)."""
+        return cls(grid.occupied, grid.resolution, tuple(grid.origin))
+
     def group(self) -> tuple:
-        """``(occupied, res, x0, y0)``, the compiled march's arguments."""
-        return self.occupied, float(self.resolution), float(self.origin[0]), float(self.origin[1])
+        """``(occupied, res, x0, y0, cos yaw, sin yaw)``, the compiled march's arguments (yaw 0: exactly 1, 0)."""
+        yaw = float(self.origin[2]) if len(self.origin) > 2 else 0.0
+        return (self.occupied, float(self.resolution), float(self.origin[0]), float(self.origin[1]),
+                math.cos(yaw) if yaw else 1.0, math.sin(yaw) if yaw else 0.0)
 
 
-NO_GRID = (np.zeros((0, 0), dtype=np.uint8), 1.0, 0.0, 0.0)  # nothing occludes
+NO_GRID = (np.zeros((0, 0), dtype=np.uint8), 1.0, 0.0, 0.0, 1.0, 0.0)  # nothing occludes
 
 
-def occluded_py(px, py, lx, ly, occ, res, x0, y0):
+def occluded_py(px, py, lx, ly, occ, res, x0, y0, c, s):
     """Whether an occupied cell of ``occ`` lies on the segment from ``(px, py)`` to ``(lx, ly)``,
     the landmark's own cell excepted (Amanatides-Woo traversal of every cell the segment crosses;
-    cells outside the grid are free)."""
+    cells outside the grid are free). The grid's frame: origin ``(x0, y0)``, turned by the angle of
+    cosine ``c`` and sine ``s``."""
     rows, cols = occ.shape[0], occ.shape[1]
     if rows == 0:
         return False
-    fx, fy = (px - x0) / res, (py - y0) / res
-    tx, ty = (lx - x0) / res, (ly - y0) / res
+    ax, ay, bx, by = px - x0, py - y0, lx - x0, ly - y0
+    fx, fy = (ax * c + ay * s) / res, (ay * c - ax * s) / res
+    tx, ty = (bx * c + by * s) / res, (by * c - bx * s) / res
     ix, iy = int(math.floor(fx)), int(math.floor(fy))
     ex, ey = int(math.floor(tx)), int(math.floor(ty))
     dx, dy = tx - fx, ty - fy
@@ -262,7 +273,7 @@ def visibility_py(P, TH, landmarks, consts, grid, occlusion, out):
     """``out[a, i] = 1`` where particle a at ``P[a]`` (heading ``TH[a]``) sees landmark i (range,
     field of view, occlusion; the module docs)."""
     max_range, half_fov = consts[0], consts[1]
-    occ, res, x0, y0 = grid
+    occ, res, x0, y0, c, s = grid
     for a in range(P.shape[0]):
         px, py, th = P[a, 0], P[a, 1], TH[a]
         for i in range(landmarks.shape[0]):
@@ -274,7 +285,7 @@ def visibility_py(P, TH, landmarks, consts, grid, occlusion, out):
                 b = math.pi - (math.pi - b) % (2.0 * math.pi)
                 seen = abs(b) <= half_fov
             if seen and occlusion:
-                seen = not occluded_py(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0)
+                seen = not occluded_py(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0, c, s)
             out[a, i] = seen
 
 
@@ -294,7 +305,7 @@ if numba is not None:
     def _compiled_visibility(P, TH, landmarks, consts, grid, occlusion, out):
         """Compiled :func:`visibility_py` (calls the compiled :func:`occluded`)."""
         max_range, half_fov = consts[0], consts[1]
-        occ, res, x0, y0 = grid
+        occ, res, x0, y0, c, s = grid
         for a in range(P.shape[0]):
             px, py, th = P[a, 0], P[a, 1], TH[a]
             for i in range(landmarks.shape[0]):
@@ -306,7 +317,7 @@ if numba is not None:
                     b = np.pi - (np.pi - b) % (2.0 * np.pi)
                     seen = abs(b) <= half_fov
                 if seen and occlusion:
-                    seen = not occluded(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0)
+                    seen = not occluded(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0, c, s)
                 out[a, i] = seen
 
 

@@ -102,7 +102,9 @@ class GaussianSum:
         K = self.means.shape[0]
         pred = model.f(self.means, np.repeat(np.asarray(u, dtype=float)[None], K, axis=0))  # (K, n)
         R = model.measurement_variance(pred)  # (K, nz) diagonal measurement variance at each prediction
-        nu = np.asarray(z, dtype=float)[None] - model.h(pred)  # (K, nz)
+        z = np.asarray(z, dtype=float)[None]
+        # a measurement model (landmarks) wraps bearings and gives 0 where nothing was seen (NaN)
+        nu = model.innovation(np.repeat(z, K, axis=0), pred) if hasattr(model, "innovation") else z - model.h(pred)
         Q = model.process_cov
         # into new arrays, kept only if every hypothesis updates (a failure leaves the bank as it was)
         means, covs, log_weights = np.empty_like(self.means), np.empty_like(self.covariances), self.log_weights.copy()

@@ -169,6 +169,8 @@ def _add_nodes(path: str | RoadmapTarget, count: int, connect: bool,
     if new.shape[0] < count:  # the separation leaves no room: fill the rest without it
         more = sample_nodes(problem, count - new.shape[0], rng, existing=np.concatenate([centers, new]))
         new = np.concatenate([new, more])
+    # nodes no stabiliser holds (too few landmarks seen there) are left out, as in a new roadmap
+    new, _, _ = _drop_unstabilisable(problem, new, np.full(new.shape[0], REGULAR, dtype=kinds.dtype))
     centers = np.concatenate([centers, new])
     kinds = np.concatenate([kinds, np.full(new.shape[0], REGULAR, dtype=kinds.dtype)])
     write_stage(path, "nodes", {"centers": centers, "kind": kinds},

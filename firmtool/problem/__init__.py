@@ -248,9 +248,10 @@ def _landmark_model(robot: "Robot", scenario: Scenario):
 
 
 def occlusion_grid(scenario: Scenario) -> OcclusionGrid | None:
-    """The occupancy grid that hides landmarks: the world's map (None without one)."""
-    grid = getattr(scenario.world, "occupancy_grid", None)
-    return grid() if callable(grid) else None
+    """The occupancy grid that hides landmarks: the world's map (None without one; boxes on top of a
+    map do not occlude)."""
+    grid = getattr(scenario.world, "grid", None)
+    return None if grid is None else OcclusionGrid.of_map(grid)
 
 
 _task_cache: dict[tuple, tuple] = {}

@@ -74,7 +74,9 @@ class CompiledKinematics:
     radii : (n_seg,) the capsules' radii (3-D; in 2-D every capsule has ``world.robot_radius``).
     sense : the 3-D sensing hook (above), None in 2-D; n_sensing : the rows it fills.
     step : ``step(X, U, params, XN, na)``, the noise-free step ``XN = f(X, U)`` of a nonlinear model (the
-        twin of its ``Model.f``, e.g. the unicycle's), or None: the model is linear (``A X + B U``).
+        twin of its ``Model.f``, e.g. the unicycle's), or None: the model is linear (``A X + B U``). With the
+        robot's own sensor such a model's measurement must be linear, ``h = H x`` with a constant
+        ``observation_jacobian`` (the unicycle's position); landmark sensing is the engine's own.
     self_pairs : 3-D: (S, 2) the capsule pairs tested for self-collision (None: none; in 2-D
         ``self_collision`` tests every non-adjacent pair instead).
     """

@@ -28,8 +28,9 @@ class MessageError(ValueError):
         self.field, self.expected = field, expected
 
 
-def finite_vector(values: Sequence[float], size: int, field: str) -> np.ndarray:
-    """``values`` as a float vector of ``size`` finite numbers, or :class:`MessageError` naming ``field``.
+def finite_vector(values: Sequence[float], size: int, field: str, missing: bool = False) -> np.ndarray:
+    """``values`` as a float vector of ``size`` finite numbers, or :class:`MessageError` naming ``field``
+    (``missing``: NaN allowed, a measurement not taken, as landmark sensing sends a landmark not seen).
 
     Examples
     --------
@@ -42,8 +43,8 @@ def finite_vector(values: Sequence[float], size: int, field: str) -> np.ndarray:
         raise MessageError(field, f"expected {size} numbers, found {quote(values)}") from None
     if z.shape != (size,):
         raise MessageError(field, f"expected {size} values, found {z.shape[0]}")
-    if not np.all(np.isfinite(z)):
-        bad = [i for i, v in enumerate(z) if not math.isfinite(v)]
+    if not np.all(np.isfinite(z) | (missing & np.isnan(z))):
+        bad = [i for i, v in enumerate(z) if not (math.isfinite(v) or (missing and math.isnan(v)))]
         raise MessageError(field, f"expected finite values, found NaN or inf at index {bad[0]}")
     return z
 

@@ -380,7 +380,9 @@ class PolicyMachine:
     def measurement(self, values, field: str = "measurement.data", stamp: float | None = None,
                     stamp_field: str = "measurement_stamped.header.stamp") -> None:
         """A measurement (``stamp``: its time on the node's clock, seconds; None: an unstamped one)."""
-        z = checks.finite_vector(values, self.nz, field)
+        # landmark sensing: NaN for a landmark not seen (range and bearing pairs in landmark order)
+        z = checks.finite_vector(values, self.nz, field,
+                                 missing=hasattr(self.problem.model, "measure") and not self.problem.perfect)
         if stamp is not None:
             if not math.isfinite(stamp):
                 raise MessageError(stamp_field, f"expected a time, found {stamp!r}")

@@ -104,7 +104,7 @@ if numba is not None:
         tests/test_landmarks.py::test_landmark_update_is_the_numpy_update."""
         landmarks, consts, grid, occlusion, heading = sensor
         max_range, half_fov, rstd, growth, bstd = consts[0], consts[1], consts[2], consts[3], consts[4]
-        occ, res, x0, y0 = grid
+        occ, res, x0, y0, gc, gs = grid
         for a in range(na):
             px, py = X[0, a], X[1, a]
             th = X[heading, a] if heading >= 0 else 0.0
@@ -115,11 +115,13 @@ if numba is not None:
                 dx, dy = lx - px, ly - py
                 rr = np.sqrt(dx * dx + dy * dy)
                 seen = rr > MIN_RANGE and rr <= max_range
-                b = wrap_pi(np.arctan2(dy, dx) - th)
-                if seen and half_fov < np.pi:
-                    seen = abs(b) <= half_fov
+                b = 0.0
+                if seen:  # the bearing only where the range lets the landmark be seen
+                    b = wrap_pi(np.arctan2(dy, dx) - th)
+                    if half_fov < np.pi:
+                        seen = abs(b) <= half_fov
                 if seen and occlusion:
-                    seen = not occluded(px, py, lx, ly, occ, res, x0, y0)
+                    seen = not occluded(px, py, lx, ly, occ, res, x0, y0, gc, gs)
                 if not seen:
                     INN[2 * i, a] = 0.0
                     INN[2 * i + 1, a] = 0.0
