@@ -92,7 +92,7 @@ def test_every_mistake_of_a_scenario_is_one_line(tmp_path):
     assert r.exit_code == 2 and r.stdout == ""
     assert lines == [f"error: {path}: measurement.c: missing required field",
                      f"error: {path}: world.rectangles: unknown field (a typo?); known fields: bounds, "
-                     "collision_backend, obstacles, robot_radius",
+                     "collision_backend, map, obstacles, robot_radius, unknown",
                      f"error: {path}: roadmap.neighbours: unknown field (a typo?); known fields: bias_step, "
                      "bridge_nodes, goal_bias, goal_nodes, max_edge_length, min_separation, neighbors, nodes"]
 

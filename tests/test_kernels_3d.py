@@ -295,7 +295,7 @@ def test_compiled_3d_decision_is_the_numpy_one(seed):
     cov = A @ np.swapaxes(A, 1, 2)
     want = meets_confidence(mean, cov, r, conf)
     U, W, start = goal3d.direction_tables()
-    q = float(goal3d.chi2.ppf(conf, 3))
+    q = float(goal3d.chi2_ppf(conf, 3))
     got = np.array([goal3d.ball_decision_3d(mean[m], cov[m], r, conf, q, U, W, start) for m in range(M)])
     differ = np.flatnonzero(got != want)
     assert differ.size <= 1  # a decision within rounding of the threshold may differ

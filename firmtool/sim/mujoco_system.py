@@ -99,7 +99,10 @@ def mujoco_spec(robot) -> tuple[object, dict[str, bytes]]:
         MuJoCo cannot load the URDF (the feature named in MuJoCo's message).
     """
     mujoco = _mujoco()
-    from lxml import etree
+    try:
+        from lxml import etree  # the URDF's parser (the urdf extra, which the physics extra brings)
+    except ImportError:
+        raise InputError("--simulator mujoco reads the URDF with lxml: pip install 'firmtool[urdf]'") from None
 
     from firmtool.io.mesh_file import parse_mesh_content
     from firmtool.robots.urdf_file import parse_xml
