@@ -20,6 +20,7 @@ trimesh = pytest.importorskip("trimesh")
 
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
+from test_urdf import SMALL_SCENARIO  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
 import firmtool as ft  # noqa: E402
@@ -50,51 +51,9 @@ THREE = """<?xml version="1.0"?>
 </robot>
 """
 
-SCENARIO = """
-[scenario]
-name = "three_moved"
-seed = 5
-[model]
-robot = "urdf"
-urdf = "three.urdf"
-base_link = "base"
-tip_link = "tip"
-dynamics = "single_integrator"
-dt = 0.05
-process_noise_std = 0.02
-light = [0.5, 0.4, 0.5]
-[measurement]
-kind = "imperfect"
-noise = "lightdark_std"
-light_x = 0.0
-eta = 0.05
-sigma_b = 0.002
-[world]
-bounds = [[-0.9, -0.9, -0.2], [0.9, 0.9, 1.0]]
-robot_radius = 0.01
-collision_backend = "fcl"
-obstacles = [{ center = [0.45, 0.0, 0.3], half_size = [0.08, 0.25, 0.3] }]
-[task]
-start = [-1.5, 0.6, 0.6]
-goal = [0.25, 0.35, 0.3]
-goal_radius = 0.06
-goal_confidence = 0.5
-[roadmap]
-nodes = 14
-neighbors = 4
-min_separation = 0.4
-max_edge_length = 2.5
-[controller]
-control_weight = 0.2
-max_speed = 1.0
-node_radius = 1.5
-covariance_tolerance = 0.3
-max_steps = 150
-[estimation]
-particles = 40
-[cost]
-failure_cost = 100.0
-"""
+# test_urdf's small scenario, smaller: a three-joint arm and one box (its URDF is THREE, below)
+SCENARIO = (SMALL_SCENARIO.replace('name = "urdf_three"', 'name = "three_moved"').replace("nodes = 25", "nodes = 14")
+            .replace("neighbors = 5", "neighbors = 4").replace("particles = 60", "particles = 40"))
 
 LONGER = THREE.replace('<origin xyz="0 0 0.3"/><axis xyz="0 1 0"/>', '<origin xyz="0 0 0.6"/><axis xyz="0 1 0"/>')
 

@@ -285,7 +285,7 @@ def visibility_py(P, TH, landmarks, consts, grid, occlusion, out):
                 b = math.pi - (math.pi - b) % (2.0 * math.pi)
                 seen = abs(b) <= half_fov
             if seen and occlusion:
-                seen = not occluded_py(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0, c, s)
+                seen = not occluded(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0, c, s)
             out[a, i] = seen
 
 
@@ -300,25 +300,8 @@ def _visibility_fn():
     return visibility_py if numba is None else _compiled_visibility
 
 
-if numba is not None:
-    @cached_njit(**KERNEL_OPTIONS)
-    def _compiled_visibility(P, TH, landmarks, consts, grid, occlusion, out):
-        """Compiled :func:`visibility_py` (calls the compiled :func:`occluded`)."""
-        max_range, half_fov = consts[0], consts[1]
-        occ, res, x0, y0, c, s = grid
-        for a in range(P.shape[0]):
-            px, py, th = P[a, 0], P[a, 1], TH[a]
-            for i in range(landmarks.shape[0]):
-                dx, dy = landmarks[i, 0] - px, landmarks[i, 1] - py
-                r = np.sqrt(dx * dx + dy * dy)
-                seen = r > MIN_RANGE and r <= max_range
-                if seen and half_fov < np.pi:
-                    b = np.arctan2(dy, dx) - th
-                    b = np.pi - (np.pi - b) % (2.0 * np.pi)
-                    seen = abs(b) <= half_fov
-                if seen and occlusion:
-                    seen = not occluded(px, py, landmarks[i, 0], landmarks[i, 1], occ, res, x0, y0, c, s)
-                out[a, i] = seen
+if numba is not None:  # the same loop compiled: it calls the compiled occlusion test (the global ``occluded``)
+    _compiled_visibility = cached_njit(**KERNEL_OPTIONS)(visibility_py)
 
 
 # -- the model ---------------------------------------------------------------------------------------
