@@ -214,9 +214,11 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
         z = rng.standard_normal((2 * M, n)) @ chol_s.T
         xhat = v + z[np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius]
         x = xhat if chol_p is None else xhat + rng.standard_normal(xhat.shape) @ chol_p.T
-        alive = problem.is_valid(x)  # a robot that arrived is alive: its true state is valid
-        if swept is not None:
-            grow_swept(swept, problem.points(x))
+        if swept is not None:  # a robot that arrived is alive: its true state is valid
+            alive, points = problem.valid_with_points(x)
+            grow_swept(swept, points)
+        else:
+            alive = problem.is_valid(x)
         xs.append(x[alive])
         xhats.append(xhat[alive])
         drawn += int(alive.sum())
