@@ -2,15 +2,14 @@
 
 import numpy as np
 import pytest
+from conftest import PERFECT, open_world
 
+from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, initial_ensemble
 from firmtool.io.roadmap_format import GOAL
-from firmtool.roadmap.design import design
-from firmtool.estimation.edges import FAILURE, GOAL_MISS, estimate_edge, simulate, initial_ensemble
-from firmtool.roadmap.design import local_controller
 from firmtool.problem import build_problem
+from firmtool.roadmap.design import design, local_controller
 from firmtool.roadmap.nodes import roadmap_nodes
 from firmtool.scenario import parse_scenario
-from conftest import PERFECT, open_world
 
 
 def _setup(text):
@@ -146,3 +145,35 @@ def test_region_starts_are_alive_next_to_an_obstacle():
     assert np.all(problem.is_valid(x))
     xc, _ = initial_ensemble(problem, d, 0, 4000, np.random.default_rng(0), "center")
     assert not np.all(problem.is_valid(xc))  # so the conditioning matters here
+
+
+def test_step_histogram_counts_every_outcome_and_step_pair():
+    """The histogram is the (outcome, steps) pairs counted one by one (collections.Counter), in
+    lexicographic order, int64; with negative outcome codes and steps of either integer width."""
+    from collections import Counter
+
+    from firmtool.estimation.edges import step_histogram
+    rng = np.random.default_rng(5)
+    for dtype in (np.int32, np.int64):
+        outcome = rng.integers(-3, 12, 3000).astype(np.int64)
+        steps = rng.integers(0, 700, 3000).astype(dtype)
+        h = step_histogram(outcome, steps)
+        counted = sorted(Counter(zip(outcome.tolist(), steps.tolist())).items())
+        assert h.dtype == np.int64
+        assert h.T.tolist() == [[o, s, c] for (o, s), c in counted]
+
+
+@pytest.mark.parametrize("name", ["arm8_lightdark", "point_lightdark", "unicycle_lightdark"])
+def test_valid_with_points_is_is_valid_and_points(name):
+    """Problem.valid_with_points gives is_valid's verdicts and points' key points, bit for bit,
+    whether it shares the key points (the arm, the point) or not (the unicycle's own is_valid)."""
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "scenarios" / f"{name}.toml"
+    problem = build_problem(parse_scenario(path.read_text(), str(path)))
+    rng = np.random.default_rng(3)
+    q = problem.config_lo + (problem.config_hi - problem.config_lo) * rng.random((400, problem.config_dim))
+    X = np.concatenate([q, np.zeros((400, problem.model.n - problem.config_dim))], axis=1)
+    ok, points = problem.valid_with_points(X)
+    assert 0 < ok.sum() < len(ok)  # both verdicts occur
+    np.testing.assert_array_equal(ok, problem.is_valid(X))
+    np.testing.assert_array_equal(points, problem.geometry.points(X))

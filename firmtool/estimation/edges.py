@@ -220,9 +220,11 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
         z = rng.standard_normal((2 * M, n)) @ chol_s.T
         xhat = v + z[np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius]
         x = xhat if chol_p is None else xhat + rng.standard_normal(xhat.shape) @ chol_p.T
-        alive = problem.is_valid(x)  # a robot that arrived is alive: its true state is valid
-        if swept is not None:
-            grow_swept(swept, problem.geometry.points(x))
+        if swept is not None:  # a robot that arrived is alive: its true state is valid
+            alive, points = problem.valid_with_points(x)
+            grow_swept(swept, points)
+        else:
+            alive = problem.is_valid(x)
         xs.append(x[alive])
         xhats.append(xhat[alive])
         drawn += int(alive.sum())
@@ -310,10 +312,19 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
     return out
 
 
+_STEPS_SPAN = 1 << 32  # a pair's key: outcome * span + steps, for 0 <= steps < span
+
+
 def step_histogram(outcome: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """(3, H) int64: the distinct (outcome code, steps) pairs of particles (M,) and their counts, sorted."""
-    pairs, counts = np.unique(np.stack([outcome, steps]).astype(np.int64), axis=1, return_counts=True)
-    return np.vstack([pairs, counts[None]])
+    outcome, steps = np.asarray(outcome, dtype=np.int64), np.asarray(steps, dtype=np.int64)
+    if steps.size and (steps.min() < 0 or steps.max() >= _STEPS_SPAN):  # pragma: no cover - never in a run
+        pairs, counts = np.unique(np.stack([outcome, steps]), axis=1, return_counts=True)
+        return np.vstack([pairs, counts[None]])
+    # one int64 key per pair, ordered as the pairs are (outcome first, then steps): np.unique over the
+    # pairs' columns (axis=1) sorts a structured view, ~10x slower per edge (issue 55)
+    keys, counts = np.unique(outcome * _STEPS_SPAN + steps, return_counts=True)
+    return np.vstack([keys >> 32, keys & (_STEPS_SPAN - 1), counts])
 
 
 def join_histograms(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:

@@ -55,8 +55,12 @@ def grow_swept(swept: np.ndarray, points: np.ndarray) -> None:
     NaN coordinates are skipped (a state that is not finite fails whatever the world)."""
     flat = np.asarray(points, dtype=float).reshape(-1, swept.shape[1])
     if flat.shape[0]:
-        np.fmin(swept[0], np.fmin.reduce(flat, axis=0), out=swept[0])
-        np.fmax(swept[1], np.fmax.reduce(flat, axis=0), out=swept[1])
+        # one contiguous row per coordinate: reduced along a (N, D) array's axis 0 with D = 2 or 3, numpy
+        # steps row by row (~1 ms for an arm's 2000 x 9 key points, 5-10% of the arm's estimate stage,
+        # issue 55); along contiguous rows ~20 us. The same minimum and maximum of the same values.
+        cols = np.ascontiguousarray(flat.T)
+        np.fmin(swept[0], np.fmin.reduce(cols, axis=1), out=swept[0])
+        np.fmax(swept[1], np.fmax.reduce(cols, axis=1), out=swept[1])
 
 
 def cost_weights(spec: CostSpec) -> np.ndarray:

@@ -29,13 +29,18 @@ def on_turn_of(angle: np.ndarray | float, reference: np.ndarray | float) -> np.n
 
 
 if numba is not None:
-    njit = cached_njit(**KERNEL_OPTIONS)
+    # inlined into its callers (numba IR): the kinematics' loops over particles that call it vectorise
+    hook = cached_njit(**KERNEL_OPTIONS, inline="always")
 
-    @njit
+    @hook
     def sincos(a):
         """(sin a, cos a): Cody-Waite reduction by pi/2 and fdlibm's minimax polynomials on
-        [-pi/4, pi/4] (within an ulp or two of libm; branch-free but for the quadrant select).
-        Twin of ``np.sin``, ``np.cos``; pinned by tests/test_kernels.py::test_kinematics_are_the_robots_points."""
+        [-pi/4, pi/4] (within an ulp or two of libm), branch-free: the quadrant picks the polynomials
+        and their signs by selects and exact sign flips, so that a loop over particles that calls it
+        vectorises (issue 55 item 2, from the reverted bb0473e; the same operations on every value as
+        the quadrant's branches did, so the same bits; rate and cold compile: benchmarks/README.md,
+        "Issue 55"). Twin of ``np.sin``, ``np.cos``; pinned by
+        tests/test_kernels.py::test_kinematics_are_the_robots_points."""
         q = np.floor(a * 0.6366197723675814 + 0.5)
         y = (a - q * 1.57079632673412561417e+00) - q * 6.07710050650619224932e-11
         z = y * y
@@ -45,11 +50,10 @@ if numba is not None:
         cp = 1.0 - 0.5 * z + z * z * (4.16666666666666019037e-02 + z * (-1.38888888888741095749e-03 + z * (
             2.48015872894767294178e-05 + z * (-2.75573143513906633035e-07 + z * (
                 2.08757232129817482790e-09 + z * -1.13596475577881948265e-11)))))
-        k = int(q) & 3
-        if k == 0:
-            return sp, cp
-        if k == 1:
-            return cp, -sp
-        if k == 2:
-            return -sp, -cp
-        return -cp, sp
+        k = np.int64(q) & 3
+        odd = (k & 1) == 1
+        s_ = cp if odd else sp  # quadrants 1, 3: the polynomials swap
+        c_ = sp if odd else cp
+        s_sign = -1.0 if k >= 2 else 1.0  # sin < 0 in quadrants 2, 3; cos < 0 in 1, 2
+        c_sign = -1.0 if (k == 1 or k == 2) else 1.0
+        return s_sign * s_, c_sign * c_

@@ -19,13 +19,13 @@ from firmtool.errors import InputError, ScenarioError, quoted
 from firmtool.models.base import Model
 from firmtool.models.landmarks import LandmarkSensing, OcclusionGrid, with_landmarks
 from firmtool.problem.goal import GoalRegion
+from firmtool.robots.geometry import RobotGeometry
 from firmtool.scenario import Scenario
 from firmtool.util.fingerprint import fingerprint
 from firmtool.util.hashing import digest
 
 if TYPE_CHECKING:  # pragma: no cover
     from firmtool.robots.base import Robot
-    from firmtool.robots.geometry import RobotGeometry
 
 
 class ValidityChecker:
@@ -157,6 +157,18 @@ class Problem:
         """Bound on |u| used to size nominal trajectories (acceleration or speed)."""
         c = self.scenario.controller
         return c.max_accel if self.velocity_dim else c.max_speed
+
+    def valid_with_points(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(is_valid(X), points(X))`` for states ``X`` (M, n): bool (M,) and key points (M, P, D),
+        the key points computed once where :attr:`is_valid` is the robot's own default test (its
+        :meth:`~firmtool.robots.geometry.RobotGeometry.is_valid`, ``points_valid(points(X))``), so
+        the same values; twice otherwise (a robot's own ``is_valid``, a user's checker). Why: an
+        arm's region start needs both, and its key points cost ~0.5 ms (issue 55)."""
+        robot = self.robot
+        if type(robot).is_valid is RobotGeometry.is_valid and self.is_valid == robot.is_valid:
+            points = robot.points(X)
+            return robot.points_valid(points), points
+        return self.is_valid(X), robot.points(X)
 
     def states_valid(self, X: np.ndarray, points: np.ndarray) -> np.ndarray:
         """The validity the Monte Carlo and execution test on the TRUE states ``X`` (M, n), given
