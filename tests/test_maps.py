@@ -557,3 +557,10 @@ def test_a_map_worlds_backend_travels_pickled(tmp_path):
     backend = pickle.loads(pickle.dumps(p.robot.collision()))
     assert backend.capsules_collide(P, P, 0.08).tolist() == [False, True]
     assert tuple(backend.lo) == (0.0, 0.0)  # the inner backend's attributes
+
+
+def test_check_names_the_map_and_its_cells():
+    """``ft.check`` (``firmtool check``) says which map a scenario's world is and its size; none for a
+    world of boxes."""
+    assert ft.check("unicycle_office").map == "unicycle_office.yaml: 100 x 60 cells of 0.1"
+    assert ft.check("point_lightdark").map is None

@@ -41,6 +41,7 @@ class CheckReport(Report):
     configuration_dim : coordinates of the configuration (the first ones of the state).
     world_dim : 2 or 3.
     obstacles : number of obstacles.
+    map : the occupancy map's file and size (``"office.yaml: 100 x 60 cells of 0.1"``), or None.
     collision_backend : the backend's name.
     measurement : ``"perfect"`` or ``"imperfect"``.
     noise : the noise form (``"constant"`` when perfect).
@@ -74,6 +75,7 @@ class CheckReport(Report):
     max_particle_steps: float
     seconds: float
     notices: tuple[str, ...] = ()
+    map: str | None = None
 
 
 def check(scenario: Scenario | str | Path, *, validity: Callable | None = None) -> CheckReport:
@@ -113,4 +115,15 @@ def check(scenario: Scenario | str | Path, *, validity: Callable | None = None) 
                        noise=sc.measurement.noise, goal="region" if problem.goal_disc is not None else "state",
                        nodes=sc.roadmap.nodes, particles=sc.estimation.particles,
                        max_particle_steps=float(budget["particle_steps"]), seconds=time.perf_counter() - t0,
+                       map=_map_text(sc),
                        notices=(shortfall,) if shortfall else ())
+
+
+def _map_text(sc: Scenario) -> str | None:
+    """The world's occupancy map as ``check`` names it: its file, cells and cell size, or None."""
+    grid = sc.world.grid if sc.world is not None else None
+    if grid is None:
+        return None
+    rows, cols = grid.shape
+    return f"{sc.world.map}: {cols} x {rows} cells of {grid.resolution:g}"
+

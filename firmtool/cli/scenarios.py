@@ -37,8 +37,8 @@ def init(name: str = typer.Argument(..., help="The scenario's name: writes NAME.
 
 
 def _check_human(r: dict) -> str:
-    world = f"{r['world_dim']}-D world, {r['obstacles']} obstacle{'s' if r['obstacles'] != 1 else ''} " \
-            f"({r['collision_backend']})"
+    world = f"{r['world_dim']}-D world, " + (f"map {r['map']}, " if r.get("map") else "") + \
+        f"{r['obstacles']} obstacle{'s' if r['obstacles'] != 1 else ''} ({r['collision_backend']})"
     sensing = "perfect measurements" if r["measurement"] == "perfect" else \
         f"{r['measurements']} imperfect measurements ({r['noise']} noise)"
     return (f"ok: {r['scenario']}: scenario {r['name']!r}: robot {r['robot']} ({r['states']} states, "
