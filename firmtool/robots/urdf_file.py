@@ -167,8 +167,13 @@ class UrdfChain:
 
 
 def shipped_folder() -> Path:
-    """The folder of the URDFs shipped with firmtool (``package://firmtool/NAME``)."""
-    return Path(str(resources.files("firmtool.scenarios"))) / "robots"
+    """The folder of the URDFs shipped with firmtool (``package://firmtool/NAME``): the installed
+    ``firmtool.scenarios`` package's, or a source tree's ``scenarios/robots`` where firmtool is imported
+    from the tree itself (as :func:`firmtool.scenario.core.shipped_scenarios` finds the scenarios)."""
+    try:
+        return Path(str(resources.files("firmtool.scenarios"))) / "robots"
+    except ModuleNotFoundError:  # a source tree used without installing it (its root on sys.path)
+        return Path(__file__).resolve().parents[2] / "scenarios" / "robots"
 
 
 def inside(folder: Path, name: str, what: str) -> Path:
