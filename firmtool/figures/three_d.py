@@ -6,7 +6,6 @@ and episode in matplotlib's mplot3d beside the top views (:func:`firmtool.figure
 from __future__ import annotations
 
 import numpy as np
-from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
 from firmtool.graph.dp import policy_path
 from firmtool.io.roadmap_format import GOAL, START_INDEX
@@ -29,6 +28,8 @@ def panel_3d(ax, problem: Problem, design: Design, name: str, policy: np.ndarray
     boxes as wire frames (spheres as theirs), the followed point (the arm's tip) at the roadmap's
     nodes, the goal, the policy's path (``policy`` (N,): the edge per node) and the episode's
     estimated mean (with its arrays recorded), in the world's bounds; titled ``name in 3-D``."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # matplotlib's mplot3d: only a 3-D world needs it
+
     sc = problem.scenario
     lo, hi = np.asarray(sc.world.lo, float), np.asarray(sc.world.hi, float)
     for o in sc.world.obstacles:
