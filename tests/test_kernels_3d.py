@@ -192,6 +192,21 @@ def shelf():
     return problem, d, d.regions(problem)
 
 
+def compiled_verdicts(world_spec, hooks, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled 3-D collision test of each particle's key points ``P`` (N, K, 3) and the gate over
+    all of them at once (1 where it cannot rule a collision out): (N,) bool, (N,) uint8."""
+    N = P.shape[0]
+    world = collide3d.world_group_3d(world_spec, hooks.radii, hooks.self_pairs)
+    PX, PY, PZ = (np.ascontiguousarray(P[:, :, c].T) for c in range(3))
+    n_seg, offset = hooks.segments
+    G = np.zeros(N, dtype=np.uint8)
+    collide3d.collision_gate_3d(PX, PY, PZ, N, n_seg, hooks.stride, offset, world, G)
+    knots = np.empty(8)
+    got = np.array([collide3d.particle_collides_3d(PX, PY, PZ, a, knots, n_seg, hooks.stride, offset, world)
+                    for a in range(N)])
+    return got, G
+
+
 def _columns(X):
     return np.ascontiguousarray(np.asarray(X, dtype=float).T)
 
@@ -273,14 +288,7 @@ def test_compiled_collision_is_the_backends(four):
     X = rng.uniform(robot.config_lo - 0.2, robot.config_hi + 0.2, size=(N, robot.model.n))
     P = robot.points(X)
     want = ~robot.points_valid(P)
-    world = collide3d.world_group_3d(problem.scenario.world, hooks.radii, hooks.self_pairs)
-    PX, PY, PZ = (np.ascontiguousarray(P[:, :, c].T) for c in range(3))
-    n_seg, offset = hooks.segments
-    G = np.zeros(N, dtype=np.uint8)
-    collide3d.collision_gate_3d(PX, PY, PZ, N, n_seg, hooks.stride, offset, world, G)
-    knots = np.empty(8)
-    got = np.array([collide3d.particle_collides_3d(PX, PY, PZ, a, knots, n_seg, hooks.stride, offset, world)
-                    for a in range(N)])
+    got, G = compiled_verdicts(problem.scenario.world, hooks, P)
     assert np.array_equal(got, want)
     assert np.all(G[want] == 1)
     assert want.sum() > 100 and (G == 0).sum() > 100  # both kinds occur

@@ -16,6 +16,7 @@ fcl = pytest.importorskip("fcl")
 
 import firmtool as ft  # noqa: E402
 from firmtool.errors import ScenarioError  # noqa: E402
+from test_kernels_3d import compiled_verdicts  # noqa: E402
 from firmtool.geometry.distance3d import segment_segment_distance_sq_3d  # noqa: E402
 from firmtool.models import serial_chain  # noqa: E402
 from firmtool.problem import build_problem  # noqa: E402
@@ -147,14 +148,7 @@ def test_the_compiled_self_collision_is_the_numpy_one(arm7):
     P = robot.points(X)
     want = ~robot.points_valid(P)
     selfc = robot.self_collides(P)
-    world = collide3d.world_group_3d(arm7.scenario.world, hooks.radii, hooks.self_pairs)
-    PX, PY, PZ = (np.ascontiguousarray(P[:, :, c].T) for c in range(3))
-    n_seg, offset = hooks.segments
-    G = np.zeros(N, dtype=np.uint8)
-    collide3d.collision_gate_3d(PX, PY, PZ, N, n_seg, hooks.stride, offset, world, G)
-    knots = np.empty(8)
-    got = np.array([collide3d.particle_collides_3d(PX, PY, PZ, a, knots, n_seg, hooks.stride, offset, world)
-                    for a in range(N)])
+    got, G = compiled_verdicts(arm7.scenario.world, hooks, P)
     assert np.array_equal(got, want)
     assert np.all(G[want] == 1)
     assert selfc.sum() > 5 and (want & ~selfc).sum() > 100
