@@ -148,3 +148,33 @@ def test_dropping_every_wall_of_the_roadmap_warns_once(solution):
         warnings.simplefilter("error", ft.WorldUpdateWarning)
         policy.update_world([ACROSS])  # once
         policy.update_world(OWN + [ACROSS])
+
+
+def test_a_policy_remembers_the_last_few_worlds_only(solution, monkeypatch):
+    """A stream of distinct worlds (a map topic) holds at most Worlds.ANSWERS_KEPT answers; a world
+    seen recently is answered from memory (no new re-solve), one pushed out is solved again."""
+    import firmtool.online.world as world_module
+
+    solves = []
+    real = world_module.world_update
+    monkeypatch.setattr(world_module, "world_update", lambda *a, **k: solves.append(1) or real(*a, **k))
+    monkeypatch.setattr(world_module.Worlds, "ANSWERS_KEPT", 3)
+    policy = ft.Policy(solution)
+    boxes = [{"center": [3.0, 2.1 + 0.01 * i], "half_size": [0.15, 0.3]} for i in range(5)]
+    for box in boxes:
+        policy.update_world(OWN + [box])
+    assert len(solves) == 5 and len(policy._worlds._answers) == 3
+    policy.update_world(OWN + [boxes[4]])  # the newest: remembered
+    policy.update_world(OWN + [boxes[2]])  # the oldest kept: remembered, now the newest
+    assert len(solves) == 5
+    policy.update_world(OWN + [boxes[0]])  # pushed out long ago: solved again, pushing out boxes[3]
+    assert len(solves) == 6 and len(policy._worlds._answers) == 3
+    policy.update_world(OWN + [boxes[2]])
+    assert len(solves) == 6
+    policy.update_world(OWN + [boxes[3]])
+    assert len(solves) == 7
+    fresh = ft.Policy(solution)
+    fresh.update_world(OWN + [boxes[3]])  # a remembered answer is the answer a fresh policy computes
+    policy.update_world(OWN + [boxes[2]])
+    fresh.update_world(OWN + [boxes[2]])
+    np.testing.assert_array_equal(policy.state.edge_per_node, fresh.state.edge_per_node)

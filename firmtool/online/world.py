@@ -21,6 +21,7 @@ the obstacle itself). A world that keeps none of the roadmap's own obstacles war
 from __future__ import annotations
 
 import warnings
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -257,11 +258,16 @@ class Worlds:
         which cannot be updated).
     """
 
+    ANSWERS_KEPT = 8  # answers remembered (least recently used dropped first)
+
     def __init__(self, base: Problem, centers: np.ndarray, edges: Callable[[], EdgeTable] | None) -> None:
         self.base, self.centers, self._edges = base, centers, edges
         self.grid: Map | None = base.scenario.world.grid  # the map the policy holds now (a World may bring one)
         self._table: EdgeTable | None = None
-        self._answers: dict[str, tuple[Any, WorldUpdate]] = {}
+        # the last few worlds' answers, least recently used first: a robot that toggles between a few
+        # worlds (a door open, shut) re-solves each once, and a stream of distinct worlds (a ROS map
+        # topic) holds at most ANSWERS_KEPT of them in memory
+        self._answers: OrderedDict[str, tuple[Any, WorldUpdate]] = OrderedDict()
         self._own = [o.to_table() for o in base.scenario.world.obstacles]
         self.obstacles: list[dict[str, Any]] = [dict(t) for t in self._own]  # the world the policy holds now
         self.bounds: Any = None
@@ -323,6 +329,10 @@ class Worlds:
                 self._table = self._edges()
             update = world_update(self.base, self._table, self.centers, tables, bounds, self.grid)
             hit = self._answers[key] = (build(update), update)
+            while len(self._answers) > self.ANSWERS_KEPT:
+                self._answers.popitem(last=False)
+        else:
+            self._answers.move_to_end(key)
         return hit
 
     def forget(self) -> None:
