@@ -3,32 +3,48 @@ Carlo score beats the running one's (SLAP: Agha-mohammadi, Agarwal, Kim, Chakrav
 T-RO 2018; Rollout-FIRM in the reference C++ FIRM, edpl-ompl).
 
 The base FIRM policy drives the belief into each node's stopping region before it takes the next
-edge; on a long path most of an episode is spent settling. A rollout decision asks, from the
-belief ``(xhat, P)`` where the robot is now, whether a controller designed in real time
-(:meth:`Replanner.runtime_controller <firmtool.online.replanning.Replanner.runtime_controller>`)
-straight towards one of the next :attr:`ReplanSettings.rollout_candidates` nodes of the base
-policy's path (:func:`nodes_ahead`; the goal excluded, for the reason given there) does better than
-going on with the running one. Each option is scored as a replan candidate is (eq. 12 for one controller: a Monte
-Carlo of :attr:`ReplanSettings.rollout_particles` particles from the belief on the edges' compiled
-step, cost to the landing plus the landing node's FIRM cost-to-go, ``J_F`` for a failure or a
-timeout), but on **common random numbers**: one seed per decision, so every option's particles
-start from the same true states and draw the same stream. The engines draw each step's noise for
-the particles still running, in order, so the noise is common until the first particle's run ends
-under either controller and only correlated after (particle-indexed streams in the compiled engine
-would make it common throughout; not done). Even so the paired difference of two scores is far less
-noisy than either score. A new controller is taken only when its mean score beats the running
-controller's by more than the standard error of the paired differences (approximate, for the same
-reason); by the
-rollout property (policy improvement over the base policy's cost-to-go) the result is, up to that
-Monte Carlo error, never worse in expected cost than the base policy, and it is faster because the
-belief never has to settle at a node it only passes by.
+edge, and each edge's nominal runs rest to rest. A rollout decision asks, from the belief
+``(xhat, P)`` where the robot is now, whether one of these does better than going on with the
+running controller:
 
-Measured (``benchmarks/bench_rollout.py``, results in benchmarks/README.md): fewer steps and a lower
-cost on the point robot and the arm with success not lower. Candidates are taken in the order of
-the cheap lower bound ``C_est + J(node)`` (the replanner's),
-and the search stops as soon as that bound reaches the running controller's score; the decision's
-deadline (:attr:`ReplanSettings.deadline`, on the work clock by default) bounds how many are scored,
-so a decision fits the control period and its result does not depend on the machine's load.
+- **Onward**: the policy's edge from the running controller's target, taken now, before the belief
+  has settled there (:func:`onward_controller`: its filter re-planned from the belief, since its
+  stored gains assume the node's settled covariance and its landing tests would be optimistic).
+  Only an edge already designed is offered (no design inside a decision;
+  :meth:`~firmtool.online.Policy.prepare` designs the path's), and none into the goal.
+- **Ahead**: a controller designed in real time (:func:`rollout_controller`, on the robot's
+  :meth:`~firmtool.robots.Robot.rollout_nominal`, which need not brake first) straight towards one
+  of the next nodes of the base policy's path (:func:`nodes_ahead`; the goal excluded, for the reason
+  given there), at most :attr:`ReplanSettings.rollout_candidates` of them.
+
+Each option is scored as a replan candidate is (eq. 12 for one controller: a Monte Carlo from the
+belief on the edges' compiled step, cost to the landing plus the landing node's FIRM cost-to-go,
+``J_F`` for a failure or a timeout), but on **common random numbers**: one seed per decision, so
+every option's particles start from the same true states and draw the same stream. The engines
+draw each step's noise for the particles still running, in order, so the noise is common until the
+first particle's run ends under either controller and only correlated after. Even so the paired
+difference of two scores is far less noisy than either score. An option is a candidate for a switch
+when its mean score beats the running controller's by more than :data:`ROLLOUT_MARGIN` standard
+errors of the paired differences, and the best one is taken only if it beats it again on fresh
+particles (a second seed) by :data:`CONFIRM_MARGIN`: the best of several noisy scores, tested at
+every step, is biased low (without the confirmation the point robot collided more: 0.805 success
+against the base policy's 0.845). By the rollout property (policy improvement over the base
+policy's cost-to-go) the result is, up to that Monte Carlo error, never worse in expected cost than
+the base policy.
+
+**Sizing from measured time** (:class:`RolloutSizer`, ``ReplanSettings.rollout_sizing``). A decision's
+time is mostly its Monte Carlos and designs; their cost per particle and per design is measured at
+:meth:`~firmtool.online.Policy.prepare` (:func:`calibrate`: decisions from the start's edge, fixed
+seeds, results discarded) and at every decision after; before each decision the sizer picks the
+largest size (particles per option, then nodes ahead) whose forecast fits :data:`ROLLOUT_TIME_SHARE`
+of the control period, and within the decision it scores no further option once the next one and a
+confirmation would not fit (the running controller is always scored). **What depends on measured
+time**: the size and that cut, so the episodes themselves on a given machine and load; the draws
+(seeds from the policy's stream) do not. Each decision's size is recorded
+(``PolicyRecord.timing["decision_candidates"]``, ``["decision_particles"]``). ``rollout_sizing =
+"fixed"`` runs the settings' size on the replanner's deadline clock instead: the same episodes on
+any machine (the tests use it). Measured on the shipped robots in ``benchmarks/bench_rollout.py``
+(results in benchmarks/README.md, issue 55 item 5).
 """
 
 from __future__ import annotations
@@ -90,8 +106,10 @@ class RolloutSizer:
     A decision scores the running controller, the policy's edge from its target (a design: the filter
     re-planned) and up to ``candidates`` run-time controllers (a design each), and a switch is
     confirmed by two more Monte Carlos: with ``d`` seconds per design and ``m`` per particle of one
-    option's Monte Carlo, it takes about ``(candidates + 1) d + (candidates + 4) particles m``. The
-    sizer keeps a high quantile (:data:`SIZING_QUANTILE`) of the last :data:`SIZING_WINDOW` measurements of ``d`` and ``m`` and picks
+    option's Monte Carlo, it takes about ``(candidates + 1) d + (candidates + 4) particles m + o``
+    (``o`` the rest: segment checks, bounds, wrapping the controller taken). The
+    sizer keeps a high quantile (:data:`SIZING_QUANTILE`) of the last :data:`SIZING_WINDOW` measurements of ``d``, ``m``
+    and ``o`` and picks
     the largest size (particles first, halved from ``largest`` down to :data:`MIN_PARTICLES`; then
     candidates) whose forecast fits ``share x period``. During a decision it also stops scoring
     candidates when the next one (and a confirmation) would not fit (:meth:`fits`).
@@ -116,7 +134,8 @@ class RolloutSizer:
         self.budget = share * period
         self._design: deque[float] = deque(maxlen=SIZING_WINDOW)
         self._particle: deque[float] = deque(maxlen=SIZING_WINDOW)
-        self._t0 = 0.0
+        self._other: deque[float] = deque(maxlen=SIZING_WINDOW)
+        self._t0 = self._accounted = 0.0
 
     # -- measurements ---------------------------------------------------------------------------------
 
@@ -124,11 +143,13 @@ class RolloutSizer:
         """One controller design took ``seconds``."""
         if not self.fixed:
             self._design.append(seconds)
+            self._accounted += seconds
 
     def simulated(self, seconds: float, particles: int) -> None:
         """One option's Monte Carlo of ``particles`` took ``seconds``."""
         if not self.fixed:
             self._particle.append(seconds / max(particles, 1))
+            self._accounted += seconds
 
     @property
     def design_seconds(self) -> float:
@@ -141,15 +162,22 @@ class RolloutSizer:
         window's (0 before any measurement)."""
         return float(np.quantile(self._particle, SIZING_QUANTILE)) if self._particle else 0.0
 
+    @property
+    def other_seconds(self) -> float:
+        """A decision's seconds outside its designs and Monte Carlos (segment checks, bounds, wrapping
+        the controller taken): the :data:`SIZING_QUANTILE` of the window's (0 before any)."""
+        return float(np.quantile(self._other, SIZING_QUANTILE)) if self._other else 0.0
+
     def forecast(self, size: RolloutSize) -> float:
         """Seconds a decision of ``size`` takes by the current estimates (a switch confirmed)."""
         c = size.candidates
-        return (c + 1) * self.design_seconds + (c + 4) * size.particles * self.particle_seconds
+        return (c + 1) * self.design_seconds + (c + 4) * size.particles * self.particle_seconds + self.other_seconds
 
     def forget(self) -> None:
         """Drop the measurements (a warm-up's)."""
         self._design.clear()
         self._particle.clear()
+        self._other.clear()
 
     # -- sizing ---------------------------------------------------------------------------------------
 
@@ -170,14 +198,19 @@ class RolloutSizer:
         return RolloutSize(1, particles[-1])
 
     def start(self) -> None:
-        """A decision starts now (for :meth:`fits`)."""
-        self._t0 = self.timer()
+        """A decision starts now (for :meth:`fits` and :meth:`finish`)."""
+        self._t0, self._accounted = self.timer(), 0.0
+
+    def finish(self) -> None:
+        """The decision started last ends now: its time outside designs and Monte Carlos is measured."""
+        if not self.fixed:
+            self._other.append(max(0.0, self.timer() - self._t0 - self._accounted))
 
     def fits(self, particles: int) -> bool:
         """Whether one more option (a design and a Monte Carlo of ``particles``) and a confirmation
-        (two Monte Carlos) still fit the budget from the decision's start."""
+        (two Monte Carlos) still fit the budget from the decision's start, with the decision's other work."""
         used = self.timer() - self._t0
-        return used + self.design_seconds + 3 * particles * self.particle_seconds <= self.budget
+        return used + self.design_seconds + 3 * particles * self.particle_seconds + self.other_seconds <= self.budget
 
 
 def particle_scores(replanner: Replanner, lc: LocalController, xhat: np.ndarray, P: np.ndarray, M: int,
@@ -258,6 +291,8 @@ class _Work:
 
     def done(self, controller: RunningController | None, score: float, keep_score: float, reason: str) -> Decision:
         b = self.budget
+        if self.sizer is not None:
+            self.sizer.finish()
         return Decision(controller, score, keep_score, reason, b.scored, b.hit, b.seconds,
                         (self.size.candidates, self.size.particles))
 
