@@ -66,6 +66,7 @@ from firmtool.io.roadmap_format import START_INDEX
 from firmtool.online.arrival import Arrival
 from firmtool.online.decision import KeepOrReplan
 from firmtool.online.replanning import DEADLINE_FALSE_ALARMS, Replanner, ReplanSettings, mission_false_alarm
+from firmtool.online.rollout import RolloutSize, RolloutSizer, prepare_rollout
 from firmtool.online.run import PolicyRun, PolicyStatus, Prepared
 from firmtool.online.running import EdgeControllers
 from firmtool.online.state import PolicyRecord, PolicyState
@@ -188,6 +189,9 @@ class Policy:
         self._now: PolicyRun | None = None  # the run since the last reset
         self._worlds = Worlds(problem, design_.centers, None)  # update_world's answers (problem follows them)
         self._timed: np.ndarray | None = None  # a deadline's time-indexed policy (T + 1, N)
+        s = self._settings
+        self._sizer = (RolloutSizer(problem.model.dt, RolloutSize(s.rollout_candidates, s.rollout_particles),
+                                    fixed=s.rollout_sizing == "fixed") if s.rollout else None)
 
     def prepare(self) -> None:
         """Build what every run shares, once: the node regions, the replanner, the jump test's
@@ -200,6 +204,8 @@ class Policy:
                                   self._design.regions(self._problem), False)
         if self._settings.enabled and self._settings.risk_particles > 0:  # the engine compiled now, not in a replan
             self._parts.controllers.warm_up(self._edge_per_node)
+        if self._sizer is not None:  # rollout FIRM's path edges designed and its decisions measured now
+            prepare_rollout(self._sizer, self._parts, START_INDEX)
 
     def _build(self, problem: Problem, edge_per_node: np.ndarray, cost_to_go: np.ndarray,
                regions: NodeRegions, world_updated: bool) -> Prepared:
@@ -217,7 +223,8 @@ class Policy:
                         regions=regions, replanner=replanner, decisions=KeepOrReplan(problem, replanner, s),
                         arrival=Arrival(regions, design_.kinds), controllers=EdgeControllers(problem, design_, regions),
                         jump_false_alarm=jump_false_alarm, window_test=window_test, jump_test=jump_test,
-                        world_updated=world_updated, timed_policy=None if world_updated else self._timed)
+                        world_updated=world_updated, timed_policy=None if world_updated else self._timed,
+                        sizer=self._sizer)
 
     def _prepared(self) -> Prepared:
         self.prepare()

@@ -59,7 +59,8 @@ REPLAN_CANDIDATES = 8  # nearest nodes scored for an initial controller or a rep
 PROJECTION_SAMPLES = 256  # draws from the belief to find the most likely valid state
 RISK_PARTICLES = 32  # Monte Carlo particles per replan candidate (0: rank by the cost-to-go alone)
 ROLLOUT_PARTICLES = 64  # particles per option of a rollout decision, common to every option (firmtool.online.rollout)
-ROLLOUT_CANDIDATES = 2  # nodes ahead on the base policy's path scored per rollout decision
+ROLLOUT_CANDIDATES = 2  # nodes ahead on the base policy's path scored per rollout decision (at most)
+ROLLOUT_SIZINGS = ("measured", "fixed")  # firmtool.online.rollout.RolloutSizer
 RUNTIME_NOMINAL_TRIES = 3  # nominal lengths tried for a controller designed at run time
 INNOVATION_WINDOW = 10  # steps of the innovation test's moving window
 INNOVATION_FALSE_ALARM = 1e-6  # per-step false-alarm probability of the innovation test (chi-square tail)
@@ -208,8 +209,13 @@ class ReplanSettings:
     rollout : rollout FIRM (:mod:`firmtool.online.rollout`): every ``rollout_every`` steps a decision
         from the current belief between the running controller and run-time controllers to the
         ``rollout_candidates`` nodes the base policy visits after its target, ``rollout_particles``
-        common particles each; off (the
-        default): the base FIRM policy, which settles at every node.
+        common particles each (at most: see ``rollout_sizing``); off (the default): the base FIRM
+        policy, which settles at every node.
+    rollout_sizing : ``"measured"`` (default): each rollout decision's candidates and particles are
+        sized from the measured time of its parts so that it takes at most half the control period
+        (:class:`~firmtool.online.rollout.RolloutSizer`; the episodes then depend on the machine and
+        its load, and the records say which size ran); ``"fixed"``: ``rollout_candidates`` and
+        ``rollout_particles`` always, on the deadline's clock (reproducible on any machine).
     """
 
     enabled: bool = True
@@ -238,6 +244,7 @@ class ReplanSettings:
     rollout_every: int = 1
     rollout_particles: int = ROLLOUT_PARTICLES
     rollout_candidates: int = ROLLOUT_CANDIDATES
+    rollout_sizing: str = "measured"
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.threshold) and self.threshold > 0):
@@ -267,6 +274,9 @@ class ReplanSettings:
         if self.rollout_every < 1 or self.rollout_particles < 1 or self.rollout_candidates < 1:
             raise InputError(f"rollout_every, rollout_particles and rollout_candidates: expected integers >= 1, "
                              f"found {self.rollout_every}, {self.rollout_particles}, {self.rollout_candidates}")
+        if self.rollout_sizing not in ROLLOUT_SIZINGS:
+            raise InputError(f"rollout_sizing: expected one of {', '.join(ROLLOUT_SIZINGS)}, "
+                             f"found {quoted(self.rollout_sizing)}")
         if self.window < 1 or self.candidates < 1 or self.jump_window < 1 or self.goal_lookback < 1:
             raise InputError(f"replan window, jump_window, goal_lookback and candidates: expected integers >= 1, "
                              f"found {self.window}, {self.jump_window}, {self.goal_lookback}, {self.candidates}")
@@ -291,6 +301,7 @@ class Decision:
     scored : candidates scored by Monte Carlo (the running controller included).
     deadline_hit : the deadline stopped the search with candidates left to score.
     work_seconds : the decision's time on its clock (work: ``scored x candidate_seconds``).
+    size : a rollout decision's ``(candidates, particles)`` (:mod:`firmtool.online.rollout`); None for others.
     """
 
     controller: RunningController | None
@@ -300,6 +311,7 @@ class Decision:
     scored: int
     deadline_hit: bool
     work_seconds: float
+    size: tuple[int, int] | None = None
 
 
 class DecisionBudget:

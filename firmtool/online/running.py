@@ -191,6 +191,10 @@ class EdgeControllers:
                                                    lc.edge_steps, self.problem.perfect)
         return self._cache[edge]
 
+    def cached(self, edge: int) -> RunningController | None:
+        """The edge's running controller if it was designed already, else None (no design now)."""
+        return self._cache.get(edge)
+
     def warm_up(self, edge_per_node: np.ndarray) -> None:
         """Compile (or load) the Monte Carlo engine now, not in a replan: one particle along the first
         policy edge of ``edge_per_node`` (N,) (nothing without an edge)."""

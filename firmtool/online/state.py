@@ -150,7 +150,8 @@ class PolicyRecord:
     timing : seconds of compute: ``act`` and ``observe`` (T,) per control period (decisions apart),
         ``decision`` per replan decision (wall), ``decision_cpu`` (its thread's CPU time),
         ``decision_work`` (its time on the deadline's clock), ``decision_scored`` (candidates scored by
-        Monte Carlo, the running controller included), ``deadline_hit`` (bool per decision).
+        Monte Carlo, the running controller included), ``deadline_hit`` (bool per decision),
+        ``decision_candidates`` and ``decision_particles`` (a rollout decision's size, 0 for others).
     history : with ``reset(..., record=True)``: ``estimates`` (T + 1, n), ``covariances`` (T + 1, n, n)
         (row 0 the reset belief) and ``controls`` (T, m); else None.
     """

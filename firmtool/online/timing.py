@@ -74,6 +74,7 @@ class Timing:
         self._work: list[float] = []
         self._scored: list[int] = []
         self._deadline_hit: list[bool] = []
+        self._size: list[tuple[int, int]] = []
 
     def decided(self, seconds: float, cpu: float, decision: Decision | None) -> float:
         """Record one decision: its wall ``seconds``, thread ``cpu`` seconds and the replanner's
@@ -95,6 +96,8 @@ class Timing:
         self._work.append(work)
         self._scored.append(scored)
         self._deadline_hit.append(hit)
+        size = None if decision is None else decision.size
+        self._size.append((0, 0) if size is None else size)
         return work
 
     def summary(self) -> TimingSummary:
@@ -107,10 +110,13 @@ class Timing:
 
     def as_dict(self) -> dict[str, np.ndarray]:
         """The record as arrays: ``act`` and ``observe`` (T,), and per decision ``decision`` (wall),
-        ``decision_cpu``, ``decision_work`` (its clock's), ``decision_scored`` (int) and
-        ``deadline_hit`` (bool)."""
+        ``decision_cpu``, ``decision_work`` (its clock's), ``decision_scored`` (int), ``deadline_hit``
+        (bool), and a rollout decision's size (:class:`~firmtool.online.rollout.RolloutSize`),
+        ``decision_candidates`` and ``decision_particles`` (int; 0 for other decisions)."""
+        size = np.asarray(self._size, dtype=np.int64).reshape(-1, 2)
         return {"act": np.asarray(self.act), "observe": np.asarray(self.observe),
                 "decision": np.asarray(self._seconds), "decision_cpu": np.asarray(self._cpu),
                 "decision_work": np.asarray(self._work),
                 "decision_scored": np.asarray(self._scored, dtype=np.int64),
-                "deadline_hit": np.asarray(self._deadline_hit, dtype=bool)}
+                "deadline_hit": np.asarray(self._deadline_hit, dtype=bool),
+                "decision_candidates": size[:, 0], "decision_particles": size[:, 1]}

@@ -27,7 +27,8 @@ protocol it uses (the engine the compiled hooks, the problem the geometry):
   node stabilisers: stationary (SLQG) by default, or periodic like the unicycle's
   (:meth:`design_node`, :meth:`node_controller`, :meth:`start_covariance`);
 - :class:`~firmtool.robots.nominals.Nominals` (:mod:`firmtool.robots.nominals`): its nominal
-  trajectories between nodes (:meth:`nominal_trajectory`, :meth:`runtime_nominal`) and whether they
+  trajectories between nodes (:meth:`nominal_trajectory`, :meth:`runtime_nominal`,
+  :meth:`rollout_nominal`) and whether they
   follow the straight configuration segment (:meth:`nominals_are_straight`);
 - optionally, :class:`~firmtool.robots.jumps.JumpAnswers` (:mod:`firmtool.robots.jumps`) and
   :class:`~firmtool.robots.relocalisation.Relocalising` (:mod:`firmtool.robots.relocalisation`):

