@@ -1,6 +1,8 @@
 """Rollout FIRM (issue 37, 1): from the current belief, a run-time controller to the next nodes of the
 base policy's path replaces the running one when it scores better on common random numbers."""
 
+import json
+
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -132,6 +134,16 @@ def test_execute_runs_the_rollout_policy(smoke_roadmap):
     assert '"policy": "rollout"' in res.stdout
     bad = CliRunner().invoke(app, ["execute", str(smoke_roadmap[0]), "--policy", "greedy", "-n", "4"])
     assert bad.exit_code == 2 and "'firm', 'rollout' or 'shortest-path'" in bad.output
+    # the default sizing is fixed: the same episodes again from the same seed
+    again = CliRunner().invoke(app, ["execute", str(smoke_roadmap[0]), "--policy", "rollout", "-n", "4", "--json"])
+    same = ("successes", "mean_steps", "events", "replans")
+    first, second = json.loads(res.stdout), json.loads(again.stdout)
+    assert all(k in first for k in same) and {k: first[k] for k in same} == {k: second[k] for k in same}
+    measured = CliRunner().invoke(app, ["execute", str(smoke_roadmap[0]), "--policy", "rollout", "-n", "2",
+                                        "--rollout-sizing", "measured", "--json"])
+    assert measured.exit_code == 0, measured.output
+    bad = CliRunner().invoke(app, ["execute", str(smoke_roadmap[0]), "--rollout-sizing", "wall"])
+    assert bad.exit_code == 2 and bad.output.startswith("error: --rollout-sizing: expected one of measured, fixed")
 
 
 def test_no_candidate_no_monte_carlo(smoke, monkeypatch):

@@ -64,6 +64,11 @@ ReplanLatencyOpt = typer.Option(
     "0", "--replan-latency",
     help="'0' (default): a replanned controller runs from the next step. 'measured': the "
          "running controller goes on for ceil(t / dt) steps, t the decision's time on its clock.")
+RolloutSizingOpt = typer.Option(
+    "fixed", "--rollout-sizing",
+    help="Rollout FIRM (--policy rollout): 'fixed' (default: 64 particles, 2 nodes ahead; the same "
+         "episodes on any machine) or 'measured' (each decision sized from its measured time to half "
+         "the control period, as on a robot; results then depend on the load).")
 GoalCheckOpt = typer.Option(
     None, "--goal-check",
     help="Tail probability per onset at which the jump test questions a goal arrival: the "
@@ -164,7 +169,8 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
             policy_name: str = PolicyOpt, disturbance: Optional[list[str]] = DisturbanceOpt,
             no_replan: bool = NoReplanOpt, replan_threshold: float = ReplanThresholdOpt,
             replan_deadline: Optional[float] = ReplanDeadlineOpt, replan_clock: str = ReplanClockOpt,
-            replan_latency: str = ReplanLatencyOpt, goal_check: Optional[float] = GoalCheckOpt,
+            replan_latency: str = ReplanLatencyOpt, rollout_sizing: str = RolloutSizingOpt,
+            goal_check: Optional[float] = GoalCheckOpt,
             jump_false_alarm: Optional[float] = JumpFalseAlarmOpt, jump_window: Optional[int] = JumpWindowOpt,
             goal_lookback: Optional[int] = GoalLookbackOpt, start: Optional[str] = StartOpt,
             save_episodes: Optional[Path] = SaveEpisodesOpt, query: Optional[str] = QueryOpt,
@@ -198,7 +204,7 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
     check_roadmap_argument(roadmap)
     dists = parse_disturbances(disturbance)
     settings = replan_settings(no_replan, replan_threshold, replan_deadline, replan_clock, replan_latency,
-                               goal_check, jump_false_alarm, jump_window, goal_lookback)
+                               goal_check, jump_false_alarm, jump_window, goal_lookback, rollout_sizing)
     start_state = parse_start(start)
     check_policy(policy_name)
     if save_episodes is not None:
@@ -230,11 +236,12 @@ def execute(roadmap: Path = SolvedRoadmapArg, episodes: int = EpisodesOpt, seed:
 
 def replan_settings(no_replan: bool, threshold: float, deadline: float | None, clock: str, latency: str,
                     goal_check: float | None, jump_false_alarm: float | None, jump_window: int | None,
-                    goal_lookback: int | None) -> "ReplanSettings":
+                    goal_lookback: int | None, rollout_sizing: str = "fixed") -> "ReplanSettings":
     """The replanning options of ``firmtool execute``, checked (each error names its option) and as
     :class:`~firmtool.online.replanning.ReplanSettings` (None: the option's default)."""
     # lazy: saves firmtool --help the online policy's import, 1.35 s (firmtool.cli.app)
-    from firmtool.online.replanning import CLOCKS, GOAL_CHECK, GOAL_LOOKBACK, JUMP_WINDOW, LATENCIES, ReplanSettings
+    from firmtool.online.replanning import (CLOCKS, GOAL_CHECK, GOAL_LOOKBACK, JUMP_WINDOW, LATENCIES, ROLLOUT_SIZINGS,
+                                            ReplanSettings)
     if not (np.isfinite(threshold) and threshold > 0):
         raise InputError(f"--replan-threshold: expected a finite number > 0, found {threshold}")
     if deadline is not None and not (np.isfinite(deadline) and deadline > 0):
@@ -243,6 +250,8 @@ def replan_settings(no_replan: bool, threshold: float, deadline: float | None, c
         raise InputError(f"--replan-clock: expected one of {', '.join(CLOCKS)}, found {quoted(clock)}")
     if latency not in LATENCIES:
         raise InputError(f"--replan-latency: expected one of {', '.join(LATENCIES)}, found {quoted(latency)}")
+    if rollout_sizing not in ROLLOUT_SIZINGS:
+        raise InputError(f"--rollout-sizing: expected one of {', '.join(ROLLOUT_SIZINGS)}, found {quoted(rollout_sizing)}")
     if goal_check is not None and not (np.isfinite(goal_check) and 0.0 <= goal_check < 1.0):
         raise InputError(f"--goal-check: expected a probability in [0, 1), found {goal_check}")
     if jump_false_alarm is not None and not (np.isfinite(jump_false_alarm) and 0.0 < jump_false_alarm < 1.0):
@@ -259,7 +268,8 @@ def replan_settings(no_replan: bool, threshold: float, deadline: float | None, c
                           latency=latency, jump_false_alarm=jump_false_alarm,
                           goal_check=GOAL_CHECK if goal_check is None else goal_check,
                           jump_window=JUMP_WINDOW if jump_window is None else jump_window,
-                          goal_lookback=GOAL_LOOKBACK if goal_lookback is None else goal_lookback)
+                          goal_lookback=GOAL_LOOKBACK if goal_lookback is None else goal_lookback,
+                          rollout_sizing=rollout_sizing)
 
 
 def exit_if_all_stuck(report: dict, roadmap: Path) -> None:

@@ -211,11 +211,13 @@ class ReplanSettings:
         ``rollout_candidates`` nodes the base policy visits after its target, ``rollout_particles``
         common particles each (at most: see ``rollout_sizing``); off (the default): the base FIRM
         policy, which settles at every node.
-    rollout_sizing : ``"measured"`` (default): each rollout decision's candidates and particles are
-        sized from the measured time of its parts so that it takes at most half the control period
-        (:class:`~firmtool.online.rollout.RolloutSizer`; the episodes then depend on the machine and
-        its load, and the records say which size ran); ``"fixed"``: ``rollout_candidates`` and
-        ``rollout_particles`` always, on the deadline's clock (reproducible on any machine).
+    rollout_sizing : ``"fixed"`` (default): ``rollout_candidates`` and ``rollout_particles`` always, on
+        the deadline's clock: episodes reproducible from the seed on any machine, as with
+        ``clock="work"``; ``"measured"``: each rollout decision's candidates and particles are sized
+        from the measured time of its parts so that it takes at most half the control period
+        (:class:`~firmtool.online.rollout.RolloutSizer`): what a robot on a real clock wants, its
+        decisions' p99 under the period; the episodes then depend on the machine and its load, and
+        the records say which size ran.
     """
 
     enabled: bool = True
@@ -244,7 +246,7 @@ class ReplanSettings:
     rollout_every: int = 1
     rollout_particles: int = ROLLOUT_PARTICLES
     rollout_candidates: int = ROLLOUT_CANDIDATES
-    rollout_sizing: str = "measured"
+    rollout_sizing: str = "fixed"
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.threshold) and self.threshold > 0):

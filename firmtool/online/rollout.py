@@ -41,9 +41,10 @@ of the control period, and within the decision it scores no further option once 
 confirmation would not fit (the running controller is always scored). **What depends on measured
 time**: the size and that cut, so the episodes themselves on a given machine and load; the draws
 (seeds from the policy's stream) do not. Each decision's size is recorded
-(``PolicyRecord.timing["decision_candidates"]``, ``["decision_particles"]``). ``rollout_sizing =
-"fixed"`` runs the settings' size on the replanner's deadline clock instead: the same episodes on
-any machine (the tests use it). Measured on the shipped robots in ``benchmarks/bench_rollout.py``
+(``PolicyRecord.timing["decision_candidates"]``, ``["decision_particles"]``). Sizing is asked for
+with ``rollout_sizing = "measured"`` (a robot on a real clock); the default ``"fixed"`` runs the
+settings' size on the replanner's deadline clock: the same episodes from the same seed on any
+machine, as the deadline's ``clock = "work"`` does. Measured on the shipped robots in ``benchmarks/bench_rollout.py``
 (results in benchmarks/README.md, issue 55 item 5).
 """
 
