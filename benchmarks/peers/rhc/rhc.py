@@ -263,7 +263,7 @@ class RHCConfig:
     final_weight: float = 1.0
     control_scale: float = 1.0
     k_sigma: float = 3.0
-    maxiter: int = 40
+    maxiter: int = 15
     ftol: float = 1e-5
     stall_steps: int = 300
 
