@@ -204,3 +204,25 @@ def test_firmtools_simulator_runs_the_peer_and_judges_it_on_the_true_state():
         assert ep.replans >= 1 and ep.steps < 100
     b = run_episodes(policy, 2, 0)
     assert [(e.steps, e.cost) for e in a.episodes] == [(e.steps, e.cost) for e in b.episodes]
+
+
+def test_geodesic_distance_is_the_shortest_free_path():
+    """The peer's optional geodesic distance to goal: in the open light-dark world it is the straight
+    line's length (within the 8-connected grid's overestimate, at most ~8%); behind point_lightdark's
+    wall it is the path through the left gap: at least the shortest one (around the gap's inflated
+    corners) and within the grid's overestimate of the path through the gap's centre."""
+    open_world = rhc.Geodesic(problem_of("platt_lightdark"), resolution=0.1)
+    P = np.random.default_rng(4).uniform(-4, 8, (50, 2))
+    straight = np.linalg.norm(P, axis=1)
+    got = open_world(P)
+    assert np.all(got >= straight - 0.1) and np.all(got <= 1.09 * straight + 0.1)
+    maze = problem_of("point_lightdark")
+    geo = rhc.Geodesic(maze)
+    start, gap, goal = np.array([1.0, 1.0]), np.array([2.0, 3.0]), maze.goal[:2]
+    via = np.linalg.norm(gap - start) + np.linalg.norm(goal - gap)
+    r = maze.scenario.world.robot_radius
+    c1, c2 = np.array([1.6 + r, 2.7 - r]), np.array([1.6 + r, 3.3 + r])  # the gap's left corners, inflated
+    around = np.linalg.norm(c1 - start) + np.linalg.norm(c2 - c1) + np.linalg.norm(goal - c2)
+    d = float(geo(start[None])[0])
+    assert np.linalg.norm(goal - start) < around - 0.2  # the wall is in the way
+    assert around - 0.05 <= d <= 1.09 * via

@@ -16,7 +16,8 @@ falls on all alike. Compute per step: wall and thread-CPU seconds of ``act`` plu
 
 Systems: ``firm`` (``ft.Policy(solution)``: the stored policy, replanning on, its defaults),
 ``firm-rollout`` (``mode="rollout"``), ``rhc`` (:class:`rhc.RHCPolicy`, re-planning when the belief
-leaves the nominal or half the horizon is spent) and ``rhc-every`` (re-planning every step).
+leaves the nominal or half the horizon is spent) and ``rhc-every`` (re-planning every step); ``-geo`` (the distance to goal geodesic: an aid to the
+peer in the mazes, not the paper's) and ``-H<h>`` (another horizon) can be added to either.
 Roadmaps are built once into ``--roadmaps`` (default ``artifacts/rhc``) and reused.
 """
 
@@ -108,10 +109,13 @@ def systems_of(sol, name: str, which: list[str], horizon: int | None = None) -> 
             out[s] = Timed(ft.Policy(sol))
         elif s == "firm-rollout":
             out[s] = Timed(ft.Policy(sol, mode="rollout"))
-        elif s.startswith("rhc"):
-            mode = "every" if s.startswith("rhc-every") else "threshold"
-            h = int(s.split("-H")[1]) if "-H" in s else H
-            out[s] = Timed(RHCPolicy(sol, RHCConfig(horizon=h, replan=mode, cov_weight=spec["cov_weight"])))
+        elif s.startswith("rhc"):  # rhc[-every][-geo][-H<h>]
+            parts = s.split("-")[1:]
+            mode = "every" if "every" in parts else "threshold"
+            distance = "geodesic" if "geo" in parts else "euclidean"
+            h = next((int(p[1:]) for p in parts if p.startswith("H")), H)
+            out[s] = Timed(RHCPolicy(sol, RHCConfig(horizon=h, replan=mode, cov_weight=spec["cov_weight"],
+                                                    distance=distance)))
         else:
             raise SystemExit(f"unknown system {s!r}")
     return out
@@ -242,7 +246,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=list(SCENARIOS))
     ap.add_argument("--systems", nargs="+", default=["firm", "firm-rollout", "rhc"],
-                    help="firm, firm-rollout, rhc, rhc-every, rhc-H<h>, rhc-every-H<h> (main rows)")
+                    help="firm, firm-rollout, rhc[-every][-geo][-H<h>] (main rows; every: re-plan every step; "
+                    "geo: the geodesic distance to goal, an aid to the peer; H: the horizon)")
     ap.add_argument("--episodes", type=int, default=400)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--horizons", action="store_true", help="the RHC at the scenario's 3 horizons (both modes' "

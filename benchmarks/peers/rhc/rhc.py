@@ -248,6 +248,10 @@ class RHCConfig:
     control_scale : multiplies the scenario's control weight ``R``.
     k_sigma : the chance constraint's standard deviations.
     maxiter, ftol : SLSQP's.
+    distance : ``"euclidean"`` (Platt et al.'s quadratic distance to the goal) or ``"geodesic"``: the
+        position's part of ``|m - g|_Wx^2`` replaced by the squared length of the shortest collision-free
+        path to the goal (:class:`Geodesic`), a cost-to-go a global planner would give a receding
+        horizon in a maze (NOT in the paper; an aid to the peer, reported apart).
     stall_steps : the peer gives up (status ``stuck``, a failure) when its distance to the goal (the
         ``Wx`` norm of the mean's error) has not come 1% below its best in this many steps: a
         receding horizon caught in a local minimum (a wall between it and the goal) would otherwise
@@ -266,8 +270,11 @@ class RHCConfig:
     maxiter: int = 15
     ftol: float = 1e-5
     stall_steps: int = 300
+    distance: str = "euclidean"
 
     def __post_init__(self) -> None:
+        if self.distance not in ("euclidean", "geodesic"):
+            raise ValueError(f"RHCConfig.distance: expected 'euclidean' or 'geodesic', found {self.distance!r}")
         if self.replan not in ("every", "threshold"):
             raise ValueError(f"RHCConfig.replan: expected 'every' or 'threshold', found {self.replan!r}")
         if self.horizon < 1:
@@ -326,6 +333,67 @@ def box_clearance(P: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndar
     return d, grad
 
 
+class Geodesic:
+    """The length of the shortest collision-free path from a position to the goal, on a grid.
+
+    Dijkstra (``scipy.sparse.csgraph``) over the 8-connected grid of positions where the robot is
+    valid by firmtool's own test (``problem.is_valid``, its radius included), from the goal's cell;
+    cells where it is not valid get the value of their nearest valid cell plus the distance to it
+    (``scipy.ndimage.distance_transform_edt``), so that the field is finite and continuous; read by
+    bilinear interpolation (``scipy.interpolate.RegularGridInterpolator``).
+
+    Parameters
+    ----------
+    problem : firmtool's problem (2-D positions); resolution : the grid's step.
+    """
+
+    def __init__(self, problem, resolution: float = 0.05) -> None:
+        import scipy.interpolate
+        import scipy.ndimage
+        import scipy.sparse
+        import scipy.sparse.csgraph
+
+        sc = problem.scenario
+        lo, hi = np.asarray(sc.world.lo, dtype=float)[:2], np.asarray(sc.world.hi, dtype=float)[:2]
+        xs = np.arange(lo[0], hi[0] + 0.5 * resolution, resolution)
+        ys = np.arange(lo[1], hi[1] + 0.5 * resolution, resolution)
+        X, Y = np.meshgrid(xs, ys, indexing="ij")
+        q = np.stack([X.ravel(), Y.ravel()], 1)
+        states = problem.state_of(np.concatenate([q, np.tile(problem.goal[2:problem.config_dim], (q.shape[0], 1))], 1)
+                                  if problem.config_dim > 2 else q)
+        free = np.asarray(problem.is_valid(states), dtype=bool).reshape(X.shape)
+        nx, ny = X.shape
+        idx = np.arange(nx * ny).reshape(nx, ny)
+        rows, cols, w = [], [], []
+        for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
+            a = idx[max(0, -dx):nx - max(0, dx), max(0, -dy):ny - max(0, dy)]
+            b = idx[max(0, -dx) + dx:nx - max(0, dx) + dx, max(0, -dy) + dy:ny - max(0, dy) + dy]
+            ok = free.ravel()[a.ravel()] & free.ravel()[b.ravel()]
+            rows.append(a.ravel()[ok])
+            cols.append(b.ravel()[ok])
+            w.append(np.full(int(ok.sum()), resolution * np.hypot(dx, dy)))
+        r, c, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(w)
+        graph = scipy.sparse.coo_matrix((ww, (r, c)), shape=(nx * ny, nx * ny)).tocsr()
+        g = np.asarray(problem.goal[:2], dtype=float)
+        gi = np.clip(np.round((g - lo) / resolution).astype(int), 0, [nx - 1, ny - 1])
+        dist = scipy.sparse.csgraph.dijkstra(graph, directed=False, indices=int(idx[gi[0], gi[1]])).reshape(nx, ny)
+        reach = np.isfinite(dist) & free
+        if not reach.any():
+            raise ValueError("Geodesic: the goal's cell is not free")
+        far = float(dist[reach].max()) + 10.0
+        dist = np.where(reach, dist, np.inf)
+        _, (ix, iy) = scipy.ndimage.distance_transform_edt(~reach, return_indices=True)
+        filled = dist[ix, iy] + resolution * np.hypot(ix - np.arange(nx)[:, None], iy - np.arange(ny)[None, :])
+        filled = np.where(np.isfinite(filled), filled, far)
+        self.field = filled
+        self._interp = scipy.interpolate.RegularGridInterpolator((xs, ys), filled, bounds_error=False, fill_value=None)
+
+    def __call__(self, P: np.ndarray) -> np.ndarray:
+        """Path length to the goal at positions ``P`` (..., 2) -> (...)."""
+        flat = P.reshape(-1, 2)
+        return self._interp(flat).reshape(P.shape[:-1])
+
+
 class Planner:
     """The finite-horizon plan of the nominal belief trajectory (module notes), by SLSQP.
 
@@ -360,18 +428,29 @@ class Planner:
         # a point robot with velocities (double integrator): |v_i| <= max_speed as a constraint
         self.vel = (np.arange(d, n) if (sc.model.robot == "point" and problem.velocity_dim) else np.zeros(0, int))
         self.vmax = float(c.max_speed)
+        self.geodesic = Geodesic(problem) if config.distance == "geodesic" else None
         self._cache: tuple[bytes, tuple] | None = None
         self.active_boxes, self.active_lo, self.active_hi = self.boxes, np.ones(2, bool), np.ones(2, bool)
 
     # -- cost and constraints of batches of control sequences ------------------------------------
 
-    def cost_of(self, M: np.ndarray, S: np.ndarray, U: np.ndarray) -> np.ndarray:
-        """``J`` of each rollout: M (B, H + 1, n), S (B, H + 1, n, n), U (B, H, m) -> (B,)."""
-        cfg = self.cfg
+    def distance2(self, M: np.ndarray) -> np.ndarray:
+        """``|m - g|_Wx^2`` of means (..., n) -> (...), the position's part geodesic with
+        ``distance="geodesic"`` (its weight the first position coordinate's)."""
         e = M - self.goal
         for a in self.angles:
             e[..., a] = np.arctan2(np.sin(e[..., a]), np.cos(e[..., a]))
-        quad = np.einsum("bti,ij,btj->bt", e, self.Wx, e)
+        quad = np.einsum("...i,ij,...j->...", e, self.Wx, e)
+        if self.geodesic is not None:
+            p = self.pos
+            quad = quad - np.einsum("...i,ij,...j->...", e[..., p], self.Wx[np.ix_(p, p)], e[..., p])
+            quad = quad + self.Wx[p[0], p[0]] * self.geodesic(M[..., p]) ** 2
+        return quad
+
+    def cost_of(self, M: np.ndarray, S: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """``J`` of each rollout: M (B, H + 1, n), S (B, H + 1, n, n), U (B, H, m) -> (B,)."""
+        cfg = self.cfg
+        quad = self.distance2(M)
         ci = self.cfg_idx
         cov = np.trace(S[:, -1][:, ci][:, :, ci], axis1=1, axis2=2)
         effort = np.einsum("bti,ij,btj->b", U, self.R, U)
@@ -781,10 +860,7 @@ class RHCPolicy:
         events, r.pending = r.pending, []
         n0 = len(r.events)
         if decide and not self._arrived(r):
-            e = r.mean - self.planner.goal
-            for a in self.planner.angles:
-                e[a] = np.arctan2(np.sin(e[a]), np.cos(e[a]))
-            dist = float(np.sqrt(e @ self.planner.Wx @ e))
+            dist = float(np.sqrt(max(self.planner.distance2(r.mean), 0.0)))
             if dist < 0.99 * r.best:
                 r.best, r.best_step = dist, r.steps
             if r.steps >= self.max_steps:
