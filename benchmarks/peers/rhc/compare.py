@@ -4,7 +4,7 @@
     python benchmarks/peers/rhc/compare.py --horizons --episodes 100 --json artifacts/rhc/horizons.json
     python benchmarks/peers/rhc/compare.py --sweep --episodes 50 --json artifacts/rhc/sweep.json
     python benchmarks/peers/rhc/compare.py --figure docs/results/rhc-lightdark.png
-    python benchmarks/peers/rhc/compare.py --table artifacts/rhc/main.json                        # print again
+    python benchmarks/peers/rhc/compare.py --table artifacts/rhc/main*.json                       # print again
 
 Every system is an agent with ``ft.Policy``'s verbs run by ``firmtool.sim.episodes.run_episode``
 against firmtool's ``SimulatedSystem`` of the scenario: episode ``i`` of every system draws the same
@@ -255,11 +255,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sweep", action="store_true", help="pushes at 3 steps (firmtool's push sizes)")
     ap.add_argument("--roadmaps", type=Path, default=ROOT / "artifacts" / "rhc")
     ap.add_argument("--json", type=Path, help="write rows and episodes here")
-    ap.add_argument("--table", type=Path, metavar="OUT.json", help="print the table of a saved run")
+    ap.add_argument("--table", type=Path, nargs="+", metavar="OUT.json", help="print the table of saved runs")
     ap.add_argument("--figure", type=Path, help="draw the light-dark figure here and exit")
     args = ap.parse_args(argv)
     if args.table:
-        print(table(json.loads(args.table.read_text())["rows"]))
+        print(table([r for t in args.table for r in json.loads(t.read_text())["rows"]]))
         return
     from _common import one_blas_thread
 
