@@ -125,6 +125,9 @@ def record(name: str, kind: str) -> dict:
 
     if name in NUMPY_ENGINE:  # a process of its own (tests/test_tables_unchanged.py): set for its whole run
         os.environ["FIRMTOOL_ENGINE"] = "numpy"
+    # the references drew stream 1 (issue 55 made stream 2 new roadmaps' default): pinned without
+    # touching the scenario text, whose sha256 every stage records
+    os.environ.setdefault("FIRMTOOL_STREAM", "1")
     with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
         sol = ft.solve(ft.build(scenario(name, kind), workers=1))
         path = sol.save(Path(tmp) / f"{name}.h5")
