@@ -126,7 +126,8 @@ if numba is not None:
     _M0, _M1 = np.uint64(0xD2E7470EE14C6C93), np.uint64(0xCA5A826395121157)  # Philox4x64's multipliers
     _W0, _W1 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBB67AE8584CAA73B)  # and its key increments (Weyl)
     _LO32, _S32 = np.uint64(0xFFFFFFFF), np.uint64(32)
-    _S11, _ONE = np.uint64(11), np.uint64(1)
+    _S11 = np.uint64(11)
+    _K2, _K3, _K4, _K5, _K6, _K7, _K8, _K9 = (np.uint64(i) for i in range(2, 10))  # the rounds' key bumps
     _MANT, _EXP1 = np.int64(0x000FFFFFFFFFFFFF), np.int64(0x3FF0000000000000)
 
     @step
@@ -139,18 +140,30 @@ if numba is not None:
         return a1 * b1 + (t >> _S32) + (u >> _S32), a * b
 
     @step
+    def _round(c0, c1, c2, c3, k0, k1):
+        """One Philox4x64 round (Random123's ``philox4x64round``)."""
+        hi0, lo0 = _mulhilo(_M0, c0)
+        hi1, lo1 = _mulhilo(_M1, c2)
+        return hi1 ^ c1 ^ k0, lo1, hi0 ^ c3 ^ k1, lo0
+
+    @step
     def philox4x64(c0, c1, c2, c3, k0, k1):
         """Philox4x64-10 of the counter ``(c0, c1, c2, c3)`` under the key ``(k0, k1)`` (uint64 each):
         ten rounds of Random123's ``philox4x64round``, the key bumped by the Weyl increments between
         rounds. Twin of numpy's ``np.random.Philox``; pinned word for word by
-        tests/test_stream2.py::test_philox_words_are_numpys."""
-        for _ in range(10):
-            hi0, lo0 = _mulhilo(_M0, c0)
-            hi1, lo1 = _mulhilo(_M1, c2)
-            c0, c1, c2, c3 = hi1 ^ c1 ^ k0, lo1, hi0 ^ c3 ^ k1, lo0
-            k0 += _W0
-            k1 += _W1
-        return c0, c1, c2, c3
+        tests/test_stream2.py::test_philox_words_are_numpys. The rounds are written out: LLVM vectorises
+        innermost loops only, and a loop of ten rounds inside the loop over particles was left rolled
+        (and the particle loop scalar)."""
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0, k1)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0, k1 + _W1)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0 * _K2, k1 + _W1 * _K2)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0 * _K3, k1 + _W1 * _K3)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0 * _K4, k1 + _W1 * _K4)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0 * _K5, k1 + _W1 * _K5)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0 * _K6, k1 + _W1 * _K6)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0 * _K7, k1 + _W1 * _K7)
+        c0, c1, c2, c3 = _round(c0, c1, c2, c3, k0 + _W0 * _K8, k1 + _W1 * _K8)
+        return _round(c0, c1, c2, c3, k0 + _W0 * _K9, k1 + _W1 * _K9)
 
     @step
     def _log(x):
