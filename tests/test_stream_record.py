@@ -17,7 +17,7 @@ from firmtool.cli import app
 from firmtool.errors import InputError, RoadmapError
 from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline import estimate_stage
-from firmtool.pipeline.reading import stored_scenario
+from firmtool.pipeline.reading import problem_of, stored_scenario
 from firmtool.scenario import stream_of
 
 ENV = "FIRMTOOL_STREAM"
@@ -70,7 +70,7 @@ def test_a_roadmap_without_the_record_stays_stream_1(tmp_path, monkeypatch):
     before = _edges(path)
     monkeypatch.delenv(ENV)
     rm = RoadmapFile(path)
-    assert rm.stream is None and stream_of(stored_scenario(rm)) == 1
+    assert rm.stream is None and stream_of(problem_of(rm).scenario) == 1 and stored_scenario(rm).estimation.stream is None
     again = ft.build(_sc(), output=path, workers=1).report
     assert again.estimated_edges == 0 and again.reused_edges == again.edges
     _same_tables(_edges(path), before)

@@ -31,9 +31,8 @@ def stored_scenario(roadmap: RoadmapFile) -> Scenario:
     """The scenario a roadmap stores, with the robot's files (:attr:`Scenario.files`) and the map it
     carries: its robot and world are built from those copies, never from a side file (a roadmap moved
     alone runs; a URDF or map edited beside it is not used)."""
-    sc = parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml", roadmap.robot_files,
-                        carried_map(roadmap))
-    return with_recorded_stream(sc, roadmap.stream)  # its text does not say it: the stream the roadmap records
+    return parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml", roadmap.robot_files,
+                          carried_map(roadmap))
 
 
 def with_roadmap_stream(problem: Problem, roadmap: RoadmapFile) -> Problem:
@@ -81,7 +80,8 @@ def check_robot(roadmap: RoadmapFile, problem: Problem) -> None:
 def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_validity: bool = True,
                problem: Problem | None = None) -> Problem:
     """Rebuild the problem from the scenario text stored in the roadmap, and check the roadmap's
-    stages against its model (dimensions, node centres in bounds and valid).
+    stages against its model (dimensions, node centres in bounds and valid). The problem draws the
+    random stream the roadmap records where its scenario says none (:func:`with_roadmap_stream`).
 
     ``problem``: the problem of the stored scenario, built already by the caller (a build's request,
     a query's): checked against the stages, not built again (:class:`firmtool.pipeline.working.WorkingRoadmap`).

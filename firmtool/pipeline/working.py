@@ -26,7 +26,7 @@ from firmtool.pipeline.reading import design_of, execution_design, problem_of, r
 from firmtool.pipeline.target import RoadmapTarget
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
-from firmtool.scenario import Scenario, with_recorded_stream
+from firmtool.scenario import Scenario
 
 
 class WorkingRoadmap:
@@ -69,7 +69,7 @@ class WorkingRoadmap:
     def scenario(self) -> Scenario:
         """The stored scenario (the problem's, when it is built)."""
         if self._problem is not None:  # the caller's (a build's request): with the files the roadmap now carries
-            sc = with_recorded_stream(self._problem.scenario, self.file.stream)  # and the stream it records
+            sc = self._problem.scenario
             return dataclasses.replace(sc, files=self.file.robot_files) if self.file.robot_files and not sc.files else sc
         return stored_scenario(self.file)  # with the robot files the roadmap carries
 
