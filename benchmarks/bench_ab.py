@@ -70,6 +70,11 @@ if not out.exists():
     design_stage(out, workers=1)
 rm = Roadmap(out)
 problem, d = problem_of(rm), design_of(rm)
+import dataclasses, os
+if os.environ.get("FIRMTOOL_STREAM") and hasattr(problem.scenario.estimation, "stream"):  # --stream, a kept design too
+    sc = problem.scenario
+    problem = dataclasses.replace(problem, scenario=dataclasses.replace(
+        sc, estimation=dataclasses.replace(sc.estimation, stream=int(os.environ["FIRMTOOL_STREAM"]))))
 regions = d.regions(problem)
 sc = problem.scenario
 E = d.edge_source.size

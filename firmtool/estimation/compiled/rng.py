@@ -200,12 +200,14 @@ if numba is not None:
         s_, c_ = sincos(6.283185307179586 * u1)
         return r * c_, r * s_
 
-    @step
+    @njit
     def draw_philox(key, k, alive, W, Z, d, na):
         """``W[:d, :na]`` standard normals of stream 2 for step ``k`` (module notes): particle
         ``alive[a]``'s normals ``4 b .. 4 b + 3`` are the four words of Philox at the counter
         ``(alive[a], k, b, 0)`` under ``key`` (2 uint64), by :func:`box_muller` (``Z``: (4, N) work
-        array). A function of (key, particle, step) only."""
+        array). A function of (key, particle, step) only. Compiled on its own and called by the kernel
+        once a step (not inlined into it as the step's helpers are): its unrolled, vectorised rounds
+        inlined made the kernel's cold compile 1.33x main's (benchmarks/README.md, "Issue 55, stream 2")."""
         k0, k1 = key[0], key[1]
         ck = np.uint64(k)
         zero = np.uint64(0)
