@@ -249,6 +249,21 @@ def with_recorded_stream(scenario, recorded: int | None):
     return replace(scenario, estimation=replace(scenario.estimation, stream=stream))
 
 
+def as_said(scenario):
+    """``scenario`` with the ``estimation.stream`` its text says (None where it says none): what
+    :func:`with_recorded_stream` filled in taken out again (a roadmap's scenario is what its text says;
+    its problem draws the roadmap's stream)."""
+    import tomllib
+
+    try:
+        said = tomllib.loads(scenario.text).get("estimation", {}).get("stream")
+    except (tomllib.TOMLDecodeError, AttributeError):
+        return scenario
+    if scenario.estimation.stream == said:
+        return scenario
+    return replace(scenario, estimation=replace(scenario.estimation, stream=said))
+
+
 @dataclass(frozen=True)
 class CostSpec:
     alpha_covariance: float
