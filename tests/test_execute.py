@@ -235,8 +235,14 @@ def test_the_cli_sets_the_jump_tests_levels_as_the_library_does(smoke, tmp_path,
     import firmtool as ft
     path = smoke[0]
     sol = ft.open_roadmap(path).solution()
-    # pushed a few steps before the typical arrival, where the goal check has something to question
-    at = int(np.median([ep.steps for ep in ft.simulate(sol, 20, 0, record=False).episodes])) - 4
+    # pushed a few steps before the typical arrival, where the goal check has something to question: the
+    # first of a few such steps where it does, with the shortest window (which roadmap's particles, so which
+    # step, depend on the random stream: issue 55)
+    typical = int(np.median([ep.steps for ep in ft.simulate(sol, 20, 0, record=False).episodes]))
+    at = next((typical - back for back in (4, 5, 3, 6, 2)
+               if any(str(e.kind) == "goal_questioned" for ep in ft.simulate(
+                   sol, 20, 0, disturbances=parse_disturbances([f"push:{typical - back}:1.0"]),
+                   replan=ReplanSettings(jump_window=3), record=False).episodes for e in ep.events)), typical - 4)
     spec = f"push:{at}:1.0"
     out = tmp_path / "eps.h5"
     r = runner.invoke(app, ["execute", str(path), "-n", "20", "-d", spec, *option, "--save-episodes", str(out),

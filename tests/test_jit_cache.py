@@ -118,7 +118,7 @@ def test_the_kernels_cache_key_covers_every_module_it_calls_into():
     run = kernels.kernel(planar.point_kinematics(1))  # the point robot's kernel: its hooks are callees too
     engine = {f"firmtool.estimation.compiled.{m}" for m in ("run", "bindings", "step", "model", "rng", "collide", "goal", "maps")}
     others = {"firmtool.roadmap.membership", "firmtool.control.linalg", "firmtool.geometry._numba",
-              "firmtool.robots.planar"}
+              "firmtool.robots.planar", "firmtool.models.angles"}  # angles: stream 2's sincos (compiled.rng)
     assert set(_jit.dependency_files(run.py_func)) == engine | others
     assert set(_jit.dependency_files(rng.fill_normals.py_func)) == {"firmtool.estimation.compiled.rng"}
 

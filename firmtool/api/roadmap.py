@@ -255,7 +255,7 @@ class Roadmap:
         # one atomic write, built in memory: a failure names ``path``, never a temporary file
         write_roadmap(path, data.scenario_text, data.scenario_sha256, data.seed, stages, source=data.scenario_source,
                       robot=(data.robot_files, data.robot_geometry) if data.robot_files else None,
-                      grid=data.stored_map)
+                      grid=data.stored_map, stream=data.stream)
 
     def summary(self) -> RoadmapSummary:
         """What the roadmap holds (``firmtool inspect`` prints it): stages present (each validated: a

@@ -6,7 +6,8 @@ An edge's key is a sha256 over everything its Monte Carlo depends on: the engine
 two give statistically equal, not identical, estimates), the scenario's model, measurement,
 world, task and controller settings, the robot's code (its class and version) and the identity of
 a user's validity checker (if any), the seed, the particle count and chunk size, where the particles
-start (``estimation.start``), the two node indices (they seed the random streams),
+start (``estimation.start``), the random stream (:func:`firmtool.scenario.stream_of`: a roadmap's
+estimates never mix streams), the two node indices (they seed the random streams),
 both nodes' centres and stabilisers, and the nominal length. Not in it: the cost weights (the
 table stores cost terms, weighted at solve time) and the other nodes of the roadmap. The latter is
 a deliberate approximation: when nodes are added, existing edges keep their estimates, whose
@@ -26,7 +27,8 @@ from firmtool.estimation.compiled import engine_for
 from firmtool.estimation.edges import FAILURE, GOAL_MISS, TIMEOUT, EdgeEstimate, cost_weights
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
-from firmtool.scenario import CostSpec
+from firmtool.scenario import CostSpec, stream_of
+from firmtool.scenario.specs import LEGACY_STREAM
 from firmtool.util.hashing import digest
 
 # Bump when the Monte Carlo's results change meaning (not for rounding-level changes): stored
@@ -58,6 +60,8 @@ def edge_keys(problem: Problem, design_: Design, edges: Iterable[int] | None = N
              validity_identity(problem)]
     if sc.estimation.start != "center":  # keys of centre starts are those of the files written before the option
         parts.append(f"start={sc.estimation.start}")
+    if stream_of(sc) != LEGACY_STREAM:  # stream-1 keys are those of the files written before stream 2
+        parts.append(f"stream={stream_of(sc)}")
     base = digest(*parts)
     idx = np.arange(design_.edge_source.size) if edges is None else np.asarray(list(edges), dtype=np.int64)
     node_digest: dict[int, bytes] = {}

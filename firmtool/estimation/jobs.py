@@ -21,7 +21,7 @@ from firmtool.geometry.occupancy import Map
 from firmtool.problem import Problem, build_problem
 from firmtool.roadmap.design import Design
 from firmtool.robots.registry import is_importable
-from firmtool.scenario import parse_scenario
+from firmtool.scenario import parse_scenario, with_recorded_stream
 
 
 @dataclass(frozen=True)
@@ -51,6 +51,9 @@ class EstimationJob:
     files: tuple[tuple[str, bytes], ...] = ()
     # The occupancy map the scenario's world.map stands for (a roadmap carries it): workers read no map file.
     grid: Map | None = None
+    # The random stream the roadmap records (firmtool.scenario.with_recorded_stream), which its scenario text
+    # need not say; None: the text's (or the default)
+    stream: int | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,7 +117,7 @@ _MAX_KEPT = 4
 
 def _problem_key(job: EstimationJob | ProblemJob) -> tuple:
     return (job.scenario_text, job.scenario_path, job.validity, job.robot, job.files,
-            None if job.grid is None else job.grid.content_sha256)
+            None if job.grid is None else job.grid.content_sha256, getattr(job, "stream", None))
 
 
 def remember_problem(job: EstimationJob | ProblemJob, problem: Problem) -> None:
@@ -135,8 +138,9 @@ def job_problem(job: EstimationJob | ProblemJob) -> Problem:
             name, cls = job.robot
             robots.register(name, pickle.loads(cls), replace=True)
         validity = pickle.loads(job.validity) if job.validity is not None else None
-        problem = build_problem(parse_scenario(job.scenario_text, job.scenario_path, job.files, job.grid),
-                                validity=validity)
+        sc = parse_scenario(job.scenario_text, job.scenario_path, job.files, job.grid)
+        stream = getattr(job, "stream", None)
+        problem = build_problem(sc if stream is None else with_recorded_stream(sc, stream), validity=validity)
         remember_problem(job, problem)
     return problem
 

@@ -106,7 +106,8 @@ STAGE_ATTRIBUTES: dict[str, dict[str, Attribute]] = {
 # bounded read of a same-size file.
 ROOT_ATTRIBUTES = {"created": Attribute("text"), "firmtool_version": Attribute("text"),
                    "scenario_file": Attribute("text"), "scenario_file_size": _COUNT,
-                   "scenario_file_mtime_ns": _COUNT, "scenario_file_sha256": Attribute("text")}
+                   "scenario_file_mtime_ns": _COUNT, "scenario_file_sha256": Attribute("text"),
+                   "estimation_stream": Attribute("int", low=1)}  # firmtool.io.roadmap_format.STREAM_ATTR
 
 
 def check_attributes(path: str | Path, group: str, attrs: Mapping[str, Any],

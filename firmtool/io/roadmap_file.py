@@ -3,7 +3,8 @@
 Layout (schema version 1)::
 
     /                 attrs: schema_version, encoding-type, firmtool_version, scenario_toml,
-                             scenario_sha256, seed, created
+                             scenario_sha256, seed, created, estimation_stream (the Monte Carlo's
+                             random stream; absent in files made before it: stream 1)
     /nodes            centers (N, n), kind (N,)                           attrs: inputs_sha256
     /controllers      u_eq, K, S, L, P, Sigma (per node), scale (n,),
                       edge_source, edge_target, edge_steps (per edge)      attrs: inputs_sha256
@@ -69,6 +70,8 @@ from firmtool.io.memory_file import MemoryFile, as_target, size_of
 from firmtool.io.roadmap_checks import check_edges, check_edges_model, check_shapes, check_stage
 from firmtool.io.roadmap_format import (
     CACHE,
+    KNOWN_STREAMS,
+    STREAM_ATTR,
     ENCODING_TYPE,
     MAX_ATTRIBUTE_BYTES,
     MAX_READ_BYTES,
@@ -174,6 +177,7 @@ class RoadmapFile:
         check_attributes(p, "/", root, ROOT_ATTRIBUTES)
         self.created, self.firmtool_version = str(root.get("created", "")), str(root.get("firmtool_version", ""))
         self.scenario_source = scenario_source.recorded(root)  # never opened: see firmtool.io.scenario_source
+        self.stream = _stream(p, root)
         if hashlib.sha256(self.scenario_text.encode()).hexdigest() != self.scenario_sha256:
             raise RoadmapError(f"{p}: the stored scenario text does not match its sha256 (file altered?)")
         # shapes and sizes first (metadata only), then the data: nothing large is read blindly
@@ -375,6 +379,18 @@ def _identity(target: Path | MemoryFile) -> tuple[int, int, int, int] | None:
 def file_identity(path: str | Path) -> tuple[int, int, int, int] | None:
     """:func:`_identity` of the file at ``path`` now."""
     return _identity(Path(path))
+
+
+def _stream(path: object, root: dict) -> int | None:
+    """The random stream a roadmap's estimates draw (root attribute :data:`STREAM_ATTR`); None: a file
+    made before the record (a stream-1 roadmap). A stream this firmtool does not know is refused."""
+    if STREAM_ATTR not in root:
+        return None
+    stream = int(root[STREAM_ATTR])
+    if stream not in KNOWN_STREAMS:
+        raise RoadmapError(f"{path}: root attribute '{STREAM_ATTR}' is {stream}, a random stream firmtool {__version__} "
+                           f"does not know ({', '.join(map(str, KNOWN_STREAMS))}); use the firmtool that made it")
+    return stream
 
 
 def _attribute(path: Path, attrs: h5py.AttributeManager, key: str, default: Any, where: str = "/") -> Any:

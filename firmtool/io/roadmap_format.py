@@ -19,6 +19,12 @@ CACHE = "edge_cache"  # not a stage: estimates kept for reuse while /edges is in
 QUERIES = "queries"  # not a stage: answered queries by name, each a whole roadmap image (firmtool.io.roadmap_queries)
 STAGE_COMMANDS = {"nodes": "firmtool sample", "controllers": "firmtool design",
                   "edges": "firmtool estimate", "policy": "firmtool solve"}
+# Root attribute: the compiled Monte Carlo's random stream every estimate of the roadmap draws
+# (firmtool.estimation.compiled.rng; firmtool.scenario.specs.STREAMS), written when the roadmap is
+# created; a file without it was made before stream 2 and is a stream-1 roadmap for every later
+# estimate, update and query.
+STREAM_ATTR = "estimation_stream"
+KNOWN_STREAMS = (1, 2)
 # Most bytes of datasets one reader loads (from their shapes, before reading): an arm roadmap of
 # 2000 nodes (16 states) holds ~25 MB; far more is damage, and reading it would exhaust memory.
 MAX_READ_BYTES = 2**30

@@ -29,6 +29,7 @@ from firmtool.io.roadmap_format import (
     QUERIES,
     SCHEMA_VERSION,
     STAGES,
+    STREAM_ATTR,
     read_table,
     short,
 )
@@ -97,12 +98,14 @@ def _image(path: Path | MemoryFile) -> bytes:
 
 
 def create_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sha256: str, seed: int,
-                   robot: Robot | None = None, grid: StoredMap | None = None) -> None:
+                   robot: Robot | None = None, grid: StoredMap | None = None, stream: int | None = None) -> None:
     """Start a new roadmap file, replacing any file at ``path`` atomically (no group carried over);
     ``robot``: the files and geometry of the robot it carries (:mod:`firmtool.io.robot_files`);
-    ``grid``: the occupancy map its world was read with, which it carries (:mod:`firmtool.io.roadmap_map`)."""
+    ``grid``: the occupancy map its world was read with, which it carries (:mod:`firmtool.io.roadmap_map`);
+    ``stream``: the random stream its estimates draw (:data:`~firmtool.io.roadmap_format.STREAM_ATTR`; None:
+    not recorded, a stream-1 roadmap)."""
     with _atomic_copy(as_target(path), fresh=True) as f:
-        _write_root(f, scenario_text, scenario_sha256, seed)
+        _write_root(f, scenario_text, scenario_sha256, seed, stream)
         if robot is not None:
             write_robot(f, *robot)
         write_map(f, grid)
@@ -112,7 +115,7 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
                   stages: Mapping[str, tuple[Mapping[str, np.ndarray], Mapping[str, Any]]],
                   source: ScenarioSource | None = None, cache: Mapping[str, np.ndarray] | None = None,
                   cache_attrs: Mapping[str, Any] | None = None,
-                  robot: Robot | None = None, grid: StoredMap | None = None) -> None:
+                  robot: Robot | None = None, grid: StoredMap | None = None, stream: int | None = None) -> None:
     """Write a whole roadmap (root attributes and the given stages' groups) atomically, in one write.
 
     Parameters
@@ -123,9 +126,11 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
     cache, cache_attrs : an ``/edge_cache`` table and its attributes (estimates its estimate stage finds by key).
     robot : the files and geometry of the robot it carries (:mod:`firmtool.io.robot_files`), if any.
     grid : the occupancy map it carries (:mod:`firmtool.io.roadmap_map`), if its world has one.
+    stream : the random stream its estimates draw (:data:`~firmtool.io.roadmap_format.STREAM_ATTR`), or
+        None: not recorded (a stream-1 roadmap).
     """
     with _atomic_copy(as_target(path), fresh=True) as f:
-        _write_root(f, scenario_text, scenario_sha256, seed)
+        _write_root(f, scenario_text, scenario_sha256, seed, stream)
         if robot is not None:
             write_robot(f, *robot)
         write_map(f, grid)
@@ -140,7 +145,7 @@ def write_roadmap(path: str | Path | MemoryFile, scenario_text: str, scenario_sh
             _write_table(f, CACHE, cache, dict(cache_attrs or {}))
 
 
-def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
+def _write_root(f: h5py.File, text: str, sha: str, seed: int, stream: int | None = None) -> None:
     f.attrs["schema_version"] = SCHEMA_VERSION
     f.attrs["encoding-type"] = ENCODING_TYPE
     f.attrs["firmtool_version"] = __version__
@@ -148,6 +153,8 @@ def _write_root(f: h5py.File, text: str, sha: str, seed: int) -> None:
     f.attrs["scenario_sha256"] = sha
     f.attrs["seed"] = seed
     f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    if stream is not None:
+        f.attrs[STREAM_ATTR] = int(stream)
 
 
 def write_stage(path: str | Path | MemoryFile, stage: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any],

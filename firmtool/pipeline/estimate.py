@@ -25,7 +25,7 @@ from firmtool.problem import Problem
 from firmtool.progress import ESTIMATE, Counter, ProgressCallback
 from firmtool.reports import EstimateReport, FailedEdge
 from firmtool.roadmap.design import Design
-from firmtool.scenario import Scenario
+from firmtool.scenario import Scenario, stream_of
 from firmtool.util import interrupts
 
 
@@ -137,7 +137,7 @@ def _job(roadmap: RoadmapFile, problem: Problem, d: Design, engine: str) -> Esti
     sc = problem.scenario
     job = EstimationJob(scenario_text=roadmap.scenario_text, scenario_path=sc.path, design=d,
                         particles=sc.estimation.particles, chunk=sc.estimation.chunk, seed=sc.seed,
-                        engine=engine, **job_extras(problem))
+                        engine=engine, stream=stream_of(sc), **job_extras(problem))
     remember_problem(job, problem)
     return job
 

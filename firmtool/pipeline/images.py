@@ -22,7 +22,7 @@ from firmtool.pipeline.inputs import (
 )
 from firmtool.problem import Problem, carried_robot, robot_files_digest
 from firmtool.roadmap.design import Design
-from firmtool.scenario import Scenario
+from firmtool.scenario import Scenario, stream_of
 
 
 def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, validity: str,
@@ -52,5 +52,5 @@ def node_set_image(name: str, sc: Scenario, problem: Problem, d: Design, *, vali
                                "covariance_tolerance": problem.scenario.controller.covariance_tolerance})}
     write_roadmap(image, sc.text, sc.sha256, sc.seed, stages, cache=cache or None,
                   cache_attrs={"description": cache_description}, robot=carried_robot(problem),
-                  grid=map_to_store(sc))
+                  grid=map_to_store(sc), stream=stream_of(problem.scenario))  # the roadmap's stream, kept
     return image

@@ -17,7 +17,7 @@ from firmtool.io.roadmap_file import RoadmapFile
 from firmtool.pipeline.inputs import MAP_ATTR, ROBOT_ATTR, map_attrs, problem_checker_identity, validity_of
 from firmtool.problem import Problem, build_problem, robot_files_digest
 from firmtool.roadmap.design import Design
-from firmtool.scenario import Scenario, parse_scenario
+from firmtool.scenario import Scenario, parse_scenario, with_recorded_stream
 
 
 def carried_map(roadmap: RoadmapFile) -> Map | None:
@@ -33,6 +33,14 @@ def stored_scenario(roadmap: RoadmapFile) -> Scenario:
     alone runs; a URDF or map edited beside it is not used)."""
     return parse_scenario(roadmap.scenario_text, f"{roadmap.path}:scenario_toml", roadmap.robot_files,
                           carried_map(roadmap))
+
+
+def with_roadmap_stream(problem: Problem, roadmap: RoadmapFile) -> Problem:
+    """``problem`` with the random stream ``roadmap`` records (:func:`firmtool.scenario.with_recorded_stream`;
+    a file without the record: stream 1) where its scenario says none: a roadmap's later estimates,
+    updates and queries draw the stream it was built with."""
+    sc = with_recorded_stream(problem.scenario, roadmap.stream)
+    return problem if sc is problem.scenario else dataclasses.replace(problem, scenario=sc)
 
 
 def check_map(roadmap: RoadmapFile, scenario: Scenario) -> None:
@@ -72,7 +80,8 @@ def check_robot(roadmap: RoadmapFile, problem: Problem) -> None:
 def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_validity: bool = True,
                problem: Problem | None = None) -> Problem:
     """Rebuild the problem from the scenario text stored in the roadmap, and check the roadmap's
-    stages against its model (dimensions, node centres in bounds and valid).
+    stages against its model (dimensions, node centres in bounds and valid). The problem draws the
+    random stream the roadmap records where its scenario says none (:func:`with_roadmap_stream`).
 
     ``problem``: the problem of the stored scenario, built already by the caller (a build's request,
     a query's): checked against the stages, not built again (:class:`firmtool.pipeline.working.WorkingRoadmap`).
@@ -99,7 +108,7 @@ def problem_of(roadmap: RoadmapFile, validity: Callable | None = None, *, need_v
                         problem.is_valid, world_dim=problem.workspace_dim,
                         steps_past_edge=problem.scenario.controller.max_steps, points=problem.geometry.points,
                         reach=problem.robot.world_reach() if problem.robot is not None else 0.0)
-    return problem
+    return with_roadmap_stream(problem, roadmap)
 
 
 def refuse_without_checker(roadmap: RoadmapFile, validity: Callable | None) -> None:

@@ -33,7 +33,7 @@ from firmtool.reports import AddNodesReport, SampleReport
 from firmtool.roadmap.connectivity import connect_goals
 from firmtool.roadmap.design import Design, design, start_covariance, unstabilisable_nodes
 from firmtool.roadmap.nodes import roadmap_nodes, sample_nodes
-from firmtool.scenario import Scenario
+from firmtool.scenario import Scenario, stream_of
 
 
 def sample_stage(scenario: Scenario | str | Path, output: str | Path | None, force: bool = False, *,
@@ -86,7 +86,7 @@ def sample_into(scenario: Scenario, target: RoadmapTarget, *, problem: Problem |
     with locked(target):
         # the roadmap carries its robot (its URDF and meshes) and records its identity
         create_roadmap(target, scenario.text, scenario.sha256, scenario.seed, robot=carried_robot(problem),
-                       grid=map_to_store(scenario))
+                       grid=map_to_store(scenario), stream=stream_of(scenario))  # the new roadmap's stream
         files = robot_files_digest(problem)
         write_stage(target, "nodes", {"centers": centers, "kind": kinds},
                     {"inputs_sha256": nodes_inputs(scenario, identity, files), "densify_rounds": 0,

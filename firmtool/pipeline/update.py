@@ -67,7 +67,7 @@ from firmtool.progress import ProgressCallback
 from firmtool.reports import UpdateReport
 from firmtool.roadmap.design import Design, connect
 from firmtool.roadmap.world_change import WorldChange, world_change
-from firmtool.scenario import Scenario
+from firmtool.scenario import Scenario, with_recorded_stream
 from firmtool.util.hashing import digest
 
 # The sections an update may change besides [world]: they change no Monte Carlo (the cost's weights
@@ -275,6 +275,7 @@ def carry_queries(base: RoadmapFile, image: MemoryFile, up: _Update, settings: W
 def _prepare(work: WorkingRoadmap, sc: Scenario) -> _Update:
     """Both worlds' problems and the change, every refusal checked before any work."""
     base, base_problem = work.file, work.problem()
+    sc = with_recorded_stream(sc, base.stream)  # the roadmap's random stream, unless the scenario says one
     if base_problem.validity is not None:
         raise InputError(f"{base.path}: built with a Python validity checker, whose verdicts a world change cannot "
                          "bound; build a new roadmap in the new world")

@@ -27,6 +27,7 @@ from firmtool.pipeline.target import RoadmapTarget
 from firmtool.problem import Problem
 from firmtool.roadmap.design import Design
 from firmtool.scenario import Scenario
+from firmtool.scenario.specs import as_said
 
 
 class WorkingRoadmap:
@@ -69,7 +70,7 @@ class WorkingRoadmap:
     def scenario(self) -> Scenario:
         """The stored scenario (the problem's, when it is built)."""
         if self._problem is not None:  # the caller's (a build's request): with the files the roadmap now carries
-            sc = self._problem.scenario
+            sc = as_said(self._problem.scenario)  # what its text says (the problem draws the roadmap's stream)
             return dataclasses.replace(sc, files=self.file.robot_files) if self.file.robot_files and not sc.files else sc
         return stored_scenario(self.file)  # with the robot files the roadmap carries
 

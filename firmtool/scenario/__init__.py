@@ -25,6 +25,7 @@ from firmtool.scenario.fields import MEASUREMENT_FIELDS, OPTIONAL_SECTIONS, sect
 from firmtool.scenario.specs import (
                                     MEASUREMENT_KINDS,
                                     START_MODES,
+                                    STREAMS,
                                     ControllerSpec,
                                     CostSpec,
                                     EstimationSpec,
@@ -34,9 +35,11 @@ from firmtool.scenario.specs import (
                                     RoadmapSpec,
                                     TaskSpec,
                                     WorldSpec,
+                                    stream_of,
+                                    with_recorded_stream,
 )
 
-__all__ = ["MEASUREMENT_FIELDS", "MEASUREMENT_KINDS", "OPTIONAL_SECTIONS", "START_MODES", "ControllerSpec", "CostSpec",
+__all__ = ["MEASUREMENT_FIELDS", "MEASUREMENT_KINDS", "OPTIONAL_SECTIONS", "START_MODES", "STREAMS", "ControllerSpec", "CostSpec",
            "EstimationSpec", "ExecutionSpec", "MeasurementSpec", "ModelSpec", "RoadmapSpec", "Scenario", "TaskSpec",
            "WorldSpec", "load_scenario", "parse_scenario", "resolve_scenario", "scenario_description", "sections",
-           "shipped_scenarios"]
+           "shipped_scenarios", "stream_of", "with_recorded_stream"]

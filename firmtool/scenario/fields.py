@@ -14,7 +14,7 @@ from firmtool.geometry.registry import backend_names
 from firmtool.models import noise
 from firmtool.robots.linear import psd_problem
 from firmtool.robots.registry import DEFAULT_ROBOT
-from firmtool.scenario.specs import DEFAULT_START, DEFAULT_TARGET_HALFWIDTH, MEASUREMENT_KINDS, START_MODES
+from firmtool.scenario.specs import DEFAULT_START, DEFAULT_TARGET_HALFWIDTH, MEASUREMENT_KINDS, START_MODES, STREAMS
 from firmtool.util.schema import Field
 
 # ---------------------------------------------------------------------------------------------------
@@ -29,6 +29,10 @@ def _name_problem(name: str) -> str | None:
 
 def _halfwidth(x: float) -> str | None:
     return None if x < 0.5 else f"expected a half-width in (0, 0.5), found {x}"
+
+
+def _stream(x: int) -> str | None:
+    return None if x in STREAMS else f"expected one of {', '.join(map(str, STREAMS))}, found {x}"
 
 
 def _fraction(x: float) -> str | None:
@@ -141,6 +145,9 @@ ESTIMATION_FIELDS = (
           doc="particles the adaptive rounds may add (default: as many as the first pass; 0: no rounds)"),
     Field("start", "string", DEFAULT_START, choices=START_MODES,
           doc="where each edge's Monte Carlo starts: the node's centre (eq. 8) or beliefs over its region"),
+    Field("stream", "integer", None, check=_stream, example=2,
+          doc="the compiled Monte Carlo's random stream: 2, Philox per particle and step (a new roadmap's "
+              "default); 1, the stream of roadmaps made before it (a roadmap keeps the stream it was built with)"),
 )
 COST_FIELDS = (
     Field("alpha_covariance", "number", 1.0, bound="nonnegative", doc="weight of sum tr(P_k) (eq. 16)"),

@@ -4,12 +4,14 @@ makes of each TOML table), and the defaults they share with the field declaratio
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from firmtool.errors import InputError
 from firmtool.geometry.occupancy import Map
 from firmtool.geometry.shapes import Obstacle
 
@@ -177,6 +179,17 @@ DEFAULT_START = "region"
 # Default target of adaptive Monte Carlo: the 95% interval of the start's success probability at
 # most +-0.02 (firmtool.estimation.adaptive).
 DEFAULT_TARGET_HALFWIDTH = 0.02
+# The compiled Monte Carlo's random streams (firmtool.estimation.compiled.rng): 1, xoshiro256++ and a
+# ziggurat per chunk; 2, Philox keyed by (seed, edge, chunk) with a counter per particle and step.
+# A roadmap records its stream (firmtool.io.roadmap_format.STREAM_ATTR; a file without the record is
+# a stream-1 roadmap, LEGACY_STREAM); new roadmaps use DEFAULT_STREAM unless estimation.stream says.
+STREAMS = (1, 2)
+DEFAULT_STREAM = 2
+LEGACY_STREAM = 1
+# The environment variable that sets the stream of new roadmaps whose scenario says none (as
+# FIRMTOOL_ENGINE picks the engine): the reference tests build stream-1 roadmaps of the shipped
+# scenarios with it, their texts (and hashes) unchanged.
+STREAM_ENV = "FIRMTOOL_STREAM"
 
 
 @dataclass(frozen=True)
@@ -190,7 +203,9 @@ class EstimationSpec:
     probability of 1/2; scaled like a binomial proportion's, :func:`firmtool.estimation.adaptive.required_halfwidth`) or
     ``adaptive_particles`` more particles were spent (None: as many as the first pass; 0: no rounds).
     ``start``: where each particle starts (:func:`firmtool.estimation.edges.initial_ensemble`), ``"center"`` or
-    ``"region"``.
+    ``"region"``. ``stream``: the compiled engine's random stream (:data:`STREAMS`), or None when the
+    scenario does not say (a new roadmap then uses :data:`DEFAULT_STREAM`, an existing one the stream it
+    records: :func:`stream_of`, :func:`with_recorded_stream`).
     """
 
     particles: int
@@ -199,6 +214,54 @@ class EstimationSpec:
     target_halfwidth: float = DEFAULT_TARGET_HALFWIDTH
     adaptive_particles: int | None = None
     start: str = DEFAULT_START
+    stream: int | None = field(default=None, metadata={"digest": "when set"})
+
+
+def default_stream() -> int:
+    """The stream of a new roadmap whose scenario says none: ``FIRMTOOL_STREAM`` (1 or 2) if set, else
+    :data:`DEFAULT_STREAM`.
+
+    Raises
+    ------
+    InputError
+        ``FIRMTOOL_STREAM`` set to anything else (one line naming it)."""
+    text = os.environ.get(STREAM_ENV, "").strip()
+    if not text:
+        return DEFAULT_STREAM
+    if text not in tuple(map(str, STREAMS)):
+        raise InputError(f"{STREAM_ENV}: expected one of {', '.join(map(str, STREAMS))}, found {text!r}")
+    return int(text)
+
+
+def stream_of(scenario) -> int:
+    """The random stream ``scenario``'s Monte Carlo draws: its ``estimation.stream``, else
+    :func:`default_stream` (a scenario read from a roadmap has the roadmap's: :func:`with_recorded_stream`)."""
+    stream = scenario.estimation.stream
+    return default_stream() if stream is None else int(stream)
+
+
+def with_recorded_stream(scenario, recorded: int | None):
+    """``scenario`` with the stream a roadmap records (``recorded``; None: a roadmap without the record,
+    :data:`LEGACY_STREAM`) where its text does not say one; a scenario that says one keeps it."""
+    if scenario.estimation.stream is not None:
+        return scenario
+    stream = LEGACY_STREAM if recorded is None else int(recorded)
+    return replace(scenario, estimation=replace(scenario.estimation, stream=stream))
+
+
+def as_said(scenario):
+    """``scenario`` with the ``estimation.stream`` its text says (None where it says none): what
+    :func:`with_recorded_stream` filled in taken out again (a roadmap's scenario is what its text says;
+    its problem draws the roadmap's stream)."""
+    import tomllib
+
+    try:
+        said = tomllib.loads(scenario.text).get("estimation", {}).get("stream")
+    except (tomllib.TOMLDecodeError, AttributeError):
+        return scenario
+    if scenario.estimation.stream == said:
+        return scenario
+    return replace(scenario, estimation=replace(scenario.estimation, stream=said))
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,9 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 FIXTURE = HERE / "reference_tables.json"
+# the same roadmaps drawn with stream 2 (issue 55's counter-based stream, new roadmaps' default), recorded
+# with ``python tests/data/reference_tables.py --stream2 reduced`` (tests/test_tables_stream2.py)
+FIXTURE_STREAM2 = HERE / "reference_tables_stream2.json"
 
 SCENARIOS = ("smoke", "point_lightdark", "point_perfect", "platt_lightdark", "maze_lightdark",
              "unicycle_lightdark", "unicycle_perfect", "arm8_lightdark")
@@ -125,6 +128,9 @@ def record(name: str, kind: str) -> dict:
 
     if name in NUMPY_ENGINE:  # a process of its own (tests/test_tables_unchanged.py): set for its whole run
         os.environ["FIRMTOOL_ENGINE"] = "numpy"
+    # the references drew stream 1 (issue 55 made stream 2 new roadmaps' default): pinned without
+    # touching the scenario text, whose sha256 every stage records
+    os.environ.setdefault("FIRMTOOL_STREAM", "1")
     with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
         sol = ft.solve(ft.build(scenario(name, kind), workers=1))
         path = sol.save(Path(tmp) / f"{name}.h5")
@@ -157,18 +163,32 @@ def redigest_rounded(kinds: list[str]) -> None:
         FIXTURE.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
 
 
-def main(kinds: list[str]) -> None:
-    out = json.loads(FIXTURE.read_text()) if FIXTURE.exists() else {}
+def main(kinds: list[str], fixture: Path = FIXTURE) -> None:
+    out = json.loads(fixture.read_text()) if fixture.exists() else {}
     for kind in kinds:
         out[kind] = {}
         for name in SCENARIOS:
             out[kind][name] = record(name, kind)
             print(kind, name, out[kind][name]["success_probability"], file=sys.stderr)
-            FIXTURE.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+            fixture.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
 
 
 if __name__ == "__main__":
     if sys.argv[1:2] == ["--rounded"]:
         redigest_rounded(sys.argv[2:] or ["reduced", "shipped"])
+    elif sys.argv[1:2] == ["--stream2"]:  # each scenario in a process of its own, as the test records it
+        import subprocess
+
+        env = dict(os.environ, FIRMTOOL_STREAM="2")
+        out = {}
+        for kind in sys.argv[2:] or ["reduced"]:
+            out[kind] = {}
+            for name in SCENARIOS:
+                code = f"import json, sys; sys.path.insert(0, {str(HERE)!r}); import reference_tables as r; " \
+                       f"print(json.dumps(r.record({name!r}, {kind!r})))"
+                run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+                out[kind][name] = json.loads(run.stdout.strip().splitlines()[-1])
+                print(kind, name, out[kind][name]["success_probability"], file=sys.stderr)
+        FIXTURE_STREAM2.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
     else:
         main(sys.argv[1:] or ["reduced", "shipped"])

@@ -17,11 +17,13 @@ from firmtool.estimation.compiled.goal import goal_group
 from firmtool.estimation.compiled.goal3d import goal_group_3d
 from firmtool.estimation.compiled.locate import candidate_lists
 from firmtool.estimation.compiled.model import LANDMARKS, landmark_group
+from firmtool.estimation.compiled.rng import philox_key
 from firmtool.estimation.compiled.run import kernel
 from firmtool.estimation.compiled.select import supports
 from firmtool.estimation.compiled.step import sensor_group
 from firmtool.estimation.outcomes import TIMEOUT, ParticleOutcomes, cost_terms, empty_swept
 from firmtool.roadmap.membership import locate_data
+from firmtool.scenario import stream_of
 
 FIRST_SEGMENT_PAST_EDGE = 8  # the first segment: the edge and this many stabiliser steps
 SEGMENT_STEPS = (16, 32, 64)  # the following segments (the last length repeats)
@@ -140,7 +142,7 @@ def _run_on_stream(run, k: int, k_end: int, n_alive: int, ensemble: tuple, strea
 
 
 def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.random.Generator,
-             numpy_noise: bool = False, goal_node: int = 1):
+             numpy_noise: bool = False, goal_node: int = 1, stream: int | None = None):
     """Compiled twin of :func:`firmtool.estimation.edges.simulate` (same arguments, same result type).
 
     ``x`` and ``xhat`` (M, n) are updated in place for the particles' last live step, like the
@@ -150,6 +152,11 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     four words of ``rng``, ziggurat normals): fast, and reproducible from ``rng``'s state. True feeds
     the kernel ``rng.standard_normal`` in the numpy path's order instead, so that both engines
     simulate the same particles (the tests' particle-by-particle check of the arithmetic).
+
+    ``stream``: which stream the kernel draws (None: the problem's, :func:`firmtool.scenario.stream_of`):
+    1, xoshiro256++ seeded from four words of ``rng``; 2, Philox keyed by ``rng``'s seed sequence
+    (:func:`firmtool.estimation.compiled.rng.philox_key`), every particle's normals at every step a
+    function of the key, its index in ``x`` and the step (:mod:`firmtool.estimation.compiled.rng`).
     """
     pd = _checked_problem_data(problem)
     run = kernel(pd.hooks, pd.sensor)
@@ -160,8 +167,11 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     d = pd.r + (0 if perfect else pd.nz)
     n_alive, k = M, 0
     rng_state, no_stream = np.zeros(4, dtype=np.uint64), np.empty(0)
+    numbers = stream_of(problem.scenario) if stream is None else stream
     stream = _NumpyStream(rng) if numpy_noise else None
-    if not numpy_noise:
+    if not numpy_noise and numbers == 2:
+        rng_state = philox_key(rng)  # 2 words: the kernel draws stream 2
+    elif not numpy_noise:
         rng_state[:] = rng.bit_generator.random_raw(4)
         rng_state[0] |= np.uint64(rng_state.any() == 0)  # xoshiro's one forbidden state: all zero
     x_ref, u_ref, K_ = (np.ascontiguousarray(a, dtype=float) for a in (lc.x_ref, lc.u_ref, lc.K))

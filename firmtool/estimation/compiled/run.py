@@ -16,8 +16,9 @@ each unpacked by the names below where it is used:
 
 - ensemble ``(alive, x, xhat, outcome, steps, effort, swept)``: the particles, updated in place, and
   their swept region (2, D) (:func:`firmtool.estimation.compiled.collide.sweep`)
-- draws ``(noise, rng_state)``: numpy's stream (empty: draw here) and the xoshiro256++ state
-  (:mod:`firmtool.estimation.compiled.rng`)
+- draws ``(noise, rng_state)``: numpy's stream (empty: draw here) and the generator's state
+  (:mod:`firmtool.estimation.compiled.rng`): 4 words, xoshiro256++'s (stream 1); 2 words, stream 2's
+  Philox key (each particle's normals a function of the key, its index and the step)
 - model ``(A, B, F, H)``: the linear Gaussian model's matrices
 - controller ``(x_ref, u_ref, K, L)``: the local controller's reference, LQR and Kalman gains per step
 - candidates, regions: node membership (:mod:`firmtool.estimation.compiled.locate`)
@@ -46,7 +47,7 @@ from firmtool.jit import KERNEL_OPTIONS, importable, numba, specialise
 
 if numba is not None:
     from firmtool.estimation.compiled.bindings import bindings
-    from firmtool.estimation.compiled.rng import draw_noise, take_noise
+    from firmtool.estimation.compiled.rng import draw_noise, draw_philox, take_noise
     from firmtool.estimation.compiled.step import (
         control,
         control_effort,
@@ -96,12 +97,13 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
     n, m, nz = A.shape[0], B.shape[1], H.shape[0]
     d = F.shape[1] if perfect else F.shape[1] + nz
     stream = noise.shape[0] > 0
+    philox = rng_state.shape[0] == 2  # stream 2 (rng.draw_philox); else xoshiro256++ (stream 1)
     N = n_alive
     X, XH, XN = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
     gather_columns(x, alive, X, N)
     gather_columns(xhat, alive, XH, N)
     PRED, DX, TMP = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
-    U, W, E = np.empty((m, N)), np.empty((d, N)), np.empty(N)
+    U, W, E, Z = np.empty((m, N)), np.empty((d, N)), np.empty(N), np.empty((4, N))
     HZ, INN = np.empty((nz, N)), np.empty((nz, N))
     G = np.empty(N, dtype=np.uint8)
     PX, PY, PZ, PHI = np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty((n_pts, N)), np.empty(N)
@@ -118,6 +120,8 @@ def run(k, k_end, n_alive, pos, ensemble, draws, model, controller, candidates, 
             if pos + na * d > noise.shape[0]:
                 break
             pos = take_noise(noise, pos, W, d, na)
+        elif philox:
+            draw_philox(rng_state, k, alive, W, Z, d, na)
         else:
             draw_noise(rng_state, W, d, na)
         control(XH, x_ref[k], u_ref[k], K[k], DX, U, na)
