@@ -128,3 +128,105 @@ def test_as_shipped_is_the_installed_packages_defaults():
     assert particles.shape[0] == 200
     assert np.all(particles[:, :2] == np.asarray(statement.AS_SHIPPED["start"]))
     assert statement.AS_SHIPPED["start_covariance"] == 0
+
+
+# --- issue 56: the diagnosis of the peers' configuration (benchmarks/peers/pomdpplanners/head_to_head.py)
+
+def _head_to_head():
+    sys.path.insert(0, str(ROOT / "benchmarks"))  # head_to_head imports benchmarks/_common in its workers
+    import head_to_head  # noqa: PLC0415
+
+    return head_to_head
+
+
+def _four_move_node(env, q_best: float = -10.0, visits: int = 100):
+    """A belief node of the package's arena tree with the 4 moves expanded, ``visits`` each, the
+    Q-value of "right" ``q_best`` and of the others -300: UCB1's choice is "right" for any
+    exploration constant below (q_best + 300) / (2 * sqrt(log(4 visits) / visits)) (about 1.1e3
+    at c = 526)."""
+    from POMDPPlanners.core.tree.arena import Tree
+
+    s = statement.SAFETY
+    particles = np.tile(np.asarray(s["start"], dtype=float), (10, 1))
+    updater = statement.pkg().ContinuousLightDarkVectorizedUpdater.from_environment(env)
+    belief = statement.pkg().VectorizedWeightedParticleBelief(particles, np.full(10, -np.log(10)), updater)
+    tree = Tree()
+    root = tree.add_belief_node(belief)
+    for a in env.get_actions():
+        aid = tree.add_action_node(action=a, parent_id=root, action_key=env.hash_action(a))
+        for _ in range(visits):
+            tree.update_action_q_with_return(aid, q_best if a == "right" else -300.0)
+            tree.increment_visit_count(root)
+    return tree, root
+
+
+@pytest.mark.parametrize("config", ["readme", "tuned"])
+def test_action_widening_decides_whether_ucb_is_ever_used(config):
+    """With the package README's k_a = 1, alpha_a = 0.5, a node with its 4 moves and N = 400 visits
+    still widens (4 <= 400**0.5) and takes the sampler's uniform draw: the clearly best move is
+    chosen about a quarter of the time (binomial, 5 standard errors); with the tuned k_a = 3,
+    alpha_a = 0.01 it takes UCB1's choice (computed here by hand) every time."""
+    from POMDPPlanners.planners.planners_utils.dpw import action_progressive_widening_arena
+
+    h2h = _head_to_head()
+    cfg = h2h.peer_config(config)
+    env = statement.make_env(statement.SAFETY)
+    tree, root = _four_move_node(env)
+    children = tree.get_children_ids(root)
+    n = tree.get_visit_count(root)
+    ucb = [tree.get_q_value(c) + cfg["exploration_constant"] * np.sqrt(np.log(n) / tree.get_visit_count(c)) for c in children]
+    best = children[int(np.argmax(ucb))]
+    assert tree.get_action(best) == "right"
+    np.random.seed(0)
+    sampler = statement.pkg().DiscreteActionSampler(env.get_actions())
+    k = 400
+    picks = [action_progressive_widening_arena(tree=tree, belief_id=root, alpha_a=cfg["alpha_a"], action_sampler=sampler,
+                                               exploration_constant=cfg["exploration_constant"], k_a=cfg["k_a"],
+                                               environment=env) for _ in range(k)]
+    share = np.mean([p == best for p in picks])
+    if config == "readme":
+        assert abs(share - 0.25) <= 5 * np.sqrt(0.25 * 0.75 / k)
+    else:
+        assert share == 1.0
+
+
+def test_pft_dpws_immediate_reward_and_the_realised_reward_fix():
+    """A belief one step left of the first hazard's centre, the move right: every particle lands in
+    the disc (radius 1.5, transition std 0.22) and the hazard, certain, ends the episode. The
+    package's expected immediate reward (what PFT-DPW's tree uses) is the per-step term alone,
+    -2 - |goal - landing| (closed form at the pre-noise landing); the tuned configuration's
+    environment charges the hazard reward -500 on top (within the sampling error of the noisy
+    landings), and nothing for a particle already terminal."""
+    from POMDPPlanners.core.cost import belief_expectation_reward
+
+    h2h = _head_to_head()
+    s = statement.SAFETY
+    hz = np.asarray(s["hazards"][0], dtype=float)
+    particles = np.tile(np.append(hz - np.array([1.0, 0.0]), 0.0), (400, 1))
+    step = -s["fuel_cost"] - np.linalg.norm(np.asarray(s["goal"]) - hz)
+    np.random.seed(1)
+    statement.pkg().native.set_seed(1)
+    for env, expected in ((statement.make_env(s), step), (h2h.realised_reward_env(s), step + s["hazard_reward"])):
+        updater = statement.pkg().ContinuousLightDarkVectorizedUpdater.from_environment(env)
+        belief = statement.pkg().VectorizedWeightedParticleBelief(particles, np.full(400, -np.log(400)), updater)
+        # the landings' distance to the goal varies by ~0.22: its mean is within 0.05 of the pre-noise one
+        assert abs(belief_expectation_reward(belief, "right", env) - expected) < 0.05
+    dead = particles.copy()
+    dead[:, 2] = 1.0
+    assert np.all(h2h.realised_reward_env(s).reward_batch(dead, "right") == 0.0)
+
+
+def test_survival_conditioning_drops_the_dead_particles():
+    """The tuned belief, conditioned on the episode going on: the particles in a hazard (terminal
+    slot set) get weight zero, the others keep their relative weights."""
+    h2h = _head_to_head()
+    worker = h2h.PeerWorker(statement.SAFETY, "pomcpow", 0.01, h2h.peer_config("tuned"))
+    b = worker.belief(0)
+    p = np.column_stack([b.particles, np.zeros(len(b.particles))])
+    p[:50, 2] = 1.0
+    b = statement.pkg().VectorizedWeightedParticleBelief(p, b.log_weights, b.updater, resampling=True)
+    c = worker.survive(b)
+    w = np.asarray(c.normalized_weights)
+    assert np.all(w[:50] == 0.0)
+    np.testing.assert_allclose(w[50:], np.full(len(p) - 50, 1.0 / (len(p) - 50)))
+    assert c.resampling
