@@ -15,7 +15,7 @@ from firmtool.estimation.compiled.collide import world_group
 from firmtool.estimation.compiled.collide3d import world_group_3d
 from firmtool.estimation.compiled.goal import goal_group
 from firmtool.estimation.compiled.goal3d import goal_group_3d
-from firmtool.estimation.compiled.locate import candidate_lists
+from firmtool.estimation.compiled.locate import segment_candidates
 from firmtool.estimation.compiled.model import LANDMARKS, landmark_group
 from firmtool.estimation.compiled.run import kernel
 from firmtool.estimation.compiled.select import supports
@@ -116,13 +116,9 @@ def _segment_end(k: int, segment: int, lc) -> int:
 
 def _update_candidates(regions, P_steps: np.ndarray, lo_t: int, k_end: int, cand_ptr: np.ndarray) -> tuple:
     """The node candidates of steps ``lo_t`` to ``k_end`` (the kernel's candidates group; ``cand_ptr``
-    (T + 1,) filled in place) from the filter covariances ``P_steps``."""
-    cand = regions.covariance_candidates(P_steps[1 + lo_t:1 + k_end])
-    ptr, cand_idx, cand_key = candidate_lists(regions, cand)
-    cand_ptr[:] = 0
-    cand_ptr[lo_t:k_end + 1] = ptr
-    cand_ptr[k_end + 1:] = ptr[-1]
-    return cand_ptr, cand_idx, cand_key
+    (T + 1,) filled in place) from the filter covariances ``P_steps``, in one compiled pass
+    (:func:`~firmtool.estimation.compiled.locate.segment_candidates`)."""
+    return segment_candidates(regions, P_steps, lo_t, k_end, cand_ptr)
 
 
 def _run_on_stream(run, k: int, k_end: int, n_alive: int, ensemble: tuple, stream: _NumpyStream,
