@@ -12,7 +12,7 @@ import numpy as np
 
 from firmtool.control.stabilisers import NodeController
 from firmtool.estimation.compiled import FIRST_SEGMENT_PAST_EDGE, engine_for
-from firmtool.estimation.edges import estimate_blocks, estimate_edge
+from firmtool.estimation.edges import estimate_blocks, estimate_edges
 from firmtool.estimation.jobs import EstimationJob, ProblemJob, job_context, job_problem
 from firmtool.roadmap.design import design_nodes, local_controllers
 from firmtool.roadmap.nodes import segments_valid, trajectory_is_valid
@@ -34,15 +34,14 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
 
     engine = job.engine or engine_for(problem)
     controllers = local_controllers(problem, design, pairs, FIRST_SEGMENT_PAST_EDGE if engine == "numba" else None)
+    if job.block_tasks is None:  # the edges' first pass: their setup batched (estimate_edges)
+        return estimate_edges(problem, design, regions, pairs, job.particles, job.seed, job.chunk, job.engine,
+                              start=start, controllers=controllers, between=interrupts.check)
     out = []
     for (s, t), (_, first, count), lc in zip(pairs, tasks, controllers):
         interrupts.check()  # a deferred Ctrl-C, between edges (in this process only)
-        if job.block_tasks is not None:
-            out.append(estimate_blocks(problem, design, regions, s, t, job.particles, first, count, job.seed,
-                                       job.chunk, job.engine, start=start, controller=lc))
-        else:
-            out.append(estimate_edge(problem, design, regions, s, t, job.particles, job.seed, job.chunk, job.engine,
-                                     start=start, controller=lc))
+        out.append(estimate_blocks(problem, design, regions, s, t, job.particles, first, count, job.seed,
+                                   job.chunk, job.engine, start=start, controller=lc))
     return out
 
 

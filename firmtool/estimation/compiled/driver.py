@@ -53,6 +53,15 @@ class _ProblemData:
         self.world = world_group(problem.scenario.world) if hooks.dim == 2 else \
             world_group_3d(problem.scenario.world, hooks.radii, hooks.self_pairs)
         self.goal_group = goal_group if hooks.dim == 2 else goal_group_3d
+        self._run = None
+
+    @property
+    def run(self):
+        """The kernel compiled against the robot's hooks (:func:`kernel`), looked up once per problem, not per
+        edge (the lookup builds the hooks' dictionary and key)."""
+        if self._run is None:
+            self._run = kernel(self.hooks, self.sensor)
+        return self._run
 
 
 def model_matrices(model, nonlinear: bool) -> tuple[np.ndarray, ...]:
@@ -148,7 +157,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     simulate the same particles (the tests' particle-by-particle check of the arithmetic).
     """
     pd = _checked_problem_data(problem)
-    run = kernel(pd.hooks, pd.sensor)
+    run = pd.run
     perfect = problem.perfect
     M, T = x.shape[0], lc.steps
     outcome, steps, effort = np.full(M, TIMEOUT, dtype=np.int64), np.full(M, T, dtype=np.int64), np.zeros(M)

@@ -67,7 +67,7 @@ def segment_candidates(regions, P_steps: np.ndarray, lo_t: int, k_end: int,
     the same arithmetic (:meth:`~firmtool.roadmap.nodes.NodeRegions.covariance_window`), the rest
     (the (T, N) table, its columns in the first-coordinate order, the excluded nodes, the CSR lists)
     one compiled pass instead of ~10 numpy calls per segment of every edge (issue 55).
-    Pinned against that pair on the shipped scenarios' edges (tests/test_segment_candidates.py)."""
+    Pinned against that pair on the shipped scenarios' edges (tests/test_batched_setup.py)."""
     by_norm, rank, keep, key = segment_data(regions)
     steps = P_steps[1 + lo_t:1 + k_end]
     if regions.perfect:  # every node passes
