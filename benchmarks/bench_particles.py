@@ -15,6 +15,14 @@ estimates a fixed subset of its edges (``rng(0)``) as the estimate stage's singl
 with the scenario's seed and chunk), at ``--few`` and at ``--many`` particles, alternating,
 ``--repeat`` times each after one untimed warm pass of each; the rate of each is its median over the
 repeats. Both trees' outcome counts are checked equal (the change is bit for bit).
+
+    python benchmarks/bench_particles.py --parts [--robot arm point] [--edges 48] [--repeat 5]
+
+instead shows where this tree's time per edge goes at ``--few`` and ``--many`` particles: CPU microseconds of
+the thread per edge in each part of ``run_batch`` (the batch's local controllers, the initial ensembles,
+the node candidates, the kernel's calls, the cost terms, the summaries; ``simulate`` holds the candidates,
+the kernel and the cost terms), by timers wrapped around those functions, the median of ``--repeat`` passes.
+A part whose time does not grow with the particles is what holds the ratio below 1.
 """
 
 from __future__ import annotations
@@ -75,6 +83,81 @@ print(json.dumps({"few": statistics.median(rates[few]), "many": statistics.media
 '''
 
 
+def parts(robot: str, edges_count: int, particles: int, repeat: int) -> dict:
+    """Where this tree's time per edge goes (``--parts``): CPU microseconds of the simulating thread per edge
+    in each part of ``run_batch`` (timers wrapped around its functions in this process; median of
+    ``repeat`` passes over the edges, after a warm pass), at ``particles`` per edge."""
+    import functools
+    import time
+
+    import numpy as np
+    from _common import designed_roadmap, load, one_blas_thread
+    one_blas_thread()
+    import firmtool.estimation.compiled.driver as drv
+    import firmtool.estimation.edges as E
+    import firmtool.estimation.tasks as T
+    from firmtool.estimation.executors import EstimationJob, run_batch
+    from firmtool.io.roadmap_file import RoadmapFile
+    acc: dict[str, float] = {}
+
+    def timed(mod, name, label):
+        f = getattr(mod, name)
+
+        @functools.wraps(f)
+        def wrapped(*a, **k):
+            t0 = time.thread_time()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[label] = acc.get(label, 0.0) + time.thread_time() - t0
+        setattr(mod, name, wrapped)
+        return f
+
+    labels = [(T, "local_controllers", "local controllers (batch)"), (E, "initial_ensembles", "initial ensembles"),
+              (drv, "_update_candidates", "node candidates"), (drv, "cost_terms", "cost terms"),
+              (E, "summarise", "summaries"), (E, "simulate", "simulate (driver + kernel)")]
+    originals = [(mod, name, timed(mod, name, label)) for mod, name, label in labels]
+    problem, d, regions = load(robot)
+    kernel_run = drv._ProblemData.run
+
+    def run_prop(self):
+        run = kernel_run.fget(self)
+
+        def call(*args):
+            t0 = time.thread_time()
+            try:
+                return run(*args)
+            finally:
+                acc["kernel"] = acc.get("kernel", 0.0) + time.thread_time() - t0
+        return call
+    drv._ProblemData.run = property(run_prop)
+    try:
+        sc = problem.scenario
+        rm = RoadmapFile(designed_roadmap(robot))
+        E_ = d.edge_source.size
+        edges = np.sort(np.random.default_rng(0).choice(E_, min(edges_count, E_), replace=False)).tolist()
+        tasks = [edges[i:i + 16] for i in range(0, len(edges), 16)]
+        job = EstimationJob(scenario_text=rm.scenario_text, scenario_path=str(rm.path), design=d, particles=particles,
+                            chunk=sc.estimation.chunk, seed=sc.seed)
+        for b in tasks:
+            run_batch(job, b)
+        runs: dict[str, list[float]] = {}
+        for _ in range(repeat):
+            acc.clear()
+            t0 = time.thread_time()
+            ps = sum(r.particle_steps for b in tasks for r in run_batch(job, b))
+            acc["total"] = time.thread_time() - t0
+            for k, v in acc.items():
+                runs.setdefault(k, []).append(v)
+        out = {k: 1e6 * statistics.median(v) / len(edges) for k, v in runs.items()}
+        out["particle_steps_per_edge"] = ps / len(edges)
+        return out
+    finally:
+        drv._ProblemData.run = kernel_run
+        for mod, name, f in originals:
+            setattr(mod, name, f)
+
+
 def run_child(tree: Path, work: Path, robot: str, args) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
                MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
@@ -101,7 +184,20 @@ def main(argv=None) -> dict:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--keep", default=None, help="keep the old tree and the designs in this folder (reused if there)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--parts", action="store_true",
+                    help="instead: where this tree's time per edge goes, at --few and --many (in this process)")
     args = ap.parse_args(argv)
+    if args.parts:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        sys.path.insert(0, str(ROOT))
+        table = {}
+        for robot in args.robot:
+            for M in (args.few, args.many):
+                table[f"{robot} {M}"] = got = parts(robot, args.edges, M, args.repeat)
+                print(f"{robot} {M}: " + ", ".join(f"{k} {v:.0f}" for k, v in got.items()), flush=True)
+        if args.json:
+            print(json.dumps(table))
+        return table
     tmp = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="firmtool-particles-"))
     tmp.mkdir(parents=True, exist_ok=True)
     try:

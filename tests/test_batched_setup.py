@@ -161,3 +161,25 @@ def test_summarise_counts_are_numpys():
             assert est.particles == outcome.size and est.counts.sum() == outcome.size
             checked += len(values)
     assert checked > 6
+
+
+def test_outcome_histogram_is_numpys():
+    """The compiled pass's step histogram, outcome counts and particle-steps are step_histogram's,
+    np.unique's and the sum's, on random particles (negative codes, one particle, one outcome) and
+    refuses steps outside its key's span (numpy's path then)."""
+    from firmtool.estimation.compiled.summary import STEPS_SPAN, outcome_histogram
+    from firmtool.estimation.edges import step_histogram
+    rng = np.random.default_rng(7)
+    for M, codes in ((1, 3), (2, 1), (200, 40), (1000, 6), (3000, 300)):
+        outcome = rng.integers(-3, codes, M).astype(np.int64)
+        steps = rng.integers(0, 700, M).astype(np.int64)
+        ok, hist, values, counts, total = outcome_histogram(outcome, steps)
+        assert ok
+        np.testing.assert_array_equal(hist, step_histogram(outcome, steps))
+        v, c = np.unique(outcome, return_counts=True)
+        np.testing.assert_array_equal(values, v)
+        np.testing.assert_array_equal(counts, c)
+        assert hist.dtype == values.dtype == counts.dtype == np.int64
+        assert total == int(steps.sum()) and float(total) / M == float(steps.mean())
+    assert not outcome_histogram(np.zeros(3, np.int64), np.array([1, STEPS_SPAN, 2], np.int64))[0]
+    assert not outcome_histogram(np.zeros(2, np.int64), np.array([1, -1], np.int64))[0]

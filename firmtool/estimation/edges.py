@@ -22,6 +22,7 @@ import numpy as np
 from firmtool.control.local import LocalController
 from firmtool.errors import NumericalError
 from firmtool.estimation import compiled as kernels
+from firmtool.estimation.compiled.summary import STEPS_SPAN, outcome_histogram
 from firmtool.estimation.outcomes import (  # noqa: F401
     FAILURE,
     GOAL_MISS,
@@ -177,6 +178,7 @@ class EdgeEstimate:
 
 
 REGION_DRAW_ROUNDS = 64  # rejection rounds of a region start (each draws 2 M candidates)
+ENSEMBLE_GROUP = 16  # edges whose initial ensembles estimate_edges draws (and holds) at once
 
 
 def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
@@ -344,16 +346,18 @@ def estimate_edges(problem: Problem, design_: Design, regions: NodeRegions, pair
                                        numpy_noise, start, lc)[0])
         return out
     dim = problem.scenario.world.dim
-    rngs = [np.random.default_rng(edge_seed_sequence(seed, s, t, 0)) for s, t in pairs]
-    swepts = [empty_swept(dim) for _ in pairs]
-    ensembles = initial_ensembles(problem, design_, [(s, particles, rng) for (s, _), rng in zip(pairs, rngs)],
-                                  start, swepts)
     out = []
-    for (s, t), lc, rng, (x, xhat), swept in zip(pairs, lcs, rngs, ensembles, swepts):
-        if between is not None:
-            between()
-        res = simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise, goal_code(design_, t))
-        out.append(summarise(s, t, [res], join_swept(swept, res.swept)))
+    for g in range(0, len(pairs), ENSEMBLE_GROUP):  # the ensembles of a group held at once, not a whole task's
+        group = pairs[g:g + ENSEMBLE_GROUP]
+        rngs = [np.random.default_rng(edge_seed_sequence(seed, s, t, 0)) for s, t in group]
+        swepts = [empty_swept(dim) for _ in group]
+        ensembles = initial_ensembles(problem, design_, [(s, particles, rng) for (s, _), rng in zip(group, rngs)],
+                                      start, swepts)
+        for (s, t), lc, rng, (x, xhat), swept in zip(group, lcs[g:g + ENSEMBLE_GROUP], rngs, ensembles, swepts):
+            if between is not None:
+                between()
+            res = simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise, goal_code(design_, t))
+            out.append(summarise(s, t, [res], join_swept(swept, res.swept)))
     return out
 
 
@@ -392,8 +396,9 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
 def summarise(source: int, target: int, results: list[ParticleOutcomes], swept: np.ndarray | None) -> EdgeEstimate:
     """The estimate of one block of an edge's particles from its chunks' outcomes (in chunk order).
 
-    The outcome counts are read off the step histogram (its codes sorted, the particles of each code
-    summed: integers, so the same as ``np.unique``'s counts), one sort per edge instead of two."""
+    The step histogram, the outcome counts and the particle-steps (integers) come from one compiled pass
+    (:func:`firmtool.estimation.compiled.summary.outcome_histogram`; without numba: the counts read off
+    the histogram, its codes sorted and each code's particles summed), the same as ``np.unique``'s."""
     if len(results) == 1:
         outcome, steps, terms = results[0].outcome, results[0].steps, results[0].terms
     else:
@@ -401,17 +406,22 @@ def summarise(source: int, target: int, results: list[ParticleOutcomes], swept: 
         steps = np.concatenate([r.steps for r in results])
         terms = np.concatenate([r.terms for r in results])
     M = outcome.shape[0]
-    histogram = step_histogram(outcome, steps)
-    first = np.flatnonzero(np.concatenate([[True], histogram[0, 1:] != histogram[0, :-1]]))
-    values, counts = histogram[0, first], np.add.reduceat(histogram[2], first)
+    ok = False
+    if outcome_histogram is not None and outcome.dtype == np.int64 and steps.dtype == np.int64:
+        ok, histogram, values, counts, total = outcome_histogram(outcome, steps)  # one compiled pass
+    if not ok:
+        histogram = step_histogram(outcome, steps)
+        first = np.flatnonzero(np.concatenate([[True], histogram[0, 1:] != histogram[0, :-1]]))
+        values, counts, total = histogram[0, first], np.add.reduceat(histogram[2], first), int(steps.sum())
     cov = np.cov(terms, rowvar=False, ddof=1) if M > 1 else np.zeros((3, 3))
+    # steps.mean() is the exact integer sum (below 2^53) divided by M once: the same float as total / M
     return EdgeEstimate(source=source, target=target, particles=M, outcomes=values, counts=counts,
                         terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
-                        steps_mean=float(steps.mean()), particle_steps=int(steps.sum()), swept=swept,
+                        steps_mean=float(total) / M, particle_steps=int(total), swept=swept,
                         step_histogram=histogram)
 
 
-_STEPS_SPAN = 1 << 32  # a pair's key: outcome * span + steps, for 0 <= steps < span
+_STEPS_SPAN = STEPS_SPAN  # a pair's key: outcome * span + steps, for 0 <= steps < span
 
 
 def step_histogram(outcome: np.ndarray, steps: np.ndarray) -> np.ndarray:
