@@ -25,7 +25,8 @@ if numba is not None:
 
 def candidate_lists(regions, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per step, the candidate nodes sorted by their centre's first coordinate (CSR: ptr (T+1,), idx, key)
-    from ``cand`` (T, N) bool (:meth:`~firmtool.roadmap.nodes.NodeRegions.covariance_candidates`)."""
+    from ``cand`` (T, N) bool (:meth:`~firmtool.roadmap.nodes.NodeRegions.covariance_candidates`): the numpy
+    reference of :func:`segment_candidates`, which the driver calls (tests/test_batched_setup.py)."""
     order = first_coordinate_order(regions)
     sorted_cand = cand[:, order]
     counts = sorted_cand.sum(axis=1)
