@@ -15,7 +15,7 @@ true state.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Iterator
 
 import numpy as np
 
@@ -307,10 +307,44 @@ def _start_factor(design_: Design, source: int, which: str = "P") -> np.ndarray:
     return chol
 
 
+@dataclass(frozen=True)
+class EdgeStart:
+    """An edge's first chunk set up before its Monte Carlo (:func:`edge_starts`): its random stream
+    (:func:`edge_seed_sequence` of chunk 0, after the ensemble's draws), its initial ensemble ``x``,
+    ``xhat`` (M, n) and the swept region ``swept`` (2, D) of the ensemble's validity tests."""
+
+    source: int
+    rng: np.random.Generator
+    x: np.ndarray
+    xhat: np.ndarray
+    swept: np.ndarray
+
+
+def edge_starts(problem: Problem, design_: Design, pairs: list[tuple[int, int]], particles: int, seed: int,
+                chunk: int, start: str | None = None) -> Iterator[EdgeStart | None]:
+    """Per edge ``(source, target)``, its :class:`EdgeStart` for :func:`estimate_edge` (``prepared``), set up
+    :data:`ENSEMBLE_GROUP` edges at a time (the ensembles of a group held at once): the streams, the
+    initial ensembles with a region start's first round tested in one call (:func:`initial_ensembles`).
+    None for an edge of more than one chunk (its chunks are drawn in their own order)."""
+    start = problem.scenario.estimation.start if start is None else start
+    if particles > chunk:
+        yield from (None for _ in pairs)
+        return
+    dim = problem.scenario.world.dim
+    for g in range(0, len(pairs), ENSEMBLE_GROUP):
+        group = pairs[g:g + ENSEMBLE_GROUP]
+        rngs = [np.random.default_rng(edge_seed_sequence(seed, s, t, 0)) for s, t in group]
+        swepts = [empty_swept(dim) for _ in group]
+        ensembles = initial_ensembles(problem, design_, [(s, particles, rng) for (s, _), rng in zip(group, rngs)],
+                                      start, swepts)
+        for (s, _), rng, (x, xhat), swept in zip(group, rngs, ensembles, swepts):
+            yield EdgeStart(s, rng, x, xhat, swept)
+
+
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                   particles: int, seed: int, chunk: int, engine: str | None = None,
                   numpy_noise: bool = False, start: str | None = None,
-                  controller: LocalController | None = None) -> EdgeEstimate:
+                  controller: LocalController | None = None, prepared: EdgeStart | None = None) -> EdgeEstimate:
     """Monte Carlo of the local controller ``source -> target`` from the source node.
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
@@ -319,52 +353,29 @@ def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, sourc
     scenario's ``estimation.start``). ``controller``:
     the edge's local controller if the caller designed it already
     (:func:`firmtool.roadmap.design.local_controllers` designs a batch of edges at once, bit for bit the
-    controller designed here otherwise). This is block 0 of :func:`estimate_blocks`.
+    controller designed here otherwise). ``prepared``: the edge's first chunk set up already
+    (:func:`edge_starts`, with a batch's other edges; bit for bit what is drawn here otherwise). This is
+    block 0 of :func:`estimate_blocks`.
     """
     return estimate_blocks(problem, design_, regions, source, target, particles, 0, 1, seed, chunk, engine,
-                           numpy_noise, start, controller)[0]
+                           numpy_noise, start, controller, prepared)[0]
 
 
 def estimate_edges(problem: Problem, design_: Design, regions: NodeRegions, pairs: list[tuple[int, int]],
                    particles: int, seed: int, chunk: int, engine: str | None = None, numpy_noise: bool = False,
-                   start: str | None = None, controllers: list[LocalController] | None = None,
-                   between: Callable[[], None] | None = None) -> list[EdgeEstimate]:
-    """:func:`estimate_edge` of many edges ``(source, target)``, the same estimates bit for bit, with the
-    per-edge setup done once for the batch where it can be: the random streams, the initial ensembles
-    (:func:`initial_ensembles`: a region start's validity tests in one call). An edge of more than one
-    chunk of particles runs :func:`estimate_blocks` (its chunks' order is its own).
-    ``controllers``: the edges' local controllers, if designed already; ``between``: called before each
-    edge's Monte Carlo (a worker's deferred Ctrl-C)."""
-    start = problem.scenario.estimation.start if start is None else start
+                   start: str | None = None, controllers: list[LocalController] | None = None) -> list[EdgeEstimate]:
+    """:func:`estimate_edge` of many edges ``(source, target)``, the same estimates bit for bit, their first
+    chunks set up together (:func:`edge_starts`); ``controllers``: the edges' local controllers, if
+    designed already. (:func:`firmtool.estimation.tasks.run_batch` does the same edge by edge.)"""
     lcs = controllers if controllers is not None else [local_controller(problem, design_, s, t) for s, t in pairs]
-    if particles > chunk:
-        out = []
-        for (s, t), lc in zip(pairs, lcs):
-            if between is not None:
-                between()
-            out.append(estimate_blocks(problem, design_, regions, s, t, particles, 0, 1, seed, chunk, engine,
-                                       numpy_noise, start, lc)[0])
-        return out
-    dim = problem.scenario.world.dim
-    out = []
-    for g in range(0, len(pairs), ENSEMBLE_GROUP):  # the ensembles of a group held at once, not a whole task's
-        group = pairs[g:g + ENSEMBLE_GROUP]
-        rngs = [np.random.default_rng(edge_seed_sequence(seed, s, t, 0)) for s, t in group]
-        swepts = [empty_swept(dim) for _ in group]
-        ensembles = initial_ensembles(problem, design_, [(s, particles, rng) for (s, _), rng in zip(group, rngs)],
-                                      start, swepts)
-        for (s, t), lc, rng, (x, xhat), swept in zip(group, lcs[g:g + ENSEMBLE_GROUP], rngs, ensembles, swepts):
-            if between is not None:
-                between()
-            res = simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise, goal_code(design_, t))
-            out.append(summarise(s, t, [res], join_swept(swept, res.swept)))
-    return out
+    return [estimate_edge(problem, design_, regions, s, t, particles, seed, chunk, engine, numpy_noise, start, lc, prep)
+            for (s, t), lc, prep in zip(pairs, lcs, edge_starts(problem, design_, pairs, particles, seed, chunk, start))]
 
 
 def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                     block_size: int, first_block: int, blocks: int, seed: int, chunk: int, engine: str | None = None,
                     numpy_noise: bool = False, start: str | None = None,
-                    controller: LocalController | None = None) -> list[EdgeEstimate]:
+                    controller: LocalController | None = None, prepared: EdgeStart | None = None) -> list[EdgeEstimate]:
     """Blocks ``first_block .. first_block + blocks - 1`` of an edge's particles, one estimate each.
 
     An edge's particles come in blocks of ``block_size`` (the scenario's ``estimation.particles``);
@@ -373,19 +384,26 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
     chunk drawing from :func:`edge_seed_sequence`. So the particles of an edge with ``k`` blocks are a
     function of the seed, the edge and ``k`` alone: more particles for an edge are new chunks, and an
     estimate with ``k`` blocks is the in-order merge (:func:`merge_estimates`) of blocks 0 to k - 1,
-    whoever computed them and in whatever batches. ``controller``: as in :func:`estimate_edge`.
+    whoever computed them and in whatever batches. ``controller``: as in :func:`estimate_edge`;
+    ``prepared``: block 0's single chunk set up already (:func:`edge_starts`).
     """
     lc = controller if controller is not None else local_controller(problem, design_, source, target)
     start = problem.scenario.estimation.start if start is None else start
     per_block = -(-block_size // chunk)
+    if prepared is not None and (first_block != 0 or per_block != 1 or prepared.source != source
+                                 or prepared.x.shape[0] != block_size):
+        raise ValueError(f"edge {source} -> {target}: a prepared start is block 0's single chunk of this edge")
     out = []
     for b in range(first_block, first_block + blocks):
         results = []
         swept = empty_swept(problem.scenario.world.dim)
         for j, first in enumerate(range(0, block_size, chunk)):
             M = min(chunk, block_size - first)
-            rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
-            x, xhat = initial_ensemble(problem, design_, source, M, rng, start, swept)
+            if b == 0 and prepared is not None:
+                rng, x, xhat, swept = prepared.rng, prepared.x, prepared.xhat, prepared.swept
+            else:
+                rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
+                x, xhat = initial_ensemble(problem, design_, source, M, rng, start, swept)
             results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise,
                                     goal_code(design_, target)))
             swept = join_swept(swept, results[-1].swept)
