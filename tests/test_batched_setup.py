@@ -2,7 +2,8 @@
 against the per-edge functions it replaces, on shipped scenarios' edges: the node candidates of every
 segment of an edge's steps (:func:`firmtool.estimation.compiled.locate.segment_candidates` against
 :meth:`NodeRegions.covariance_candidates` and :func:`candidate_lists`), a batch's estimates and initial
-ensembles (:func:`firmtool.estimation.edges.estimate_edges`, :func:`initial_ensembles`) against
+ensembles (:func:`firmtool.estimation.edges.estimate_edges` through :func:`edge_starts`,
+:func:`initial_ensembles`) against
 :func:`estimate_edge` and :func:`initial_ensemble` edge by edge, an estimate's summaries against numpy's."""
 
 from __future__ import annotations
@@ -183,3 +184,23 @@ def test_outcome_histogram_is_numpys():
         assert total == int(steps.sum()) and float(total) / M == float(steps.mean())
     assert not outcome_histogram(np.zeros(3, np.int64), np.array([1, STEPS_SPAN, 2], np.int64))[0]
     assert not outcome_histogram(np.zeros(2, np.int64), np.array([1, -1], np.int64))[0]
+
+
+def test_a_prepared_start_must_be_the_edges_first_chunk():
+    """estimate_edge refuses a prepared start of another source node or particle count, and a prepared
+    start where the edge has more than one chunk (edge_starts gives none there)."""
+    from firmtool.estimation.edges import edge_starts, estimate_edge
+    problem, d, regions = _shipped("point_lightdark")
+    seed = problem.scenario.seed
+    by_source = {}
+    for e in range(d.edge_source.size):
+        by_source.setdefault(int(d.edge_source[e]), int(d.edge_target[e]))
+    (s1, t1), (s2, t2) = list(by_source.items())[:2]
+    (prep,) = edge_starts(problem, d, [(s1, t1)], 50, seed, 2000)
+    assert list(edge_starts(problem, d, [(s1, t1), (s2, t2)], 50, seed, 20)) == [None, None]
+    for args in (((s2, t2), 50, 2000), ((s1, t1), 40, 2000), ((s1, t1), 50, 20)):
+        (s, t), particles, chunk = args
+        with pytest.raises(ValueError, match="prepared start"):
+            estimate_edge(problem, d, regions, s, t, particles, seed, chunk, prepared=prep)
+    est = estimate_edge(problem, d, regions, s1, t1, 50, seed, 2000, prepared=prep)
+    _fields_equal(est, estimate_edge(problem, d, regions, s1, t1, 50, seed, 2000))
