@@ -15,12 +15,14 @@ true state.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
 from firmtool.control.local import LocalController
 from firmtool.errors import NumericalError
 from firmtool.estimation import compiled as kernels
+from firmtool.estimation.compiled.summary import STEPS_SPAN, outcome_histogram
 from firmtool.estimation.outcomes import (  # noqa: F401
     FAILURE,
     GOAL_MISS,
@@ -176,6 +178,7 @@ class EdgeEstimate:
 
 
 REGION_DRAW_ROUNDS = 64  # rejection rounds of a region start (each draws 2 M candidates)
+ENSEMBLE_GROUP = 16  # edges whose initial ensembles estimate_edges draws (and holds) at once
 
 
 def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
@@ -211,20 +214,40 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
         return xhat + rng.standard_normal((M, n)) @ _start_factor(design_, source).T, xhat
     if start != "region":
         raise ValueError(f"start: expected one of {START_MODES}, found {start!r}")
+    return _region_rounds(problem, design_, source, M, rng, swept)
+
+
+def _region_draw(problem: Problem, design_: Design, source: int, M: int,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One rejection round of a region start (:func:`initial_ensemble`): ``(x, xhat)`` of the beliefs
+    drawn inside the node's region, before the true states' validity test."""
+    v = design_.centers[source]
     radius = problem.scenario.controller.node_radius
-    chol_s = np.linalg.cholesky(design_.Sigma[source] + 1e-15 * np.eye(n))
-    chol_p = None if problem.perfect else _start_factor(design_, source)
+    chol_s = _start_factor(design_, source, "Sigma")
     scale = design_.scale[source]
+    z = rng.standard_normal((2 * M, v.shape[0])) @ chol_s.T
+    xhat = v + z[np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius]
+    x = xhat if problem.perfect else xhat + rng.standard_normal(xhat.shape) @ _start_factor(design_, source).T
+    return x, xhat
+
+
+def _region_rounds(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
+                   swept: np.ndarray | None, first: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A region start's rejection rounds (:func:`initial_ensemble`); ``first``: round 0 drawn and tested
+    by the caller, ``(x, xhat, alive, points)`` (:func:`initial_ensembles` tests a batch's at once)."""
     xs, xhats, drawn = [], [], 0
-    for _ in range(REGION_DRAW_ROUNDS):  # a node region holds most of the stationary mass: few rounds
-        z = rng.standard_normal((2 * M, n)) @ chol_s.T
-        xhat = v + z[np.sqrt(np.mean((z / scale) ** 2, axis=1)) < radius]
-        x = xhat if chol_p is None else xhat + rng.standard_normal(xhat.shape) @ chol_p.T
-        if swept is not None:  # a robot that arrived is alive: its true state is valid
-            alive, points = problem.valid_with_points(x)
-            grow_swept(swept, points)
+    for r in range(REGION_DRAW_ROUNDS):  # a node region holds most of the stationary mass: few rounds
+        if r == 0 and first is not None:
+            x, xhat, alive, points = first
+            if swept is not None:
+                grow_swept(swept, points)
         else:
-            alive = problem.is_valid(x)
+            x, xhat = _region_draw(problem, design_, source, M, rng)
+            if swept is not None:  # a robot that arrived is alive: its true state is valid
+                alive, points = problem.valid_with_points(x)
+                grow_swept(swept, points)
+            else:
+                alive = problem.is_valid(x)
         xs.append(x[alive])
         xhats.append(xhat[alive])
         drawn += int(alive.sum())
@@ -237,26 +260,91 @@ def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng
     return (xhat.copy(), xhat) if problem.perfect else (x, xhat)
 
 
-_factor_cache: dict[tuple[int, int], tuple[Design, np.ndarray]] = {}
+def initial_ensembles(problem: Problem, design_: Design, starts: list[tuple[int, int, np.random.Generator]],
+                      start: str, swepts: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`initial_ensemble` of many ensembles ``(source, M, rng)``, each growing its ``swepts[i]``:
+    the same arrays, bit for bit (each draws from its own generator as it alone would). Region starts
+    test the true states of every ensemble's first rejection round in one call
+    (:meth:`~firmtool.problem.Problem.valid_with_points`: the robot's key points and the geometry's test,
+    row by row), instead of one call per edge (issue 55: the calls' fixed cost was ~5% of a
+    200-particle edge); the rare later rounds follow one ensemble at a time."""
+    if start != "region" or len(starts) < 2 or problem.validity is not None:  # a user's checker: per call, as given
+        return [initial_ensemble(problem, design_, s, M, rng, start, sw) for (s, M, rng), sw in zip(starts, swepts)]
+    own = [problem.start_covariance is not None and design_.kinds[s] == START and not problem.perfect
+           for s, _, _ in starts]
+    drawn = [None if own[i] else _region_draw(problem, design_, s, M, rng) for i, (s, M, rng) in enumerate(starts)]
+    xs = [d[0] for d in drawn if d is not None]
+    if xs:
+        alive, points = problem.valid_with_points(np.concatenate(xs))
+        bounds = np.cumsum([0] + [x.shape[0] for x in xs])
+    out, j = [], 0
+    for i, ((s, M, rng), sw) in enumerate(zip(starts, swepts)):
+        if drawn[i] is None:  # the task's start belief (initial_ensemble's first case)
+            out.append(initial_ensemble(problem, design_, s, M, rng, start, sw))
+            continue
+        a, b = bounds[j], bounds[j + 1]
+        j += 1
+        out.append(_region_rounds(problem, design_, s, M, rng, sw, (*drawn[i], alive[a:b], points[a:b])))
+    return out
 
 
-def _start_factor(design_: Design, source: int) -> np.ndarray:
-    """The Cholesky factor of node ``source``'s covariance (jittered by 1e-15 I), once per design and
-    node: a worker's batch of edges shares a few sources (edges come sorted by source)."""
-    hit = _factor_cache.get((id(design_), source))
+_factor_cache: dict[tuple[int, int, str], tuple[Design, np.ndarray]] = {}
+
+
+def _start_factor(design_: Design, source: int, which: str = "P") -> np.ndarray:
+    """The Cholesky factor of node ``source``'s covariance ``which`` (``"P"``, its belief's; ``"Sigma"``,
+    its estimate's stationary spread; jittered by 1e-15 I), once per design and node: a worker's batch
+    of edges shares a few sources (edges come sorted by source)."""
+    key = (id(design_), source, which)
+    hit = _factor_cache.get(key)
     if hit is not None and hit[0] is design_:
         return hit[1]
-    chol = np.linalg.cholesky(design_.P[source] + 1e-15 * np.eye(design_.P.shape[1]))
+    C = getattr(design_, which)[source]
+    chol = np.linalg.cholesky(C + 1e-15 * np.eye(C.shape[0]))
     if len(_factor_cache) >= 256:
         _factor_cache.clear()
-    _factor_cache[(id(design_), source)] = (design_, chol)
+    _factor_cache[key] = (design_, chol)
     return chol
+
+
+@dataclass(frozen=True)
+class EdgeStart:
+    """An edge's first chunk set up before its Monte Carlo (:func:`edge_starts`): its random stream
+    (:func:`edge_seed_sequence` of chunk 0, after the ensemble's draws), its initial ensemble ``x``,
+    ``xhat`` (M, n) and the swept region ``swept`` (2, D) of the ensemble's validity tests."""
+
+    source: int
+    rng: np.random.Generator
+    x: np.ndarray
+    xhat: np.ndarray
+    swept: np.ndarray
+
+
+def edge_starts(problem: Problem, design_: Design, pairs: list[tuple[int, int]], particles: int, seed: int,
+                chunk: int, start: str | None = None) -> Iterator[EdgeStart | None]:
+    """Per edge ``(source, target)``, its :class:`EdgeStart` for :func:`estimate_edge` (``prepared``), set up
+    :data:`ENSEMBLE_GROUP` edges at a time (the ensembles of a group held at once): the streams, the
+    initial ensembles with a region start's first round tested in one call (:func:`initial_ensembles`).
+    None for an edge of more than one chunk (its chunks are drawn in their own order)."""
+    start = problem.scenario.estimation.start if start is None else start
+    if particles > chunk:
+        yield from (None for _ in pairs)
+        return
+    dim = problem.scenario.world.dim
+    for g in range(0, len(pairs), ENSEMBLE_GROUP):
+        group = pairs[g:g + ENSEMBLE_GROUP]
+        rngs = [np.random.default_rng(edge_seed_sequence(seed, s, t, 0)) for s, t in group]
+        swepts = [empty_swept(dim) for _ in group]
+        ensembles = initial_ensembles(problem, design_, [(s, particles, rng) for (s, _), rng in zip(group, rngs)],
+                                      start, swepts)
+        for (s, _), rng, (x, xhat), swept in zip(group, rngs, ensembles, swepts):
+            yield EdgeStart(s, rng, x, xhat, swept)
 
 
 def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                   particles: int, seed: int, chunk: int, engine: str | None = None,
                   numpy_noise: bool = False, start: str | None = None,
-                  controller: LocalController | None = None) -> EdgeEstimate:
+                  controller: LocalController | None = None, prepared: EdgeStart | None = None) -> EdgeEstimate:
     """Monte Carlo of the local controller ``source -> target`` from the source node.
 
     The gains are computed once; particles are simulated in chunks (cache-friendly sizes), each chunk
@@ -265,16 +353,29 @@ def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, sourc
     scenario's ``estimation.start``). ``controller``:
     the edge's local controller if the caller designed it already
     (:func:`firmtool.roadmap.design.local_controllers` designs a batch of edges at once, bit for bit the
-    controller designed here otherwise). This is block 0 of :func:`estimate_blocks`.
+    controller designed here otherwise). ``prepared``: the edge's first chunk set up already
+    (:func:`edge_starts`, with a batch's other edges; bit for bit what is drawn here otherwise). This is
+    block 0 of :func:`estimate_blocks`.
     """
     return estimate_blocks(problem, design_, regions, source, target, particles, 0, 1, seed, chunk, engine,
-                           numpy_noise, start, controller)[0]
+                           numpy_noise, start, controller, prepared)[0]
+
+
+def estimate_edges(problem: Problem, design_: Design, regions: NodeRegions, pairs: list[tuple[int, int]],
+                   particles: int, seed: int, chunk: int, engine: str | None = None, numpy_noise: bool = False,
+                   start: str | None = None, controllers: list[LocalController] | None = None) -> list[EdgeEstimate]:
+    """:func:`estimate_edge` of many edges ``(source, target)``, the same estimates bit for bit, their first
+    chunks set up together (:func:`edge_starts`); ``controllers``: the edges' local controllers, if
+    designed already. (:func:`firmtool.estimation.tasks.run_batch` does the same edge by edge.)"""
+    lcs = controllers if controllers is not None else [local_controller(problem, design_, s, t) for s, t in pairs]
+    return [estimate_edge(problem, design_, regions, s, t, particles, seed, chunk, engine, numpy_noise, start, lc, prep)
+            for (s, t), lc, prep in zip(pairs, lcs, edge_starts(problem, design_, pairs, particles, seed, chunk, start))]
 
 
 def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                     block_size: int, first_block: int, blocks: int, seed: int, chunk: int, engine: str | None = None,
                     numpy_noise: bool = False, start: str | None = None,
-                    controller: LocalController | None = None) -> list[EdgeEstimate]:
+                    controller: LocalController | None = None, prepared: EdgeStart | None = None) -> list[EdgeEstimate]:
     """Blocks ``first_block .. first_block + blocks - 1`` of an edge's particles, one estimate each.
 
     An edge's particles come in blocks of ``block_size`` (the scenario's ``estimation.particles``);
@@ -283,36 +384,62 @@ def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, sou
     chunk drawing from :func:`edge_seed_sequence`. So the particles of an edge with ``k`` blocks are a
     function of the seed, the edge and ``k`` alone: more particles for an edge are new chunks, and an
     estimate with ``k`` blocks is the in-order merge (:func:`merge_estimates`) of blocks 0 to k - 1,
-    whoever computed them and in whatever batches. ``controller``: as in :func:`estimate_edge`.
+    whoever computed them and in whatever batches. ``controller``: as in :func:`estimate_edge`;
+    ``prepared``: block 0's single chunk set up already (:func:`edge_starts`).
     """
     lc = controller if controller is not None else local_controller(problem, design_, source, target)
     start = problem.scenario.estimation.start if start is None else start
     per_block = -(-block_size // chunk)
+    if prepared is not None and (first_block != 0 or per_block != 1 or prepared.source != source
+                                 or prepared.x.shape[0] != block_size):
+        raise ValueError(f"edge {source} -> {target}: a prepared start is block 0's single chunk of this edge")
     out = []
     for b in range(first_block, first_block + blocks):
         results = []
         swept = empty_swept(problem.scenario.world.dim)
         for j, first in enumerate(range(0, block_size, chunk)):
             M = min(chunk, block_size - first)
-            rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
-            x, xhat = initial_ensemble(problem, design_, source, M, rng, start, swept)
+            if b == 0 and prepared is not None:
+                rng, x, xhat, swept = prepared.rng, prepared.x, prepared.xhat, prepared.swept
+            else:
+                rng = np.random.default_rng(edge_seed_sequence(seed, source, target, b * per_block + j))
+                x, xhat = initial_ensemble(problem, design_, source, M, rng, start, swept)
             results.append(simulate(problem, lc, regions, x, xhat, rng, engine, numpy_noise,
                                     goal_code(design_, target)))
             swept = join_swept(swept, results[-1].swept)
-        outcome = np.concatenate([r.outcome for r in results])
-        steps = np.concatenate([r.steps for r in results])
-        terms = np.concatenate([r.terms for r in results])
-        values, counts = np.unique(outcome, return_counts=True)
-        cov = np.cov(terms, rowvar=False, ddof=1) if block_size > 1 else np.zeros((3, 3))
-        histogram = step_histogram(outcome, steps)
-        out.append(EdgeEstimate(source=source, target=target, particles=block_size, outcomes=values, counts=counts,
-                                terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
-                                steps_mean=float(steps.mean()), particle_steps=int(steps.sum()), swept=swept,
-                                step_histogram=histogram))
+        out.append(summarise(source, target, results, swept))
     return out
 
 
-_STEPS_SPAN = 1 << 32  # a pair's key: outcome * span + steps, for 0 <= steps < span
+def summarise(source: int, target: int, results: list[ParticleOutcomes], swept: np.ndarray | None) -> EdgeEstimate:
+    """The estimate of one block of an edge's particles from its chunks' outcomes (in chunk order).
+
+    The step histogram, the outcome counts and the particle-steps (integers) come from one compiled pass
+    (:func:`firmtool.estimation.compiled.summary.outcome_histogram`; without numba: the counts read off
+    the histogram, its codes sorted and each code's particles summed), the same as ``np.unique``'s."""
+    if len(results) == 1:
+        outcome, steps, terms = results[0].outcome, results[0].steps, results[0].terms
+    else:
+        outcome = np.concatenate([r.outcome for r in results])
+        steps = np.concatenate([r.steps for r in results])
+        terms = np.concatenate([r.terms for r in results])
+    M = outcome.shape[0]
+    ok = False
+    if outcome_histogram is not None and outcome.dtype == np.int64 and steps.dtype == np.int64:
+        ok, histogram, values, counts, total = outcome_histogram(outcome, steps)  # one compiled pass
+    if not ok:
+        histogram = step_histogram(outcome, steps)
+        first = np.flatnonzero(np.concatenate([[True], histogram[0, 1:] != histogram[0, :-1]]))
+        values, counts, total = histogram[0, first], np.add.reduceat(histogram[2], first), int(steps.sum())
+    cov = np.cov(terms, rowvar=False, ddof=1) if M > 1 else np.zeros((3, 3))
+    # steps.mean() is the exact integer sum (below 2^53) divided by M once: the same float as total / M
+    return EdgeEstimate(source=source, target=target, particles=M, outcomes=values, counts=counts,
+                        terms_mean=terms.mean(axis=0), terms_cov=np.atleast_2d(cov),
+                        steps_mean=float(total) / M, particle_steps=int(total), swept=swept,
+                        step_histogram=histogram)
+
+
+_STEPS_SPAN = STEPS_SPAN  # a pair's key: outcome * span + steps, for 0 <= steps < span
 
 
 def step_histogram(outcome: np.ndarray, steps: np.ndarray) -> np.ndarray:

@@ -79,7 +79,18 @@ def cost_terms(lc: LocalController, steps: np.ndarray, effort: np.ndarray) -> np
     return out
 
 
+_first_goal_cache: dict[int, tuple[Design, int]] = {}
+
+
 def goal_code(design_: Design, target: int) -> int:
     """The outcome code of a landing in the goal region on an edge to ``target``: the target if it is
-    a goal node, else the first goal node (every goal node is the same absorbing goal of the DP)."""
-    return int(target) if design_.kinds[target] == GOAL else first_goal(design_.kinds)
+    a goal node, else the first goal node (every goal node is the same absorbing goal of the DP), found
+    once per design (a scan of its kinds, per edge ~2-4% of a 200-particle point edge: issue 55)."""
+    if design_.kinds[target] == GOAL:
+        return int(target)
+    hit = _first_goal_cache.get(id(design_))
+    if hit is None or hit[0] is not design_:
+        if len(_first_goal_cache) >= 8:
+            _first_goal_cache.clear()
+        hit = _first_goal_cache[id(design_)] = (design_, first_goal(design_.kinds))
+    return hit[1]

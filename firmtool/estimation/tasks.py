@@ -12,7 +12,7 @@ import numpy as np
 
 from firmtool.control.stabilisers import NodeController
 from firmtool.estimation.compiled import FIRST_SEGMENT_PAST_EDGE, engine_for
-from firmtool.estimation.edges import estimate_blocks, estimate_edge
+from firmtool.estimation.edges import edge_starts, estimate_blocks, estimate_edge
 from firmtool.estimation.jobs import EstimationJob, ProblemJob, job_context, job_problem
 from firmtool.roadmap.design import design_nodes, local_controllers
 from firmtool.roadmap.nodes import segments_valid, trajectory_is_valid
@@ -34,15 +34,18 @@ def run_batch(job: EstimationJob, edges: Sequence[int]) -> list:
 
     engine = job.engine or engine_for(problem)
     controllers = local_controllers(problem, design, pairs, FIRST_SEGMENT_PAST_EDGE if engine == "numba" else None)
+    # the edges' first pass: their first chunks set up a group at a time (streams, initial ensembles)
+    starts = edge_starts(problem, design, pairs, job.particles, job.seed, job.chunk, start) \
+        if job.block_tasks is None else (None for _ in pairs)
     out = []
-    for (s, t), (_, first, count), lc in zip(pairs, tasks, controllers):
+    for (s, t), (_, first, count), lc, prepared in zip(pairs, tasks, controllers, starts):
         interrupts.check()  # a deferred Ctrl-C, between edges (in this process only)
         if job.block_tasks is not None:
             out.append(estimate_blocks(problem, design, regions, s, t, job.particles, first, count, job.seed,
                                        job.chunk, job.engine, start=start, controller=lc))
         else:
             out.append(estimate_edge(problem, design, regions, s, t, job.particles, job.seed, job.chunk, job.engine,
-                                     start=start, controller=lc))
+                                     start=start, controller=lc, prepared=prepared))
     return out
 
 

@@ -418,24 +418,34 @@ class NodeRegions:
         """The covariance tests of :meth:`covariance_candidates` (imperfect measurements, before the
         excluded nodes are removed)."""
         T, N = P_steps.shape[0], self.count
+        out = np.zeros((T, N), dtype=bool)
+        a, b, passed = self.covariance_window(P_steps)
+        if a < b:
+            out[:, self._by_norm[a:b]] = passed
+        return out
+
+    def covariance_window(self, P_steps: np.ndarray) -> tuple[int, int, np.ndarray]:
+        """The covariance tests of :meth:`covariance_candidates` inside the window of ``||P_j||``:
+        ``(a, b, passed)``, the nodes ``_by_norm[a:b]`` (those in the order of their ``||P_j||``) the
+        only ones that can pass, ``passed`` (T, b - a) bool their tests (imperfect measurements, before
+        the excluded nodes are removed). The compiled engine turns it into its candidate lists
+        (:func:`firmtool.estimation.compiled.locate.segment_candidates`), the same arithmetic."""
+        T = P_steps.shape[0]
+        if T == 0 or self.count == 0:
+            return 0, 0, np.zeros((T, 0), dtype=bool)
         (i0, i1), weight = self._upper
         U = P_steps[:, i0, i1] * weight
         own = np.einsum("ij,ij->i", U, U)
-        out = np.zeros((T, N), dtype=bool)
-        if T == 0 or N == 0:
-            return out
         tol = self.cov_tol
         norm = np.sqrt(own)
         lo = float(norm.min()) / (1.0 + tol) * (1.0 - 1e-9)
         hi = float(norm.max()) / (1.0 - tol) * (1.0 + 1e-9) if tol < 1.0 else np.inf
         a, b = np.searchsorted(self._sorted_norm, lo, side="left"), np.searchsorted(self._sorted_norm, hi, side="right")
         if a >= b:
-            return out
-        cols = self._by_norm[a:b]
+            return int(a), int(a), np.zeros((T, 0), dtype=bool)
         norm2 = self._P_norm2_sorted[a:b]
         dist2 = own[:, None] + norm2[None, :] - 2.0 * U @ self._P_upper_sorted[a:b].T
-        out[:, cols] = dist2 <= (tol**2) * norm2[None, :]
-        return out
+        return int(a), int(b), dist2 <= (tol**2) * norm2[None, :]
 
     def true_arrival(self, node: np.ndarray, x: np.ndarray, angles: tuple[int, ...] = ()) -> np.ndarray:
         """Whether the TRUE states ``x`` (M, n) of beliefs that landed in the goal nodes ``node`` (M,)

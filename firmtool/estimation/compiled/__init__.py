@@ -26,8 +26,10 @@ Modules, one job each:
 - :mod:`~firmtool.estimation.compiled.collide`: capsules against boxes and bounds, self-collision,
   the gate; :mod:`~firmtool.estimation.compiled.collide3d` the same in 3-D (a radius per capsule,
   turned boxes, spheres);
-- :mod:`~firmtool.estimation.compiled.locate`: node membership's per-step candidates (the compiled
-  test itself is the roadmap's, :mod:`firmtool.roadmap.membership`);
+- :mod:`~firmtool.estimation.compiled.locate`: node membership's per-step candidates, a segment's in
+  one compiled pass (the compiled test itself is the roadmap's, :mod:`firmtool.roadmap.membership`);
+- :mod:`~firmtool.estimation.compiled.summary`: an estimate's integer summaries (step histogram,
+  outcome counts) in one pass;
 - :mod:`~firmtool.estimation.compiled.goal`: the goal test (``ball_decision``, ``goal_test``);
   :mod:`~firmtool.estimation.compiled.goal3d` in a 3-D task space;
 - :mod:`~firmtool.estimation.compiled.run`: the kernel (the steps of all live particles) and its compilation per

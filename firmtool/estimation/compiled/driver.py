@@ -15,7 +15,7 @@ from firmtool.estimation.compiled.collide import world_group
 from firmtool.estimation.compiled.collide3d import world_group_3d
 from firmtool.estimation.compiled.goal import goal_group
 from firmtool.estimation.compiled.goal3d import goal_group_3d
-from firmtool.estimation.compiled.locate import candidate_lists
+from firmtool.estimation.compiled.locate import segment_candidates
 from firmtool.estimation.compiled.model import LANDMARKS, landmark_group
 from firmtool.estimation.compiled.rng import philox_key
 from firmtool.estimation.compiled.run import kernel
@@ -55,6 +55,15 @@ class _ProblemData:
         self.world = world_group(problem.scenario.world) if hooks.dim == 2 else \
             world_group_3d(problem.scenario.world, hooks.radii, hooks.self_pairs)
         self.goal_group = goal_group if hooks.dim == 2 else goal_group_3d
+        self._run = None
+
+    @property
+    def run(self):
+        """The kernel compiled against the robot's hooks (:func:`kernel`), looked up once per problem, not per
+        edge (the lookup builds the hooks' dictionary and key)."""
+        if self._run is None:
+            self._run = kernel(self.hooks, self.sensor)
+        return self._run
 
 
 def model_matrices(model, nonlinear: bool) -> tuple[np.ndarray, ...]:
@@ -118,13 +127,9 @@ def _segment_end(k: int, segment: int, lc) -> int:
 
 def _update_candidates(regions, P_steps: np.ndarray, lo_t: int, k_end: int, cand_ptr: np.ndarray) -> tuple:
     """The node candidates of steps ``lo_t`` to ``k_end`` (the kernel's candidates group; ``cand_ptr``
-    (T + 1,) filled in place) from the filter covariances ``P_steps``."""
-    cand = regions.covariance_candidates(P_steps[1 + lo_t:1 + k_end])
-    ptr, cand_idx, cand_key = candidate_lists(regions, cand)
-    cand_ptr[:] = 0
-    cand_ptr[lo_t:k_end + 1] = ptr
-    cand_ptr[k_end + 1:] = ptr[-1]
-    return cand_ptr, cand_idx, cand_key
+    (T + 1,) filled in place) from the filter covariances ``P_steps``, in one compiled pass
+    (:func:`~firmtool.estimation.compiled.locate.segment_candidates`)."""
+    return segment_candidates(regions, P_steps, lo_t, k_end, cand_ptr)
 
 
 def _run_on_stream(run, k: int, k_end: int, n_alive: int, ensemble: tuple, stream: _NumpyStream,
@@ -159,7 +164,7 @@ def simulate(problem, lc, regions, x: np.ndarray, xhat: np.ndarray, rng: np.rand
     function of the key, its index in ``x`` and the step (:mod:`firmtool.estimation.compiled.rng`).
     """
     pd = _checked_problem_data(problem)
-    run = kernel(pd.hooks, pd.sensor)
+    run = pd.run
     perfect = problem.perfect
     M, T = x.shape[0], lc.steps
     outcome, steps, effort = np.full(M, TIMEOUT, dtype=np.int64), np.full(M, T, dtype=np.int64), np.zeros(M)
