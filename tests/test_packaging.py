@@ -36,7 +36,8 @@ EXTRAS = {extra: _requirement_names(reqs) for extra, reqs in PYPROJECT["optional
 
 def _imports(folder: Path) -> list[tuple[str, Path, ast.AST, list[ast.AST]]]:
     """(top-level module, file, import node, enclosing nodes) of every absolute third-party import."""
-    local = {p.stem for p in folder.rglob("*.py")} | {"firmtool"}
+    # the folder's own modules, and the repository's scripts a test reaches by sys.path (benchmarks/peers/rhc)
+    local = {p.stem for f in {folder, ROOT / "benchmarks", ROOT / "examples"} for p in f.rglob("*.py")} | {"firmtool"}
     found = []
     for path in sorted(folder.rglob("*.py")):
         tree = ast.parse(path.read_text())

@@ -144,7 +144,7 @@ def _four_move_node(env, q_best: float = -10.0, visits: int = 100):
     Q-value of "right" ``q_best`` and of the others -300: UCB1's choice is "right" for any
     exploration constant below (q_best + 300) / (2 * sqrt(log(4 visits) / visits)) (about 1.1e3
     at c = 526)."""
-    from POMDPPlanners.core.tree.arena import Tree
+    Tree = pytest.importorskip("POMDPPlanners.core.tree.arena").Tree
 
     s = statement.SAFETY
     particles = np.tile(np.asarray(s["start"], dtype=float), (10, 1))
@@ -166,7 +166,8 @@ def test_action_widening_decides_whether_ucb_is_ever_used(config):
     still widens (4 <= 400**0.5) and takes the sampler's uniform draw: the clearly best move is
     chosen about a quarter of the time (binomial, 5 standard errors); with the tuned k_a = 3,
     alpha_a = 0.01 it takes UCB1's choice (computed here by hand) every time."""
-    from POMDPPlanners.planners.planners_utils.dpw import action_progressive_widening_arena
+    action_progressive_widening_arena = pytest.importorskip(
+        "POMDPPlanners.planners.planners_utils.dpw").action_progressive_widening_arena
 
     h2h = _head_to_head()
     cfg = h2h.peer_config(config)
@@ -197,7 +198,7 @@ def test_pft_dpws_immediate_reward_and_the_realised_reward_fix():
     -2 - |goal - landing| (closed form at the pre-noise landing); the tuned configuration's
     environment charges the hazard reward -500 on top (within the sampling error of the noisy
     landings), and nothing for a particle already terminal."""
-    from POMDPPlanners.core.cost import belief_expectation_reward
+    belief_expectation_reward = pytest.importorskip("POMDPPlanners.core.cost").belief_expectation_reward
 
     h2h = _head_to_head()
     s = statement.SAFETY
