@@ -217,7 +217,6 @@ def test_a_3d_world_gets_a_3d_panel_beside_the_top_view(tmp_path):
     """Issue 54, 7: a 3-D world was drawn from above only, which hid its climbs. Now a 3-D panel
     (mplot3d) sits beside the top views, its z axis the world's height, its path the policy's."""
     from conftest import room_3d
-    from mpl_toolkits.mplot3d import Axes3D
 
     import firmtool as ft
     from firmtool.figures.paths import plot_policies
@@ -226,8 +225,8 @@ def test_a_3d_world_gets_a_3d_panel_beside_the_top_view(tmp_path):
     sol = ft.solve(ft.build(sc, workers=1))
     res = ft.simulate(sol, episodes=2, seed=0, record=True)
     fig = plot_policies(sol, [res], ["firm"], dpi=40)
-    three = [ax for ax in fig.axes if isinstance(ax, Axes3D)]
-    assert len(three) == 1 and len([ax for ax in fig.axes if not isinstance(ax, Axes3D)]) >= 1
+    three = [ax for ax in fig.axes if ax.name == "3d"]
+    assert len(three) == 1 and len([ax for ax in fig.axes if ax.name != "3d"]) >= 1
     ax = three[0]
     assert ax.get_zlim() == (0.0, 4.0)
     lines = {ln.get_label(): ln for ln in ax.get_lines()}
@@ -235,6 +234,12 @@ def test_a_3d_world_gets_a_3d_panel_beside_the_top_view(tmp_path):
     tips = sol.roadmap.problem.geometry.points(sol.roadmap.execution_design.centers)[:, -1]
     assert np.allclose([xs[0], ys[0], zs[0]], tips[0])  # from the start node, in 3-D
     assert "estimated mean" in lines
+    # the box's wire frame: 12 edges, each from one corner to the next, between NaN breaks
+    frame = [ln for ln in ax.get_lines() if np.isnan(ln.get_data_3d()[0]).any()]
+    assert len(frame) == 1
+    xs, ys, zs = (np.asarray(v, float) for v in frame[0].get_data_3d())
+    assert len(xs) == 36 and np.isnan(xs[2::3]).all()
+    assert np.allclose(sorted(set(xs[~np.isnan(xs)])), [2.6, 3.4]) and np.allclose(sorted(set(zs[~np.isnan(zs)])), [0.0, 4.0])
     fig.canvas.draw() if hasattr(fig.canvas, "draw") else None
 
 

@@ -28,13 +28,14 @@ def panel_3d(ax, problem: Problem, design: Design, name: str, policy: np.ndarray
     boxes as wire frames (spheres as theirs), the followed point (the arm's tip) at the roadmap's
     nodes, the goal, the policy's path (``policy`` (N,): the edge per node) and the episode's
     estimated mean (with its arrays recorded), in the world's bounds; titled ``name in 3-D``."""
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # matplotlib's mplot3d: only a 3-D world needs it
-
     sc = problem.scenario
     lo, hi = np.asarray(sc.world.lo, float), np.asarray(sc.world.hi, float)
     for o in sc.world.obstacles:
         a, b = (np.asarray(v, float)[:3] for v in o.aabb())
-        ax.add_collection3d(Line3DCollection(_box_edges(a, b), colors=obstacle_color, linewidths=0.8))
+        # the 12 edges as one line broken by NaN rows: drawn through the Axes' own plot (no mplot3d import)
+        edges = _box_edges(a, b)
+        lines = np.concatenate([edges, np.full((len(edges), 1, 3), np.nan)], axis=1).reshape(-1, 3)
+        ax.plot(lines[:, 0], lines[:, 1], lines[:, 2], "-", color=obstacle_color, lw=0.8)
     tips = problem.geometry.points(design.centers)[:, -1, :3]
     ax.scatter(tips[:, 0], tips[:, 1], tips[:, 2], s=3, color="tab:blue", alpha=0.5, label="roadmap nodes")
     goals = np.flatnonzero(design.kinds == GOAL)
