@@ -32,9 +32,10 @@ def _avx2() -> bool:
         return False
 
 
-def record(name: str, kind: str) -> dict:
-    """``reference_tables.record`` in a process of its own, with the reference's BLAS kernels (module docs)."""
-    env = dict(os.environ)
+def record(name: str, kind: str, stream: int | None = None) -> dict:
+    """``reference_tables.record`` in a process of its own, with the reference's BLAS kernels (module docs);
+    ``stream``: ``FIRMTOOL_STREAM`` in that process (None: the reference module's own, stream 1)."""
+    env = dict(os.environ) if stream is None else dict(os.environ, FIRMTOOL_STREAM=str(stream))
     if _avx2():
         env["OPENBLAS_CORETYPE"] = "Haswell"
     code = (f"import json, sys; sys.path.insert(0, {str(DATA)!r}); import reference_tables as r; "
@@ -55,6 +56,12 @@ def _compare(got: dict, want: dict, what: str) -> None:
             for name in names:
                 assert name in got["digests"][group]["datasets"], f"{what}: /{group}/{name} missing"
                 del got["digests"][group]["datasets"][name]
+    compare_digests(got, want, what)
+
+
+def compare_digests(got: dict, want: dict, what: str) -> None:
+    """``got`` (a recorded roadmap) equals ``want`` (its reference): policy, success probability, and every
+    stage's datasets (dtype, shape, sha256) and attributes."""
     assert got["policy"] == want["policy"], f"{what}: policy"
     assert got["success_probability"] == want["success_probability"], f"{what}: success probability"
     assert sorted(got["digests"]) == sorted(want["digests"]), f"{what}: stages"
