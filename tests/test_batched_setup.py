@@ -2,7 +2,7 @@
 against the per-edge functions it replaces, on shipped scenarios' edges: the node candidates of every
 segment of an edge's steps (:func:`firmtool.estimation.compiled.locate.segment_candidates` against
 :meth:`NodeRegions.covariance_candidates` and :func:`candidate_lists`), a batch's estimates and initial
-ensembles (:func:`firmtool.estimation.edges.estimate_edges` through :func:`edge_starts`,
+ensembles (:func:`firmtool.estimation.edges.edge_starts` for :func:`estimate_edge`,
 :func:`initial_ensembles`) against
 :func:`estimate_edge` and :func:`initial_ensemble` edge by edge, an estimate's summaries against numpy's."""
 
@@ -103,14 +103,14 @@ def _fields_equal(a, b) -> None:
     ("point_lightdark", {}, "center"),
     ("arm8_lightdark", {"nodes": 40, "goal_nodes": 3, "bridge_nodes": 0}, "region"),
 ])
-def test_estimate_edges_is_estimate_edge_edge_by_edge(name, smaller, start):
+def test_batched_starts_give_estimate_edges_estimates(name, smaller, start):
     """A batch's estimates (the ensembles' setup and region tests batched) are estimate_edge's, bit for
     bit, at one chunk per edge and at several (the per-edge path), and the batch's ensembles are
     initial_ensemble's one by one, their swept regions too."""
     from firmtool.estimation.edges import (
+        edge_starts,
         empty_swept,
         estimate_edge,
-        estimate_edges,
         initial_ensemble,
         initial_ensembles,
     )
@@ -120,8 +120,11 @@ def test_estimate_edges_is_estimate_edge_edge_by_edge(name, smaller, start):
     edges = np.random.default_rng(1).choice(d.edge_source.size, min(12, d.edge_source.size), replace=False)
     pairs = [(int(d.edge_source[e]), int(d.edge_target[e])) for e in edges]
     for particles, chunk in ((200, 2000), (120, 50)):
-        got = estimate_edges(problem, d, regions, pairs, particles, seed, chunk, start=start,
-                             controllers=local_controllers(problem, d, pairs, 8))
+        # the estimate stage's path (firmtool.estimation.tasks.run_batch): the batch's starts, then edge by edge
+        lcs = local_controllers(problem, d, pairs, 8)
+        starts = edge_starts(problem, d, pairs, particles, seed, chunk, start)
+        got = [estimate_edge(problem, d, regions, s, t, particles, seed, chunk, start=start, controller=lc, prepared=p)
+               for (s, t), lc, p in zip(pairs, lcs, starts)]
         for (s, t), g in zip(pairs, got):
             _fields_equal(g, estimate_edge(problem, d, regions, s, t, particles, seed, chunk, start=start))
     sw_batch = [empty_swept(problem.scenario.world.dim) for _ in pairs]

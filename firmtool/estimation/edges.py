@@ -178,7 +178,7 @@ class EdgeEstimate:
 
 
 REGION_DRAW_ROUNDS = 64  # rejection rounds of a region start (each draws 2 M candidates)
-ENSEMBLE_GROUP = 16  # edges whose initial ensembles estimate_edges draws (and holds) at once
+ENSEMBLE_GROUP = 16  # edges whose initial ensembles edge_starts draws (and holds) at once
 
 
 def initial_ensemble(problem: Problem, design_: Design, source: int, M: int, rng: np.random.Generator,
@@ -361,17 +361,6 @@ def estimate_edge(problem: Problem, design_: Design, regions: NodeRegions, sourc
                            numpy_noise, start, controller, prepared)[0]
 
 
-def estimate_edges(problem: Problem, design_: Design, regions: NodeRegions, pairs: list[tuple[int, int]],
-                   particles: int, seed: int, chunk: int, engine: str | None = None, numpy_noise: bool = False,
-                   start: str | None = None, controllers: list[LocalController] | None = None) -> list[EdgeEstimate]:
-    """:func:`estimate_edge` of many edges ``(source, target)``, the same estimates bit for bit, their first
-    chunks set up together (:func:`edge_starts`); ``controllers``: the edges' local controllers, if
-    designed already. (:func:`firmtool.estimation.tasks.run_batch` does the same edge by edge.)"""
-    lcs = controllers if controllers is not None else [local_controller(problem, design_, s, t) for s, t in pairs]
-    return [estimate_edge(problem, design_, regions, s, t, particles, seed, chunk, engine, numpy_noise, start, lc, prep)
-            for (s, t), lc, prep in zip(pairs, lcs, edge_starts(problem, design_, pairs, particles, seed, chunk, start))]
-
-
 def estimate_blocks(problem: Problem, design_: Design, regions: NodeRegions, source: int, target: int,
                     block_size: int, first_block: int, blocks: int, seed: int, chunk: int, engine: str | None = None,
                     numpy_noise: bool = False, start: str | None = None,
@@ -439,19 +428,18 @@ def summarise(source: int, target: int, results: list[ParticleOutcomes], swept: 
                         step_histogram=histogram)
 
 
-_STEPS_SPAN = STEPS_SPAN  # a pair's key: outcome * span + steps, for 0 <= steps < span
 
 
 def step_histogram(outcome: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """(3, H) int64: the distinct (outcome code, steps) pairs of particles (M,) and their counts, sorted."""
     outcome, steps = np.asarray(outcome, dtype=np.int64), np.asarray(steps, dtype=np.int64)
-    if steps.size and (steps.min() < 0 or steps.max() >= _STEPS_SPAN):  # pragma: no cover - never in a run
+    if steps.size and (steps.min() < 0 or steps.max() >= STEPS_SPAN):  # pragma: no cover - never in a run
         pairs, counts = np.unique(np.stack([outcome, steps]), axis=1, return_counts=True)
         return np.vstack([pairs, counts[None]])
     # one int64 key per pair, ordered as the pairs are (outcome first, then steps): np.unique over the
     # pairs' columns (axis=1) sorts a structured view, ~10x slower per edge (issue 55)
-    keys, counts = np.unique(outcome * _STEPS_SPAN + steps, return_counts=True)
-    return np.vstack([keys >> 32, keys & (_STEPS_SPAN - 1), counts])
+    keys, counts = np.unique(outcome * STEPS_SPAN + steps, return_counts=True)
+    return np.vstack([keys >> 32, keys & (STEPS_SPAN - 1), counts])
 
 
 def join_histograms(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
